@@ -1,0 +1,359 @@
+"""Typed, validated simulation settings (paper §3.1: scene, laser source, atmosphere, receiver).
+
+Every numeric setting is declared with :func:`setting`, which records its SI unit, its allowed range and a
+one-line physical description.  The same metadata drives
+
+* :func:`validate` — a bad value raises :class:`ConfigError` naming the field, the value and the range;
+* the versioned JSON/TOML config file (:func:`config_to_dict`, :func:`config_from_dict`);
+* the Blender properties, which ``ladar_addon`` generates 1:1 from these dataclasses.
+
+All values are SI (metres, seconds, joules, radians).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+SCHEMA_VERSION = 1
+
+#: Supported sensor system types (paper §2).  Later issues add the scanner, gated viewing and the profiler.
+SYSTEM_TYPES = ("flash",)
+
+
+class ConfigError(ValueError):
+    """A setting is missing, of the wrong type or out of its allowed range.
+
+    ``field`` is the dotted path of the setting (``laser.pulse_energy_j``), ``value`` what was given and
+    ``allowed`` a human-readable statement of what is accepted.
+    """
+
+    def __init__(self, field_path: str, value: Any, allowed: str):
+        self.field = field_path
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"{field_path} = {value!r} is not allowed: {allowed}")
+
+
+def setting(default, *, lo=None, hi=None, lo_open=False, hi_open=False, unit="", doc="", choices=None,
+            subtype="NONE"):
+    """A dataclass field carrying its allowed range, SI unit and physical description.
+
+    ``subtype`` is the Blender property subtype used by the add-on (DISTANCE, TIME_ABSOLUTE, ANGLE, ...).
+    """
+    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open, "unit": unit, "doc": doc,
+            "choices": choices, "subtype": subtype}
+    return field(default=default, metadata=meta)
+
+
+def _range_text(meta) -> str:
+    lo, hi = meta["lo"], meta["hi"]
+    left = "(" if meta["lo_open"] else "["
+    right = ")" if meta["hi_open"] else "]"
+    unit = f" {meta['unit']}" if meta["unit"] else ""
+    lo_s = "-inf" if lo is None else f"{lo:g}"
+    hi_s = "inf" if hi is None else f"{hi:g}"
+    return f"a finite number in {left}{lo_s}, {hi_s}{right}{unit}"
+
+
+def _check_value(path: str, value, f: dataclasses.Field):
+    meta = f.metadata
+    if meta.get("choices"):
+        if value not in meta["choices"]:
+            raise ConfigError(path, value, "one of " + ", ".join(repr(c) for c in meta["choices"]))
+        return
+    if isinstance(f.default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(path, value, "true or false")
+        return
+    if isinstance(f.default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                raise ConfigError(path, value, "a whole number (not a float) " + _range_text(meta)[2:])
+            raise ConfigError(path, value, "a whole number " + _range_text(meta)[2:])
+    elif isinstance(f.default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(path, value, _range_text(meta))
+        if not math.isfinite(value):
+            raise ConfigError(path, value, _range_text(meta))
+    else:
+        return
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if lo is not None and (value < lo or (meta["lo_open"] and value == lo)):
+        raise ConfigError(path, value, _range_text(meta))
+    if hi is not None and (value > hi or (meta["hi_open"] and value == hi)):
+        raise ConfigError(path, value, _range_text(meta))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Settings groups
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class LaserSettings:
+    """Laser source: temporal (pulse) and spatial (beam) energy distribution (paper §3.1)."""
+
+    pulse_energy_j: float = setting(1e-3, lo=0.0, hi=100.0, lo_open=True, unit="J",
+                                    doc="Energy of one transmitted pulse leaving the laser")
+    wavelength_m: float = setting(1.064e-6, lo=2e-7, hi=1.2e-5, unit="m", subtype="WAVELENGTH",
+                                  doc="Laser wavelength in vacuum")
+    pulse_shape: str = setting("gaussian", choices=("gaussian", "rectangular"),
+                               doc="Temporal pulse shape: Gaussian (FWHM) or rectangular (full width)")
+    pulse_fwhm_s: float = setting(5e-9, lo=1e-12, hi=1e-6, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Pulse duration: full width at half maximum (Gaussian) or full width "
+                                      "(rectangular)")
+    beam_profile: str = setting("gaussian", choices=("gaussian", "uniform"),
+                                doc="Spatial beam profile: Gaussian TEM00 or uniform over the field of view")
+    beam_divergence_rad: float = setting(0.02, lo=1e-7, hi=2.0, unit="rad", subtype="ANGLE",
+                                         doc="Full-angle beam divergence at the 1/e² intensity points")
+    divergence_fills_fov: bool = setting(True, doc="Set the Gaussian 1/e² divergence to the field-of-view "
+                                                   "diagonal (ignore beam_divergence_rad)")
+
+
+@dataclass
+class ReceiverSettings:
+    """Receiver geometry and optics (paper §3.1, eq. 3-4).  Monostatic: co-located with the laser."""
+
+    width_px: int = setting(64, lo=1, hi=8192, unit="px", doc="Detector columns")
+    height_px: int = setting(64, lo=1, hi=8192, unit="px", doc="Detector rows")
+    fov_x_rad: float = setting(0.02, lo=1e-7, hi=2.8, unit="rad", subtype="ANGLE",
+                               doc="Full horizontal field of view of the detector array")
+    fov_y_rad: float = setting(0.02, lo=1e-7, hi=2.8, unit="rad", subtype="ANGLE",
+                               doc="Full vertical field of view of the detector array")
+    subsamples: int = setting(4, lo=1, hi=64, doc="Sub-resolution rays per pixel side (S×S rays a pixel)")
+    aperture_diameter_m: float = setting(0.05, lo=0.0, hi=10.0, lo_open=True, unit="m", subtype="DISTANCE",
+                                         doc="Diameter of the receiver optics entrance aperture")
+    system_efficiency: float = setting(0.5, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
+                                       doc="Transmit × receive optical efficiency η_sys of eq. 3-1")
+
+
+@dataclass
+class RangeGateSettings:
+    """The time window sampled into the waveform (per pixel)."""
+
+    gate_start_s: float = setting(0.0, lo=0.0, hi=1e-3, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Time after pulse emission at which the first bin opens")
+    bin_width_s: float = setting(1e-9, lo=1e-12, hi=1e-6, unit="s", subtype="TIME_ABSOLUTE",
+                                 doc="Duration of one waveform time bin")
+    n_bins: int = setting(1024, lo=1, hi=1_000_000, doc="Number of time bins in the range gate")
+
+
+@dataclass
+class DetectionSettings:
+    """Echo detection on each pixel's waveform (peak finding with sub-bin interpolation, physics.md §9)."""
+
+    max_echoes: int = setting(3, lo=1, hi=32, doc="Largest number of echoes reported per pixel")
+    threshold_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
+                                 doc="Absolute detection threshold on the waveform (energy per bin)")
+    relative_threshold: float = setting(0.05, lo=0.0, hi=1.0, subtype="FACTOR",
+                                        doc="Echoes weaker than this fraction of the pixel's strongest peak "
+                                            "are dropped")
+    interpolation: str = setting("gaussian", choices=("gaussian", "parabolic", "none"),
+                                 doc="Sub-bin peak interpolation: 3-point Gaussian, parabolic or none")
+
+
+@dataclass
+class AtmosphereSettings:
+    """Atmosphere between sensor and scene (paper §3.4).  Issue 2: aerosol extinction only."""
+
+    extinction_per_m: float = setting(0.0, lo=0.0, hi=1.0, unit="1/m",
+                                      doc="Aerosol extinction coefficient σ_atm of eq. 3-1 (one-way)")
+
+
+@dataclass
+class RunSettings:
+    """What to compute and how (does not change the physics)."""
+
+    seed: int = setting(0, lo=0, hi=2**63 - 1, doc="Run seed: all random numbers derive from it")
+    chunk_rays: int = setting(262_144, lo=1024, hi=100_000_000,
+                              doc="Rays traced and processed per chunk (bounds memory)")
+    threads: int = setting(0, lo=0, hi=256, doc="Worker threads for ray tracing (0: all cores)")
+    save_waveforms: bool = setting(True, doc="Write the per-pixel waveform cube to the run folder")
+    max_memory_bytes: int = setting(4 * 2**30, lo=2**20, hi=2**44, unit="B",
+                                    doc="Largest waveform cube (bytes) a run may allocate")
+
+
+@dataclass
+class BRDFSettings:
+    """Monostatic BRDF of a material (paper eq. 3-3; physics.md §10).
+
+    ``lambertian``: f_r = reflectance/π.  ``steinvall``: f_r = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
+    """
+
+    model: str = setting("lambertian", choices=("lambertian", "steinvall"), doc="BRDF model")
+    reflectance: float = setting(0.3, lo=0.0, hi=1.0, subtype="FACTOR",
+                                 doc="Lambertian hemispherical reflectance ρ_d (f_r = ρ_d/π)")
+    specular_a: float = setting(0.0, lo=0.0, hi=1e6, unit="1/sr", doc="Steinvall specular amplitude A")
+    slope_s: float = setting(0.2, lo=1e-4, hi=10.0, doc="Steinvall rms facet slope s")
+    diffuse_b: float = setting(0.1, lo=0.0, hi=1e3, unit="1/sr", doc="Steinvall diffuse amplitude B")
+    diffuse_m: float = setting(1.0, lo=0.0, hi=100.0, doc="Steinvall diffuse exponent m (0: Lambertian)")
+
+
+#: BRDF used for triangles whose material has no ladar settings (grey Lambertian, 30 %).
+DEFAULT_BRDF = BRDFSettings()
+
+
+@dataclass
+class SimulationConfig:
+    """All settings of one simulation run, minus the scene geometry and the sensor pose."""
+
+    system_type: str = setting("flash", choices=SYSTEM_TYPES, doc="Sensor system type (paper §2)")
+    laser: LaserSettings = field(default_factory=LaserSettings)
+    receiver: ReceiverSettings = field(default_factory=ReceiverSettings)
+    gate: RangeGateSettings = field(default_factory=RangeGateSettings)
+    detection: DetectionSettings = field(default_factory=DetectionSettings)
+    atmosphere: AtmosphereSettings = field(default_factory=AtmosphereSettings)
+    run: RunSettings = field(default_factory=RunSettings)
+    #: BRDF overrides by material name (a sweep can change materials without editing the .blend)
+    materials: dict = field(default_factory=dict)
+
+
+GROUPS = ("laser", "receiver", "gate", "detection", "atmosphere", "run")
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Validation and (de)serialization
+# --------------------------------------------------------------------------------------------------------------
+def validate(obj, prefix: str = "") -> None:
+    """Check every field of a settings dataclass (recursively); raise ConfigError on the first bad one."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        path = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            validate(value, path + ".")
+        elif isinstance(value, dict):
+            for key, sub in value.items():
+                if not isinstance(sub, BRDFSettings):
+                    raise ConfigError(f"{path}.{key}", sub, "a BRDF settings table")
+                validate(sub, f"{path}.{key}.")
+        else:
+            _check_value(path, value, f)
+    if isinstance(obj, SimulationConfig):
+        _check_cross_field(obj)
+
+
+def _check_cross_field(cfg: SimulationConfig) -> None:
+    cube = cfg.receiver.width_px * cfg.receiver.height_px * cfg.gate.n_bins * 4
+    if cube > cfg.run.max_memory_bytes:
+        max_bins = cfg.run.max_memory_bytes // (4 * cfg.receiver.width_px * cfg.receiver.height_px)
+        raise ConfigError("gate.n_bins", cfg.gate.n_bins,
+                          f"at most {max_bins} bins for a {cfg.receiver.width_px}×{cfg.receiver.height_px} "
+                          f"receiver: the float32 waveform cube would need {cube / 2**30:.2f} GiB, more than "
+                          f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB "
+                          f"(use fewer bins or pixels, or raise run.max_memory_bytes)")
+
+
+def _from_mapping(cls, data: dict, prefix: str):
+    if not isinstance(data, dict):
+        raise ConfigError(prefix.rstrip(".") or "config", data, "a table of settings")
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        if key not in names:
+            raise ConfigError(f"{prefix}{key}", value, "a known setting: " + ", ".join(sorted(names)))
+        f = names[key]
+        if dataclasses.is_dataclass(f.default_factory() if f.default_factory is not dataclasses.MISSING
+                                    else None):
+            kwargs[key] = _from_mapping(type(f.default_factory()), value, f"{prefix}{key}.")
+        elif key == "materials":
+            if not isinstance(value, dict):
+                raise ConfigError(f"{prefix}{key}", value, "a table of material name -> BRDF settings")
+            kwargs[key] = {name: _from_mapping(BRDFSettings, sub, f"{prefix}{key}.{name}.")
+                           for name, sub in value.items()}
+        else:
+            if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            kwargs[key] = value
+    return cls(**kwargs)
+
+
+def config_to_dict(cfg: SimulationConfig) -> dict:
+    """Plain nested dict (JSON/TOML-ready) with the schema version."""
+    data = {"schema_version": SCHEMA_VERSION}
+    data.update(dataclasses.asdict(cfg))
+    return data
+
+
+def config_from_dict(data: dict, base: SimulationConfig | None = None) -> SimulationConfig:
+    """Build and validate a config from a dict.  Keys present override ``base`` (default settings if None)."""
+    if not isinstance(data, dict):
+        raise ConfigError("config", type(data).__name__, "a table of settings")
+    data = dict(data)
+    version = data.pop("schema_version", SCHEMA_VERSION)
+    if version != SCHEMA_VERSION:
+        raise ConfigError("schema_version", version, f"{SCHEMA_VERSION} (this version of the simulator)")
+    merged = config_to_dict(base) if base is not None else config_to_dict(SimulationConfig())
+    merged.pop("schema_version")
+    for key, value in data.items():
+        if key in GROUPS and isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = {**merged[key], **value}
+        elif key == "materials" and isinstance(value, dict):
+            merged[key] = {**merged.get(key, {}), **value}
+        else:
+            merged[key] = value
+    cfg = _from_mapping(SimulationConfig, merged, "")
+    validate(cfg)
+    return cfg
+
+
+def load_config(path, base: SimulationConfig | None = None) -> SimulationConfig:
+    """Read a JSON (``.json``) or TOML (``.toml``) config file; its keys override ``base``."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError("config file", str(path), "an existing .json or .toml file")
+    text = path.read_text(encoding="utf-8")
+    try:
+        if path.suffix.lower() == ".toml":
+            import tomllib
+            data = tomllib.loads(text)
+        elif path.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            raise ConfigError("config file", str(path), "a file ending in .json or .toml")
+    except (json.JSONDecodeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError("config file", str(path), f"valid {path.suffix[1:].upper()} ({exc})") from exc
+    return config_from_dict(data, base)
+
+
+def dump_config_json(cfg: SimulationConfig) -> str:
+    return json.dumps(config_to_dict(cfg), indent=2, sort_keys=False)
+
+
+def dump_config_toml(cfg: SimulationConfig) -> str:
+    """Minimal TOML writer for the config's flat groups (numbers, strings, booleans)."""
+    data = config_to_dict(cfg)
+
+    def fmt(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, float):
+            return repr(v)
+        return str(v)
+
+    lines = [f"schema_version = {SCHEMA_VERSION}", f"system_type = {fmt(data['system_type'])}", ""]
+    for group in GROUPS:
+        lines.append(f"[{group}]")
+        lines += [f"{k} = {fmt(v)}" for k, v in data[group].items()]
+        lines.append("")
+    for name, brdf in data["materials"].items():
+        lines.append(f"[materials.{json.dumps(name)}]")
+        lines += [f"{k} = {fmt(v)}" for k, v in brdf.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def field_specs(cls) -> list[tuple[str, Any, dict]]:
+    """(name, default, metadata) of every plain setting of a settings class: what the add-on turns into
+    Blender properties."""
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.default is dataclasses.MISSING:
+            continue
+        out.append((f.name, f.default, dict(f.metadata)))
+    return out
