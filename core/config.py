@@ -236,13 +236,14 @@ def validate(obj, prefix: str = "") -> None:
 
 def _check_cross_field(cfg: SimulationConfig) -> None:
     cube = cfg.receiver.width_px * cfg.receiver.height_px * cfg.gate.n_bins * 4
-    if cube > cfg.run.max_memory_bytes:
+    if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:
         max_bins = cfg.run.max_memory_bytes // (4 * cfg.receiver.width_px * cfg.receiver.height_px)
         raise ConfigError("gate.n_bins", cfg.gate.n_bins,
                           f"at most {max_bins} bins for a {cfg.receiver.width_px}×{cfg.receiver.height_px} "
                           f"receiver: the float32 waveform cube would need {cube / 2**30:.2f} GiB, more than "
                           f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB "
-                          f"(use fewer bins or pixels, or raise run.max_memory_bytes)")
+                          f"(use fewer bins or pixels, set run.save_waveforms = false, or raise "
+                          f"run.max_memory_bytes)")
 
 
 def _from_mapping(cls, data: dict, prefix: str):

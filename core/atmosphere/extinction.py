@@ -1,0 +1,63 @@
+"""Aerosol extinction and the two-way transmission of the laser radar equation (paper §3.4 C, eq. 3-1).
+
+physics.md §6 (Kruse / Kim visibility models) and §13 (carry the link budget in log form).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: Koschmieder constant for a 2 % contrast threshold: β_550 = 3.912 / V.
+KOSCHMIEDER_2PCT = 3.912
+_REF_WAVELENGTH_M = 550e-9
+
+EXTINCTION_MODELS = ("kim", "kruse")
+
+
+def visibility_size_exponent(visibility_m, model="kim"):
+    """Wavelength exponent q(V) of the Kruse or Kim model (physics.md §6).
+
+    Kruse: q = 1.6 (V > 50 km), 1.3 (6 < V ≤ 50 km), 0.585 V^(1/3) (V ≤ 6 km, V in km).
+    Kim:   same above 6 km; 0.16 V + 0.34 (1 < V ≤ 6 km); V − 0.5 (0.5 < V ≤ 1 km); 0 (V ≤ 0.5 km).
+    """
+    v_km = np.asarray(visibility_m, dtype=np.float64) / 1e3
+    if model == "kruse":
+        low = 0.585 * np.cbrt(v_km)
+    elif model == "kim":
+        low = np.select([v_km > 1.0, v_km > 0.5], [0.16 * v_km + 0.34, v_km - 0.5], 0.0)
+    else:
+        raise ValueError(f"model must be one of {EXTINCTION_MODELS}, got {model!r}")
+    return np.select([v_km > 50.0, v_km > 6.0], [1.6, 1.3], low)
+
+
+def extinction_from_visibility(visibility_m, wavelength_m, model="kim"):
+    """One-way aerosol extinction coefficient σ_atm [1/m] from the visibility (physics.md §6).
+
+    β = (3.912 / V) (λ / 550 nm)^(−q(V)), V the 2 %-contrast meteorological visibility.  Vectorised over
+    ``visibility_m`` and ``wavelength_m`` (broadcast).  Valid for haze and fog (V ≳ 0.2 km, physics §13);
+    it models aerosol scattering only (no molecular absorption lines, no rain/snow).  V ≤ 0 raises.
+    """
+    v = np.asarray(visibility_m, dtype=np.float64)
+    lam = np.asarray(wavelength_m, dtype=np.float64)
+    if np.any(~(v > 0.0)) or np.any(~np.isfinite(v)):
+        raise ValueError("visibility_m must be finite and > 0")
+    if np.any(~(lam > 0.0)):
+        raise ValueError("wavelength_m must be > 0")
+    q = visibility_size_exponent(v, model)
+    return (KOSCHMIEDER_2PCT / v) * (lam / _REF_WAVELENGTH_M) ** (-q)
+
+
+def log_two_way_transmission(extinction_per_m, range_m):
+    """ln T² = −2 σ_atm R: log of the two-way aerial transmission of eq. 3-1 (physics.md §6, §13).
+
+    Kept in log form so that long ranges in thick fog never underflow (exp(−2σR) is 0 in float64 below
+    e^(−745)); the result is exactly ``-2.0 * sigma * R`` in float64.  Add it to the other log factors of
+    the radar equation and exponentiate once at the end.
+    """
+    sigma = np.asarray(extinction_per_m, dtype=np.float64)
+    r = np.asarray(range_m, dtype=np.float64)
+    return -2.0 * sigma * r
+
+
+def two_way_transmission(extinction_per_m, range_m):
+    """T² = exp(−2 σ_atm R) (physics.md §6).  May underflow to 0 — prefer :func:`log_two_way_transmission`."""
+    return np.exp(log_two_way_transmission(extinction_per_m, range_m))

@@ -1,0 +1,221 @@
+"""One frame of a 3D flash ladar (paper Figure 4), stage by stage.
+
+    rays → trace → radiometry (eq. 3-1) → waveform (pulse ⊛ impulse response) → echoes → products
+
+The receiver is processed in blocks of whole pixels (``run.chunk_rays`` rays at most, and a bounded waveform
+size), on a thread pool; each block is independent, so the products do not depend on the thread count or block
+size.  The full waveform cube is allocated only when it is to be saved.
+"""
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import __version__
+from .config import ConfigError, SimulationConfig, config_to_dict, validate
+from .echoes import detect_echoes
+from .laser import cell_energy_fractions
+from .radiometry import received_energy
+from .rays import Detector, block_subray_tan, tan_to_unit_direction
+from .runio import check_run_dir, software_versions, write_run
+from .scene import SceneGeometry
+from .trace import SceneTracer
+from .waveform import SPEED_OF_LIGHT_M_S, accumulate_waveforms, binning_method, round_trip_time_s
+
+#: Waveform memory of one block (float64 while accumulating): bounds the memory of a run.
+BLOCK_WAVEFORM_BYTES = 64 * 2**20
+
+STAGES = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")
+
+
+class Cancelled(Exception):
+    """The run was cancelled by the caller; nothing was written."""
+
+
+@dataclass
+class FrameResult:
+    range_image: np.ndarray       # (H, W) float32, first echo range (m), NaN where none
+    intensity_image: np.ndarray   # (H, W) float32, first echo peak (J per bin), 0 where none
+    energy_image: np.ndarray      # (H, W) float64, received energy per pixel before binning (J)
+    range_echoes: np.ndarray      # (H, W, E) float32, echoes in time order, NaN where none
+    intensity_echoes: np.ndarray  # (H, W, E) float32
+    points: dict                  # per-point arrays (see _points)
+    waveforms: np.ndarray | None  # (H, W, n_bins) float32 (J per bin) or None when not saved
+    stats: dict = field(default_factory=dict)
+
+
+def plan(config: SimulationConfig) -> dict:
+    """Which stages this run executes and which it skips (with the reason)."""
+    skipped = {}
+    if config.atmosphere.extinction_per_m == 0.0:
+        skipped["extinction"] = "atmosphere.extinction_per_m = 0: transmission is 1"
+    if not config.run.save_waveforms:
+        skipped["waveform_cube"] = ("run.save_waveforms = false: waveforms are built per block for echo "
+                                    "detection and discarded")
+    ran = list(STAGES) + [s for s in ("extinction", "waveform_cube") if s not in skipped]
+    return {"stages_run": ran, "stages_skipped": skipped,
+            "not_modelled": {"turbulence": "not in this version", "receiver_noise": "not in this version",
+                             "speckle": "not in this version"}}
+
+
+def _sensor_axes(world_from_sensor):
+    m = np.asarray(world_from_sensor, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ConfigError("sensor.matrix_world", "shape %s" % (m.shape,), "a finite 4×4 matrix")
+    rot = m[:3, :3]
+    scale = np.linalg.norm(rot, axis=0)
+    if np.any(scale == 0):
+        raise ConfigError("sensor.matrix_world", "zero scale", "an invertible rotation (non-zero scale)")
+    return m[:3, 3].copy(), rot / scale
+
+
+def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0,
+                   tracer: SceneTracer | None = None, progress=None, cancel=None) -> FrameResult:
+    """Simulate one flash-ladar frame.  Raises ConfigError on bad input, Cancelled if ``cancel()`` is true."""
+    t_wall = time.perf_counter()
+    validate(config)
+    scene = scene.with_overrides(config.materials)
+    scene.check()
+    origin, rot = _sensor_axes(world_from_sensor)
+    times = dict.fromkeys(STAGES, 0.0)
+
+    t0 = time.perf_counter()
+    if tracer is None or tracer.scene is not scene:
+        tracer = SceneTracer(scene)
+    times["build_bvh"] = time.perf_counter() - t0
+
+    det = Detector.from_settings(config.receiver)
+    fx, fy = cell_energy_fractions(config.laser, det)
+    gate = config.gate
+    method = binning_method(config.laser, gate)
+    s2 = det.rays_per_pixel
+    per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
+    blocks = [(a, min(a + per_block, det.n_pixels)) for a in range(0, det.n_pixels, per_block)]
+    waveforms = (np.zeros((det.n_pixels, gate.n_bins), np.float32) if config.run.save_waveforms else None)
+    energy = np.zeros(det.n_pixels)
+
+    def process(block):
+        if cancel is not None and cancel():
+            raise Cancelled()
+        a, b = block
+        local = {}
+        t = time.perf_counter()
+        x_tan, y_tan, pixel, sub_x, sub_y = block_subray_tan(det, a, b)
+        d_world = tan_to_unit_direction(x_tan, y_tan) @ rot.T
+        fraction = fy[sub_y] * fx[sub_x]
+        local["rays"] = time.perf_counter() - t
+        t = time.perf_counter()
+        prim, range_m, cos_theta = tracer.intersect(origin, d_world)
+        local["trace"] = time.perf_counter() - t
+        t = time.perf_counter()
+        hit = prim >= 0
+        e = received_energy(config.laser, config.receiver, config.atmosphere, scene.materials,
+                            scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], fraction[hit])
+        pix_local = pixel[hit] - a
+        energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
+        local["radiometry"] = time.perf_counter() - t
+        t = time.perf_counter()
+        wf = accumulate_waveforms(pix_local, round_trip_time_s(range_m[hit]), e, b - a, config.laser, gate,
+                                  method)
+        if waveforms is not None:
+            waveforms[a:b] = wf
+        local["waveform"] = time.perf_counter() - t
+        t = time.perf_counter()
+        echoes = detect_echoes(wf, config.detection)
+        echoes.pixel += a
+        local["echoes"] = time.perf_counter() - t
+        return echoes, int(hit.sum()), local
+
+    threads = config.run.threads or os.cpu_count() or 1
+    results = []
+    with ThreadPoolExecutor(max_workers=min(threads, len(blocks))) as pool:
+        for i, res in enumerate(pool.map(process, blocks)):
+            results.append(res)
+            if progress is not None:
+                progress((i + 1) / len(blocks), f"block {i + 1}/{len(blocks)}")
+    n_hits = sum(r[1] for r in results)
+    for _, _, local in results:
+        for k, v in local.items():
+            times[k] += v
+    if n_hits == 0:
+        raise ConfigError("sensor", "sees nothing",
+                          f"a field of view containing geometry: all {det.n_pixels * s2} rays missed the "
+                          f"{scene.n_triangles} triangles of the scene (check the sensor's pose and field of view)")
+
+    t0 = time.perf_counter()
+    echo_parts = [r[0] for r in results]
+    pixel = np.concatenate([e.pixel for e in echo_parts])
+    pos_bins = np.concatenate([e.position_bins for e in echo_parts])
+    amp = np.concatenate([e.amplitude for e in echo_parts])
+    echo_index = np.concatenate([e.echo_index for e in echo_parts])
+    n_echoes = np.concatenate([e.n_echoes for e in echo_parts])
+    time_s = gate.gate_start_s + pos_bins * gate.bin_width_s
+    range_m = 0.5 * SPEED_OF_LIGHT_M_S * time_s
+    points = _points(det, origin, rot, pixel, range_m, amp, echo_index, n_echoes, time_s, frame)
+    h, w, e_max = det.height_px, det.width_px, config.detection.max_echoes
+    range_echoes = np.full((h * w, e_max), np.nan, np.float32)
+    intensity_echoes = np.zeros((h * w, e_max), np.float32)
+    range_echoes[pixel, echo_index] = range_m
+    intensity_echoes[pixel, echo_index] = amp
+    range_echoes = range_echoes.reshape(h, w, e_max)
+    intensity_echoes = intensity_echoes.reshape(h, w, e_max)
+    times["products"] = time.perf_counter() - t0
+
+    stats = {"n_rays": det.n_pixels * s2, "n_hits": n_hits, "n_points": int(len(range_m)),
+             "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pixels_per_block": per_block,
+             "threads": min(threads, len(blocks)), "waveform_binning": method,
+             "stage_times_s": times, "wall_time_s": time.perf_counter() - t_wall,
+             "received_energy_j": float(energy.sum())}
+    stats.update(plan(config))
+    return FrameResult(range_image=range_echoes[:, :, 0].copy(), intensity_image=intensity_echoes[:, :, 0].copy(),
+                       energy_image=energy.reshape(h, w), range_echoes=range_echoes,
+                       intensity_echoes=intensity_echoes, points=points,
+                       waveforms=None if waveforms is None else waveforms.reshape(h, w, gate.n_bins),
+                       stats=stats)
+
+
+def _points(det, origin, rot, pixel, range_m, amp, echo_index, n_echoes, time_s, frame):
+    """Point cloud: each echo placed along its pixel's centre ray (sensor and world coordinates)."""
+    px, py = pixel % det.width_px, pixel // det.width_px
+    xt, yt = det.pixel_center_tan(px, py)
+    d_sensor = tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float))
+    pos_sensor = d_sensor * range_m[:, None]
+    pos_world = origin + pos_sensor @ rot.T
+    return {"position_world": pos_world, "position_sensor": pos_sensor,
+            "intensity": amp.astype(np.float32), "range_m": range_m.astype(np.float64),
+            "echo_index": (echo_index + 1).astype(np.int16), "n_echoes": n_echoes.astype(np.int16),
+            "pixel_x": px.astype(np.int32), "pixel_y": py.astype(np.int32), "time_s": time_s,
+            "frame": np.full(len(range_m), frame, np.int32)}
+
+
+def run_metadata(config: SimulationConfig, result: FrameResult, frame: int, extra: dict | None = None) -> dict:
+    meta = {"format": "ladar-run", "format_version": 1, "simulator_version": __version__,
+            "system_type": config.system_type, "frame": frame, "seed": config.run.seed,
+            "settings": config_to_dict(config), "software": software_versions(),
+            "created_unix_s": time.time()}
+    meta.update(result.stats)
+    if extra:
+        meta.update(extra)
+    return meta
+
+
+def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, out_dir, *, frame: int = 0,
+                   overwrite: bool = False, extra_metadata: dict | None = None, tracer=None, progress=None,
+                   cancel=None):
+    """Simulate a frame and write its run folder.  Returns (run_path, FrameResult).
+
+    Nothing is written if the settings or the scene are invalid, if the folder exists and ``overwrite`` is
+    false, or if the run is cancelled.
+    """
+    check_run_dir(out_dir, overwrite)
+    result = simulate_frame(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
+                            cancel=cancel)
+    if cancel is not None and cancel():
+        raise Cancelled()
+    meta = run_metadata(config, result, frame, extra_metadata)
+    path = write_run(out_dir, result, meta, overwrite=overwrite)
+    return path, result

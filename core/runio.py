@@ -1,0 +1,156 @@
+"""The run folder: every product of a run written atomically next to a metadata record.
+
+A run is assembled in a hidden sibling folder and renamed into place only when every file is complete, so a
+failed or cancelled run leaves nothing behind, and an existing run is never replaced unless asked.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .config import ConfigError
+
+EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
+
+
+def check_run_dir(out_dir, overwrite: bool) -> Path:
+    """Raise ConfigError (writing nothing) if the run folder exists and overwrite is off."""
+    out = Path(out_dir)
+    if out.exists() and not overwrite:
+        raise ConfigError("out", str(out), "a run folder that does not exist yet (or set overwrite to replace "
+                                           "the existing run)")
+    if out.exists() and not out.is_dir():
+        raise ConfigError("out", str(out), "a folder path (a file of that name exists)")
+    return out
+
+
+def write_exr(path, channels: dict):
+    """Write float32 channels {name: (H, W)} as one scanline EXR (ZIP compression)."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    data = {name: np.ascontiguousarray(arr, dtype=np.float32) for name, arr in channels.items()}
+    OpenEXR.File(header, data).write(str(path))
+
+
+def read_exr(path) -> dict:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        return {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+
+
+_PLY_TYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dtype(np.int32): "int",
+              np.dtype(np.int16): "short", np.dtype(np.uint8): "uchar", np.dtype(np.int64): "int"}
+
+
+def write_ply(path, points: dict):
+    """Binary little-endian PLY: x, y, z (world, double) and every 1-D per-point attribute."""
+    pos = points["position_world"]
+    fields = [("x", pos[:, 0]), ("y", pos[:, 1]), ("z", pos[:, 2])]
+    for name, arr in points.items():
+        if arr.ndim == 1:
+            fields.append((name, arr.astype(np.int32) if arr.dtype == np.int64 else arr))
+    dtype = np.dtype([(n, a.dtype.newbyteorder("<")) for n, a in fields])
+    table = np.empty(len(pos), dtype=dtype)
+    for n, a in fields:
+        table[n] = a
+    header = ["ply", "format binary_little_endian 1.0", "comment ladar simulator point cloud",
+              f"element vertex {len(pos)}"]
+    header += [f"property {_PLY_TYPES[np.dtype(a.dtype)]} {n}" for n, a in fields]
+    header.append("end_header")
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(table.tobytes())
+
+
+def read_ply(path) -> dict:
+    """Read a PLY written by :func:`write_ply` (binary little-endian vertices only)."""
+    inverse = {"double": "<f8", "float": "<f4", "int": "<i4", "short": "<i2", "uchar": "u1"}
+    with open(path, "rb") as f:
+        names, types, n = [], [], 0
+        while True:
+            line = f.readline().decode("ascii").strip()
+            if line.startswith("element vertex"):
+                n = int(line.split()[-1])
+            elif line.startswith("property"):
+                _, t, name = line.split()
+                names.append(name)
+                types.append(inverse[t])
+            elif line == "end_header":
+                break
+        table = np.frombuffer(f.read(), dtype=np.dtype(list(zip(names, types))), count=n)
+    return {name: table[name] for name in names}
+
+
+def software_versions() -> dict:
+    versions = {"python": platform.python_version(), "numpy": np.__version__, "platform": platform.platform()}
+    for mod in ("scipy", "embreex", "OpenEXR"):
+        try:
+            versions[mod] = getattr(__import__(mod), "__version__", "unknown")
+        except ImportError:  # pragma: no cover - all are requirements
+            versions[mod] = "missing"
+    from . import __version__
+    versions["ladar_core"] = __version__
+    if "bpy" in sys.modules:
+        versions["blender"] = sys.modules["bpy"].app.version_string
+    return versions
+
+
+def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Path:
+    """Write a FrameResult's products and ``metadata.json`` atomically into ``out_dir``."""
+    out = check_run_dir(out_dir, overwrite).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    t0 = time.perf_counter()
+    try:
+        files = {}
+        write_exr(tmp / "range.exr", {"Y": result.range_image})
+        write_exr(tmp / "intensity.exr", {"Y": result.intensity_image})
+        write_exr(tmp / "energy.exr", {"Y": result.energy_image})
+        files.update({"range.exr": "first-echo range (m), NaN where no echo; row 0 = top",
+                      "intensity.exr": "first-echo peak amplitude (J per bin)",
+                      "energy.exr": "energy received per pixel before time binning (J)"})
+        write_ply(tmp / "points.ply", result.points)
+        np.savez(tmp / "points.npz", **result.points)
+        files["points.ply"] = "point cloud, world coordinates + per-point attributes"
+        files["points.npz"] = "the same point cloud as NumPy arrays (sensor and world coordinates)"
+        np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
+        files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
+        if result.waveforms is not None:
+            np.save(tmp / "waveforms.npy", result.waveforms)
+            files["waveforms.npy"] = "waveform cube (H, W, n_bins) float32, J per bin"
+        meta = dict(metadata)
+        meta["files"] = files
+        meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
+        with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+            json.dump(meta, f, indent=2, default=_json_default)
+        if out.exists():  # overwrite asked: swap, then remove the old run
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+            os.rename(out, old / "run")
+            os.rename(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serializable: {type(obj).__name__}")

@@ -1,0 +1,30 @@
+"""Small analytic scenes for the core tests (plates in the sensor frame: the sensor looks along −Z)."""
+import numpy as np
+
+from core.config import BRDFSettings, SimulationConfig
+from core.scene import SceneGeometry
+
+C = 299_792_458.0
+
+
+def plate(distance_m, half_size_m, brdf=None, tilt_rad=0.0, offset=(0.0, 0.0, 0.0)):
+    """A square plate facing the sensor at ``distance_m`` along −Z, tilted about the x axis by ``tilt_rad``."""
+    u = np.array([1.0, 0.0, 0.0])
+    v = np.array([0.0, np.cos(tilt_rad), -np.sin(tilt_rad)])
+    c = np.array([0.0, 0.0, -distance_m]) + np.asarray(offset)
+    h = half_size_m
+    verts = np.array([c - h * u - h * v, c + h * u - h * v, c + h * u + h * v, c - h * u + h * v])
+    return SceneGeometry(verts, [[0, 1, 2], [0, 2, 3]], [0, 0], [brdf or BRDFSettings()], ["plate"])
+
+
+def config_for(range_m, pixels=16, subsamples=4, fov_rad=0.01, bins=256, bin_s=1e-9, margin_bins=64):
+    """A flash config whose gate opens ``margin_bins`` before the echo of a surface at ``range_m``."""
+    cfg = SimulationConfig()
+    cfg.receiver.width_px = cfg.receiver.height_px = pixels
+    cfg.receiver.subsamples = subsamples
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = fov_rad
+    cfg.gate.n_bins = bins
+    cfg.gate.bin_width_s = bin_s
+    cfg.gate.gate_start_s = max(0.0, 2 * range_m / C - margin_bins * bin_s)
+    cfg.run.threads = 1
+    return cfg
