@@ -60,16 +60,18 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
     """Find up to ``settings.max_echoes`` echoes per waveform row (n_pixels, n_bins)."""
     w = np.asarray(waveforms)
     n_pix, n_bins = w.shape
-    left = np.empty_like(w)
-    left[:, 0] = 0
-    left[:, 1:] = w[:, :-1]
-    right = np.empty_like(w)
-    right[:, -1] = 0
-    right[:, :-1] = w[:, 1:]
     peak_max = w.max(axis=1)
     threshold = np.maximum(settings.threshold_j, settings.relative_threshold * peak_max)
-    # strict rise on the left, no rise on the right: one candidate per plateau; strictly above threshold
-    cand = (w > left) & (w >= right) & (w > threshold[:, None]) & (w > 0)
+    # strict rise on the left, no rise on the right (one candidate per plateau), strictly above threshold;
+    # the waveform is zero outside the gate.  Views only: no copy of the block.
+    cand = np.zeros((n_pix, n_bins), dtype=bool)
+    if n_bins == 1:
+        cand[:, 0] = True
+    else:
+        cand[:, 1:] = w[:, 1:] > w[:, :-1]
+        cand[:, 0] = True
+        cand[:, :-1] &= w[:, :-1] >= w[:, 1:]
+    cand &= w > np.maximum(threshold, 0.0)[:, None]
     pix, j = np.nonzero(cand)
     amp = w[pix, j]
     # rank per pixel by amplitude (strongest first) and keep max_echoes

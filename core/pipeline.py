@@ -119,14 +119,16 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
-        wf = accumulate_waveforms(pix_local, round_trip_time_s(range_m[hit]), e, b - a, config.laser, gate,
-                                  method)
+        # only pixels with returns get a waveform row (the others stay zero)
+        active = np.unique(pix_local)
+        wf = accumulate_waveforms(np.searchsorted(active, pix_local), round_trip_time_s(range_m[hit]), e,
+                                  len(active), config.laser, gate, method)
         if waveforms is not None:
-            waveforms[a:b] = wf
+            waveforms[a + active] = wf
         local["waveform"] = time.perf_counter() - t
         t = time.perf_counter()
         echoes = detect_echoes(wf, config.detection)
-        echoes.pixel += a
+        echoes.pixel = active[echoes.pixel] + a
         local["echoes"] = time.perf_counter() - t
         return echoes, int(hit.sum()), local
 

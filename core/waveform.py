@@ -60,7 +60,7 @@ def _accumulate_exact(pixel_local, u, energy_j, n_pixels, laser, gate):
     n_bins = gate.n_bins
     half = pulse_half_support_s(laser) / gate.bin_width_s
     k = int(np.ceil(2 * half)) + 2  # bins touched by one pulse
-    out = np.zeros(n_pixels * n_bins)
+    out = None
     inside = (u + half >= 0) & (u - half < n_bins)
     pixel_local, u, energy_j = pixel_local[inside], u[inside], energy_j[inside]
     offsets = np.arange(k)
@@ -81,8 +81,14 @@ def _accumulate_exact(pixel_local, u, energy_j, n_pixels, laser, gate):
         weight = np.diff(cdf, axis=1) * energy_j[a:b, None]
         valid = (bins >= 0) & (bins < n_bins) & (weight > 0)
         flat = pixel_local[a:b, None].astype(np.int64) * n_bins + bins
-        out += np.bincount(flat[valid], weights=weight[valid], minlength=n_pixels * n_bins)
+        part = np.bincount(flat[valid], weights=weight[valid], minlength=n_pixels * n_bins)
+        if out is None:
+            out = part
+        else:
+            out += part
         a = b
+    if out is None:
+        out = np.zeros(n_pixels * n_bins)
     return out.reshape(n_pixels, n_bins)
 
 

@@ -1,0 +1,123 @@
+"""Flash-ladar benchmark: 128×128 pixels × 4×4 sub-rays, 1024 time bins (issue 2).
+
+Measures in one run, on the same rays: the bare embreex ray cast (one call, one thread: the floor any
+pipeline pays), the full pipeline (`simulate_frame`), their ratio and the time of every stage.  Absolute
+times on a shared 2-core machine are noisy; the ratio is the figure to track.  Each timing is the best of
+``--repeat`` runs.  Writes JSON (default bench/results/flash.json).
+
+    python bench/bench_flash.py [--repeat 3] [--out bench/results/flash.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from core.config import BRDFSettings, SimulationConfig  # noqa: E402
+from core.pipeline import simulate_frame  # noqa: E402
+from core.rays import Detector, block_subray_tan, tan_to_unit_direction  # noqa: E402
+from core.runio import software_versions  # noqa: E402
+from core.scene import SceneGeometry  # noqa: E402
+from core.trace import SceneTracer  # noqa: E402
+
+
+def bench_scene(n_grid: int = 128) -> SceneGeometry:
+    """A bumpy ground grid (2·n_grid² triangles, 300 m × 600 m) and a glossy box standing on it 300 m ahead."""
+    gx, gy = np.meshgrid(np.linspace(-150, 150, n_grid + 1), np.linspace(100, 700, n_grid + 1))
+    gz = 0.8 * np.sin(gx / 7.0) * np.cos(gy / 5.0)
+    verts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+    i = np.arange(n_grid)
+    a = (i[:, None] * (n_grid + 1) + i[None, :]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n_grid + 2], 1), np.stack([a, a + n_grid + 2, a + n_grid + 1], 1)])
+    box = np.array([[-4, 296, 0], [4, 296, 0], [4, 304, 0], [-4, 304, 0],
+                    [-4, 296, 5], [4, 296, 5], [4, 304, 5], [-4, 304, 5]], float)
+    box_tris = np.array([[0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7],
+                         [4, 5, 6], [4, 6, 7]]) + len(verts)
+    return SceneGeometry(np.concatenate([verts, box]), np.concatenate([tris, box_tris]),
+                         np.concatenate([np.zeros(len(tris)), np.ones(len(box_tris))]),
+                         [BRDFSettings(reflectance=0.25),
+                          BRDFSettings(model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08)],
+                         ["ground", "paint"])
+
+
+def sensor_pose() -> np.ndarray:
+    """Camera 40 m up, looking at the ground 300 m ahead (+Y), tilted down."""
+    target = np.array([0.0, 300.0, 2.0])
+    eye = np.array([0.0, 0.0, 40.0])
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, up, -fwd], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def bench_config() -> SimulationConfig:
+    cfg = SimulationConfig()
+    cfg.receiver.width_px = cfg.receiver.height_px = 128
+    cfg.receiver.subsamples = 4
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(12.0)
+    cfg.gate.n_bins = 1024
+    cfg.gate.bin_width_s = 1e-9
+    cfg.gate.gate_start_s = 2 * 200.0 / 299_792_458.0
+    return cfg
+
+
+def best_of(fn, repeat):
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "flash.json"))
+    args = ap.parse_args(argv)
+
+    scene, pose, cfg = bench_scene(), sensor_pose(), bench_config()
+    tracer = SceneTracer(scene)
+    det = Detector.from_settings(cfg.receiver)
+    x_tan, y_tan, *_ = block_subray_tan(det, 0, det.n_pixels)
+    dirs = (tan_to_unit_direction(x_tan, y_tan) @ pose[:3, :3].T).astype(np.float32)
+    bare_s, prim = best_of(lambda: tracer.bare_cast(pose[:3, 3], dirs), args.repeat)
+    pipe_s, res = best_of(lambda: simulate_frame(scene, pose, cfg, tracer=tracer), args.repeat)
+    cfg_points = bench_config()
+    cfg_points.run.save_waveforms = False
+    points_s, _ = best_of(lambda: simulate_frame(scene, pose, cfg_points, tracer=tracer), args.repeat)
+    report = {
+        "benchmark": "flash 128x128 px x 4x4 sub-rays, 1024 bins",
+        "n_rays": int(len(dirs)), "n_triangles": scene.n_triangles,
+        "hit_fraction": float(np.mean(prim >= 0)),
+        "threads": os.cpu_count(),
+        "bare_embreex_cast_s": bare_s,
+        "pipeline_s": pipe_s,
+        "pipeline_points_only_s": points_s,
+        "ratio_pipeline_to_bare_cast": pipe_s / bare_s,
+        "ratio_points_only_to_bare_cast": points_s / bare_s,
+        "stage_times_s (summed over threads, last run)": res.stats["stage_times_s"],
+        "waveform_binning": res.stats["waveform_binning"],
+        "n_points": res.stats["n_points"],
+        "software": software_versions(),
+    }
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2))
+    print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
