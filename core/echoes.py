@@ -14,6 +14,9 @@ import numpy as np
 
 from .config import DetectionSettings
 
+#: Two bins closer than this (relative) count as one flat top (rounding in the bin integrals).
+_FLAT_RTOL = 1e-7
+
 
 @dataclass
 class Echoes:
@@ -62,15 +65,17 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
     n_pix, n_bins = w.shape
     peak_max = w.max(axis=1)
     threshold = np.maximum(settings.threshold_j, settings.relative_threshold * peak_max)
-    # strict rise on the left, no rise on the right (one candidate per plateau), strictly above threshold;
-    # the waveform is zero outside the gate.  Views only: no copy of the block.
+    # a rise on the left, no rise on the right (one candidate per flat top; differences below _FLAT_RTOL
+    # are rounding, not structure), strictly above threshold; the waveform is zero outside the gate.
     cand = np.zeros((n_pix, n_bins), dtype=bool)
     if n_bins == 1:
         cand[:, 0] = True
     else:
-        cand[:, 1:] = w[:, 1:] > w[:, :-1]
+        rise = w[:, 1:] - w[:, :-1]
+        cand[:, 1:] = rise > _FLAT_RTOL * np.abs(w[:, 1:])
         cand[:, 0] = True
-        cand[:, :-1] &= w[:, :-1] >= w[:, 1:]
+        cand[:, :-1] &= rise <= _FLAT_RTOL * np.abs(w[:, :-1])
+        del rise
     cand &= w > np.maximum(threshold, 0.0)[:, None]
     pix, j = np.nonzero(cand)
     amp = w[pix, j]
@@ -88,8 +93,23 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
     ym = np.where(j > 0, w[pix, np.maximum(j - 1, 0)], 0.0).astype(np.float64)
     yp = np.where(j < n_bins - 1, w[pix, np.minimum(j + 1, n_bins - 1)], 0.0).astype(np.float64)
     delta, peak = interpolate_peak(ym, y0, yp, settings.interpolation)
+    position = j + 0.5 + delta
+    # flat tops (a rectangular pulse spanning several bins): the centre of the pulse is the plateau's centre
+    # corrected by the partial edge bins, exact for a rectangular pulse: (j − y₋/y₀ + end + 1 + y₊/y₀)/2
+    flat = (j < n_bins - 1) & (np.abs(yp - y0) <= _FLAT_RTOL * y0)
+    if flat.any() and settings.interpolation != "none":
+        end = j.copy()
+        grow = flat.copy()
+        while grow.any():
+            end[grow] += 1
+            grow &= (end < n_bins - 1) & (np.abs(w[pix, np.minimum(end + 1, n_bins - 1)] - y0) <= _FLAT_RTOL * y0)
+        y_right = np.where(end < n_bins - 1, w[pix, np.minimum(end + 1, n_bins - 1)], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            centre = 0.5 * (j - ym / y0 + end + 1 + y_right / y0)
+        position = np.where(flat, centre, position)
+        peak = np.where(flat, y0, peak)
     start = np.searchsorted(pix, pix, side="left")
     stop = np.searchsorted(pix, pix, side="right")
-    return Echoes(pixel=pix.astype(np.int64), position_bins=j + 0.5 + delta, amplitude=peak,
+    return Echoes(pixel=pix.astype(np.int64), position_bins=position, amplitude=peak,
                   echo_index=(np.arange(len(pix)) - start).astype(np.int16),
                   n_echoes=(stop - start).astype(np.int16))

@@ -164,3 +164,14 @@ def test_splat_binning_matches_exact_for_long_pulse():
     splat = accumulate_waveforms(pix, t, e, 1, cfg.laser, cfg.gate, "splat")[0]
     assert np.linalg.norm(splat - exact) / np.linalg.norm(exact) < 2e-3
     assert splat.sum() == pytest.approx(exact.sum(), rel=1e-6)
+
+
+@pytest.mark.parametrize("distance_m", [150.0, 151.37])
+def test_rectangular_pulse_range(distance_m):
+    """A 10 ns rectangular pulse in 1 ns bins (flat-topped waveform): the plateau-centre estimate with the
+    partial edge bins gives the range within 1 mm."""
+    cfg = config_for(distance_m, pixels=8, bin_s=1e-9, margin_bins=40)
+    cfg.laser.pulse_shape = "rectangular"
+    cfg.laser.pulse_fwhm_s = 10e-9
+    res = simulate_frame(plate(distance_m, 10.0), np.eye(4), cfg)
+    assert np.abs(res.range_image - _pixel_center_ranges(cfg, distance_m)).max() < 1e-3

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Set up the project on a fresh machine: a Python 3.11 virtual environment in .venv with the pinned
+# requirements (bpy 5.0.1 from PyPI, numpy, scipy, embreex, OpenEXR, test tools). Idempotent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PY=""
+for cand in python3.11 python3; do
+  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+    PY="$cand"; break
+  fi
+done
+if [ -z "$PY" ]; then
+  echo "setup: Python 3.11 is required (the bpy 5.0.1 wheel is built for CPython 3.11); found: $(python3 --version 2>&1)" >&2
+  exit 1
+fi
+
+stamp=.venv/.requirements.sha
+want=$(sha256sum requirements.txt | cut -d' ' -f1)
+if [ ! -x .venv/bin/python ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  "$PY" -m venv .venv
+  .venv/bin/python -m pip install --quiet --upgrade pip
+  .venv/bin/python -m pip install --quiet -r requirements.txt
+  echo "$want" > "$stamp"
+fi
+
+# The bpy module needs a few X11/GL client libraries even headless; install them only if missing.
+if ! .venv/bin/python -c 'import bpy' >/dev/null 2>&1; then
+  if command -v apt-get >/dev/null 2>&1; then
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libxrender1 libxxf86vm1 libxfixes3 libxi6 \
+      libxkbcommon0 libsm6 libice6 libgl1 libegl1 libglib2.0-0 >/dev/null
+  fi
+  .venv/bin/python -c 'import bpy' || { echo "setup: 'import bpy' fails; see the error above" >&2; exit 1; }
+fi
+echo "setup: .venv ready ($(.venv/bin/python --version))"
