@@ -1,0 +1,440 @@
+"""Blender properties generated 1:1 from the core settings dataclasses, and the mapping between the two.
+
+Where the settings live in a .blend:
+
+==========================================  ==============================================================
+core ``SimulationConfig``                   Blender
+==========================================  ==============================================================
+``system_type``, ``laser``, ``receiver``,   ``Object.ladar`` (used on camera objects: the sensor)
+``gate``, ``detection``, ``run``
+``receiver.fov_x_rad``, ``fov_y_rad``       derived from the camera (``ladar_addon.sensor``), not stored
+``run.seed``                                ``Scene.ladar.seed``
+``atmosphere``                              ``Scene.ladar_atmosphere``
+``materials[name]``                         ``Material.ladar_brdf`` of every material with ``enabled`` on
+==========================================  ==============================================================
+
+Every other plain setting of the core becomes a property of the same name, with its default, range (``lo``/
+``hi``), description (doc + unit) and Blender subtype (guarded against subtypes an older Blender lacks).
+Where a Blender property cannot hold the SI value as is, the stored value is scaled, and the mapping
+(:class:`FieldMap`) converts both ways:
+
+* ``WAVELENGTH`` settings are stored in nanometres (Blender's wavelength unit);
+* ``DISTANCE`` settings are stored in Blender units (metres / ``scene.unit_settings.scale_length``);
+* byte counts above the 32-bit range of an ``IntProperty`` (``run.max_memory_bytes``) are stored in MiB
+  (``max_memory_mib``);
+* ``run.seed`` is limited to 0 … 2³¹−1 in a .blend (larger seeds: ``--seed`` or a config file).
+
+Blender stores floats in single precision; :func:`config_from_blender` returns the shortest decimal that
+rounds to the stored float32, so a value typed as 1e-3 comes back as exactly 1e-3.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from decimal import Decimal
+
+import bpy
+import numpy as np
+
+from ..core.config import (DEFAULT_BRDF, AtmosphereSettings, BRDFSettings, ConfigError, DetectionSettings,
+                           LaserSettings, RangeGateSettings, ReceiverSettings, RunSettings, SimulationConfig,
+                           field_specs, validate)
+from .errors import LadarError
+from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
+
+INT32_MAX = 2**31 - 1
+MIB = 2**20
+
+#: Settings groups stored on the sensor object (``Object.ladar.<group>``).
+SENSOR_GROUPS = {"laser": LaserSettings, "receiver": ReceiverSettings, "gate": RangeGateSettings,
+                 "detection": DetectionSettings, "run": RunSettings}
+#: Settings not stored as sensor properties (derived from the camera, or kept on the scene).
+NOT_ON_SENSOR = {("receiver", "fov_x_rad"), ("receiver", "fov_y_rad"), ("run", "seed")}
+#: Receiver size of a new sensor (the core default may differ).
+SENSOR_DEFAULT_OVERRIDES = {("receiver", "width_px"): 64, ("receiver", "height_px"): 64}
+
+_UNIT_SUFFIXES = ("_per_m", "_rad", "_px", "_j", "_m", "_s", "_bytes")
+_ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF"}
+
+
+def _number_subtypes() -> set:
+    """Property subtypes this Blender knows (4.2 lacks some of the newer ones)."""
+    return set(bpy.types.FloatProperty.bl_rna.properties["subtype"].enum_items.keys())
+
+
+_SUBTYPES = _number_subtypes()
+
+
+def _label(name: str) -> str:
+    for suffix in _UNIT_SUFFIXES:
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    words = [w.capitalize() for w in name.split("_")]
+    return " ".join(_ACRONYMS.get(w, w) for w in words)
+
+
+def _shortest_float32(value: float) -> str:
+    """The shortest decimal string that rounds to the same float32 as ``value``."""
+    return str(np.float32(value))
+
+
+@dataclass(frozen=True)
+class FieldMap:
+    """How one core setting maps onto one Blender property."""
+
+    group: str | None      # core group ("laser", ...), None for top-level settings, "brdf" for BRDFSettings
+    name: str              # core field name
+    attr: str              # Blender property name
+    kind: str              # "float", "int", "bool" or "enum"
+    default: object        # core default (SI)
+    meta: dict
+    conversion: str = ""   # "", "nm", "distance" or "mib"
+
+    @property
+    def path(self) -> str:
+        return self.name if self.group in (None, "brdf") else f"{self.group}.{self.name}"
+
+    @property
+    def subtype(self) -> str:
+        wanted = self.meta.get("subtype") or "NONE"
+        return wanted if wanted in _SUBTYPES else "NONE"
+
+    def unit_text(self) -> str:
+        if self.conversion == "nm":
+            return "nm"
+        if self.conversion == "mib":
+            return "MiB"
+        if self.conversion == "distance":
+            return "Blender units = m / unit scale"
+        return self.meta.get("unit") or ""
+
+    # -- conversions ------------------------------------------------------------------------------------------
+    def to_blender(self, value, unit_scale: float = 1.0):
+        if self.kind == "float":
+            value = float(value)
+            if self.conversion == "nm":
+                return float(Decimal(repr(value)).scaleb(9))
+            if self.conversion == "distance":
+                return value / unit_scale
+            return value
+        if self.kind == "int" and self.conversion == "mib":
+            return max(1, int(round(value / MIB)))
+        if self.kind == "int":
+            hi = self.meta.get("hi")
+            if value > INT32_MAX:
+                raise ConfigError(self.path, value, f"at most {INT32_MAX} when stored in a .blend"
+                                  + (f" (the simulator accepts up to {hi} from a config file)" if hi else ""))
+            return int(value)
+        return value
+
+    def to_core(self, value, unit_scale: float = 1.0):
+        if self.kind == "float":
+            text = _shortest_float32(value)
+            if self.conversion == "nm":
+                return float(Decimal(text).scaleb(-9))
+            if self.conversion == "distance":
+                return float(text) * unit_scale
+            return float(text)
+        if self.kind == "int" and self.conversion == "mib":
+            return int(value) * MIB
+        if self.kind == "int":
+            return int(value)
+        if self.kind == "bool":
+            return bool(value)
+        return str(value)
+
+    # -- the Blender property ---------------------------------------------------------------------------------
+    def description(self) -> str:
+        doc = self.meta.get("doc", "")
+        unit = self.unit_text()
+        text = doc + (f" [{unit}]" if unit else "")
+        path = f"materials.<name>.{self.name}" if self.group == "brdf" else self.path
+        return f"{text}. Config: {path}"
+
+    def property(self):
+        name = _label(self.name)
+        if self.conversion in ("nm", "mib") or (self.subtype == "NONE" and self.meta.get("unit")
+                                                and self.kind in ("float", "int")):
+            name += f" ({self.unit_text()})"
+        desc = self.description()
+        lo, hi = self.meta.get("lo"), self.meta.get("hi")
+        if self.kind == "enum":
+            items = [(c, c.replace("_", " ").title(), f"{self.meta.get('doc', '')}: {c}")
+                     for c in self.meta["choices"]]
+            return bpy.props.EnumProperty(name=name, description=desc, items=items, default=self.default)
+        if self.kind == "bool":
+            return bpy.props.BoolProperty(name=name, description=desc, default=bool(self.default))
+        if self.kind == "int":
+            if self.conversion == "mib":
+                lo = None if lo is None else max(1, lo // MIB)
+                hi = None if hi is None else hi // MIB
+            kwargs = {"min": max(lo, -INT32_MAX - 1) if lo is not None else -INT32_MAX - 1,
+                      "max": min(hi, INT32_MAX) if hi is not None else INT32_MAX}
+            subtype = self.subtype if self.subtype in ("NONE", "PIXEL", "UNSIGNED", "PERCENTAGE", "FACTOR",
+                                                       "ANGLE", "TIME", "DISTANCE") else "NONE"
+            return bpy.props.IntProperty(name=name, description=desc, subtype=subtype,
+                                         default=self.to_blender(self.default), **kwargs)
+        kwargs = {}
+        if lo is not None:
+            kwargs["min"] = self.to_blender(lo) if self.conversion != "distance" else lo
+        if hi is not None:
+            kwargs["max"] = self.to_blender(hi) if self.conversion != "distance" else hi
+        default = self.to_blender(self.default)
+        magnitude = abs(default) if default else (abs(hi) if hi is not None else 1.0)
+        # Small SI values (J, 1/m, ...) have no unit display in Blender: show six decimals for them.
+        precision = 6 if self.subtype == "NONE" and magnitude <= 1.0 else 3
+        return bpy.props.FloatProperty(name=name, description=desc, subtype=self.subtype, default=default,
+                                       precision=precision, **kwargs)
+
+
+def _field_map(group, name, default, meta) -> FieldMap:
+    if meta.get("choices"):
+        kind = "enum"
+    elif isinstance(default, bool):
+        kind = "bool"
+    elif isinstance(default, int):
+        kind = "int"
+    elif isinstance(default, float):
+        kind = "float"
+    else:  # pragma: no cover - the core declares only these
+        raise TypeError(f"setting {group}.{name} has an unsupported type {type(default).__name__}")
+    default = SENSOR_DEFAULT_OVERRIDES.get((group, name), default)
+    conversion, attr = "", name
+    if kind == "float" and meta.get("subtype") == "WAVELENGTH":
+        conversion = "nm"
+    elif kind == "float" and meta.get("subtype") == "DISTANCE":
+        conversion = "distance"
+    elif kind == "int" and meta.get("unit") == "B" and (meta.get("hi") or 0) > INT32_MAX:
+        conversion, attr = "mib", name.removesuffix("_bytes") + "_mib"
+    return FieldMap(group, name, attr, kind, default, meta, conversion)
+
+
+def group_field_maps(group: str, cls, skip=()) -> list[FieldMap]:
+    return [_field_map(group, n, d, m) for n, d, m in field_specs(cls) if (group, n) not in skip]
+
+
+#: Field maps of every Blender-stored setting, by group.
+SENSOR_FIELDS = {g: group_field_maps(g, cls, NOT_ON_SENSOR) for g, cls in SENSOR_GROUPS.items()}
+SYSTEM_TYPE_FIELD = next(_field_map(None, n, d, m) for n, d, m in field_specs(SimulationConfig)
+                         if n == "system_type")
+ATMOSPHERE_FIELDS = group_field_maps("atmosphere", AtmosphereSettings)
+BRDF_FIELDS = group_field_maps("brdf", BRDFSettings)
+SEED_FIELD = next(_field_map("run", n, d, m) for n, d, m in field_specs(RunSettings) if n == "seed")
+
+
+# ------------------------------------------------------------------------------------------------------------
+# PropertyGroups
+# ------------------------------------------------------------------------------------------------------------
+def _make_group(class_name: str, fields: list[FieldMap], doc: str, extra: dict | None = None):
+    annotations = dict(extra or {})
+    annotations.update({f.attr: f.property() for f in fields})
+    return type(class_name, (bpy.types.PropertyGroup,), {"__annotations__": annotations, "__doc__": doc,
+                                                         "__module__": __name__})
+
+
+LadarLaserSettings = _make_group("LadarLaserSettings", SENSOR_FIELDS["laser"], LaserSettings.__doc__)
+LadarReceiverSettings = _make_group("LadarReceiverSettings", SENSOR_FIELDS["receiver"], ReceiverSettings.__doc__)
+LadarGateSettings = _make_group("LadarGateSettings", SENSOR_FIELDS["gate"], RangeGateSettings.__doc__)
+LadarDetectionSettings = _make_group("LadarDetectionSettings", SENSOR_FIELDS["detection"],
+                                     DetectionSettings.__doc__)
+LadarRunSettings = _make_group("LadarRunSettings", SENSOR_FIELDS["run"], RunSettings.__doc__)
+LadarAtmosphereSettings = _make_group("LadarAtmosphereSettings", ATMOSPHERE_FIELDS, AtmosphereSettings.__doc__)
+LadarBRDFSettings = _make_group(
+    "LadarBRDFSettings", BRDF_FIELDS, BRDFSettings.__doc__,
+    {"enabled": bpy.props.BoolProperty(
+        name="Ladar BRDF", default=False,
+        description="Use these ladar BRDF settings for this material (off: the simulator's default grey "
+                    "Lambertian, 30 %)")})
+
+_GROUP_CLASSES = {"laser": LadarLaserSettings, "receiver": LadarReceiverSettings, "gate": LadarGateSettings,
+                  "detection": LadarDetectionSettings, "run": LadarRunSettings}
+
+
+def _sensor_annotations():
+    ann = {SYSTEM_TYPE_FIELD.attr: SYSTEM_TYPE_FIELD.property()}
+    for group, cls in _GROUP_CLASSES.items():
+        ann[group] = bpy.props.PointerProperty(type=cls, name=group.capitalize())
+    return ann
+
+
+LadarSensorSettings = type("LadarSensorSettings", (bpy.types.PropertyGroup,), {
+    "__annotations__": _sensor_annotations(), "__module__": __name__,
+    "__doc__": "Ladar sensor settings of a camera object (system type, laser, receiver, gate, detection, run)"})
+
+
+def _poll_camera(self, obj):
+    return obj.type == "CAMERA"
+
+
+class LadarSceneSettings(bpy.types.PropertyGroup):
+    """Scene-wide ladar settings: which camera is the sensor, where runs go, the run seed."""
+
+    sensor: bpy.props.PointerProperty(
+        type=bpy.types.Object, name="Sensor", poll=_poll_camera,
+        description="Camera object simulated as the ladar sensor (empty: the scene camera)")
+    output_dir: bpy.props.StringProperty(
+        name="Output Folder", subtype="DIR_PATH", default="//ladar_runs",
+        description="Folder that receives one run folder per simulated frame (// = next to the .blend file)")
+    seed: SEED_FIELD.property()
+    overwrite: bpy.props.BoolProperty(
+        name="Overwrite", default=False,
+        description="Replace an existing run folder and result objects of the same name (off: refuse)")
+    point_radius: bpy.props.FloatProperty(
+        name="Point Radius", subtype="DISTANCE", default=0.05, min=0.0, soft_max=1.0,
+        description="Display radius of the points of imported point clouds")
+    import_results: bpy.props.BoolProperty(
+        name="Import Results", default=True,
+        description="Bring the point cloud and the range/intensity images into the .blend after a run")
+
+
+CLASSES = (LadarLaserSettings, LadarReceiverSettings, LadarGateSettings, LadarDetectionSettings, LadarRunSettings,
+           LadarSensorSettings, LadarAtmosphereSettings, LadarBRDFSettings, LadarSceneSettings)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Object.ladar = bpy.props.PointerProperty(type=LadarSensorSettings, name="Ladar Sensor")
+    bpy.types.Scene.ladar = bpy.props.PointerProperty(type=LadarSceneSettings, name="Ladar")
+    bpy.types.Scene.ladar_atmosphere = bpy.props.PointerProperty(type=LadarAtmosphereSettings,
+                                                                 name="Ladar Atmosphere")
+    bpy.types.Material.ladar_brdf = bpy.props.PointerProperty(type=LadarBRDFSettings, name="Ladar BRDF")
+
+
+def unregister():
+    del bpy.types.Material.ladar_brdf
+    del bpy.types.Scene.ladar_atmosphere
+    del bpy.types.Scene.ladar
+    del bpy.types.Object.ladar
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Blender <-> core
+# ------------------------------------------------------------------------------------------------------------
+def unit_scale(scene) -> float:
+    """Metres per Blender unit (``scale_length``; 1 when the scene uses no unit system)."""
+    us = scene.unit_settings
+    return 1.0 if us.system == "NONE" else float(us.scale_length)
+
+
+def material_key(material) -> str:
+    """The name under which a material's BRDF appears in ``SimulationConfig.materials`` and the scene."""
+    return material.name_full
+
+
+def brdf_from_material(material) -> BRDFSettings:
+    """The material's ladar BRDF, or the core default when it has none enabled (or ``material`` is None)."""
+    if material is None:
+        return DEFAULT_BRDF
+    props = material.ladar_brdf
+    if not props.enabled:
+        return DEFAULT_BRDF
+    return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS})
+
+
+def _read_group(props, fields, unit_scale_m):
+    return {f.name: f.to_core(getattr(props, f.attr), unit_scale_m) for f in fields}
+
+
+def _write_group(props, fields, settings, unit_scale_m):
+    for f in fields:
+        setattr(props, f.attr, f.to_blender(getattr(settings, f.name), unit_scale_m))
+
+
+def check_sensor(sensor_obj) -> None:
+    if sensor_obj is None:
+        raise LadarError("no ladar sensor: set Scene > Ladar > Sensor or the scene camera to a camera object")
+    if sensor_obj.type != "CAMERA":
+        raise LadarError(f"the ladar sensor {sensor_obj.name!r} is a {sensor_obj.type.lower()} object, "
+                         f"not a camera")
+
+
+def config_from_blender(scene, sensor_obj) -> SimulationConfig:
+    """The core settings stored in ``scene`` and on ``sensor_obj`` (a camera object).  Not validated.
+
+    The receiver field of view comes from the camera (:func:`ladar_addon.sensor.camera_receiver_fov_rad`);
+    ``materials`` lists the BRDF of every material with ladar BRDF settings enabled.
+    """
+    check_sensor(sensor_obj)
+    scale = unit_scale(scene)
+    sensor = sensor_obj.ladar
+    groups = {g: _read_group(getattr(sensor, g), SENSOR_FIELDS[g], scale) for g in SENSOR_GROUPS}
+    groups["run"]["seed"] = SEED_FIELD.to_core(scene.ladar.seed)
+    rx = groups["receiver"]
+    rx["fov_x_rad"], rx["fov_y_rad"] = camera_receiver_fov_rad(sensor_obj.data, rx["width_px"], rx["height_px"])
+    cfg = SimulationConfig(
+        system_type=SYSTEM_TYPE_FIELD.to_core(getattr(sensor, SYSTEM_TYPE_FIELD.attr)),
+        laser=LaserSettings(**groups["laser"]), receiver=ReceiverSettings(**rx),
+        gate=RangeGateSettings(**groups["gate"]), detection=DetectionSettings(**groups["detection"]),
+        atmosphere=AtmosphereSettings(**_read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, scale)),
+        run=RunSettings(**groups["run"]),
+        materials={material_key(m): brdf_from_material(m) for m in bpy.data.materials
+                   if m.ladar_brdf.enabled})
+    return cfg
+
+
+def find_material(key: str):
+    for m in bpy.data.materials:
+        if material_key(m) == key:
+            return m
+    return None
+
+
+def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
+    """Store ``cfg`` in ``scene`` and on ``sensor_obj``: the inverse of :func:`config_from_blender`.
+
+    The config is validated first (nothing changes if it is invalid).  The camera lens is set so that the
+    camera gives ``cfg.receiver``'s field of view.  ``cfg.materials`` must name materials of the .blend; they
+    get their ladar BRDF enabled and set, every other material's ladar BRDF is disabled.
+    """
+    check_sensor(sensor_obj)
+    validate(cfg)
+    rx = cfg.receiver
+    scale = unit_scale(scene)
+    missing = [name for name in cfg.materials if find_material(name) is None]
+    if missing:
+        raise ConfigError(f"materials.{missing[0]}", missing[0], "the name of a material in the .blend file: "
+                          + ", ".join(material_key(m) for m in bpy.data.materials))
+    # Check everything that can fail before changing anything.
+    SEED_FIELD.to_blender(cfg.run.seed)
+    for group in SENSOR_GROUPS:
+        for f in SENSOR_FIELDS[group]:
+            f.to_blender(getattr(getattr(cfg, group), f.name), scale)
+    cam = sensor_obj.data
+    saved_lens = cam.lens
+    set_camera_receiver_fov(cam, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)
+    try:
+        sensor = sensor_obj.ladar
+        setattr(sensor, SYSTEM_TYPE_FIELD.attr, cfg.system_type)
+        for group in SENSOR_GROUPS:
+            _write_group(getattr(sensor, group), SENSOR_FIELDS[group], getattr(cfg, group), scale)
+        scene.ladar.seed = SEED_FIELD.to_blender(cfg.run.seed)
+        _write_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, cfg.atmosphere, scale)
+        for m in bpy.data.materials:
+            brdf = cfg.materials.get(material_key(m))
+            if brdf is None:
+                m.ladar_brdf.enabled = False
+            else:
+                _write_group(m.ladar_brdf, BRDF_FIELDS, brdf, 1.0)
+                m.ladar_brdf.enabled = True
+    except Exception:
+        cam.lens = saved_lens
+        raise
+
+
+def sensor_field_maps(group: str) -> list[FieldMap]:
+    """Field maps of a sensor group (for panels and tests)."""
+    return SENSOR_FIELDS[group]
+
+
+def all_core_paths() -> set:
+    """Dotted paths of every core setting that has a home in Blender (for the 1:1 test)."""
+    paths = {SYSTEM_TYPE_FIELD.path, SEED_FIELD.path, "receiver.fov_x_rad", "receiver.fov_y_rad"}
+    for fields in SENSOR_FIELDS.values():
+        paths |= {f.path for f in fields}
+    paths |= {f.path for f in ATMOSPHERE_FIELDS}
+    return paths
+
+

@@ -1,0 +1,21 @@
+"""Properties-editor panels (camera Object Data, Scene and Material tabs) and a 3D-viewport sidebar tab."""
+import bpy
+
+from .material import LADAR_PT_brdf
+from .scene import LADAR_PT_atmosphere, LADAR_PT_scene, LADAR_PT_view3d
+from .sensor import (LADAR_PT_sensor, LADAR_PT_sensor_detection, LADAR_PT_sensor_gate, LADAR_PT_sensor_laser,
+                     LADAR_PT_sensor_receiver, LADAR_PT_sensor_run)
+
+CLASSES = (LADAR_PT_sensor, LADAR_PT_sensor_laser, LADAR_PT_sensor_receiver, LADAR_PT_sensor_gate,
+           LADAR_PT_sensor_detection, LADAR_PT_sensor_run, LADAR_PT_scene, LADAR_PT_atmosphere,
+           LADAR_PT_brdf, LADAR_PT_view3d)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

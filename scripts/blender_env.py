@@ -1,0 +1,112 @@
+"""Run this extension inside the ``bpy`` module the way Blender itself installs extensions.
+
+Used by the add-on tests and by ``scripts/ladar_run.py``.  Order matters:
+
+1. :func:`isolate_user_resources` — point ``BLENDER_USER_RESOURCES`` at a fresh temporary folder *before*
+   ``import bpy`` (preferences, extension repositories and caches then never touch the user's own Blender);
+2. :func:`install_extension` — create a local extension repository whose folder contains ``ladar_simulator``
+   (a directory of symlinks to this repository's package files, without ``.venv``/``.git``/tests), register
+   the repository in the preferences and enable ``bl_ext.<repo>.ladar_simulator`` with ``addon_utils``.
+
+The add-on is then imported as ``bl_ext.ladar_dev.ladar_simulator`` (its core as
+``bl_ext.ladar_dev.ladar_simulator.core``), exactly as an installed extension.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+EXTENSION_ID = "ladar_simulator"
+REPO_MODULE = "ladar_dev"
+ADDON_MODULE = f"bl_ext.{REPO_MODULE}.{EXTENSION_ID}"
+
+#: Top-level entries of the repository that are not part of the installed package.
+NOT_PACKAGED = {".venv", ".git", ".ci", ".pytest_cache", ".hypothesis", "__pycache__", "tests", "bench",
+                "scripts", "runs", "out", "build", "dist", "docs", ".gitignore", "requirements.txt"}
+
+
+def isolate_user_resources(path: str | os.PathLike | None = None) -> Path:
+    """Set ``BLENDER_USER_RESOURCES`` to ``path`` (default: a new temporary folder).  Call before ``import bpy``."""
+    if "bpy" in sys.modules:
+        current = os.environ.get("BLENDER_USER_RESOURCES")
+        if current and Path(current).name.startswith("ladar_blender_"):
+            return Path(current)
+        raise RuntimeError("bpy is already imported: BLENDER_USER_RESOURCES must be set before `import bpy`")
+    root = Path(path) if path is not None else Path(tempfile.mkdtemp(prefix="ladar_blender_"))
+    root.mkdir(parents=True, exist_ok=True)
+    os.environ["BLENDER_USER_RESOURCES"] = str(root)
+    return root
+
+
+def link_package(repo_dir: Path, source: Path = REPO_ROOT) -> Path:
+    """Create ``repo_dir/ladar_simulator`` holding symlinks to the package's top-level files and folders.
+
+    Falls back to copying where symlinks are not available.  Returns the package folder.
+    """
+    pkg = Path(repo_dir) / EXTENSION_ID
+    if pkg.exists():
+        shutil.rmtree(pkg)
+    pkg.mkdir(parents=True)
+    for entry in sorted(Path(source).iterdir()):
+        if entry.name in NOT_PACKAGED or entry.name.endswith((".blend1", ".zip")):
+            continue
+        target = pkg / entry.name
+        try:
+            target.symlink_to(entry, target_is_directory=entry.is_dir())
+        except OSError:
+            if entry.is_dir():
+                shutil.copytree(entry, target, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+            else:
+                shutil.copy2(entry, target)
+    return pkg
+
+
+def install_extension(source: Path = REPO_ROOT):
+    """Register a local extension repository containing this package and enable the add-on.
+
+    Returns the enabled add-on module (``bl_ext.ladar_dev.ladar_simulator``).
+    """
+    if "BLENDER_USER_RESOURCES" not in os.environ:
+        raise RuntimeError("call isolate_user_resources() before importing bpy")
+    import addon_utils
+    import bpy
+
+    repo_dir = Path(os.environ["BLENDER_USER_RESOURCES"]) / "ladar_extension_repo"
+    link_package(repo_dir, source)
+    repos = bpy.context.preferences.extensions.repos
+    if repos.get(REPO_MODULE) is None and not any(r.module == REPO_MODULE for r in repos):
+        repo = repos.new(name="Ladar (development)", module=REPO_MODULE, custom_directory=str(repo_dir),
+                         source='USER')
+        repo.use_custom_directory = True
+    enable_addon()
+    return sys.modules[ADDON_MODULE]
+
+
+def enable_addon():
+    import addon_utils
+
+    def fail(ex):
+        raise ex
+
+    mod = addon_utils.enable(ADDON_MODULE, default_set=True, handle_error=fail)
+    if mod is None:
+        raise RuntimeError(f"could not enable {ADDON_MODULE}")
+    return mod
+
+
+def disable_addon():
+    import addon_utils
+
+    def fail(ex):
+        raise ex
+
+    addon_utils.disable(ADDON_MODULE, default_set=True, handle_error=fail)
+
+
+def addon_module():
+    """The enabled add-on package module."""
+    return sys.modules[ADDON_MODULE]
