@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -123,16 +124,18 @@ def adc_dtype(bits: int):
     return np.uint16 if bits <= 16 else (np.uint32 if bits <= 32 else np.uint64)
 
 
-def adc_convert(electrons, bits, full_scale_e, offset_counts=0, out=None):
+def adc_convert(electrons, bits, full_scale_e, offset_counts=0, out=None, overwrite_input=False):
     """A/D conversion (physics.md §8): code = clip(rint(e/Δ) + offset, 0, 2**bits − 1), Δ = full scale/2**bits.
 
     Returns ``(codes, n_low, n_high)``: the number of samples clipped at code 0 and at full scale
     (saturation) — clipping is always reported, never silent.  Quantization adds variance Δ²/12.
+    ``overwrite_input`` lets a float32/float64 input be used as scratch space (no copy).
     """
     e = np.asarray(electrons)
     step = adc_step_e(bits, full_scale_e)
     top = float(2 ** int(bits) - 1)
-    work = e.astype(np.float64 if bits > 23 else np.float32, copy=True)
+    wdt = np.float64 if bits > 23 else np.float32
+    work = e if (overwrite_input and e.dtype == wdt) else e.astype(wdt, copy=True)
     work *= work.dtype.type(1.0 / step)
     np.rint(work, out=work)
     if offset_counts:
@@ -143,67 +146,61 @@ def adc_convert(electrons, bits, full_scale_e, offset_counts=0, out=None):
         np.clip(work, 0, top, out=work)
     if out is None:
         return work.astype(adc_dtype(bits)), n_low, n_high
-    out[...] = work
+    np.copyto(out, work, casting="unsafe")
     return out, n_low, n_high
 
 
 # ----------------------------------------------------------------------------------------------------------
 # Exact fast samplers
 # ----------------------------------------------------------------------------------------------------------
-def poisson_sparse(mean, rng, out=None):
-    """Exact Poisson counts for an array of (mostly small) means: K ~ Poisson(Σ mean), then each event is placed
-    in a bin with probability mean_i/Σ mean (inverse-CDF search on the cumulative sum).  Exact (superposition
-    of Poisson processes); cost O(size + K log size).  Returns float32 counts (added to ``out`` if given)."""
-    m = np.asarray(mean, dtype=np.float32)
-    flat = m.reshape(-1)
-    if out is None:
-        out = np.zeros(m.shape, dtype=np.float32)
-    oflat = out.reshape(-1)
-    c = np.cumsum(flat, dtype=np.float64)
+def poisson_sparse_counts(mean, rng):
+    """Exact Poisson counts for a 1-D array of (mostly small) means: K ~ Poisson(Σ mean), then each of the K
+    events falls in element i with probability mean_i/Σ mean (inverse-CDF search on the float64 cumulative
+    sum).  Exact (superposition of independent Poisson processes); cost O(size + K log size).
+    Returns int64 counts of the same length."""
+    m = np.asarray(mean).reshape(-1)
+    c = m.astype(np.float64)
+    np.cumsum(c, out=c)  # in place: much faster than a casting cumsum
     total = float(c[-1]) if c.size else 0.0
-    if total <= 0.0:
-        return out
+    if not total > 0.0:
+        return np.zeros(m.size, dtype=np.int64)
     k = int(rng.poisson(total))
     if k == 0:
-        return out
-    u = rng.random(k) * total
+        return np.zeros(m.size, dtype=np.int64)
+    u = rng.random(k)
+    u *= total
     idx = np.searchsorted(c, u, side="right")
-    np.minimum(idx, flat.size - 1, out=idx)  # u < total always; guards float round-off at the very top
-    _scatter_add_counts(oflat, idx)
-    return out
-
-
-def _scatter_add_counts(oflat, idx):
-    if idx.size * 16 < oflat.size:
-        np.add.at(oflat, idx, 1.0)
-    else:
-        oflat += np.bincount(idx, minlength=oflat.size).astype(np.float32)
+    np.minimum(idx, m.size - 1, out=idx)  # u < total always; guards round-off at the very top
+    return np.bincount(idx, minlength=m.size)
 
 
 def _poisson_dense(lam, rng):
-    """Exact Poisson per element (float64 means); normal with exact moments above _NORMAL_MEAN."""
+    """Exact Poisson per element (float64 means); normal with exact moments above _NORMAL_MEAN.
+    Returns (float64 counts, number of normal-approximated elements)."""
     lam = np.asarray(lam, dtype=np.float64)
     big = lam >= _NORMAL_MEAN
-    if not big.any():
-        return rng.poisson(lam).astype(np.float64)
+    nb = int(np.count_nonzero(big))
+    if not nb:
+        return rng.poisson(lam).astype(np.float64), 0
     res = np.empty_like(lam)
     res[~big] = rng.poisson(lam[~big])
     lb = lam[big]
     res[big] = np.maximum(np.rint(lb + np.sqrt(lb) * rng.standard_normal(lb.size)), 0.0)
-    return res
+    return res, nb
 
 
 def poisson_uniform_rows(mean_per_bin, n_rows, n_bins, rng, out=None):
     """Exact Poisson counts with the same mean in every bin of a row (background, bulk dark): the total per row
-    is Poisson(B·mean) and the events fall uniformly on the row's bins (multinomial = uniform indices).
-    ``mean_per_bin`` scalar or (n_rows,).  Returns/accumulates float32 (n_rows, n_bins)."""
+    is Poisson(B·mean) and the events fall uniformly on the row's bins (multinomial with equal cells = uniform
+    indices).  ``mean_per_bin`` scalar or (n_rows,).  Accumulates into / returns float32 (n_rows, n_bins)."""
     if out is None:
         out = np.zeros((n_rows, n_bins), dtype=np.float32)
     m = np.broadcast_to(np.asarray(mean_per_bin, dtype=np.float64), (n_rows,))
     dense = m >= _DENSE_MEAN
     if dense.any():
         rows = np.flatnonzero(dense)
-        out[rows] += _poisson_dense(np.repeat(m[rows], n_bins).reshape(len(rows), n_bins), rng).astype(np.float32)
+        lam = np.repeat(m[rows], n_bins).reshape(len(rows), n_bins)
+        out[rows] += _poisson_dense(lam, rng)[0].astype(np.float32)
     sparse = ~dense & (m > 0)
     if sparse.any():
         rows = np.flatnonzero(sparse)
@@ -212,7 +209,11 @@ def poisson_uniform_rows(mean_per_bin, n_rows, n_bins, rng, out=None):
         if tot:
             pos = rng.integers(0, n_bins, size=tot, dtype=np.int64)
             pos += np.repeat(rows.astype(np.int64) * n_bins, k)
-            _scatter_add_counts(out.reshape(-1), pos)
+            oflat = out.reshape(-1)
+            if tot * 50 < oflat.size:
+                np.add.at(oflat, pos, 1.0)
+            else:
+                np.add(oflat, np.bincount(pos, minlength=oflat.size), out=oflat, casting="unsafe")
     return out
 
 
@@ -223,6 +224,7 @@ def gamma_gain(primaries, gain, excess_noise, rng, out=None):
     single-electron gain); the sum of n of them is exactly Gamma(n/(F−1), scale G(F−1)): mean G n, variance
     G²(F−1) n, so with Poisson n the total has variance G² F N̄ (the §8 formula).  F = 1 → G n exactly.
     Only non-zero bins are drawn.  Works for integer counts and for continuous means (shot noise off).
+    ``out`` may be ``primaries`` itself (in place).
     """
     p = np.asarray(primaries, dtype=np.float32)
     if out is None:
@@ -233,11 +235,13 @@ def gamma_gain(primaries, gain, excess_noise, rng, out=None):
     theta = gain * (excess_noise - 1.0)
     a = 1.0 / (excess_noise - 1.0)
     pf, of = p.reshape(-1), out.reshape(-1)
-    of[...] = 0.0
     nz = np.flatnonzero(pf)
+    shape = pf[nz].astype(np.float64)  # gather before ``out`` (possibly the same memory) is written
+    if of is not pf and not np.shares_memory(of, pf):
+        of[...] = 0.0
     if nz.size:
-        shape = pf[nz].astype(np.float64) * a
-        of[nz] = (rng.standard_gamma(shape) * theta).astype(np.float32)
+        shape *= a
+        of[nz] = rng.standard_gamma(shape) * theta
     return out
 
 
@@ -459,10 +463,14 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng) -> ChainOutp
                   sigma_r=sigma_r, adc=use_adc, bits=det.adc_bits, fs=det.adc_full_scale_e,
                   offset=det.adc_offset_counts)
 
+    local = threading.local()
+
     def work(blk):
         i, r0, r1 = blk
+        if not hasattr(local, "ws"):
+            local.ws = {}
         return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i),
-                              None if spk is None else spk[r0:r1], params)
+                              None if spk is None else spk[r0:r1], params, local.ws)
 
     threads = det.threads or (os.cpu_count() or 1)
     if threads > 1 and len(blocks) > 1:
@@ -481,29 +489,48 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng) -> ChainOutp
     return ChainOutput(out.reshape(H, W, B), report)
 
 
-def _process_block(E, out, rng, spk, p) -> dict:
-    """One block of pixels (P, B): exact sampling of §8 statistics, written into ``out``."""
+def _buf(ws, name, n, dtype):
+    a = ws.get(name)
+    if a is None or a.size < n or a.dtype != dtype:
+        a = np.empty(n, dtype=dtype)
+        ws[name] = a
+    return a[:n]
+
+
+def _process_block(E, out, rng, spk, p, ws) -> dict:
+    """One block of pixels (P, B): exact sampling of the §8 statistics, written into ``out``.
+    ``ws``: per-thread scratch buffers (reused across blocks: fresh large allocations are slow)."""
     P, B = E.shape
+    N = P * B
     stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
-    s = E * np.float32(p["k_sig"])  # mean signal primaries (after eta)
+    s = _buf(ws, "s", N, np.float32).reshape(P, B)
+    np.multiply(E, np.float32(p["k_sig"]), out=s)  # mean signal primaries (after eta)
     if spk is not None:
         s *= spk[:, None]
-    smax = float(s.max()) if s.size else 0.0
+    sf = s.reshape(-1)
+    smax = float(sf.max()) if N else 0.0
     if not math.isfinite(smax) or smax > _MEAN_CAP:
-        bad = ~(s <= _MEAN_CAP)
+        bad = ~(sf <= _MEAN_CAP)
         stats["n_mean_clipped"] = int(np.count_nonzero(bad))
-        s[bad] = _MEAN_CAP
+        sf[bad] = _MEAN_CAP
         smax = _MEAN_CAP
     if p["shot"]:
-        n = np.zeros((P, B), dtype=np.float32)
+        n = _buf(ws, "n", N, np.float32).reshape(P, B)
+        nf = n.reshape(-1)
+        nf.fill(0.0)
         if smax > 0:
-            if smax >= _DENSE_MEAN:
-                hi = np.flatnonzero(s.reshape(-1) >= _DENSE_MEAN)
-                lam = s.reshape(-1)[hi].astype(np.float64)
-                stats["normal_bins"] += int(np.count_nonzero(lam >= _NORMAL_MEAN))
-                n.reshape(-1)[hi] = _poisson_dense(lam, rng).astype(np.float32)
-                s.reshape(-1)[hi] = 0.0
-            poisson_sparse(s, rng, out=n)
+            if smax >= _DENSE_MEAN:  # bright bins: one exact Poisson draw each
+                hi = np.flatnonzero(sf >= _DENSE_MEAN)
+                cnt, nb = _poisson_dense(sf[hi], rng)
+                stats["normal_bins"] += nb
+                nf[hi] = cnt
+                sf[hi] = 0.0
+            nnz = int(np.count_nonzero(sf))
+            if nnz * 4 < N:  # faint bins, compact: inverse-CDF placement over the non-zero bins only
+                nz = np.flatnonzero(sf)
+                nf[nz] += poisson_sparse_counts(sf[nz], rng)
+            elif nnz:
+                np.add(nf, poisson_sparse_counts(sf, rng), out=nf, casting="unsafe")
         if p["b_mult"] > 0:
             poisson_uniform_rows(p["b_mult"], P, B, rng, out=n)
     else:
@@ -522,13 +549,14 @@ def _process_block(E, out, rng, spk, p) -> dict:
         else:
             poisson_uniform_rows(p["ds"], P, B, rng, out=y)
     if var > 0:
-        z = rng.standard_normal((P, B), dtype=np.float32)
+        z = _buf(ws, "z", N, np.float32).reshape(P, B)
+        rng.standard_normal(dtype=np.float32, out=z)
         z *= np.float32(math.sqrt(var))
         y += z
     if mu:
         y += np.float32(mu)
     if p["adc"]:
-        _, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"], out=out)
+        _, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"], out=out, overwrite_input=p["bits"] <= 23)
         stats["n_adc_low"], stats["n_adc_high"] = lo, hi
     else:
         out[...] = y
