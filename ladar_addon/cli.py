@@ -3,8 +3,8 @@
 
 Commands::
 
-    simulate         --out DIR [--frame N] [--seed N] [--config FILE] [--overwrite] [--sensor NAME]
-                     [--run-name NAME] [--no-import]
+    simulate         --out RUN_DIR [--frame N] [--seed N] [--config FILE] [--overwrite] [--sensor NAME]
+                     [--no-import]
     export-config    --out FILE.json|FILE.toml [--sensor NAME]
     validate-config  FILE [--sensor NAME]
 
@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("simulate", help="simulate one frame of the ladar sensor and write a run folder")
     sim.add_argument("--out", required=True, metavar="DIR",
-                     help="folder that receives the run folder <sensor>_f<frame> (created if missing)")
+                     help="the run folder to write (must not exist unless --overwrite)")
     sim.add_argument("--frame", type=int, default=None, help="scene frame (default: the current frame)")
     sim.add_argument("--seed", type=int, default=None, help="run seed (default: the scene's or the config's)")
     sim.add_argument("--config", default=None, metavar="FILE",
@@ -41,7 +41,6 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     sim.add_argument("--sensor", default=None, metavar="NAME",
                      help="camera object to simulate (default: Scene > Ladar > Sensor, else the scene camera)")
-    sim.add_argument("--run-name", default=None, metavar="NAME", help="run folder name (default: <sensor>_f<frame>)")
     sim.add_argument("--no-import", action="store_true",
                      help="do not add the point cloud and images to the (unsaved) scene")
 
@@ -98,7 +97,7 @@ def _cmd_simulate(scene, args) -> int:
     sensor = _sensor(scene, args.sensor)
     run_path, result = simulate_scene(scene, out_dir=args.out, frame=args.frame, seed=args.seed,
                                       config_path=args.config, overwrite=args.overwrite, sensor=sensor,
-                                      run_name=args.run_name, import_results=not args.no_import)
+                                      import_results=not args.no_import)
     n_points = len(result.points["range_m"])
     print(f"ladar: simulated {run_path} ({n_points} points, "
           f"{result.stats.get('wall_time_s', float('nan')):.2f} s)", flush=True)

@@ -5,7 +5,8 @@ Usable from scripts::
     from bl_ext.<repo>.ladar_simulator.ladar_addon.simulate import simulate_scene
     run_path, result = simulate_scene(bpy.context.scene, out_dir="/tmp/runs", frame=1, seed=7)
 
-The run folder is ``<out_dir>/<run name>``; the run name defaults to ``<sensor>_f<frame:04d>``.
+``out_dir`` is the run folder itself (as for ``core.pipeline.run_simulation``); by default it is
+``<Scene.ladar.output_dir>/<sensor>_f<frame:04d>``.  The imported point cloud and images are named after it.
 """
 from __future__ import annotations
 
@@ -42,12 +43,20 @@ def default_run_name(sensor, frame: int) -> str:
     return f"{name}_f{frame:04d}"
 
 
-def resolve_output_dir(scene, out_dir=None) -> Path:
-    """``out_dir`` or the scene's output folder as an absolute path (``//`` needs a saved .blend)."""
-    path = out_dir if out_dir is not None else scene.ladar.output_dir
-    path = str(path)
+def resolve_run_dir(scene, sensor, frame: int, out_dir=None) -> Path:
+    """The absolute run folder: ``out_dir``, else ``<Scene.ladar.output_dir>/<sensor>_f<frame>``.
+
+    A path starting with ``//`` is relative to the .blend file, which must then be saved.
+    """
+    if out_dir is not None:
+        path = str(out_dir)
+    else:
+        if not scene.ladar.output_dir:
+            raise LadarError("no output folder: set Scene > Ladar > Output Folder or pass --out")
+        base = scene.ladar.output_dir
+        path = base + ("" if base.endswith(("/", "\\")) else "/") + default_run_name(sensor, frame)
     if not path:
-        raise LadarError("no output folder: set Scene > Ladar > Output Folder or pass --out")
+        raise LadarError("no run folder given")
     if path.startswith("//"):
         if not bpy.data.filepath:
             raise LadarError(f"the output folder {path!r} is relative to the .blend file, which is not saved: "
@@ -105,10 +114,10 @@ def _log(message):
 
 
 def simulate_scene(scene, out_dir=None, frame=None, seed=None, config_path=None, overwrite=None, *,
-                   sensor=None, run_name=None, import_results=None, progress=None):
+                   sensor=None, import_results=None, progress=None):
     """Simulate one frame of the scene's ladar sensor and (optionally) import the results.
 
-    ``out_dir``: parent folder of the run folder (default: ``Scene.ladar.output_dir``); ``frame``: scene frame
+    ``out_dir``: the run folder (default: ``<Scene.ladar.output_dir>/<sensor>_f<frame:04d>``); ``frame``: scene frame
     (default: the current one); ``seed``: run seed (default: ``Scene.ladar.seed`` or the config file's);
     ``config_path``: a JSON/TOML config whose settings override the .blend's; ``overwrite``: replace an existing
     run folder and result objects (default: ``Scene.ladar.overwrite``); ``sensor``: a camera object (default:
@@ -126,11 +135,10 @@ def simulate_scene(scene, out_dir=None, frame=None, seed=None, config_path=None,
     frame = scene.frame_current
     overwrite = scene.ladar.overwrite if overwrite is None else bool(overwrite)
     import_results = scene.ladar.import_results if import_results is None else bool(import_results)
-    out_root = resolve_output_dir(scene, out_dir)
-    run_name = run_name or default_run_name(sensor, frame)
-    run_path = out_root / run_name
+    run_path = resolve_run_dir(scene, sensor, frame, out_dir)
+    run_name = run_path.name
     if run_path.exists() and not overwrite:
-        raise ConfigError("out", str(run_path), "a run folder that does not exist yet (or enable overwrite)")
+        raise ConfigError("out", str(run_path), "a run folder that does not exist yet (or overwrite it: --overwrite, Scene > Ladar > Overwrite)")
 
     cfg, blender_materials = build_config(scene, sensor, config_path=config_path, seed=seed)
     if import_results:
