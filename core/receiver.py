@@ -376,10 +376,17 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng) -> ChainOutp
     src = cube
     if det.enable_optics_mtf:
         from .speckle import apply_mtf, optics_mtf_2d
+        # zero padding (light from outside the field of view is not simulated) against FFT wrap-around:
+        # 8 diffraction widths λ/D, at most the image size
+        ifov = min(settings.ifov_x_rad, settings.ifov_y_rad)
+        pad = int(min(max(H, W), math.ceil(8.0 * settings.wavelength_m / settings.aperture_diameter_m / ifov) + 1))
         mtf = optics_mtf_2d((H, W), settings.wavelength_m, settings.aperture_diameter_m,
-                            settings.ifov_x_rad, settings.ifov_y_rad, pixel=det.optics_pixel_mtf)
-        src, n_neg = apply_mtf(cube.astype(np.float32, copy=False), mtf, axes=(0, 1), clamp_negative=True)
+                            settings.ifov_x_rad, settings.ifov_y_rad, pixel=det.optics_pixel_mtf, pad=(pad, pad))
+        padded = np.pad(cube.astype(np.float32, copy=False), ((0, pad), (0, pad), (0, 0)))
+        blurred, n_neg = apply_mtf(padded, mtf, axes=(0, 1), clamp_negative=True)
+        src = np.ascontiguousarray(blurred[:H, :W])
         report["n_optics_negative_clamped"] = n_neg
+        report["optics_pad_px"] = pad
         run.append("optics_mtf")
     else:
         skip.append("optics_mtf")
@@ -504,9 +511,11 @@ def _process_block(E, out, rng, spk, p, ws) -> dict:
     N = P * B
     stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
     s = _buf(ws, "s", N, np.float32).reshape(P, B)
-    np.multiply(E, np.float32(p["k_sig"]), out=s)  # mean signal primaries (after eta)
+    with np.errstate(over="ignore"):  # overflow -> inf -> clipped to _MEAN_CAP and reported below
+        np.multiply(E, np.float32(p["k_sig"]), out=s)  # mean signal primaries (after eta)
     if spk is not None:
-        s *= spk[:, None]
+        with np.errstate(over="ignore"):
+            s *= spk[:, None]
     sf = s.reshape(-1)
     smax = float(sf.max()) if N else 0.0
     if not math.isfinite(smax) or smax > _MEAN_CAP:
@@ -605,7 +614,7 @@ def coates_correction(histogram, n_pulses):
 
 
 def geiger_histogram(rate_per_bin, n_pulses, rng, noise_per_bin=0.0, dead_time_bins=None, speckle_dof=None,
-                     max_pulse_chunk=None):
+                     max_pulse_chunk=None, force_per_pulse=False):
     """Histogram of Geiger-mode detections over ``n_pulses`` pulses (physics.md §8: pile-up, dead time).
 
     rate_per_bin   : (..., B) mean *detectable* signal primaries per bin per pulse (η already applied).
@@ -617,7 +626,8 @@ def geiger_histogram(rate_per_bin, n_pulses, rng, noise_per_bin=0.0, dead_time_b
     Without speckle and with one detection per pulse the histogram is exactly multinomial(N, p_i) with the
     pile-up p_i (one vectorized call).  Otherwise each pulse is simulated: the first event after re-arming is
     where the cumulative rate crosses an Exp(1) variate (exact inhomogeneous Poisson first arrival),
-    found by a vectorized bisection.  Returns (int64 histogram, info dict).
+    found by a vectorized bisection (``force_per_pulse`` selects it always).  Returns (int64 histogram,
+    info dict).
     """
     r = np.asarray(rate_per_bin, dtype=np.float64)
     shape = r.shape
@@ -627,7 +637,7 @@ def geiger_histogram(rate_per_bin, n_pulses, rng, noise_per_bin=0.0, dead_time_b
     noise = np.broadcast_to(np.asarray(noise_per_bin, dtype=np.float64), shape[:-1]).reshape(P, 1)
     single = dead_time_bins is None or dead_time_bins >= B
     info = {"pulses": int(n_pulses), "path": "", "dead_time_bins": dead_time_bins}
-    if single and not speckle_dof:
+    if single and not speckle_dof and not force_per_pulse:
         tot = r + noise
         p = pileup_probabilities(tot)
         pv = np.empty((P, B + 1))

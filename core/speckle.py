@@ -42,18 +42,42 @@ def mtf_optics(nu_a, aperture_diameter_m, wavelength_m, ifov_rad=None):
 
 
 def optics_mtf_2d(shape, wavelength_m, aperture_diameter_m, ifov_x_rad, ifov_y_rad=None, pixel=True,
-                  pad=(0, 0)):
-    """2-D MTF on the ``rfft2`` frequency grid of an (H + pad_y, W + pad_x) image with pixel spacing IFOV
-    (physics.md §5): radial diffraction MTF × separable pixel sincs (sinc of cycles/pixel)."""
+                  pad=(0, 0), alias=True, max_alias_orders=32):
+    """Discrete optics transfer function on the ``rfft2`` grid of an (H + pad_y, W + pad_x) image whose
+    pixel spacing is the IFOV (physics.md §5): radial diffraction MTF × separable pixel sinc (cycles/pixel).
+
+    ``alias=True`` (default) sums the continuous OTF over all aliases, Σ_k OTF(f + k), using the signed pixel
+    sinc: its inverse DFT is exactly the (pixel-integrated, if ``pixel``) PSF sampled at the pixel centres,
+    hence non-negative.  Without the pixel term the sum is normalised to 1 at f = 0 (energy conserved).
+    For a diffraction cut-off below Nyquist this is identical to the plain product MTF.
+    """
     ifov_y_rad = ifov_x_rad if ifov_y_rad is None else ifov_y_rad
     H, W = shape[0] + pad[0], shape[1] + pad[1]
     fy = sfft.fftfreq(H)[:, None]  # cycles/pixel
     fx = sfft.rfftfreq(W)[None, :]
-    nu_a = np.hypot(fx / ifov_x_rad, fy / ifov_y_rad)
-    m = mtf_diffraction(nu_a, aperture_diameter_m, wavelength_m)
-    if pixel:
-        m = m * np.abs(np.sinc(fx)) * np.abs(np.sinc(fy))
-    return m
+    if not alias:
+        m = mtf_diffraction(np.hypot(fx / ifov_x_rad, fy / ifov_y_rad), aperture_diameter_m, wavelength_m)
+        if pixel:
+            m = m * np.abs(np.sinc(fx)) * np.abs(np.sinc(fy))
+        return m
+    fcx = aperture_diameter_m / wavelength_m * ifov_x_rad  # diffraction cut-off, cycles/pixel
+    fcy = aperture_diameter_m / wavelength_m * ifov_y_rad
+    kx_max = min(int(np.ceil(fcx)) + 1, max_alias_orders)
+    ky_max = min(int(np.ceil(fcy)) + 1, max_alias_orders)
+    total = np.zeros((H, fx.shape[1]))
+    norm = 0.0
+    for ky in range(-ky_max, ky_max + 1):
+        gy = fy + ky
+        py = np.sinc(gy) if pixel else 1.0
+        for kx in range(-kx_max, kx_max + 1):
+            gx = fx + kx
+            d = mtf_diffraction(np.hypot(gx / ifov_x_rad, gy / ifov_y_rad), aperture_diameter_m, wavelength_m)
+            if not d.any():
+                continue
+            total += d * (py * np.sinc(gx) if pixel else 1.0)
+            norm += float(mtf_diffraction(np.hypot(kx / ifov_x_rad, ky / ifov_y_rad), aperture_diameter_m,
+                                          wavelength_m)) * (np.sinc(kx) * np.sinc(ky) if pixel else 1.0)
+    return total / norm
 
 
 def apply_mtf(image, mtf2d, axes=(0, 1), clamp_negative=False, workers=-1):
