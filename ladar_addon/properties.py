@@ -262,6 +262,11 @@ LadarSensorSettings = type("LadarSensorSettings", (bpy.types.PropertyGroup,), {
     "__doc__": "Ladar sensor settings of a camera object (system type, laser, receiver, gate, detection, run)"})
 
 
+#: Blender ≥ 4.5 warns about "//" paths unless the property says it supports them (4.2 lacks the option).
+_BLEND_RELATIVE_PATH = ({"PATH_SUPPORTS_BLEND_RELATIVE"}
+                        if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties else set())
+
+
 def _poll_camera(self, obj):
     return obj.type == "CAMERA"
 
@@ -273,7 +278,7 @@ class LadarSceneSettings(bpy.types.PropertyGroup):
         type=bpy.types.Object, name="Sensor", poll=_poll_camera,
         description="Camera object simulated as the ladar sensor (empty: the scene camera)")
     output_dir: bpy.props.StringProperty(
-        name="Output Folder", subtype="DIR_PATH", default="//ladar_runs",
+        name="Output Folder", subtype="DIR_PATH", default="//ladar_runs", options=_BLEND_RELATIVE_PATH,
         description="Folder that receives one run folder per simulated frame (// = next to the .blend file)")
     seed: SEED_FIELD.property()
     overwrite: bpy.props.BoolProperty(

@@ -97,7 +97,7 @@ def ensure_point_material():
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(MATERIAL_NAME)
-    if mat.node_tree is None or not getattr(mat, "use_nodes", True):
+    if mat.node_tree is None:  # Blender < 5.0: materials get a node tree on request
         mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()

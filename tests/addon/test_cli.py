@@ -1,0 +1,129 @@
+"""The ``ladar`` command (``blender -c ladar``): exit codes, messages, nothing written on errors; and
+``scripts/ladar_run.py``, which runs it through the bpy module in a fresh process."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import bpy
+import pytest
+
+from blender_scenes import add_camera, add_plate
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def plate_scene(scene):
+    cam = add_camera(scene, width_px=8, height_px=8, fov_rad=0.004)
+    cam.ladar.receiver.subsamples = 1
+    add_plate(scene, size=2.0, location=(0, 0, -100))
+    return scene
+
+
+def _run(lad, capsys, *argv):
+    code = lad.cli.cli_handler(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_simulate_success(lad, plate_scene, tmp_path, capsys):
+    code, out, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r1"), "--seed", "5", "--frame", "3")
+    assert code == 0, err
+    assert "ladar: simulated" in out
+    meta = json.loads((tmp_path / "r1" / "metadata.json").read_text())
+    assert meta["seed"] == 5 and meta["frame"] == 3
+    # again without --overwrite: a user error, the run is kept
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r1"))
+    assert code == 1 and "--overwrite" in err
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r1"), "--overwrite")
+    assert code == 0, err
+
+
+def test_bad_config_value_names_the_field_and_writes_nothing(lad, plate_scene, tmp_path, capsys):
+    config = tmp_path / "bad.toml"
+    config.write_text("schema_version = 1\n[laser]\npulse_energy_j = -1.0\n")
+    out_dir = tmp_path / "out" / "run"
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(out_dir), "--config", str(config))
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ladar: error: laser.pulse_energy_j = -1.0")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("argv", [["simulate"], ["simulate", "--out", "x", "--frame", "abc"], ["bogus"], [],
+                                  ["export-config"], ["validate-config"]])
+def test_usage_errors_return_2_without_exiting(lad, plate_scene, tmp_path, capsys, argv):
+    code, _, err = _run(lad, capsys, *argv)
+    assert code == 2
+    assert "usage:" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_help_returns_0(lad, plate_scene, capsys):
+    code, out, _ = _run(lad, capsys, "simulate", "--help")
+    assert code == 0 and "--overwrite" in out
+
+
+def test_user_errors(lad, scene, tmp_path, capsys):
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"))
+    assert code == 1 and "no ladar sensor" in err
+    add_camera(scene)
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"))
+    assert code == 1 and "no geometry" in err
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--sensor", "Nope")
+    assert code == 1 and "Nope" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("suffix", [".json", ".toml"])
+def test_export_config_round_trips(lad, plate_scene, tmp_path, capsys, suffix):
+    cam = bpy.data.objects["Ladar"]
+    cam.ladar.laser.pulse_energy_j = 0.003
+    path = tmp_path / f"settings{suffix}"
+    code, _, err = _run(lad, capsys, "export-config", "--out", str(path))
+    assert code == 0, err
+    loaded = lad.config.load_config(path)
+    assert lad.config.config_to_dict(loaded) == \
+        lad.config.config_to_dict(lad.properties.config_from_blender(plate_scene, cam))
+    assert loaded.laser.pulse_energy_j == 0.003
+    code, _, err = _run(lad, capsys, "validate-config", str(path))
+    assert code == 0, err
+
+
+def test_export_and_validate_config_errors(lad, plate_scene, tmp_path, capsys):
+    code, _, err = _run(lad, capsys, "export-config", "--out", str(tmp_path / "settings.yaml"))
+    assert code == 1 and ".json or .toml" in err
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"schema_version": 1, "receiver": {"width_px": 0}}))
+    code, _, err = _run(lad, capsys, "validate-config", str(bad))
+    assert code == 1 and "receiver.width_px" in err
+    bad.write_text(json.dumps({"laser": {"bogus": 1}}))
+    code, _, err = _run(lad, capsys, "validate-config", str(bad))
+    assert code == 1 and "laser.bogus" in err
+    code, _, err = _run(lad, capsys, "validate-config", str(tmp_path / "missing.toml"))
+    assert code == 1 and "missing.toml" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json"]
+
+
+def test_ladar_run_script_in_a_fresh_process(lad, plate_scene, tmp_path):
+    """scripts/ladar_run.py installs the extension in its own isolated Blender and runs the same handler."""
+    blend = tmp_path / "plate.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+
+    def run(*args):
+        return subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"), str(blend), *args],
+                              capture_output=True, text=True, timeout=300, cwd=tmp_path)
+
+    ok = run("simulate", "--out", str(tmp_path / "r1"), "--seed", "3")
+    assert ok.returncode == 0, ok.stderr
+    assert (tmp_path / "r1" / "range.exr").is_file()
+    assert json.loads((tmp_path / "r1" / "metadata.json").read_text())["seed"] == 3
+    usage = run("simulate")
+    assert usage.returncode == 2 and "--out" in usage.stderr
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[gate]\nbin_width_s = 0.0\n")
+    user = run("simulate", "--out", str(tmp_path / "r2"), "--config", str(bad))
+    assert user.returncode == 1
+    assert "gate.bin_width_s" in user.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "r2").exists()
