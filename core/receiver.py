@@ -235,6 +235,13 @@ def gamma_gain(primaries, gain, excess_noise, rng, out=None):
     theta = gain * (excess_noise - 1.0)
     a = 1.0 / (excess_noise - 1.0)
     pf, of = p.reshape(-1), out.reshape(-1)
+    if np.count_nonzero(pf) * 2 > pf.size:  # dense: draw every bin (Gamma(0) = 0 exactly), no index gather
+        shape = pf.astype(np.float64)
+        shape *= a
+        g = rng.standard_gamma(shape)
+        g *= theta
+        of[...] = g
+        return out
     nz = np.flatnonzero(pf)
     shape = pf[nz].astype(np.float64)  # gather before ``out`` (possibly the same memory) is written
     if of is not pf and not np.shares_memory(of, pf):
