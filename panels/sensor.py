@@ -83,7 +83,7 @@ class LADAR_PT_sensor_gate(_SensorGroupPanel, bpy.types.Panel):
     group = "gate"
 
     def draw_group(self, context, layout, props):
-        super().draw_group(context, layout, props)
+        draw_fields(layout, props, SENSOR_FIELDS["gate"])
         c = 299_792_458.0
         start = 0.5 * c * props.gate_start_s
         end = start + 0.5 * c * props.bin_width_s * props.n_bins
@@ -104,6 +104,6 @@ class LADAR_PT_sensor_run(_SensorGroupPanel, bpy.types.Panel):
     def draw_group(self, context, layout, props):
         scene_props = context.scene.ladar
         layout.prop(scene_props, "seed")
-        super().draw_group(context, layout, props)
+        draw_fields(layout, props, SENSOR_FIELDS["run"])
         layout.prop(scene_props, "output_dir")
         layout.prop(scene_props, "overwrite")
