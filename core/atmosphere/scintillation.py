@@ -306,7 +306,10 @@ def make_scintillation_pattern(extent_m, cn2_m_23, wavelength_m, range_m, rng, *
     σ_R² < ``lognormal_max_rytov``, else gamma-gamma (scales ρ_l and (L/k)/ρ_l).  Pitch = smallest
     correlation radius / ``samples_per_cell``; the grid is ≥ 8 of the largest radius and covers the
     footprint unless that needs more than ``max_grid_px`` per side, in which case the periodic tile
-    (still ≥ hundreds of cells) repeats over the footprint.  Cn² = 0 returns the constant pattern 1.
+    (still ≥ hundreds of cells) repeats over the footprint.  When the gamma-gamma scales are too far apart
+    for one grid (strong turbulence: 8 ρ_X > max_grid_px · ρ_l/samples_per_cell) a :class:`ProductPattern`
+    of the X and Y factors on their own grids is returned (same ``sample`` interface, no ``values``).
+    Cn² = 0 returns the constant pattern 1.
     """
     if model not in PATTERN_MODELS:
         raise ValueError(f"model must be one of {PATTERN_MODELS}")
@@ -318,24 +321,55 @@ def make_scintillation_pattern(extent_m, cn2_m_23, wavelength_m, range_m, rng, *
     chosen = d["pdf_model"] if model == "auto" else model
     r_small = d["cell_radius_m"]
     r_large = r_small if chosen == "lognormal" else d["large_scale_radius_m"]
+    a = d["gamma_alpha"] if d["gamma_alpha"] is not None else np.inf
+    b = d["gamma_beta"] if d["gamma_beta"] is not None else np.inf
     pitch = r_small / float(samples_per_cell)
-    if 8.0 * r_large / pitch > max_grid_px - 2:     # keep ≥ 8 large radii per tile: coarsen the pitch
-        pitch = 8.0 * r_large / (max_grid_px - 2)
-    need = max((x1 - x0) / pitch, (y1 - y0) / pitch) + 2
-    nx = min(sfft.next_fast_len(int(math.ceil(max(8.0 * r_large, x1 - x0) / pitch)) + 2, real=True),
-             max_grid_px)
-    ny = min(sfft.next_fast_len(int(math.ceil(max(8.0 * r_large, y1 - y0) / pitch)) + 2, real=True),
-             max_grid_px)
-    shape = (ny, nx)
+    if chosen == "gamma_gamma" and 8.0 * r_large / pitch > max_grid_px - 2:
+        # scales too far apart for one grid: X and Y on their own grids (each at its radius/samples_per_cell)
+        px = r_large / float(samples_per_cell)
+        fx = _grid_for(extent_m, px, r_large, max_grid_px)
+        fy = _grid_for(extent_m, pitch, r_small, max_grid_px)
+        xf = ScintillationPattern(_gamma_factor(fx[0], px, a, r_large, rng), px, (x0, y0), "gamma_X")
+        yf = ScintillationPattern(_gamma_factor(fy[0], pitch, b, r_small, rng), pitch, (x0, y0), "gamma_Y")
+        params = dict(d, pattern_model=chosen, pitch_m=[px, pitch], grid_shape=[list(fx[0]), list(fy[0])],
+                      periodic_tile_m=[[fx[0][1] * px, fx[0][0] * px], [fy[0][1] * pitch, fy[0][0] * pitch]],
+                      tiled=bool(fx[1] or fy[1]))
+        return ProductPattern((xf, yf), chosen, params)
+    shape, tiled = _grid_for(extent_m, pitch, r_large, max_grid_px)
     if chosen == "lognormal":
         vals = lognormal_pattern(shape, pitch, d["sigma2_lnI"], r_small, rng, correlation=correlation)
     else:
-        a = d["gamma_alpha"] if d["gamma_alpha"] is not None else np.inf
-        b = d["gamma_beta"] if d["gamma_beta"] is not None else np.inf
         vals = gamma_gamma_pattern(shape, pitch, a, b, r_large, r_small, rng)
     params = dict(d, pattern_model=chosen, pitch_m=pitch, grid_shape=list(shape),
-                  periodic_tile_m=[nx * pitch, ny * pitch], tiled=bool(need > max_grid_px))
+                  periodic_tile_m=[shape[1] * pitch, shape[0] * pitch], tiled=tiled)
     return ScintillationPattern(vals, pitch, (x0, y0), chosen, params)
+
+
+def _grid_for(extent_m, pitch, r_large, max_grid_px):
+    """(ny, nx) covering the extent and ≥ 8 r_large, FFT-friendly, capped at max_grid_px; and 'tiled'."""
+    x0, x1, y0, y1 = (float(e) for e in extent_m)
+    n = []
+    for span in (y1 - y0, x1 - x0):
+        n.append(min(sfft.next_fast_len(int(math.ceil(max(8.0 * r_large, span) / pitch)) + 2, real=True),
+                     max_grid_px))
+    tiled = max(x1 - x0, y1 - y0) / pitch + 2 > max_grid_px
+    return (n[0], n[1]), bool(tiled)
+
+
+@dataclass(frozen=True)
+class ProductPattern:
+    """Product of independent patterns on their own grids (gamma-gamma with widely separated scales:
+    X on a coarse grid at ρ_X/8, Y on a fine grid at ρ_Y/8).  Same ``sample`` interface."""
+
+    factors: tuple
+    model: str = "gamma_gamma"
+    params: dict = field(default_factory=dict)
+
+    def sample(self, x_m, y_m, method="linear"):
+        out = self.factors[0].sample(x_m, y_m, method)
+        for f in self.factors[1:]:
+            out = out * f.sample(x_m, y_m, method)
+        return out
 
 
 # ----------------------------------------------------------------------------------------------------------

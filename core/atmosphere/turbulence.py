@@ -124,7 +124,9 @@ def large_scale_radius(wavelength_m, range_m, rho0_m):
     """
     L = _f64(range_m)
     k = wavenumber(wavelength_m)
-    return (L / k) / cell_radius(wavelength_m, range_m, rho0_m)
+    rl = cell_radius(wavelength_m, range_m, rho0_m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rl > 0, (L / k) / np.where(rl > 0, rl, 1.0), 0.0)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -265,7 +267,8 @@ def aperture_averaging_factor(wavelength_m, range_m, aperture_diameter_m, wave="
     _check_wave(wave)
     c = 1.062 if wave == "plane" else 0.33
     k = wavenumber(wavelength_m)
-    d2 = k * _f64(aperture_diameter_m) ** 2 / (4.0 * _f64(range_m))
+    with np.errstate(divide="ignore"):
+        d2 = k * _f64(aperture_diameter_m) ** 2 / (4.0 * _f64(range_m))   # L = 0: d² = inf, A = 0
     return (1.0 + c * d2) ** (-7.0 / 6.0)
 
 
