@@ -235,14 +235,15 @@ def gamma_gain(primaries, gain, excess_noise, rng, out=None):
     theta = gain * (excess_noise - 1.0)
     a = 1.0 / (excess_noise - 1.0)
     pf, of = p.reshape(-1), out.reshape(-1)
-    if np.count_nonzero(pf) * 2 > pf.size:  # dense: draw every bin (Gamma(0) = 0 exactly), no index gather
+    mask = pf != 0  # boolean masks: nonzero/count on a bool array is ~10x faster than on floats
+    if np.count_nonzero(mask) * 2 > pf.size:  # dense: draw every bin (Gamma(0) = 0 exactly), no index gather
         shape = pf.astype(np.float64)
         shape *= a
         g = rng.standard_gamma(shape)
         g *= theta
         of[...] = g
         return out
-    nz = np.flatnonzero(pf)
+    nz = np.flatnonzero(mask)
     shape = pf[nz].astype(np.float64)  # gather before ``out`` (possibly the same memory) is written
     if of is not pf and not np.shares_memory(of, pf):
         of[...] = 0.0
@@ -541,9 +542,10 @@ def _process_block(E, out, rng, spk, p, ws) -> dict:
                 stats["normal_bins"] += nb
                 nf[hi] = cnt
                 sf[hi] = 0.0
-            nnz = int(np.count_nonzero(sf))
+            mask = sf != 0
+            nnz = int(np.count_nonzero(mask))
             if nnz * 4 < N:  # faint bins, compact: inverse-CDF placement over the non-zero bins only
-                nz = np.flatnonzero(sf)
+                nz = np.flatnonzero(mask)
                 nf[nz] += poisson_sparse_counts(sf[nz], rng)
             elif nnz:
                 np.add(nf, poisson_sparse_counts(sf, rng), out=nf, casting="unsafe")
