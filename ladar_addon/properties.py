@@ -35,8 +35,7 @@ from decimal import Decimal
 import bpy
 import numpy as np
 
-from ..core.config import (DEFAULT_BRDF, AtmosphereSettings, BRDFSettings, ConfigError, DetectionSettings,
-                           LaserSettings, RangeGateSettings, ReceiverSettings, RunSettings, SimulationConfig,
+from ..core.config import (DEFAULT_BRDF, GROUPS, BRDFSettings, ConfigError, RunSettings, SimulationConfig,
                            field_specs, validate)
 from .errors import LadarError
 from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
@@ -44,9 +43,12 @@ from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
 INT32_MAX = 2**31 - 1
 MIB = 2**20
 
-#: Settings groups stored on the sensor object (``Object.ladar.<group>``).
-SENSOR_GROUPS = {"laser": LaserSettings, "receiver": ReceiverSettings, "gate": RangeGateSettings,
-                 "detection": DetectionSettings, "run": RunSettings}
+_CORE_GROUPS = {g: type(getattr(SimulationConfig(), g)) for g in GROUPS}
+#: Settings groups stored on the scene (``Scene.ladar_<group>``); every other core group is a sensor setting.
+SCENE_GROUPS = {"atmosphere": _CORE_GROUPS["atmosphere"]}
+#: Settings groups stored on the sensor object (``Object.ladar.<group>``): laser, receiver, gate, detection, run
+#: and any group the core adds later.
+SENSOR_GROUPS = {g: cls for g, cls in _CORE_GROUPS.items() if g not in SCENE_GROUPS}
 #: Settings not stored as sensor properties (derived from the camera, or kept on the scene).
 NOT_ON_SENSOR = {("receiver", "fov_x_rad"), ("receiver", "fov_y_rad"), ("run", "seed")}
 #: Receiver size of a new sensor (the core default may differ).
@@ -215,9 +217,10 @@ def group_field_maps(group: str, cls, skip=()) -> list[FieldMap]:
 
 #: Field maps of every Blender-stored setting, by group.
 SENSOR_FIELDS = {g: group_field_maps(g, cls, NOT_ON_SENSOR) for g, cls in SENSOR_GROUPS.items()}
-SYSTEM_TYPE_FIELD = next(_field_map(None, n, d, m) for n, d, m in field_specs(SimulationConfig)
-                         if n == "system_type")
-ATMOSPHERE_FIELDS = group_field_maps("atmosphere", AtmosphereSettings)
+#: Top-level plain settings (``system_type``), stored on ``Object.ladar``.
+TOP_FIELDS = group_field_maps(None, SimulationConfig)
+SYSTEM_TYPE_FIELD = next(f for f in TOP_FIELDS if f.name == "system_type")
+ATMOSPHERE_FIELDS = group_field_maps("atmosphere", SCENE_GROUPS["atmosphere"])
 BRDF_FIELDS = group_field_maps("brdf", BRDFSettings)
 SEED_FIELD = next(_field_map("run", n, d, m) for n, d, m in field_specs(RunSettings) if n == "seed")
 
@@ -232,13 +235,20 @@ def _make_group(class_name: str, fields: list[FieldMap], doc: str, extra: dict |
                                                          "__module__": __name__})
 
 
-LadarLaserSettings = _make_group("LadarLaserSettings", SENSOR_FIELDS["laser"], LaserSettings.__doc__)
-LadarReceiverSettings = _make_group("LadarReceiverSettings", SENSOR_FIELDS["receiver"], ReceiverSettings.__doc__)
-LadarGateSettings = _make_group("LadarGateSettings", SENSOR_FIELDS["gate"], RangeGateSettings.__doc__)
-LadarDetectionSettings = _make_group("LadarDetectionSettings", SENSOR_FIELDS["detection"],
-                                     DetectionSettings.__doc__)
-LadarRunSettings = _make_group("LadarRunSettings", SENSOR_FIELDS["run"], RunSettings.__doc__)
-LadarAtmosphereSettings = _make_group("LadarAtmosphereSettings", ATMOSPHERE_FIELDS, AtmosphereSettings.__doc__)
+def _group_class_name(group: str) -> str:
+    return "Ladar" + "".join(w.capitalize() for w in group.split("_")) + "Settings"
+
+
+#: One PropertyGroup per sensor group: LadarLaserSettings, LadarReceiverSettings, LadarGateSettings, ...
+_GROUP_CLASSES = {g: _make_group(_group_class_name(g), SENSOR_FIELDS[g], cls.__doc__)
+                  for g, cls in SENSOR_GROUPS.items()}
+LadarLaserSettings = _GROUP_CLASSES["laser"]
+LadarReceiverSettings = _GROUP_CLASSES["receiver"]
+LadarGateSettings = _GROUP_CLASSES["gate"]
+LadarDetectionSettings = _GROUP_CLASSES["detection"]
+LadarRunSettings = _GROUP_CLASSES["run"]
+LadarAtmosphereSettings = _make_group("LadarAtmosphereSettings", ATMOSPHERE_FIELDS,
+                                      SCENE_GROUPS["atmosphere"].__doc__)
 LadarBRDFSettings = _make_group(
     "LadarBRDFSettings", BRDF_FIELDS, BRDFSettings.__doc__,
     {"enabled": bpy.props.BoolProperty(
@@ -246,14 +256,10 @@ LadarBRDFSettings = _make_group(
         description="Use these ladar BRDF settings for this material (off: the simulator's default grey "
                     "Lambertian, 30 %)")})
 
-_GROUP_CLASSES = {"laser": LadarLaserSettings, "receiver": LadarReceiverSettings, "gate": LadarGateSettings,
-                  "detection": LadarDetectionSettings, "run": LadarRunSettings}
-
-
 def _sensor_annotations():
-    ann = {SYSTEM_TYPE_FIELD.attr: SYSTEM_TYPE_FIELD.property()}
+    ann = {f.attr: f.property() for f in TOP_FIELDS}
     for group, cls in _GROUP_CLASSES.items():
-        ann[group] = bpy.props.PointerProperty(type=cls, name=group.capitalize())
+        ann[group] = bpy.props.PointerProperty(type=cls, name=group.replace("_", " ").title())
     return ann
 
 
@@ -292,8 +298,8 @@ class LadarSceneSettings(bpy.types.PropertyGroup):
         description="Bring the point cloud and the range/intensity images into the .blend after a run")
 
 
-CLASSES = (LadarLaserSettings, LadarReceiverSettings, LadarGateSettings, LadarDetectionSettings, LadarRunSettings,
-           LadarSensorSettings, LadarAtmosphereSettings, LadarBRDFSettings, LadarSceneSettings)
+CLASSES = (*_GROUP_CLASSES.values(), LadarSensorSettings, LadarAtmosphereSettings, LadarBRDFSettings,
+           LadarSceneSettings)
 
 
 def register():
@@ -369,15 +375,13 @@ def config_from_blender(scene, sensor_obj) -> SimulationConfig:
     groups["run"]["seed"] = SEED_FIELD.to_core(scene.ladar.seed)
     rx = groups["receiver"]
     rx["fov_x_rad"], rx["fov_y_rad"] = camera_receiver_fov_rad(sensor_obj.data, rx["width_px"], rx["height_px"])
-    cfg = SimulationConfig(
-        system_type=SYSTEM_TYPE_FIELD.to_core(getattr(sensor, SYSTEM_TYPE_FIELD.attr)),
-        laser=LaserSettings(**groups["laser"]), receiver=ReceiverSettings(**rx),
-        gate=RangeGateSettings(**groups["gate"]), detection=DetectionSettings(**groups["detection"]),
-        atmosphere=AtmosphereSettings(**_read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, scale)),
-        run=RunSettings(**groups["run"]),
-        materials={material_key(m): brdf_from_material(m) for m in bpy.data.materials
-                   if m.ladar_brdf.enabled})
-    return cfg
+    kwargs = {g: cls(**groups[g]) for g, cls in SENSOR_GROUPS.items()}
+    kwargs["atmosphere"] = SCENE_GROUPS["atmosphere"](**_read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS,
+                                                                    scale))
+    kwargs.update({f.name: f.to_core(getattr(sensor, f.attr)) for f in TOP_FIELDS})
+    kwargs["materials"] = {material_key(m): brdf_from_material(m) for m in bpy.data.materials
+                           if m.ladar_brdf.enabled}
+    return SimulationConfig(**kwargs)
 
 
 def find_material(key: str):
@@ -412,7 +416,8 @@ def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
     set_camera_receiver_fov(cam, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)
     try:
         sensor = sensor_obj.ladar
-        setattr(sensor, SYSTEM_TYPE_FIELD.attr, cfg.system_type)
+        for f in TOP_FIELDS:
+            setattr(sensor, f.attr, f.to_blender(getattr(cfg, f.name), scale))
         for group in SENSOR_GROUPS:
             _write_group(getattr(sensor, group), SENSOR_FIELDS[group], getattr(cfg, group), scale)
         scene.ladar.seed = SEED_FIELD.to_blender(cfg.run.seed)
@@ -436,7 +441,7 @@ def sensor_field_maps(group: str) -> list[FieldMap]:
 
 def all_core_paths() -> set:
     """Dotted paths of every core setting that has a home in Blender (for the 1:1 test)."""
-    paths = {SYSTEM_TYPE_FIELD.path, SEED_FIELD.path, "receiver.fov_x_rad", "receiver.fov_y_rad"}
+    paths = {f.path for f in TOP_FIELDS} | {SEED_FIELD.path, "receiver.fov_x_rad", "receiver.fov_y_rad"}
     for fields in SENSOR_FIELDS.values():
         paths |= {f.path for f in fields}
     paths |= {f.path for f in ATMOSPHERE_FIELDS}

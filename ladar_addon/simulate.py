@@ -138,7 +138,8 @@ def simulate_scene(scene, out_dir=None, frame=None, seed=None, config_path=None,
     run_path = resolve_run_dir(scene, sensor, frame, out_dir)
     run_name = run_path.name
     if run_path.exists() and not overwrite:
-        raise ConfigError("out", str(run_path), "a run folder that does not exist yet (or overwrite it: --overwrite, Scene > Ladar > Overwrite)")
+        raise ConfigError("out", str(run_path), "a run folder that does not exist yet (or overwrite it: "
+                                                "--overwrite, Scene > Ladar > Overwrite)")
 
     cfg, blender_materials = build_config(scene, sensor, config_path=config_path, seed=seed)
     if import_results:

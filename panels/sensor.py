@@ -3,7 +3,7 @@ import math
 
 import bpy
 
-from ..ladar_addon.properties import SENSOR_FIELDS, SYSTEM_TYPE_FIELD
+from ..ladar_addon.properties import SENSOR_FIELDS, TOP_FIELDS
 from ..ladar_addon.sensor import camera_receiver_fov_rad
 from .common import draw_fields, simulate_button
 
@@ -28,7 +28,8 @@ class LADAR_PT_sensor(_SensorPanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         obj = context.object
-        layout.prop(obj.ladar, SYSTEM_TYPE_FIELD.attr)
+        for f in TOP_FIELDS:
+            layout.prop(obj.ladar, f.attr)
         rx = obj.ladar.receiver
         col = layout.column(align=True)
         try:
@@ -107,3 +108,11 @@ class LADAR_PT_sensor_run(_SensorGroupPanel, bpy.types.Panel):
         draw_fields(layout, props, SENSOR_FIELDS["run"])
         layout.prop(scene_props, "output_dir")
         layout.prop(scene_props, "overwrite")
+
+
+_KNOWN = {"laser", "receiver", "gate", "detection", "run"}
+#: Sub-panels for settings groups the core may add later (drawn generically, closed by default).
+EXTRA_GROUP_PANELS = tuple(
+    type(f"LADAR_PT_sensor_{group}", (_SensorGroupPanel, bpy.types.Panel),
+         {"bl_label": group.replace("_", " ").title(), "group": group, "bl_options": {"DEFAULT_CLOSED"}})
+    for group in SENSOR_FIELDS if group not in _KNOWN)

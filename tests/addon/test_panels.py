@@ -60,9 +60,9 @@ def test_panels_draw_every_setting(lad, scene):
     log = _draw(panels.LADAR_PT_sensor, ctx)
     assert ("operator", "ladar.simulate") in log and ("prop", "system_type") in log
     assert any(kind == "label" and "Field of view" in text for kind, text in log)
-    for cls, group in ((panels.LADAR_PT_sensor_laser, "laser"), (panels.LADAR_PT_sensor_receiver, "receiver"),
-                       (panels.LADAR_PT_sensor_gate, "gate"), (panels.LADAR_PT_sensor_detection, "detection"),
-                       (panels.LADAR_PT_sensor_run, "run")):
+    group_panels = {cls.group: cls for cls in panels.CLASSES if getattr(cls, "group", "")}
+    assert set(group_panels) == set(props.SENSOR_FIELDS)  # a sub-panel for every sensor settings group
+    for group, cls in group_panels.items():
         assert cls.bl_parent_id == "LADAR_PT_sensor" and cls.bl_context == "data"
         drawn = {name for kind, name in _draw(cls, ctx) if kind == "prop"}
         assert {f.attr for f in props.SENSOR_FIELDS[group]} <= drawn, group
