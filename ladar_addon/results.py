@@ -3,7 +3,7 @@
 * The point cloud is a mesh of vertices only (one per echo) named after the run, in the collection
   "Ladar Results", with point attributes ``intensity``, ``range_m``, ``echo_index`` (1 = first echo),
   ``n_echoes``, ``time_s``, ``pixel_x``, ``pixel_y``, ``frame``, ``position_sensor`` and ``intensity_norm``
-  (intensity / the run's largest intensity, 0…1), plus the colour attribute ``intensity_color``.
+  (intensity / its 99th percentile, clipped to 0…1), plus the colour attribute ``intensity_color``.
 * A Geometry Nodes modifier ("Ladar Point Cloud" group: Mesh to Points with a *Point Radius* input, then Set
   Material) turns the vertices into points with the material "Ladar Intensity", which reads
   ``intensity_norm`` through an Attribute node and a Color Ramp into the base and emission colour.
@@ -55,11 +55,11 @@ def check_result_names(run_name: str, overwrite: bool) -> None:
                              f"enable overwrite")
 
 
-def intensity_norm(intensity: np.ndarray) -> np.ndarray:
-    """Intensity scaled to 0…1 by the largest finite value (zeros if there is none above 0)."""
+def intensity_norm(intensity: np.ndarray, percentile: float = 99.0) -> np.ndarray:
+    """Intensity scaled to 0…1 by its ``percentile`` (clipped; a few glints do not darken the rest)."""
     intensity = np.asarray(intensity, dtype=np.float64)
     finite = intensity[np.isfinite(intensity)]
-    top = finite.max() if finite.size else 0.0
+    top = float(np.percentile(finite, percentile)) if finite.size else 0.0
     if top <= 0.0:
         return np.zeros(intensity.shape, np.float32)
     return np.clip(np.nan_to_num(intensity / top, nan=0.0), 0.0, 1.0).astype(np.float32)
