@@ -110,6 +110,11 @@ class LaserSettings:
                                          doc="Full-angle beam divergence at the 1/e² intensity points")
     divergence_fills_fov: bool = setting(True, doc="Set the Gaussian 1/e² divergence to the field-of-view "
                                                    "diagonal (ignore beam_divergence_rad)")
+    beam_waist_radius_m: float = setting(0.01, lo=1e-4, hi=1.0, unit="m", subtype="DISTANCE",
+                                         doc="1/e² radius W0 of the beam leaving the transmitter (turbulence "
+                                             "broadening and wander, physics.md §4)")
+    beam_focus_range_m: float = setting(0.0, lo=0.0, hi=1e7, unit="m", subtype="DISTANCE",
+                                        doc="Focus range F0 of the transmitted beam; 0 = collimated")
 
 
 @dataclass
@@ -156,10 +161,29 @@ class DetectionSettings:
 
 @dataclass
 class AtmosphereSettings:
-    """Atmosphere between sensor and scene (paper §3.4).  Issue 2: aerosol extinction only."""
+    """Atmosphere between sensor and scene (paper §3.4, effects A–E; physics.md §1–6)."""
 
     extinction_per_m: float = setting(0.0, lo=0.0, hi=1.0, unit="1/m",
-                                      doc="Aerosol extinction coefficient σ_atm of eq. 3-1 (one-way)")
+                                      doc="Aerosol extinction coefficient σ_atm of eq. 3-1 (one-way); used when "
+                                          "visibility_m is 0")
+    visibility_m: float = setting(0.0, lo=0.0, hi=1e6, unit="m", subtype="DISTANCE",
+                                  doc="Meteorological visibility (2 % contrast); when > 0 it sets the "
+                                      "extinction at the laser wavelength (0: use extinction_per_m)")
+    visibility_model: str = setting("kim", choices=("kim", "kruse"),
+                                    doc="Visibility-to-extinction model (physics.md §6)")
+    cn2_m_23: float = setting(0.0, lo=0.0, hi=1e-11, unit="m^-2/3",
+                              doc="Refractive-index structure constant Cn², constant along the path "
+                                  "(0: no turbulence)")
+    beam_broadening: bool = setting(True, doc="A: widen the Gaussian beam to its turbulent short-term "
+                                              "(or long-term, without wander) radius")
+    scintillation: bool = setting(True, doc="B: multiply a random scintillation pattern onto the "
+                                            "illumination at the target")
+    scintillation_model: str = setting("auto", choices=("auto", "lognormal", "gamma_gamma"),
+                                       doc="Scintillation pdf: log-normal (eq. 3-5) in weak turbulence, "
+                                           "gamma-gamma in moderate/strong; auto picks by regime")
+    beam_wander: bool = setting(True, doc="D: displace the beam centre randomly per pulse")
+    turbulence_blur: str = setting("long", choices=("long", "short", "none"),
+                                   doc="E: turbulence MTF blur of the received image (long or short exposure)")
 
 
 @dataclass
@@ -235,6 +259,9 @@ def validate(obj, prefix: str = "") -> None:
 
 
 def _check_cross_field(cfg: SimulationConfig) -> None:
+    if 0.0 < cfg.atmosphere.visibility_m < 50.0:
+        raise ConfigError("atmosphere.visibility_m", cfg.atmosphere.visibility_m,
+                          "0 (off) or a visibility in [50, 1e+06] m")
     cube = cfg.receiver.width_px * cfg.receiver.height_px * cfg.gate.n_bins * 4
     if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:
         max_bins = cfg.run.max_memory_bytes // (4 * cfg.receiver.width_px * cfg.receiver.height_px)

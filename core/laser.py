@@ -30,17 +30,18 @@ def beam_half_angle_tan(laser: LaserSettings, det: Detector) -> float:
     return float(np.tan(laser.beam_divergence_rad / 2))
 
 
-def cell_energy_fractions(laser: LaserSettings, det: Detector, center_offset_tan=(0.0, 0.0)):
+def cell_energy_fractions(laser: LaserSettings, det: Detector, center_offset_tan=(0.0, 0.0), width_scale=1.0):
     """Per-axis factors (fx (W·S,), fy (H·S,)) whose outer product is the fraction of the pulse energy in each
     sub-ray cell: fraction[sub_y, sub_x] = fy[sub_y]·fx[sub_x].
 
-    ``center_offset_tan`` displaces the beam centre (beam wander / pointing) in tan-plane units.
+    ``center_offset_tan`` displaces the beam centre (beam wander / pointing) in tan-plane units;
+    ``width_scale`` widens the Gaussian beam (turbulent broadening), keeping its total energy.
     """
     x_edges, y_edges = det.sub_cell_edges()
     if laser.beam_profile == "uniform":
         nx, ny = len(x_edges) - 1, len(y_edges) - 1
         return np.full(nx, 1.0 / nx), np.full(ny, 1.0 / ny)
-    w = beam_half_angle_tan(laser, det)
+    w = beam_half_angle_tan(laser, det) * width_scale
     k = np.sqrt(2.0) / w
     ex = erf(k * (x_edges - center_offset_tan[0]))
     ey = erf(k * (y_edges - center_offset_tan[1]))

@@ -19,6 +19,7 @@ from . import __version__
 from .config import ConfigError, SimulationConfig, config_to_dict, validate
 from .echoes import detect_echoes
 from .laser import cell_energy_fractions
+from .propagation import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
 from .radiometry import received_energy
 from .rays import Detector, block_subray_tan, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
@@ -50,16 +51,20 @@ class FrameResult:
 
 def plan(config: SimulationConfig) -> dict:
     """Which stages this run executes and which it skips (with the reason)."""
+    from .propagation import effective_extinction_per_m
     skipped = {}
-    if config.atmosphere.extinction_per_m == 0.0:
-        skipped["extinction"] = "atmosphere.extinction_per_m = 0: transmission is 1"
-    if not config.run.save_waveforms:
+    if effective_extinction_per_m(config) == 0.0:
+        skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
+    skipped.update(turbulence_switches(config))
+    keeps_cube = config.run.save_waveforms or "turbulence_blur" not in skipped
+    if not keeps_cube:
         skipped["waveform_cube"] = ("run.save_waveforms = false: waveforms are built per block for echo "
                                     "detection and discarded")
-    ran = list(STAGES) + [s for s in ("extinction", "waveform_cube") if s not in skipped]
+    optional = ("extinction", "beam_broadening", "scintillation", "beam_wander", "turbulence_blur",
+                "waveform_cube")
+    ran = list(STAGES) + [s for s in optional if s not in skipped]
     return {"stages_run": ran, "stages_skipped": skipped,
-            "not_modelled": {"turbulence": "not in this version", "receiver_noise": "not in this version",
-                             "speckle": "not in this version"}}
+            "not_modelled": {"receiver_noise": "not in this version", "speckle": "not in this version"}}
 
 
 def _sensor_axes(world_from_sensor):
@@ -89,13 +94,22 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     times["build_bvh"] = time.perf_counter() - t0
 
     det = Detector.from_settings(config.receiver)
-    fx, fy = cell_energy_fractions(config.laser, det)
+    run_plan = plan(config)
+    t0 = time.perf_counter()
+    needs_reference = any(s not in run_plan["stages_skipped"]
+                          for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
+    atm = prepare_frame_atmosphere(config, det, _reference_range(tracer, det, origin, rot) if needs_reference
+                                   else None, frame)
+    times["atmosphere"] = time.perf_counter() - t0
+    fx, fy = cell_energy_fractions(config.laser, det, atm.beam_offset_tan, atm.beam_width_scale)
     gate = config.gate
+    blur = atm.blur_r0_m is not None
     method = binning_method(config.laser, gate)
     s2 = det.rays_per_pixel
     per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
     blocks = [(a, min(a + per_block, det.n_pixels)) for a in range(0, det.n_pixels, per_block)]
-    waveforms = (np.zeros((det.n_pixels, gate.n_bins), np.float32) if config.run.save_waveforms else None)
+    keep_cube = config.run.save_waveforms or blur
+    waveforms = np.zeros((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
     energy = np.zeros(det.n_pixels)
 
     def process(block):
@@ -113,8 +127,10 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         local["trace"] = time.perf_counter() - t
         t = time.perf_counter()
         hit = prim >= 0
-        e = received_energy(config.laser, config.receiver, config.atmosphere, scene.materials,
+        e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials,
                             scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], fraction[hit])
+        if atm.pattern is not None:
+            e *= atm.scintillation_at(x_tan[hit], y_tan[hit])
         pix_local = pixel[hit] - a
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
@@ -126,6 +142,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         if waveforms is not None:
             waveforms[a + active] = wf
         local["waveform"] = time.perf_counter() - t
+        if blur:  # echoes are detected after the whole cube is blurred
+            return None, int(hit.sum()), local
         t = time.perf_counter()
         echoes = detect_echoes(wf, config.detection)
         echoes.pixel = active[echoes.pixel] + a
@@ -148,8 +166,24 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                           f"a field of view containing geometry: all {det.n_pixels * s2} rays missed the "
                           f"{scene.n_triangles} triangles of the scene (check the sensor's pose and field of view)")
 
+    energy_image = energy.reshape(det.height_px, det.width_px)
+    if blur:
+        t0 = time.perf_counter()
+        cube = waveforms.reshape(det.height_px, det.width_px, gate.n_bins)
+        energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
+        times["turbulence_blur"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        echo_parts = []
+        for a, b in blocks:
+            ech = detect_echoes(waveforms[a:b].astype(np.float64), config.detection)
+            ech.pixel += a
+            echo_parts.append(ech)
+        times["echoes"] = time.perf_counter() - t0
+        if not config.run.save_waveforms:
+            waveforms = None
+    else:
+        echo_parts = [r[0] for r in results]
     t0 = time.perf_counter()
-    echo_parts = [r[0] for r in results]
     pixel = np.concatenate([e.pixel for e in echo_parts])
     pos_bins = np.concatenate([e.position_bins for e in echo_parts])
     amp = np.concatenate([e.amplitude for e in echo_parts])
@@ -171,13 +205,28 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pixels_per_block": per_block,
              "threads": min(threads, len(blocks)), "waveform_binning": method,
              "stage_times_s": times, "wall_time_s": time.perf_counter() - t_wall,
-             "received_energy_j": float(energy.sum())}
-    stats.update(plan(config))
+             "received_energy_j": float(energy_image.sum())}
+    stats.update(run_plan)
+    if atm.metadata:
+        stats["atmosphere"] = atm.metadata
     return FrameResult(range_image=range_echoes[:, :, 0].copy(), intensity_image=intensity_echoes[:, :, 0].copy(),
-                       energy_image=energy.reshape(h, w), range_echoes=range_echoes,
+                       energy_image=energy_image, range_echoes=range_echoes,
                        intensity_echoes=intensity_echoes, points=points,
                        waveforms=None if waveforms is None else waveforms.reshape(h, w, gate.n_bins),
                        stats=stats)
+
+
+def _reference_range(tracer, det, origin, rot) -> float:
+    """Median range of the pixel-centre rays that hit the scene: where the turbulence is evaluated."""
+    pix = np.arange(det.n_pixels)
+    xt, yt = det.pixel_center_tan(pix % det.width_px, pix // det.width_px)
+    prim, range_m, _ = tracer.intersect(origin, tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float))
+                                        @ rot.T)
+    hits = range_m[prim >= 0]
+    if len(hits) == 0:
+        raise ConfigError("sensor", "sees nothing", "a field of view containing geometry: no pixel-centre ray "
+                                                    "hits the scene (check the sensor's pose and field of view)")
+    return float(np.median(hits))
 
 
 def _points(det, origin, rot, pixel, range_m, amp, echo_index, n_echoes, time_s, frame):

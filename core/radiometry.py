@@ -26,10 +26,10 @@ def log_received_energy(pulse_energy_j, cell_fraction, system_efficiency, brdf_p
     return log_e
 
 
-def received_energy(laser, receiver, atmosphere, materials, material_ids, cos_theta, range_m, cell_fraction):
+def received_energy(laser, receiver, extinction_per_m, materials, material_ids, cos_theta, range_m,
+                    cell_fraction):
     """E_r (J, float64) per ray of eq. 3-1 for the settings groups."""
     f_r = evaluate_materials(materials, material_ids, cos_theta)
     log_e = log_received_energy(laser.pulse_energy_j, cell_fraction, receiver.system_efficiency, f_r,
-                                cos_theta, receiver.aperture_diameter_m, range_m,
-                                atmosphere.extinction_per_m)
+                                cos_theta, receiver.aperture_diameter_m, range_m, extinction_per_m)
     return np.exp(log_e)

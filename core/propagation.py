@@ -1,0 +1,152 @@
+"""The atmosphere stage of a frame (paper §3.4, effects A–E), wired from the settings to the pipeline.
+
+Per frame the turbulence is evaluated at a reference range R_ref, the median range of the pixel-centre
+rays that hit the scene (the paper applies one scintillation pattern at the target):
+
+* A  broadening: the Gaussian beam is widened by W_ST/W (short-term radius, when wander is simulated
+     separately) or W_LT/W (long-term radius, without wander) at R_ref (physics.md §4); energy conserved;
+* B  scintillation: one pattern per pulse, in metres on the plane ⟂ to the line of sight at R_ref, multiplied
+     onto the illumination of every sub-ray at (x_tan·R_ref, y_tan·R_ref);
+* C  extinction: from ``extinction_per_m`` or from the visibility (Kim/Kruse) at the laser wavelength;
+* D  wander: the beam centre is displaced by a random offset drawn per pulse with ⟨r_c²⟩ (2.42 form);
+* E  blur: the turbulence MTF (spherical-wave r0 at R_ref) applied to every time slice of the received
+     waveforms and to the energy image.
+
+Random numbers come from SeedSequence([seed, frame, stage]) so they do not depend on threads or chunking.
+With Cn² = 0 (or every effect off) nothing here touches the products: the result is bit-identical to a run
+without turbulence settings.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .atmosphere import (beam_wander_offsets, beam_wander_variance, derived_turbulence,
+                         extinction_from_visibility, gaussian_beam_parameters, long_term_beam_radius,
+                         make_scintillation_pattern, short_term_beam_radius, turbulence_blur)
+from .config import SimulationConfig
+
+#: Stage keys of the per-frame random streams.
+RNG_STAGE = {"beam_wander": 1, "scintillation": 2}
+
+
+def stage_rng(seed: int, frame: int, stage: str) -> np.random.Generator:
+    """The random generator of one stage of one frame (independent streams, reproducible)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(frame) & 0xFFFFFFFF, RNG_STAGE[stage]]))
+
+
+def effective_extinction_per_m(config: SimulationConfig) -> float:
+    """σ_atm (1/m): from the visibility when it is set (physics.md §6), else the given coefficient."""
+    atm = config.atmosphere
+    if atm.visibility_m > 0.0:
+        return float(extinction_from_visibility(atm.visibility_m, config.laser.wavelength_m, atm.visibility_model))
+    return atm.extinction_per_m
+
+
+@dataclass
+class FrameAtmosphere:
+    extinction_per_m: float = 0.0
+    beam_width_scale: float = 1.0
+    beam_offset_tan: tuple = (0.0, 0.0)
+    pattern: object = None
+    reference_range_m: float | None = None
+    blur_r0_m: float | None = None
+    metadata: dict = field(default_factory=dict)
+    skipped: dict = field(default_factory=dict)
+    ran: list = field(default_factory=list)
+
+    def scintillation_at(self, x_tan, y_tan):
+        """Pattern value for sub-rays at tan-plane coordinates (1 without scintillation)."""
+        r = self.reference_range_m
+        return self.pattern.sample(np.asarray(x_tan) * r, np.asarray(y_tan) * r)
+
+
+def turbulence_switches(config: SimulationConfig) -> dict:
+    """Which turbulence effects this run computes, with the reason for each one skipped."""
+    atm, laser = config.atmosphere, config.laser
+    skipped = {}
+    if atm.cn2_m_23 == 0.0:
+        for name in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"):
+            skipped[name] = "atmosphere.cn2_m_23 = 0: no turbulence"
+        return skipped
+    if not atm.beam_broadening:
+        skipped["beam_broadening"] = "atmosphere.beam_broadening = false"
+    elif laser.beam_profile != "gaussian":
+        skipped["beam_broadening"] = "laser.beam_profile = uniform: broadening applies to a Gaussian beam"
+    if not atm.scintillation:
+        skipped["scintillation"] = "atmosphere.scintillation = false"
+    if not atm.beam_wander:
+        skipped["beam_wander"] = "atmosphere.beam_wander = false"
+    elif laser.beam_profile != "gaussian":
+        skipped["beam_wander"] = "laser.beam_profile = uniform: wander applies to a Gaussian beam"
+    if atm.turbulence_blur == "none":
+        skipped["turbulence_blur"] = "atmosphere.turbulence_blur = none"
+    return skipped
+
+
+def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, frame: int) -> FrameAtmosphere:
+    """Evaluate the atmosphere of one frame: extinction, and the turbulence realisation at R_ref."""
+    atm, laser = config.atmosphere, config.laser
+    out = FrameAtmosphere(extinction_per_m=effective_extinction_per_m(config))
+    if out.extinction_per_m == 0.0:
+        out.skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
+    else:
+        out.ran.append("extinction")
+        out.metadata["extinction_per_m"] = out.extinction_per_m
+    out.skipped.update(turbulence_switches(config))
+    active = [s for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur")
+              if s not in out.skipped]
+    if not active:
+        return out
+    r_ref = float(reference_range_m)
+    out.reference_range_m = r_ref
+    lam = laser.wavelength_m
+    focus = laser.beam_focus_range_m if laser.beam_focus_range_m > 0 else np.inf
+    derived = derived_turbulence(atm.cn2_m_23, lam, r_ref, wave="spherical",
+                                 aperture_diameter_m=config.receiver.aperture_diameter_m)
+    meta = {"reference_range_m": r_ref, "derived": derived}
+    beam = gaussian_beam_parameters(lam, laser.beam_waist_radius_m, r_ref, focus)
+    r_c2 = float(beam_wander_variance(atm.cn2_m_23, r_ref, laser.beam_waist_radius_m, focus))
+    meta["beam_wander_variance_m2"] = r_c2
+    if "beam_broadening" in active:
+        w = float(beam["w_m"])
+        w_lt = float(long_term_beam_radius(w, derived["rytov_variance_plane"], beam["lam"]))
+        radius = float(short_term_beam_radius(w_lt, r_c2, w)) if "beam_wander" in active else w_lt
+        out.beam_width_scale = radius / w
+        meta.update(free_space_radius_m=w, long_term_radius_m=w_lt, broadened_radius_m=radius,
+                    beam_width_scale=out.beam_width_scale)
+    if "beam_wander" in active:
+        offset_m = beam_wander_offsets(r_c2, stage_rng(config.run.seed, frame, "beam_wander"))
+        out.beam_offset_tan = (float(offset_m[0]) / r_ref, float(offset_m[1]) / r_ref)
+        meta["beam_wander_offset_m"] = [float(offset_m[0]), float(offset_m[1])]
+    if "scintillation" in active:
+        half_x, half_y = det.half_width_tan * r_ref, det.half_height_tan * r_ref
+        out.pattern = make_scintillation_pattern((-half_x, half_x, -half_y, half_y), atm.cn2_m_23, lam, r_ref,
+                                                 stage_rng(config.run.seed, frame, "scintillation"),
+                                                 wave="spherical", model=atm.scintillation_model)
+        meta["scintillation_pattern"] = {k: v for k, v in out.pattern.params.items() if k != "derived"} \
+            if hasattr(out.pattern, "params") else {}
+    if "turbulence_blur" in active:
+        out.blur_r0_m = derived["r0_spherical_m"]
+        meta["blur_r0_m"] = out.blur_r0_m
+    out.ran += active
+    out.metadata["turbulence"] = meta
+    return out
+
+
+def blur_cube_and_image(cube, energy_image, det, config: SimulationConfig, r0_m, bins_per_chunk: int = 64):
+    """Apply the turbulence MTF blur (E) to every time slice of a (H, W, B) cube in place, and to the energy
+    image (returned).  Slices with no energy are left as they are (all zero)."""
+    pitch = (2 * det.half_height_tan / det.height_px, 2 * det.half_width_tan / det.width_px)
+    kwargs = dict(exposure=config.atmosphere.turbulence_blur, aperture_diameter_m=config.receiver.aperture_diameter_m)
+    lam = config.laser.wavelength_m
+    occupied = np.flatnonzero(cube.reshape(-1, cube.shape[2]).any(axis=0))
+    if len(occupied):
+        lo, hi = occupied[0], occupied[-1] + 1
+        for a in range(lo, hi, bins_per_chunk):
+            b = min(a + bins_per_chunk, hi)
+            slab = np.moveaxis(cube[:, :, a:b], 2, 0)
+            blurred = turbulence_blur(slab, pitch, lam, r0_m, **kwargs)
+            cube[:, :, a:b] = np.maximum(np.moveaxis(blurred, 0, 2), 0.0)
+    return np.maximum(turbulence_blur(energy_image, pitch, lam, r0_m, **kwargs), 0.0)
