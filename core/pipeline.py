@@ -101,6 +101,10 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     atm = prepare_frame_atmosphere(config, det, _reference_range(tracer, det, origin, rot) if needs_reference
                                    else None, frame)
     times["atmosphere"] = time.perf_counter() - t0
+    for stage, reason in atm.skipped.items():  # decided with the frame's geometry (e.g. negligible blur)
+        if stage not in run_plan["stages_skipped"]:
+            run_plan["stages_skipped"][stage] = reason
+            run_plan["stages_run"] = [s for s in run_plan["stages_run"] if s != stage]
     fx, fy = cell_energy_fractions(config.laser, det, atm.beam_offset_tan, atm.beam_width_scale)
     gate = config.gate
     blur = atm.blur_r0_m is not None
@@ -130,7 +134,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials,
                             scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], fraction[hit])
         if atm.pattern is not None:
-            e *= atm.scintillation_at(x_tan[hit], y_tan[hit])
+            e *= atm.scintillation_at(x_tan[hit], y_tan[hit], sub_x[hit], sub_y[hit])
         pix_local = pixel[hit] - a
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t

@@ -6,11 +6,13 @@ rays that hit the scene (the paper applies one scintillation pattern at the targ
 * A  broadening: the Gaussian beam is widened by W_ST/W (short-term radius, when wander is simulated
      separately) or W_LT/W (long-term radius, without wander) at R_ref (physics.md §4); energy conserved;
 * B  scintillation: one pattern per pulse, in metres on the plane ⟂ to the line of sight at R_ref, multiplied
-     onto the illumination of every sub-ray at (x_tan·R_ref, y_tan·R_ref);
+     onto the illumination of every sub-ray at (x_tan·R_ref, y_tan·R_ref); where a sub-ray's footprint is
+     larger than a scintillation cell, the pattern averaged over the footprint (FootprintAveragedPattern);
 * C  extinction: from ``extinction_per_m`` or from the visibility (Kim/Kruse) at the laser wavelength;
 * D  wander: the beam centre is displaced by a random offset drawn per pulse with ⟨r_c²⟩ (2.42 form);
 * E  blur: the turbulence MTF (spherical-wave r0 at R_ref) applied to every time slice of the received
-     waveforms and to the energy image.
+     waveforms and to the energy image; skipped (and said so) when the MTF at the pixel Nyquist frequency
+     exceeds 0.999, i.e. the PSF is far below one pixel.
 
 Random numbers come from SeedSequence([seed, frame, stage]) so they do not depend on threads or chunking.
 With Cn² = 0 (or every effect off) nothing here touches the products: the result is bit-identical to a run
@@ -22,10 +24,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy.special import erf
+
 from .atmosphere import (beam_wander_offsets, beam_wander_variance, derived_turbulence,
                          extinction_from_visibility, gaussian_beam_parameters, long_term_beam_radius,
-                         make_scintillation_pattern, short_term_beam_radius, turbulence_blur)
+                         make_scintillation_pattern, short_term_beam_radius, turbulence_blur, turbulence_mtf_long)
 from .config import SimulationConfig
+
+#: The turbulence blur is skipped when the MTF at the pixel Nyquist frequency exceeds this (PSF ≪ a pixel).
+BLUR_NEGLIGIBLE_MTF = 0.999
 
 #: Stage keys of the per-frame random streams.
 RNG_STAGE = {"beam_wander": 1, "scintillation": 2}
@@ -56,10 +63,45 @@ class FrameAtmosphere:
     skipped: dict = field(default_factory=dict)
     ran: list = field(default_factory=list)
 
-    def scintillation_at(self, x_tan, y_tan):
-        """Pattern value for sub-rays at tan-plane coordinates (1 without scintillation)."""
+    def scintillation_at(self, x_tan, y_tan, sub_x, sub_y):
+        """Pattern value for sub-rays at tan-plane coordinates / sub-ray cells."""
+        if isinstance(self.pattern, FootprintAveragedPattern):
+            return self.pattern.values[sub_y, sub_x]
         r = self.reference_range_m
         return self.pattern.sample(np.asarray(x_tan) * r, np.asarray(y_tan) * r)
+
+
+def box_average_variance_factor(side_m, radius_m):
+    """Variance factor of a field with Gaussian correlation exp(−r²/ρ²) averaged along a segment of length p:
+    (ρ/p)² [√π (p/ρ) erf(p/ρ) + exp(−(p/ρ)²) − 1]  (→ 1 for p ≪ ρ, → √π ρ/p for p ≫ ρ)."""
+    a = np.asarray(side_m, dtype=np.float64) / radius_m
+    return (np.sqrt(np.pi) * a * erf(a) + np.exp(-a * a) - 1.0) / (a * a)
+
+
+@dataclass
+class FootprintAveragedPattern:
+    """Scintillation seen by sub-rays whose footprint is larger than a scintillation cell.
+
+    Each sub-ray collects the pattern averaged over its footprint (p_x × p_y at R_ref): unit mean, variance
+    SI · g(p_x/ρ_l) · g(p_y/ρ_l) (:func:`box_average_variance_factor`), nearly independent between sub-rays
+    (p > ρ_l).  A sum of many cells has gamma statistics (physics.md §11), so one gamma value of that mean and
+    variance is drawn per sub-ray cell of the whole frame (independent of blocks and threads).
+    """
+
+    values: np.ndarray  # (H·S, W·S) indexed by [sub_y, sub_x]
+    params: dict
+
+    @classmethod
+    def draw(cls, det, sub_pitch_m, derived, rng):
+        si = derived["scintillation_index"]
+        rho = derived["cell_radius_m"]
+        var = float(si * box_average_variance_factor(sub_pitch_m[0], rho)
+                    * box_average_variance_factor(sub_pitch_m[1], rho))
+        shape = (det.height_px * det.subsamples, det.width_px * det.subsamples)
+        values = rng.gamma(1.0 / var, var, size=shape) if var > 0 else np.ones(shape)
+        return cls(values, {"pattern_model": "footprint_averaged_gamma", "sub_ray_footprint_m": list(sub_pitch_m),
+                            "cell_radius_m": rho, "point_scintillation_index": si,
+                            "averaged_scintillation_index": var})
 
 
 def turbulence_switches(config: SimulationConfig) -> dict:
@@ -121,15 +163,30 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
         out.beam_offset_tan = (float(offset_m[0]) / r_ref, float(offset_m[1]) / r_ref)
         meta["beam_wander_offset_m"] = [float(offset_m[0]), float(offset_m[1])]
     if "scintillation" in active:
-        half_x, half_y = det.half_width_tan * r_ref, det.half_height_tan * r_ref
-        out.pattern = make_scintillation_pattern((-half_x, half_x, -half_y, half_y), atm.cn2_m_23, lam, r_ref,
-                                                 stage_rng(config.run.seed, frame, "scintillation"),
-                                                 wave="spherical", model=atm.scintillation_model)
-        meta["scintillation_pattern"] = {k: v for k, v in out.pattern.params.items() if k != "derived"} \
-            if hasattr(out.pattern, "params") else {}
+        rng = stage_rng(config.run.seed, frame, "scintillation")
+        sub_pitch_m = (2 * det.half_width_tan * r_ref / (det.width_px * det.subsamples),
+                       2 * det.half_height_tan * r_ref / (det.height_px * det.subsamples))
+        if min(sub_pitch_m) > derived["cell_radius_m"]:
+            out.pattern = FootprintAveragedPattern.draw(det, sub_pitch_m, derived, rng)
+            meta["scintillation_pattern"] = out.pattern.params
+        else:
+            half_x, half_y = det.half_width_tan * r_ref, det.half_height_tan * r_ref
+            out.pattern = make_scintillation_pattern((-half_x, half_x, -half_y, half_y), atm.cn2_m_23, lam, r_ref,
+                                                     rng, wave="spherical", model=atm.scintillation_model,
+                                                     max_grid_px=2048)
+            meta["scintillation_pattern"] = {k: v for k, v in out.pattern.params.items() if k != "derived"}
     if "turbulence_blur" in active:
-        out.blur_r0_m = derived["r0_spherical_m"]
-        meta["blur_r0_m"] = out.blur_r0_m
+        pitch_rad = min(det.pixel_pitch_tan)
+        nyquist = 0.5 / pitch_rad
+        mtf_nyquist = float(turbulence_mtf_long(nyquist, lam, derived["r0_spherical_m"]))
+        meta["blur_mtf_at_nyquist"] = mtf_nyquist
+        if mtf_nyquist > BLUR_NEGLIGIBLE_MTF:
+            out.skipped["turbulence_blur"] = (f"turbulence MTF at the pixel Nyquist frequency is {mtf_nyquist:.6f} "
+                                              f"> {BLUR_NEGLIGIBLE_MTF}: the blur is far below one pixel")
+            active.remove("turbulence_blur")
+        else:
+            out.blur_r0_m = derived["r0_spherical_m"]
+            meta["blur_r0_m"] = out.blur_r0_m
     out.ran += active
     out.metadata["turbulence"] = meta
     return out

@@ -156,3 +156,40 @@ def test_blur_is_the_turbulence_mtf_and_conserves_energy():
     assert res.energy_image.max() < 0.9 * ref.energy_image.max()  # the spot is visibly blurred
     # the waveform cube is blurred slice by slice: the same total energy as the blurred image
     assert res.waveforms.sum(dtype=np.float64) == pytest.approx(res.energy_image.sum(), rel=1e-4)
+
+
+def test_footprint_averaged_scintillation_and_negligible_blur():
+    """B with sub-ray footprints larger than a cell: per-sub-ray factors have unit mean and the box-averaged
+    variance SI·g(p_x/ρ)·g(p_y/ρ) (within 10 % over 4096 sub-rays); E is skipped, and said so, when the PSF
+    is far below a pixel (MTF at Nyquist > 0.999)."""
+    from core.propagation import box_average_variance_factor
+    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False)
+    cfg.receiver.subsamples = 1
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.2  # 200 m footprint: 3 m per sub-ray ≫ 1 cm cells
+    cfg.laser.beam_profile = "uniform"
+    calm = turbulent_config(pixels=64)
+    calm.receiver.subsamples = 1
+    calm.receiver.fov_x_rad = calm.receiver.fov_y_rad = 0.2
+    calm.laser.beam_profile = "uniform"
+    calm.atmosphere.cn2_m_23 = 0.0
+    scene = plate(R, 200.0)
+    res = simulate_frame(scene, np.eye(4), cfg)
+    ratio = res.energy_image / simulate_frame(scene, np.eye(4), calm).energy_image
+    meta = res.stats["atmosphere"]["turbulence"]
+    pat = meta["scintillation_pattern"]
+    assert pat["pattern_model"] == "footprint_averaged_gamma"
+    p = pat["sub_ray_footprint_m"]
+    expected = (pat["point_scintillation_index"] * box_average_variance_factor(p[0], pat["cell_radius_m"])
+                * box_average_variance_factor(p[1], pat["cell_radius_m"]))
+    assert pat["averaged_scintillation_index"] == pytest.approx(expected, rel=1e-12)
+    assert ratio.mean() == pytest.approx(1.0, abs=3 * np.sqrt(expected / ratio.size) + 1e-3)
+    assert ratio.var() == pytest.approx(expected, rel=0.1)
+    assert "turbulence_blur" in res.stats["stages_skipped"] and "turbulence_blur" not in res.stats["stages_run"]
+    assert meta["blur_mtf_at_nyquist"] > 0.999
+
+
+def test_box_average_variance_factor_limits():
+    """g → 1 − a²/6 for a ≪ 1 and → √π/a for a ≫ 1 (a = p/ρ)."""
+    from core.propagation import box_average_variance_factor
+    assert box_average_variance_factor(1e-3, 1.0) == pytest.approx(1 - 1e-6 / 6, rel=1e-9)
+    assert box_average_variance_factor(1e3, 1.0) == pytest.approx(np.sqrt(np.pi) / 1e3, rel=1e-3)
