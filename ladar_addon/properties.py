@@ -19,6 +19,8 @@ Where a Blender property cannot hold the SI value as is, the stored value is sca
 (:class:`FieldMap`) converts both ways:
 
 * ``WAVELENGTH`` settings are stored in nanometres (Blender's wavelength unit);
+* tiny unit-less settings (largest allowed value < 1e-3, e.g. Cn²) are stored in units of a power of ten
+  (label "×1e-14 m^-2/3"), so the panel shows their digits;
 * ``DISTANCE`` settings are stored in Blender units (metres / ``scene.unit_settings.scale_length``);
 * byte counts above the 32-bit range of an ``IntProperty`` (``run.max_memory_bytes``) are stored in MiB
   (``max_memory_mib``);
@@ -29,6 +31,7 @@ rounds to the stored float32, so a value typed as 1e-3 comes back as exactly 1e-
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from decimal import Decimal
 
@@ -54,8 +57,8 @@ NOT_ON_SENSOR = {("receiver", "fov_x_rad"), ("receiver", "fov_y_rad"), ("run", "
 #: Receiver size of a new sensor (the core default may differ).
 SENSOR_DEFAULT_OVERRIDES = {("receiver", "width_px"): 64, ("receiver", "height_px"): 64}
 
-_UNIT_SUFFIXES = ("_per_m", "_rad", "_px", "_j", "_m", "_s", "_bytes")
-_ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF"}
+_UNIT_SUFFIXES = ("_per_m", "_m_23", "_rad", "_px", "_j", "_m", "_s", "_bytes")
+_ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF", "Cn2": "Cn²"}
 
 
 def _number_subtypes() -> set:
@@ -90,7 +93,8 @@ class FieldMap:
     kind: str              # "float", "int", "bool" or "enum"
     default: object        # core default (SI)
     meta: dict
-    conversion: str = ""   # "", "nm", "distance" or "mib"
+    conversion: str = ""   # "", "nm", "pow10", "distance" or "mib"
+    exponent: int = 0      # "nm": −9; "pow10": Blender stores the value in units of 10^exponent
 
     @property
     def path(self) -> str:
@@ -104,6 +108,9 @@ class FieldMap:
     def unit_text(self) -> str:
         if self.conversion == "nm":
             return "nm"
+        if self.conversion == "pow10":
+            unit = self.meta.get("unit") or ""
+            return f"×1e{self.exponent} {unit}".rstrip()
         if self.conversion == "mib":
             return "MiB"
         if self.conversion == "distance":
@@ -114,8 +121,8 @@ class FieldMap:
     def to_blender(self, value, unit_scale: float = 1.0):
         if self.kind == "float":
             value = float(value)
-            if self.conversion == "nm":
-                return float(Decimal(repr(value)).scaleb(9))
+            if self.conversion in ("nm", "pow10"):
+                return float(Decimal(repr(value)).scaleb(-self.exponent))
             if self.conversion == "distance":
                 return value / unit_scale
             return value
@@ -132,8 +139,8 @@ class FieldMap:
     def to_core(self, value, unit_scale: float = 1.0):
         if self.kind == "float":
             text = _shortest_float32(value)
-            if self.conversion == "nm":
-                return float(Decimal(text).scaleb(-9))
+            if self.conversion in ("nm", "pow10"):
+                return float(Decimal(text).scaleb(self.exponent))
             if self.conversion == "distance":
                 return float(text) * unit_scale
             return float(text)
@@ -155,8 +162,9 @@ class FieldMap:
 
     def property(self):
         name = _label(self.name)
-        if self.conversion in ("nm", "mib") or (self.subtype == "NONE" and self.meta.get("unit")
-                                                and self.kind in ("float", "int")):
+        # Show the unit in the label where Blender shows none (no unit subtype, or a scaled storage unit).
+        if self.conversion in ("mib", "pow10") or (self.subtype == "NONE" and self.kind in ("float", "int")
+                                                   and (self.meta.get("unit") or self.conversion == "nm")):
             name += f" ({self.unit_text()})"
         desc = self.description()
         lo, hi = self.meta.get("lo"), self.meta.get("hi")
@@ -182,7 +190,8 @@ class FieldMap:
         if hi is not None:
             kwargs["max"] = self.to_blender(hi) if self.conversion != "distance" else hi
         default = self.to_blender(self.default)
-        magnitude = abs(default) if default else (abs(hi) if hi is not None else 1.0)
+        hi_b = kwargs.get("max")
+        magnitude = abs(default) if default else (abs(hi_b) if hi_b is not None else 1.0)
         # Small SI values (J, 1/m, ...) have no unit display in Blender: show six decimals for them.
         precision = 6 if self.subtype == "NONE" and magnitude <= 1.0 else 3
         return bpy.props.FloatProperty(name=name, description=desc, subtype=self.subtype, default=default,
@@ -201,14 +210,19 @@ def _field_map(group, name, default, meta) -> FieldMap:
     else:  # pragma: no cover - the core declares only these
         raise TypeError(f"setting {group}.{name} has an unsupported type {type(default).__name__}")
     default = SENSOR_DEFAULT_OVERRIDES.get((group, name), default)
-    conversion, attr = "", name
+    conversion, attr, exponent = "", name, 0
+    hi = meta.get("hi")
     if kind == "float" and meta.get("subtype") == "WAVELENGTH":
-        conversion = "nm"
+        conversion, exponent = "nm", -9
+    elif kind == "float" and (meta.get("subtype") or "NONE") == "NONE" and hi is not None and 0 < hi < 1e-3:
+        # Values far below what a six-decimal field shows (Cn² ~ 1e-14): store them in units of 10^exponent,
+        # so the largest allowed value shows as 1000.
+        conversion, exponent = "pow10", int(math.floor(math.log10(hi))) - 3
     elif kind == "float" and meta.get("subtype") == "DISTANCE":
         conversion = "distance"
     elif kind == "int" and meta.get("unit") == "B" and (meta.get("hi") or 0) > INT32_MAX:
         conversion, attr = "mib", name.removesuffix("_bytes") + "_mib"
-    return FieldMap(group, name, attr, kind, default, meta, conversion)
+    return FieldMap(group, name, attr, kind, default, meta, conversion, exponent)
 
 
 def group_field_maps(group: str, cls, skip=()) -> list[FieldMap]:

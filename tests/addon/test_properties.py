@@ -46,6 +46,8 @@ def test_property_definitions_follow_the_core_metadata(lad):
             if f.meta["hi"] is not None and f.conversion == "":
                 assert rna.hard_max == pytest.approx(f.meta["hi"], rel=1e-6)
             assert f.to_core(rna.default) == pytest.approx(f.default, rel=1e-6)
+            if f.conversion == "pow10":  # tiny values shown in a power-of-ten unit: the maximum reads 1000
+                assert rna.hard_max == pytest.approx(1000.0) and f"×1e{f.exponent}" in rna.name
         elif f.kind == "int" and f.conversion == "":
             assert rna.default == f.default
             assert rna.hard_min == f.meta["lo"]
@@ -96,6 +98,10 @@ def _non_default_config(lad):
         materials={"Paint": c.BRDFSettings(model="steinvall", reflectance=0.3, specular_a=0.05, slope_s=0.2,
                                            diffuse_b=0.08, diffuse_m=1.0),
                    "Grey10": c.BRDFSettings(reflectance=0.1)})
+    # settings stored in powers of ten (tiny values such as Cn²) get a non-default value too
+    for f in lad.properties.ATMOSPHERE_FIELDS + [f for fs in lad.properties.SENSOR_FIELDS.values() for f in fs]:
+        if f.conversion == "pow10":
+            setattr(getattr(cfg, f.group), f.name, float(f"{f.meta['hi'] / 400:.3g}"))
     # any other fields the core grows keep their defaults
     c.validate(cfg)
     return cfg
