@@ -79,18 +79,22 @@ def main(argv=None) -> dict:
     floors = []
     for name, over in SCENES.items():
         settings = ChainSettings(DetectorSettings(**{**BASE, **over}), wavelength_m=1.064e-6, bin_width_s=DT)
+        single = ChainSettings(DetectorSettings(**{**BASE, **over}, threads=1), wavelength_m=1.064e-6,
+                               bin_width_s=DT)
         out = apply_receiver_chain(cube, settings, 0)  # warm up, and the report
         seeds = iter(range(1, 10_000))
-        t_floor, t_chain = [], []
+        t_floor, t_chain, t_single = [], [], []
         for _ in range(args.repeat):  # interleaved so both see the same machine load
             t_floor.append(best(floor_fn, 1))
             t_chain.append(best(lambda: apply_receiver_chain(cube, settings, next(seeds)), 1))
+            t_single.append(best(lambda: apply_receiver_chain(cube, single, next(seeds)), 1))
         floors += t_floor
         results[name] = {"floor_s": min(t_floor), "chain_s": min(t_chain), "ratio": min(t_chain) / min(t_floor),
+                         "chain_1thread_s": min(t_single), "ratio_1thread": min(t_single) / min(t_floor),
                          "steps_run": out.report["steps_run"], "approximations": out.report["approximations"],
                          "n_adc_low": out.report["n_adc_low"], "n_adc_high": out.report["n_adc_high"]}
         print(f"{name:60s} floor {min(t_floor) * 1e3:7.1f} ms  chain {min(t_chain) * 1e3:7.1f} ms  "
-              f"ratio {min(t_chain) / min(t_floor):5.2f}")
+              f"ratio {min(t_chain) / min(t_floor):5.2f}  (1 thread {min(t_single) / min(t_floor):5.2f})")
     doc = {"benchmark": "receiver chain, 128x128x1024 float32 cube, noise on",
            "requirement": "chain_s <= 3 x floor_s (floor: rng.standard_normal(size, dtype=float32))",
            "shape": [H, W, B], "repeat": args.repeat, "cpu_count": os.cpu_count(),
