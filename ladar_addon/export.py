@@ -9,7 +9,8 @@ What is exported (:func:`scene_geometry_from_depsgraph`):
 * **instances** of every kind (collection instances, Geometry Nodes instances, vertex/face instancing,
   particles) — each is flattened: the prototype's arrays are computed once per evaluated mesh and transformed
   by ``instance.matrix_world``;
-* curves, surfaces, text and metaballs through ``Object.to_mesh()`` (their evaluated mesh);
+* curves, surfaces, text and metaballs: their evaluated mesh, which the depsgraph lists as a mesh component
+  "instance" of the object itself (so instanced text and curves work too);
 * *not* exported: point clouds, hair curves, volumes, grease pencil, empties, cameras, lights, objects
   listed in ``exclude``, and the result point clouds of earlier runs (custom property ``ladar_run``).
 
@@ -30,7 +31,6 @@ from .properties import brdf_from_material, material_key
 #: Custom property that marks result point clouds (never exported as geometry).
 RESULT_TAG = "ladar_run"
 
-_CONVERTIBLE_TYPES = {"CURVE", "SURFACE", "FONT", "META"}
 _EMPTY = (np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0, np.int32))
 
 
@@ -125,30 +125,21 @@ def scene_geometry_from_depsgraph(depsgraph, *, unit_scale: float | None = None,
     exclude = set(exclude)
     cache = {}  # evaluated mesh pointer → local arrays
     parts = []
-    n_objects = n_instances = 0
+    counts = {"objects": 0, "instances": 0}
     for inst in depsgraph.object_instances:
         obj = inst.object
-        if obj.type not in _CONVERTIBLE_TYPES and obj.type != "MESH":
+        if obj.type != "MESH":  # curve-like objects: their mesh comes as a separate MESH entry
             continue
         if not inst.show_self or _hidden_for_render(inst):
             continue
         original = obj.original
         if original.name in exclude or original.get(RESULT_TAG) is not None:
             continue
-        if obj.type == "MESH":
-            mesh = obj.data
-            key = mesh.as_pointer()
-            arrays = cache.get(key)
-            if arrays is None:
-                arrays = cache[key] = mesh_arrays(mesh)
-            names, brdfs = _material_table(_slot_materials(obj, mesh))
-        else:
-            mesh = obj.to_mesh()
-            try:
-                arrays = mesh_arrays(mesh) if mesh is not None else _EMPTY
-                names, brdfs = _material_table(_slot_materials(obj, mesh) if mesh is not None else [])
-            finally:
-                obj.to_mesh_clear()
+        mesh = obj.data
+        key = mesh.as_pointer()
+        arrays = cache.get(key)
+        if arrays is None:
+            arrays = cache[key] = mesh_arrays(mesh)
         verts, tris, local_ids = arrays
         if len(tris) == 0:
             continue
@@ -156,9 +147,11 @@ def scene_geometry_from_depsgraph(depsgraph, *, unit_scale: float | None = None,
         world = verts @ m[:3, :3].T + m[:3, 3]
         if unit_scale != 1.0:
             world *= unit_scale
-        parts.append((world, tris, local_ids, names, brdfs))
-        n_instances += bool(inst.is_instance)
-        n_objects += not inst.is_instance
+        parts.append((world, tris, local_ids, *_material_table(_slot_materials(obj, mesh))))
+        # the mesh of a curve/text/metaball object is listed as an "instance" of that same object
+        own = not inst.is_instance or (inst.parent is not None and inst.parent.original == original)
+        counts["objects" if own else "instances"] += 1
+    n_objects, n_instances = counts["objects"], counts["instances"]
     geometry = merge_meshes(parts)
     if stats is not None:
         stats.update({"objects": n_objects, "instances": n_instances, "unique_meshes": len(cache),

@@ -103,15 +103,56 @@ def test_what_is_left_out(lad, scene):
     np.testing.assert_allclose(geometry.vertices_m.max(axis=0), [1, 1, 1])
 
 
-def test_text_objects_and_unit_scale(lad, scene):
-    curve = bpy.data.curves.new("Label", "FONT")
-    curve.body = "L"
-    text = bpy.data.objects.new("Label", curve)
+def _evaluated_triangles(obj):
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    mesh = ev.to_mesh()
+    n = len(mesh.loop_triangles)
+    ev.to_mesh_clear()
+    return n
+
+
+def test_curves_text_and_metaballs_once_each(lad, scene):
+    """Curve-like objects export their evaluated mesh exactly once, also when instanced."""
+    red = brdf_material("Red", reflectance=0.5)
+    font = bpy.data.curves.new("Label", "FONT")
+    font.body = "L"
+    font.materials.append(red)
+    text = bpy.data.objects.new("Label", font)
     scene.collection.objects.link(text)
-    geometry, _ = _export(lad, scene)
-    assert geometry.n_triangles >= 2  # the filled glyph
+    path = bpy.data.curves.new("Path", "CURVE")
+    path.dimensions, path.bevel_depth = "3D", 0.1
+    spline = path.splines.new("POLY")
+    spline.points.add(1)
+    spline.points[1].co = (5, 0, 0, 1)
+    tube = bpy.data.objects.new("Path", path)
+    tube.location = (0, 5, 0)
+    scene.collection.objects.link(tube)
+    ball = bpy.data.objects.new("Ball", bpy.data.metaballs.new("Ball"))
+    ball.data.elements.new()
+    ball.location = (0, -5, 0)
+    scene.collection.objects.link(ball)
+    n_text, n_tube, n_ball = (_evaluated_triangles(o) for o in (text, tube, ball))
+    assert n_text >= 2 and n_tube >= 8 and n_ball >= 100
+    geometry, stats = _export(lad, scene)
+    assert geometry.n_triangles == n_text + n_tube + n_ball
+    assert stats["objects"] == 3 and stats["instances"] == 0
+    assert _material_counts(geometry)["Red"] == n_text
+    # the text in a collection instanced twice: twice its triangles, not more
+    proto = bpy.data.collections.new("Words")
+    scene.collection.objects.unlink(text)
+    proto.objects.link(text)
+    for x in (10.0, 20.0):
+        holder = bpy.data.objects.new(f"Words{x:.0f}", None)
+        holder.instance_type, holder.instance_collection = "COLLECTION", proto
+        holder.location = (x, 0, 0)
+        scene.collection.objects.link(holder)
+    geometry, stats = _export(lad, scene)
+    assert geometry.n_triangles == 2 * n_text + n_tube + n_ball
+    assert stats["instances"] == 2
+
+
+def test_unit_scale(lad, scene):
     add_cube(scene, "Cube", location=(4, 0, 0))
-    bpy.data.objects.remove(text)
     scene.unit_settings.system = "METRIC"
     scene.unit_settings.scale_length = 0.5  # 1 Blender unit = 0.5 m
     geometry, stats = _export(lad, scene)
