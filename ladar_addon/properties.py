@@ -448,6 +448,15 @@ def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
         raise
 
 
+def property_group_class(group: str):
+    """The PropertyGroup class holding a core settings group ("laser", ..., "atmosphere", "brdf")."""
+    if group == "atmosphere":
+        return LadarAtmosphereSettings
+    if group == "brdf":
+        return LadarBRDFSettings
+    return _GROUP_CLASSES[group]
+
+
 def sensor_field_maps(group: str) -> list[FieldMap]:
     """Field maps of a sensor group (for panels and tests)."""
     return SENSOR_FIELDS[group]

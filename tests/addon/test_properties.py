@@ -7,11 +7,6 @@ import pytest
 
 from blender_scenes import add_camera, brdf_material
 
-GROUP_TYPES = {"laser": "LadarLaserSettings", "receiver": "LadarReceiverSettings", "gate": "LadarGateSettings",
-               "detection": "LadarDetectionSettings", "run": "LadarRunSettings",
-               "atmosphere": "LadarAtmosphereSettings", "brdf": "LadarBRDFSettings"}
-
-
 def _core_paths(config):
     paths = {"system_type"}
     for group in config.GROUPS:
@@ -32,7 +27,7 @@ def test_property_definitions_follow_the_core_metadata(lad):
         props.BRDF_FIELDS
     assert len(all_maps) > 25
     for f in all_maps:
-        rna = getattr(props, GROUP_TYPES[f.group]).bl_rna.properties[f.attr]
+        rna = props.property_group_class(f.group).bl_rna.properties[f.attr]
         assert f.meta["doc"] in rna.description
         if f.kind == "enum":
             assert [i.identifier for i in rna.enum_items] == list(f.meta["choices"])
