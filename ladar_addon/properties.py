@@ -19,8 +19,9 @@ Where a Blender property cannot hold the SI value as is, the stored value is sca
 (:class:`FieldMap`) converts both ways:
 
 * ``WAVELENGTH`` settings are stored in nanometres (Blender's wavelength unit);
-* tiny unit-less settings (largest allowed value < 1e-3, e.g. Cn²) are stored in units of a power of ten
-  (label "×1e-14 m^-2/3"), so the panel shows their digits;
+* tiny settings without a Blender unit (largest allowed value < 1e-3, e.g. Cn², or a default < 1e-4, e.g. a
+  dark current of 1e-12 A) are stored in units of a power of ten (label "×1e-14 m^-2/3"), so the panel shows
+  their digits;
 * ``DISTANCE`` settings are stored in Blender units (metres / ``scene.unit_settings.scale_length``);
 * byte counts above the 32-bit range of an ``IntProperty`` (``run.max_memory_bytes``) are stored in MiB
   (``max_memory_mib``);
@@ -57,8 +58,12 @@ NOT_ON_SENSOR = {("receiver", "fov_x_rad"), ("receiver", "fov_y_rad"), ("run", "
 #: Receiver size of a new sensor (the core default may differ).
 SENSOR_DEFAULT_OVERRIDES = {("receiver", "width_px"): 64, ("receiver", "height_px"): 64}
 
-_UNIT_SUFFIXES = ("_per_m", "_m_23", "_rad", "_px", "_j", "_m", "_s", "_bytes")
-_ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF", "Cn2": "Cn²"}
+#: Name suffixes that spell a field's unit (stripped from the label; the unit shows through the subtype or
+#: in parentheses).  Keyed by the unit, so "specular_a" (no unit) keeps its "A".
+_UNIT_SUFFIXES = {"m": "_m", "s": "_s", "J": "_j", "rad": "_rad", "px": "_px", "B": "_bytes", "1/m": "_per_m",
+                  "1/s": "_per_s", "A": "_a", "e-": "_e", "m^-2/3": "_m_23"}
+_ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF", "Cn2": "Cn²", "Apd": "APD", "Adc": "ADC",
+             "Dof": "DOF"}
 
 
 def _number_subtypes() -> set:
@@ -69,11 +74,10 @@ def _number_subtypes() -> set:
 _SUBTYPES = _number_subtypes()
 
 
-def _label(name: str) -> str:
-    for suffix in _UNIT_SUFFIXES:
-        if name.endswith(suffix):
-            name = name[: -len(suffix)]
-            break
+def _label(name: str, unit: str = "") -> str:
+    suffix = _UNIT_SUFFIXES.get(unit)
+    if suffix and name.endswith(suffix) and len(name) > len(suffix):
+        name = name[: -len(suffix)]
     words = [w.capitalize() for w in name.split("_")]
     return " ".join(_ACRONYMS.get(w, w) for w in words)
 
@@ -161,7 +165,7 @@ class FieldMap:
         return f"{text}. Config: {path}"
 
     def property(self):
-        name = _label(self.name)
+        name = _label(self.name, self.meta.get("unit") or "")
         # Show the unit in the label where Blender shows none (no unit subtype, or a scaled storage unit).
         if self.conversion in ("mib", "pow10") or (self.subtype == "NONE" and self.kind in ("float", "int")
                                                    and (self.meta.get("unit") or self.conversion == "nm")):
@@ -218,6 +222,9 @@ def _field_map(group, name, default, meta) -> FieldMap:
         # Values far below what a six-decimal field shows (Cn² ~ 1e-14): store them in units of 10^exponent,
         # so the largest allowed value shows as 1000.
         conversion, exponent = "pow10", int(math.floor(math.log10(hi))) - 3
+    elif kind == "float" and (meta.get("subtype") or "NONE") == "NONE" and 0 < abs(default) < 1e-4:
+        # A tiny default (dark current ~ 1e-12 A): the default shows as 1 in units of 10^exponent.
+        conversion, exponent = "pow10", int(math.floor(math.log10(abs(default))))
     elif kind == "float" and meta.get("subtype") == "DISTANCE":
         conversion = "distance"
     elif kind == "int" and meta.get("unit") == "B" and (meta.get("hi") or 0) > INT32_MAX:

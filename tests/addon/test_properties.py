@@ -41,8 +41,9 @@ def test_property_definitions_follow_the_core_metadata(lad):
             if f.meta["hi"] is not None and f.conversion == "":
                 assert rna.hard_max == pytest.approx(f.meta["hi"], rel=1e-6)
             assert f.to_core(rna.default) == pytest.approx(f.default, rel=1e-6)
-            if f.conversion == "pow10":  # tiny values shown in a power-of-ten unit: the maximum reads 1000
-                assert rna.hard_max == pytest.approx(1000.0) and f"×1e{f.exponent}" in rna.name
+            if f.conversion == "pow10":  # tiny values shown in a power-of-ten unit: 1e-12 A reads "1"
+                assert f"×1e{f.exponent}" in rna.name
+                assert 1.0 <= (rna.default or rna.hard_max) <= 1000.0
         elif f.kind == "int" and f.conversion == "":
             assert rna.default == f.default
             assert rna.hard_min == f.meta["lo"]
@@ -96,7 +97,7 @@ def _non_default_config(lad):
     # settings stored in powers of ten (tiny values such as Cn²) get a non-default value too
     for f in lad.properties.ATMOSPHERE_FIELDS + [f for fs in lad.properties.SENSOR_FIELDS.values() for f in fs]:
         if f.conversion == "pow10":
-            setattr(getattr(cfg, f.group), f.name, float(f"{f.meta['hi'] / 400:.3g}"))
+            setattr(getattr(cfg, f.group), f.name, float(f"{(f.default or f.meta['hi'] / 400) * 2.5:.3g}"))
     # any other fields the core grows keep their defaults
     c.validate(cfg)
     return cfg
