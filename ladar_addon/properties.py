@@ -5,8 +5,10 @@ Where the settings live in a .blend:
 ==========================================  ==============================================================
 core ``SimulationConfig``                   Blender
 ==========================================  ==============================================================
-``system_type``, ``laser``, ``receiver``,   ``Object.ladar`` (used on camera objects: the sensor)
-``gate``, ``detection``, ``run``
+``system_type`` and every group but         ``Object.ladar.<group>`` (used on camera objects: the sensor)
+``atmosphere`` (``laser``, ``receiver``,
+``gate``, ``detection``, ``run``, and any
+group the core adds)
 ``receiver.fov_x_rad``, ``fov_y_rad``       derived from the camera (``ladar_addon.sensor``), not stored
 ``run.seed``                                ``Scene.ladar.seed``
 ``atmosphere``                              ``Scene.ladar_atmosphere``
@@ -23,8 +25,8 @@ Where a Blender property cannot hold the SI value as is, the stored value is sca
   dark current of 1e-12 A) are stored in units of a power of ten (label "×1e-14 m^-2/3"), so the panel shows
   their digits;
 * ``DISTANCE`` settings are stored in Blender units (metres / ``scene.unit_settings.scale_length``);
-* byte counts above the 32-bit range of an ``IntProperty`` (``run.max_memory_bytes``) are stored in MiB
-  (``max_memory_mib``);
+* byte counts above the 32-bit range of an ``IntProperty`` (``run.max_memory_bytes``) are stored in whole
+  MiB (``max_memory_mib``; a config value that is not a whole number of MiB is rounded);
 * ``run.seed`` is limited to 0 … 2³¹−1 in a .blend (larger seeds: ``--seed`` or a config file).
 
 Blender stores floats in single precision; :func:`config_from_blender` returns the shortest decimal that
