@@ -78,7 +78,7 @@ def main(argv=None) -> dict:
     results = {}
     floors = []
     for name, over in SCENES.items():
-        settings = ChainSettings(DetectorSettings(**{**BASE, **over}), wavelength_m=1.064e-6, bin_width_s=DT)
+        settings = ChainSettings(DetectorSettings(**{"mode": "noisy", **BASE, **over}), wavelength_m=1.064e-6, bin_width_s=DT)
         single = ChainSettings(DetectorSettings(**{**BASE, **over}, threads=1), wavelength_m=1.064e-6,
                                bin_width_s=DT)
         out = apply_receiver_chain(cube, settings, 0)  # warm up, and the report

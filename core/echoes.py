@@ -27,6 +27,7 @@ class Echoes:
     amplitude: np.ndarray    # (K,) float64 interpolated peak value (J per bin)
     echo_index: np.ndarray   # (K,) int16, 0-based, in time order within the pixel
     n_echoes: np.ndarray     # (K,) int16 echoes of that pixel
+    snr: np.ndarray | None = None  # (K,) detection SNR (noisy receiver only)
 
 
 def interpolate_peak(y_minus, y_0, y_plus, method: str = "gaussian"):

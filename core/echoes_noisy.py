@@ -82,11 +82,20 @@ def gaussian_pulse_kernel(fwhm_s, bin_width_s, half_width_sigmas=4.0):
 # ----------------------------------------------------------------------------------------------------------
 def robust_baseline_noise(waveforms):
     """Per-pixel baseline (median) and noise σ = 1.4826 × median(|y − median|) along the last axis.
-    Robust to the echoes themselves as long as they occupy well under half of the bins."""
+    Robust to the echoes themselves as long as they occupy well under half of the bins.  Where the MAD is 0
+    (noise below one A/D count), σ is the rms deviation of the quietest 90 % of the samples."""
     y = np.asarray(waveforms, dtype=np.float32)
     base = np.median(y, axis=-1)
-    mad = np.median(np.abs(y - base[..., None]), axis=-1)
-    return base.astype(np.float64), mad.astype(np.float64) * MAD_TO_SIGMA
+    dev = np.abs(y - base[..., None])
+    sigma = np.median(dev, axis=-1).astype(np.float64) * MAD_TO_SIGMA
+    flat = sigma == 0
+    if flat.any():
+        # A/D-quantized noise below one count: over half the samples equal the median and the MAD is 0.
+        # Fall back to the rms deviation of the quietest 90 % of the samples (the echoes excluded).
+        d = dev[flat].astype(np.float64)
+        keep = d <= np.quantile(d, 0.9, axis=-1, keepdims=True)
+        sigma[flat] = np.sqrt(np.sum(d * d * keep, axis=-1) / np.maximum(keep.sum(axis=-1), 1))
+    return base.astype(np.float64), sigma
 
 
 def matched_filter(waveforms, pulse):

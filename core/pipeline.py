@@ -17,9 +17,11 @@ import numpy as np
 
 from . import __version__
 from .config import ConfigError, SimulationConfig, config_to_dict, validate
-from .echoes import detect_echoes
+from .echoes import Echoes, detect_echoes
+from .echoes_noisy import detect_echoes_noisy, gaussian_pulse_kernel
+from .receiver import ChainSettings, apply_receiver_chain
 from .laser import cell_energy_fractions
-from .propagation import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
+from .propagation import blur_cube_and_image, prepare_frame_atmosphere, stage_seed, turbulence_switches
 from .radiometry import received_energy
 from .rays import Detector, block_subray_tan, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
@@ -46,6 +48,7 @@ class FrameResult:
     intensity_echoes: np.ndarray  # (H, W, E) float32
     points: dict                  # per-point arrays (see _points)
     waveforms: np.ndarray | None  # (H, W, n_bins) float32 (J per bin) or None when not saved
+    digital_waveforms: np.ndarray | None = None  # (H, W, n_bins) receiver output (counts), noisy mode only
     stats: dict = field(default_factory=dict)
 
 
@@ -56,15 +59,18 @@ def plan(config: SimulationConfig) -> dict:
     if effective_extinction_per_m(config) == 0.0:
         skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
     skipped.update(turbulence_switches(config))
-    keeps_cube = config.run.save_waveforms or "turbulence_blur" not in skipped
+    if config.detector.mode == "ideal":
+        skipped["receiver_chain"] = ("detector.mode = ideal: no photon, speckle, dark, gain, read-out or A/D "
+                                     "noise; echoes from the noise-free waveforms")
+    keeps_cube = (config.run.save_waveforms or "turbulence_blur" not in skipped
+                  or "receiver_chain" not in skipped)
     if not keeps_cube:
         skipped["waveform_cube"] = ("run.save_waveforms = false: waveforms are built per block for echo "
                                     "detection and discarded")
     optional = ("extinction", "beam_broadening", "scintillation", "beam_wander", "turbulence_blur",
-                "waveform_cube")
+                "receiver_chain", "waveform_cube")
     ran = list(STAGES) + [s for s in optional if s not in skipped]
-    return {"stages_run": ran, "stages_skipped": skipped,
-            "not_modelled": {"receiver_noise": "not in this version", "speckle": "not in this version"}}
+    return {"stages_run": ran, "stages_skipped": skipped}
 
 
 def _sensor_axes(world_from_sensor):
@@ -108,11 +114,13 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     fx, fy = cell_energy_fractions(config.laser, det, atm.beam_offset_tan, atm.beam_width_scale)
     gate = config.gate
     blur = atm.blur_r0_m is not None
+    noisy = config.detector.mode == "noisy"
+    whole_cube = blur or noisy  # echoes are detected after a whole-cube stage
     method = binning_method(config.laser, gate)
     s2 = det.rays_per_pixel
     per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
     blocks = [(a, min(a + per_block, det.n_pixels)) for a in range(0, det.n_pixels, per_block)]
-    keep_cube = config.run.save_waveforms or blur
+    keep_cube = config.run.save_waveforms or whole_cube
     waveforms = np.zeros((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
     energy = np.zeros(det.n_pixels)
 
@@ -146,7 +154,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         if waveforms is not None:
             waveforms[a + active] = wf
         local["waveform"] = time.perf_counter() - t
-        if blur:  # echoes are detected after the whole cube is blurred
+        if whole_cube:  # echoes are detected after the whole-cube stages
             return None, int(hit.sum()), local
         t = time.perf_counter()
         echoes = detect_echoes(wf, config.detection)
@@ -171,11 +179,23 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                           f"{scene.n_triangles} triangles of the scene (check the sensor's pose and field of view)")
 
     energy_image = energy.reshape(det.height_px, det.width_px)
+    digital = None
+    receiver_report = None
     if blur:
         t0 = time.perf_counter()
         cube = waveforms.reshape(det.height_px, det.width_px, gate.n_bins)
         energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
         times["turbulence_blur"] = time.perf_counter() - t0
+    if noisy:
+        t0 = time.perf_counter()
+        chain = apply_receiver_chain(waveforms.reshape(det.height_px, det.width_px, gate.n_bins),
+                                     ChainSettings.from_config(config), stage_seed(config.run.seed, frame, "receiver"))
+        digital, receiver_report = chain.data, chain.report
+        times["receiver_chain"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        echo_parts = [_noisy_echoes(digital, config)]
+        times["echoes"] = time.perf_counter() - t0
+    elif blur:
         t0 = time.perf_counter()
         echo_parts = []
         for a, b in blocks:
@@ -183,11 +203,12 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             ech.pixel += a
             echo_parts.append(ech)
         times["echoes"] = time.perf_counter() - t0
-        if not config.run.save_waveforms:
-            waveforms = None
     else:
         echo_parts = [r[0] for r in results]
+    if whole_cube and not config.run.save_waveforms:
+        waveforms = None
     t0 = time.perf_counter()
+    snr = np.concatenate([e.snr for e in echo_parts]) if noisy else None
     pixel = np.concatenate([e.pixel for e in echo_parts])
     pos_bins = np.concatenate([e.position_bins for e in echo_parts])
     amp = np.concatenate([e.amplitude for e in echo_parts])
@@ -196,6 +217,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     time_s = gate.gate_start_s + pos_bins * gate.bin_width_s
     range_m = 0.5 * SPEED_OF_LIGHT_M_S * time_s
     points = _points(det, origin, rot, pixel, range_m, amp, echo_index, n_echoes, time_s, frame)
+    if snr is not None:
+        points["snr"] = snr.astype(np.float32)
     h, w, e_max = det.height_px, det.width_px, config.detection.max_echoes
     range_echoes = np.full((h * w, e_max), np.nan, np.float32)
     intensity_echoes = np.zeros((h * w, e_max), np.float32)
@@ -213,11 +236,30 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     stats.update(run_plan)
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
+    if receiver_report is not None:
+        stats["receiver"] = receiver_report
     return FrameResult(range_image=range_echoes[:, :, 0].copy(), intensity_image=intensity_echoes[:, :, 0].copy(),
                        energy_image=energy_image, range_echoes=range_echoes,
                        intensity_echoes=intensity_echoes, points=points,
                        waveforms=None if waveforms is None else waveforms.reshape(h, w, gate.n_bins),
-                       stats=stats)
+                       digital_waveforms=digital, stats=stats)
+
+
+def _noisy_echoes(digital, config: SimulationConfig) -> Echoes:
+    """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
+    core/echoes_noisy.py), in the pipeline's per-echo layout, with the detection SNR."""
+    d, g = config.detection, config.gate
+    h, w, n_bins = digital.shape
+    pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
+        if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
+    found = detect_echoes_noisy(digital.reshape(h * w, n_bins).astype(np.float32), g.bin_width_s, g.gate_start_s,
+                                threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
+                                k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
+                                interpolation=d.interpolation)
+    pix, slot = np.nonzero(found.detected)
+    return Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
+                  amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
+                  n_echoes=found.n_echoes[pix].astype(np.int16), snr=found.snr[pix, slot])
 
 
 def _reference_range(tracer, det, origin, rot) -> float:

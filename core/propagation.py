@@ -35,12 +35,17 @@ from .config import SimulationConfig
 BLUR_NEGLIGIBLE_MTF = 0.999
 
 #: Stage keys of the per-frame random streams.
-RNG_STAGE = {"beam_wander": 1, "scintillation": 2}
+RNG_STAGE = {"beam_wander": 1, "scintillation": 2, "receiver": 3}
+
+
+def stage_seed(seed: int, frame: int, stage: str) -> np.random.SeedSequence:
+    """The seed sequence of one stage of one frame (independent streams, reproducible)."""
+    return np.random.SeedSequence([int(seed), int(frame) & 0xFFFFFFFF, RNG_STAGE[stage]])
 
 
 def stage_rng(seed: int, frame: int, stage: str) -> np.random.Generator:
-    """The random generator of one stage of one frame (independent streams, reproducible)."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed), int(frame) & 0xFFFFFFFF, RNG_STAGE[stage]]))
+    """The random generator of one stage of one frame."""
+    return np.random.default_rng(stage_seed(seed, frame, stage))
 
 
 def effective_extinction_per_m(config: SimulationConfig) -> float:

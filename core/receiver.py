@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .config import setting, validate
+from .config import DetectorSettings, setting, validate  # noqa: F401  (DetectorSettings re-exported)
 
 # CODATA 2018 exact constants
 H_PLANCK_J_S = 6.62607015e-34
@@ -256,49 +256,6 @@ def gamma_gain(primaries, gain, excess_noise, rng, out=None):
 # ----------------------------------------------------------------------------------------------------------
 # Settings
 # ----------------------------------------------------------------------------------------------------------
-@dataclass
-class DetectorSettings:
-    """Detector and read-out electronics (paper Figure 4; physics.md §7, §8).  Proposed config group
-    ``detector``.  ``mode = "ideal"`` skips every step (output = input, bit for bit)."""
-
-    mode: str = setting("noisy", choices=("ideal", "noisy"), doc="ideal: no detector effects; noisy: full chain")
-    detector_type: str = setting("apd", choices=("pin", "apd", "geiger"),
-                                 doc="PIN (G = 1), linear-mode APD, or Geiger-mode photon counting")
-    quantum_efficiency: float = setting(0.4, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
-                                        doc="Quantum efficiency η (Geiger: photon detection efficiency)")
-    apd_gain: float = setting(100.0, lo=1.0, hi=1e4, doc="Mean APD gain G (ignored for PIN)")
-    apd_k_eff: float = setting(0.02, lo=0.0, hi=1.0, doc="Effective ionization ratio k_eff (McIntyre F)")
-    dark_current_bulk_a: float = setting(1e-12, lo=0.0, hi=1e-3, unit="A",
-                                         doc="Bulk dark current (multiplied by the gain)")
-    dark_current_surface_a: float = setting(1e-9, lo=0.0, hi=1e-3, unit="A",
-                                            doc="Surface dark current (not multiplied)")
-    background_rate_photons_per_s: float = setting(0.0, lo=0.0, hi=1e18, unit="1/s",
-                                                   doc="Background (solar) photon rate per pixel at the "
-                                                       "detector, before η")
-    read_noise_e: float = setting(300.0, lo=0.0, hi=1e7, unit="e-", doc="RMS read-out noise (Gaussian)")
-    adc_bits: int = setting(12, lo=1, hi=32, doc="A/D converter resolution")
-    adc_full_scale_e: float = setting(2.048e6, lo=1.0, hi=1e15, unit="e-",
-                                      doc="Electrons at A/D full scale (step Δ = full scale / 2**bits)")
-    adc_offset_counts: int = setting(16, lo=0, hi=2**31, doc="Digital offset (pedestal) added to every sample")
-    speckle_dof: float = setting(0.0, lo=0.0, hi=1e9,
-                                 doc="Speckle degrees of freedom M (contrast 1/√M); 0 = no speckle")
-    speckle_correlated: bool = setting(False, doc="Spatially correlate the speckle with the MTF_speckle "
-                                                  "(pupil) spectrum instead of independent pixels")
-    geiger_pulses: int = setting(100, lo=1, hi=10_000_000, doc="Pulses accumulated into a Geiger histogram")
-    geiger_dead_time_bins: int = setting(1_000_000, lo=0, hi=100_000_000,
-                                         doc="Geiger dead time in bins (≥ n_bins: one detection per pulse)")
-    enable_optics_mtf: bool = setting(False, doc="Blur each time slice by the diffraction × pixel MTF")
-    optics_pixel_mtf: bool = setting(False, doc="Include the pixel-aperture sinc in MTF_opt (off when the ray "
-                                                "tracer already integrates over the pixel)")
-    enable_shot_noise: bool = setting(True, doc="Poisson photon/electron statistics")
-    enable_background: bool = setting(True, doc="Add the background photon rate")
-    enable_dark_current: bool = setting(True, doc="Add bulk and surface dark current")
-    enable_excess_noise: bool = setting(True, doc="APD excess noise (gain fluctuations)")
-    enable_read_noise: bool = setting(True, doc="Add Gaussian read-out noise")
-    enable_adc: bool = setting(True, doc="A/D conversion to integer counts (else float32 electrons)")
-    threads: int = setting(0, lo=0, hi=256, doc="Worker threads (0: all cores); never changes the result")
-
-
 @dataclass
 class ChainSettings:
     """Everything :func:`apply_receiver_chain` needs: the detector plus the physical context."""

@@ -125,6 +125,9 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
         files["points.npz"] = "the same point cloud as NumPy arrays (sensor and world coordinates)"
         np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
         files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
+        if getattr(result, "digital_waveforms", None) is not None:
+            np.save(tmp / "counts.npy", result.digital_waveforms)
+            files["counts.npy"] = "receiver output per pixel and bin (A/D counts, or electrons without the A/D)"
         if result.waveforms is not None:
             np.save(tmp / "waveforms.npy", result.waveforms)
             files["waveforms.npy"] = "waveform cube (H, W, n_bins) float32, J per bin"

@@ -127,7 +127,7 @@ def test_end_to_end_digital_waveforms():
     centre = rng.uniform(80, 160, (H, W))
     peak_j = 2e-16  # ≈ 430 photo-electrons at the peak
     cube = (peak_j * np.exp(-0.5 * ((x - centre[..., None]) / (SIGMA_P / DT)) ** 2)).astype(np.float32)
-    det = DetectorSettings(quantum_efficiency=0.4, background_rate_photons_per_s=2e8, adc_full_scale_e=4096 * 500.0)
+    det = DetectorSettings(mode="noisy", quantum_efficiency=0.4, background_rate_photons_per_s=2e8, adc_full_scale_e=4096 * 500.0)
     out = apply_receiver_chain(cube, ChainSettings(det, bin_width_s=DT), 12)
     e = detect_echoes_noisy(out.data, DT, pulse=gaussian_pulse_kernel(FWHM, DT), max_echoes=2, k_sigma=5.0)
     assert e.range_m.shape == (H, W, 2)

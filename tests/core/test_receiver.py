@@ -23,7 +23,7 @@ SEC8 = dict(quantum_efficiency=0.4, apd_gain=100.0, apd_k_eff=0.02, dark_current
 
 
 def chain(cube, rng=0, wavelength_m=1.064e-6, bin_width_s=10e-9, **det):
-    return apply_receiver_chain(cube, ChainSettings(DetectorSettings(**det), wavelength_m=wavelength_m,
+    return apply_receiver_chain(cube, ChainSettings(DetectorSettings(**{"mode": "noisy", **det}), wavelength_m=wavelength_m,
                                                     bin_width_s=bin_width_s), rng)
 
 
@@ -91,7 +91,7 @@ def test_chain_mean_and_variance_match_formula(name):
     det = dict(SEC8, **over)
     cube = np.full((64, 64, 64), energy, dtype=np.float32)  # 262144 samples
     out = chain(cube, rng=11, **det)
-    d = DetectorSettings(**det)
+    d = DetectorSettings(**{"mode": "noisy", **det})
     tau = 10e-9
     gain, F = (1.0, 1.0) if d.detector_type == "pin" else (d.apd_gain, mcintyre_excess_noise(d.apd_gain,
                                                                                           d.apd_k_eff))
