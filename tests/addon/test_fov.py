@@ -1,7 +1,6 @@
 """Receiver field of view from the camera: the formula, Blender's own camera frame, and the inverse."""
 import math
 
-import bpy
 import pytest
 
 from blender_scenes import add_camera
