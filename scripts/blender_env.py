@@ -13,6 +13,7 @@ The add-on is then imported as ``bl_ext.ladar_dev.ladar_simulator`` (its core as
 """
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import sys
@@ -30,13 +31,19 @@ NOT_PACKAGED = {".venv", ".git", ".ci", ".pytest_cache", ".hypothesis", "__pycac
 
 
 def isolate_user_resources(path: str | os.PathLike | None = None) -> Path:
-    """Set ``BLENDER_USER_RESOURCES`` to ``path`` (default: a new temporary folder).  Call before ``import bpy``."""
+    """Set ``BLENDER_USER_RESOURCES`` to ``path`` (default: a new temporary folder, removed when the process
+    exits — after bpy's own exit handlers, which are registered later and so run first).  Call before
+    ``import bpy``."""
     if "bpy" in sys.modules:
         current = os.environ.get("BLENDER_USER_RESOURCES")
         if current and Path(current).name.startswith("ladar_blender_"):
             return Path(current)
         raise RuntimeError("bpy is already imported: BLENDER_USER_RESOURCES must be set before `import bpy`")
-    root = Path(path) if path is not None else Path(tempfile.mkdtemp(prefix="ladar_blender_"))
+    if path is None:
+        root = Path(tempfile.mkdtemp(prefix="ladar_blender_"))
+        atexit.register(shutil.rmtree, root, ignore_errors=True)
+    else:
+        root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
     os.environ["BLENDER_USER_RESOURCES"] = str(root)
     return root

@@ -12,8 +12,6 @@ handler the extension registers.  Exit codes: 0 success, 1 user error (one line 
 """
 from __future__ import annotations
 
-import atexit
-import shutil
 import sys
 from pathlib import Path
 
@@ -33,8 +31,7 @@ def main(argv=None) -> int:
         print(f"ladar: error: {blend} is not an existing .blend file", file=sys.stderr)
         return 1
 
-    resources = blender_env.isolate_user_resources()
-    atexit.register(shutil.rmtree, resources, ignore_errors=True)  # runs after bpy's own exit handlers
+    blender_env.isolate_user_resources()  # a temporary folder, removed at exit
     import bpy
 
     addon = blender_env.install_extension()

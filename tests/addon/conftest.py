@@ -8,9 +8,7 @@ top-level imports: the installed add-on has its own copy of ``core``.
 """
 from __future__ import annotations
 
-import atexit
 import importlib
-import shutil
 import sys
 import types
 from pathlib import Path
@@ -22,8 +20,7 @@ sys.path.insert(0, str(REPO / "scripts"))
 import blender_env  # noqa: E402
 
 # Before any test module (or helper) imports bpy: Blender's preferences and extensions go to a temporary folder.
-RESOURCES = blender_env.isolate_user_resources()
-atexit.register(shutil.rmtree, RESOURCES, ignore_errors=True)  # after bpy's own exit handlers
+RESOURCES = blender_env.isolate_user_resources()  # a temporary folder, removed at exit
 
 
 @pytest.fixture(scope="session")
