@@ -157,3 +157,25 @@ def _json_default(obj):
     if isinstance(obj, Path):
         return str(obj)
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+
+
+def run_summary(run_path, result) -> str:
+    """A few lines a person reads after a run: what was seen, what ran, what was skipped, where it went."""
+    st = result.stats
+    pts = result.points
+    lines = [f"run      {run_path}"]
+    lines.append(f"rays     {st['n_rays']} traced, {st['n_hits']} hits on {st['n_triangles']} triangles "
+                 f"({st['threads']} threads, {st['wall_time_s']:.2f} s)")
+    if len(pts["range_m"]):
+        first = pts["echo_index"] == 1
+        lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} pixels with an echo, "
+                     f"{int((pts['n_echoes'][first] > 1).sum())} with several; range "
+                     f"{pts['range_m'].min():.3f} – {pts['range_m'].max():.3f} m")
+    else:
+        lines.append("echoes   none detected")
+    lines.append(f"energy   {st['received_energy_j']:.4g} J received in total")
+    times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
+    lines.append(f"stages   {times} (s, summed over threads)")
+    if st.get("stages_skipped"):
+        lines.append("skipped  " + "; ".join(f"{k} ({v})" for k, v in st["stages_skipped"].items()))
+    return "\n".join(lines)

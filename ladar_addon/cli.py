@@ -98,9 +98,9 @@ def _cmd_simulate(scene, args) -> int:
     run_path, result = simulate_scene(scene, out_dir=args.out, frame=args.frame, seed=args.seed,
                                       config_path=args.config, overwrite=args.overwrite, sensor=sensor,
                                       import_results=not args.no_import)
-    n_points = len(result.points["range_m"])
-    print(f"ladar: simulated {run_path} ({n_points} points, "
-          f"{result.stats.get('wall_time_s', float('nan')):.2f} s)", flush=True)
+    from ..core.runio import run_summary
+
+    print(run_summary(run_path, result), flush=True)
     return 0
 
 
