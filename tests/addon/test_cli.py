@@ -30,7 +30,8 @@ def _run(lad, capsys, *argv):
 def test_simulate_success(lad, plate_scene, tmp_path, capsys):
     code, out, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r1"), "--seed", "5", "--frame", "3")
     assert code == 0, err
-    assert "ladar: simulated" in out
+    assert "run      " in out and "echoes   64 points, 64 pixels with an echo" in out
+    assert "range 100.000 – 100.000 m" in out
     meta = json.loads((tmp_path / "r1" / "metadata.json").read_text())
     assert meta["seed"] == 5 and meta["frame"] == 3
     # again without --overwrite: a user error, the run is kept
