@@ -76,22 +76,12 @@ class FieldStats:
         m1, m2 = self.m1 / self.count, self.m2 / self.count
         acov = self.acov / self.acov[0, 0]
         half = self.m // 2
-        rx = one_over_e_radius(acov[0, :half], self.dx)
-        ry = one_over_e_radius(acov[:half, 0], self.dx)
+        rx = atm.one_over_e_radius(acov[0, :half], self.dx)
+        ry = atm.one_over_e_radius(acov[:half, 0], self.dx)
         return {"scintillation_index": float(m2 / m1**2 - 1.0),
                 "si_std_err": float(np.std(self.sis, ddof=1) / math.sqrt(self.count)) if self.count > 1 else None,
                 "correlation_radius_m": 0.5 * (rx + ry), "correlation_radius_xy_m": [rx, ry],
                 "realizations": self.count}
-
-
-def one_over_e_radius(profile, dx_m):
-    """First 1/e crossing of a decreasing correlation profile, linear interpolation [m] (as the reference)."""
-    below = np.nonzero(profile < math.exp(-1.0))[0]
-    if below.size == 0:
-        return float("nan")
-    j = below[0]
-    p0, p1 = profile[j - 1], profile[j]
-    return float((j - 1 + (p0 - math.exp(-1.0)) / (p0 - p1)) * dx_m)
 
 
 def crop_bounds(n, crop):

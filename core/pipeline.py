@@ -21,7 +21,8 @@ from .echoes import Echoes, detect_echoes
 from .echoes_noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from .receiver import ChainSettings, apply_receiver_chain
 from .laser import cell_energy_fractions
-from .propagation import blur_cube_and_image, prepare_frame_atmosphere, stage_seed, turbulence_switches
+from .propagation import (blur_cube_and_image, effective_extinction_per_m, prepare_frame_atmosphere, stage_seed,
+                          turbulence_switches)
 from .radiometry import received_energy
 from .rays import Detector, block_subray_tan, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
@@ -54,7 +55,6 @@ class FrameResult:
 
 def plan(config: SimulationConfig) -> dict:
     """Which stages this run executes and which it skips (with the reason)."""
-    from .propagation import effective_extinction_per_m
     skipped = {}
     if effective_extinction_per_m(config) == 0.0:
         skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"

@@ -11,7 +11,7 @@ See ``docs/atmosphere.md``.
 """
 from .extinction import (EXTINCTION_MODELS, extinction_from_visibility, log_two_way_transmission,
                          two_way_transmission, visibility_size_exponent)
-from .phasescreen import phase_screens, split_step_plane_wave, split_step_reference, von_karman_phase_psd
+from .phasescreen import one_over_e_radius, periodic_autocorrelation, phase_screens, split_step_plane_wave, split_step_reference, von_karman_phase_psd
 from .scintillation import (ProductPattern, ScintillationPattern, beam_wander_offsets, field_spectrum, gamma_factor_g_correlation,
                             gamma_gamma_covariance, gamma_gamma_pattern, gaussian_g_width, gaussian_random_field,
                             lognormal_g_correlation, lognormal_pattern, make_scintillation_pattern,

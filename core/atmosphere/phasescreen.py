@@ -96,7 +96,7 @@ def split_step_plane_wave(wavelength_m, range_m, cn2_m_23, rng, *, n=512, dx_m=2
     return u.real**2 + u.imag**2
 
 
-def _one_over_e_radius(profile, dx_m):
+def one_over_e_radius(profile, dx_m):
     """First crossing of 1/e in a decreasing correlation profile (linear interpolation) [m]."""
     below = np.nonzero(profile < math.exp(-1.0))[0]
     if below.size == 0:
@@ -143,8 +143,17 @@ def split_step_reference(wavelength_m, range_m, cn2_m_23, rng, *, n=512, dx_m=2e
     m2 /= realizations
     acov /= acov[0, 0]
     half = m // 2
-    rad = 0.5 * (_one_over_e_radius(acov[0, :half], dx_m) + _one_over_e_radius(acov[:half, 0], dx_m))
+    rad = 0.5 * (one_over_e_radius(acov[0, :half], dx_m) + one_over_e_radius(acov[:half, 0], dx_m))
     return {"scintillation_index": float(m2 / m1**2 - 1.0),
             "si_std_err": float(np.std(sis, ddof=1) / math.sqrt(realizations)) if realizations > 1 else None,
             "correlation_radius_m": rad, "n_screens": ns, "rytov_variance": s_r, "n": n, "dx_m": dx_m,
             "realizations": realizations}
+
+
+def periodic_autocorrelation(fields):
+    """Mean normalised periodic autocovariance (value 1 at zero lag) of a list of equally shaped 2-D fields."""
+    ac = 0.0
+    for f in fields:
+        d = f - f.mean()
+        ac = ac + np.fft.irfft2(np.abs(np.fft.rfft2(d)) ** 2, s=f.shape)
+    return ac / ac[0, 0]
