@@ -5,7 +5,7 @@ the Blender-side model; ``operators/`` and ``panels/`` thin UI wrappers.  Import
 installed package is ``bl_ext.<repository>.ladar_simulator``.
 """
 from . import operators, panels
-from .ladar_addon import cli, properties
+from .ladar_addon import cli, presets, properties
 
 _cli_handle = None
 
@@ -13,6 +13,7 @@ _cli_handle = None
 def register():
     global _cli_handle
     properties.register()
+    presets.register()
     operators.register()
     panels.register()
     _cli_handle = cli.register()
@@ -24,4 +25,5 @@ def unregister():
     _cli_handle = None
     panels.unregister()
     operators.unregister()
+    presets.unregister()
     properties.unregister()

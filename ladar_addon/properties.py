@@ -316,6 +316,10 @@ class LadarSceneSettings(bpy.types.PropertyGroup):
     point_radius: bpy.props.FloatProperty(
         name="Point Radius", subtype="DISTANCE", default=0.05, min=0.0, soft_max=1.0,
         description="Display radius of the points of imported point clouds")
+    reference_range_m: bpy.props.FloatProperty(
+        name="Reference Range", subtype="DISTANCE", default=1000.0, min=1e-3, soft_max=1e5,
+        description="Range of the read-only figures in the panels (transmission, turbulence, SNR); not used "
+                    "by the simulation")
     import_results: bpy.props.BoolProperty(
         name="Import Results", default=True,
         description="Bring the point cloud and the range/intensity images into the .blend after a run")

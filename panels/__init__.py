@@ -3,11 +3,13 @@ import bpy
 
 from .material import LADAR_PT_brdf
 from .scene import LADAR_PT_atmosphere, LADAR_PT_scene, LADAR_PT_view3d
-from .sensor import (EXTRA_GROUP_PANELS, LADAR_PT_sensor, LADAR_PT_sensor_detection, LADAR_PT_sensor_gate,
+from .sensor import (EXTRA_GROUP_PANELS, LADAR_PT_sensor, LADAR_PT_sensor_detection, LADAR_PT_sensor_detector,
+                     LADAR_PT_sensor_gate,
                      LADAR_PT_sensor_laser, LADAR_PT_sensor_receiver, LADAR_PT_sensor_run)
 
 CLASSES = (LADAR_PT_sensor, LADAR_PT_sensor_laser, LADAR_PT_sensor_receiver, LADAR_PT_sensor_gate,
-           LADAR_PT_sensor_detection, LADAR_PT_sensor_run, *EXTRA_GROUP_PANELS, LADAR_PT_scene,
+           LADAR_PT_sensor_detection, LADAR_PT_sensor_detector, LADAR_PT_sensor_run,
+           *EXTRA_GROUP_PANELS, LADAR_PT_scene,
            LADAR_PT_atmosphere, LADAR_PT_brdf, LADAR_PT_view3d)
 
 

@@ -13,3 +13,37 @@ def simulate_button(layout, sensor_name=""):
     row.scale_y = 1.4
     op = row.operator("ladar.simulate", text="Simulate", icon="RENDER_STILL")
     op.sensor = sensor_name
+
+
+def active_sensor(scene):
+    """The scene's ladar sensor (Scene.ladar.sensor, else the scene camera) if it is a camera, else None."""
+    obj = scene.ladar.sensor or scene.camera
+    return obj if obj is not None and obj.type == "CAMERA" else None
+
+
+def reference_range_m(scene):
+    from ..ladar_addon.properties import unit_scale
+    return scene.ladar.reference_range_m * unit_scale(scene)
+
+
+def sensor_config(scene, obj):
+    """The core config of ``obj`` (a camera) or None when it cannot be read."""
+    from ..ladar_addon.properties import config_from_blender
+    try:
+        return config_from_blender(scene, obj)
+    except Exception:  # noqa: BLE001 - draw must never fail
+        return None
+
+
+def atmosphere_settings(scene):
+    from ..core.config import AtmosphereSettings
+    from ..ladar_addon.properties import ATMOSPHERE_FIELDS, unit_scale
+    scale = unit_scale(scene)
+    props = scene.ladar_atmosphere
+    return AtmosphereSettings(**{f.name: f.to_core(getattr(props, f.attr), scale) for f in ATMOSPHERE_FIELDS})
+
+
+def draw_lines(layout, lines, icon="INFO"):
+    col = layout.column(align=True)
+    for i, text in enumerate(lines):
+        col.label(text=text, icon=icon if i == 0 else "BLANK1")

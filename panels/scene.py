@@ -1,8 +1,25 @@
 """Scene tab: the ladar sensor choice, output and atmosphere; a 3D-viewport sidebar tab with Simulate."""
 import bpy
 
+from ..ladar_addon import derived
+from ..ladar_addon.presets import LADAR_MT_atmosphere_presets, draw_preset_header
 from ..ladar_addon.properties import ATMOSPHERE_FIELDS
-from .common import draw_fields, simulate_button
+from .common import (active_sensor, atmosphere_settings, draw_fields, draw_lines, reference_range_m,
+                     sensor_config, simulate_button)
+
+
+def draw_atmosphere_figures(layout, scene):
+    """Read-only extinction, transmission and turbulence figures at the reference range (never raises)."""
+    try:
+        obj = active_sensor(scene)
+        cfg = sensor_config(scene, obj) if obj is not None else None
+        wavelength = cfg.laser.wavelength_m if cfg is not None else derived.DEFAULT_WAVELENGTH_M
+        lines = derived.atmosphere_lines(atmosphere_settings(scene), wavelength, reference_range_m(scene))
+        if cfg is None:
+            lines.append("No ladar sensor: figures at 1064 nm")
+    except Exception as exc:  # noqa: BLE001 - draw must never fail
+        lines = [f"Derived figures unavailable: {exc}"]
+    draw_lines(layout.box(), lines)
 
 
 def _draw_scene_settings(layout, scene):
@@ -53,6 +70,11 @@ class LADAR_PT_atmosphere(bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         draw_fields(layout, context.scene.ladar_atmosphere, ATMOSPHERE_FIELDS)
+        layout.prop(context.scene.ladar, "reference_range_m")
+        draw_atmosphere_figures(layout, context.scene)
+
+    def draw_header_preset(self, context):
+        draw_preset_header(self.layout, LADAR_MT_atmosphere_presets, "ladar.atmosphere_preset_add")
 
 
 class LADAR_PT_view3d(bpy.types.Panel):

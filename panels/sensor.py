@@ -3,9 +3,11 @@ import math
 
 import bpy
 
+from ..ladar_addon import derived
+from ..ladar_addon.presets import LADAR_MT_detector_presets, draw_preset_header
 from ..ladar_addon.properties import SENSOR_FIELDS, TOP_FIELDS
 from ..ladar_addon.sensor import camera_receiver_fov_rad
-from .common import draw_fields, simulate_button
+from .common import atmosphere_settings, draw_fields, draw_lines, reference_range_m, sensor_config, simulate_button
 
 
 class _SensorPanel:
@@ -110,7 +112,32 @@ class LADAR_PT_sensor_run(_SensorGroupPanel, bpy.types.Panel):
         layout.prop(scene_props, "overwrite")
 
 
-_KNOWN = {"laser", "receiver", "gate", "detection", "run"}
+class LADAR_PT_sensor_detector(_SensorGroupPanel, bpy.types.Panel):
+    bl_label = "Detector"
+    bl_options = {"DEFAULT_CLOSED"}
+    group = "detector"
+
+    def draw_header_preset(self, context):
+        draw_preset_header(self.layout, LADAR_MT_detector_presets, "ladar.detector_preset_add")
+
+    def draw_group(self, context, layout, props):
+        draw_fields(layout, props, SENSOR_FIELDS["detector"])
+        layout.prop(context.scene.ladar, "reference_range_m")
+        try:
+            scene = context.scene
+            cfg = sensor_config(scene, context.object)
+            if cfg is None:
+                lines = ["Derived figures unavailable: invalid sensor settings"]
+            else:
+                rng = reference_range_m(scene)
+                fig = derived.atmosphere_figures(atmosphere_settings(scene), cfg.laser.wavelength_m, rng)
+                lines = derived.detector_lines(cfg, rng, fig["two_way_transmission"])
+        except Exception as exc:  # noqa: BLE001 - draw must never fail
+            lines = [f"Derived figures unavailable: {exc}"]
+        draw_lines(layout.box(), lines)
+
+
+_KNOWN = {"laser", "receiver", "gate", "detection", "detector", "run"}
 #: Sub-panels for settings groups the core may add later (drawn generically, closed by default).
 EXTRA_GROUP_PANELS = tuple(
     type(f"LADAR_PT_sensor_{group}", (_SensorGroupPanel, bpy.types.Panel),

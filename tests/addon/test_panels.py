@@ -30,6 +30,10 @@ class RecordingLayout:
         assert name in data.bl_rna.properties, f"{type(data).__name__} has no property {name!r}"
         self.log.append(("prop", name))
 
+    def menu(self, menu, **kwargs):
+        assert hasattr(bpy.types, menu), menu
+        self.log.append(("menu", menu))
+
     def operator(self, idname, **kwargs):
         module, name = idname.split(".")
         assert hasattr(bpy.types, f"{module.upper()}_OT_{name}"), idname
@@ -69,7 +73,7 @@ def test_panels_draw_every_setting(lad, scene):
     assert "seed" in {name for kind, name in _draw(panels.LADAR_PT_sensor_run, ctx) if kind == "prop"}
 
     drawn = {name for kind, name in _draw(panels.LADAR_PT_atmosphere, ctx) if kind == "prop"}
-    assert drawn == {f.attr for f in props.ATMOSPHERE_FIELDS}
+    assert drawn == {f.attr for f in props.ATMOSPHERE_FIELDS} | {"reference_range_m"}
     drawn = {name for kind, name in _draw(panels.LADAR_PT_scene, ctx) if kind == "prop"}
     assert {"sensor", "output_dir", "seed", "overwrite"} <= drawn
     _draw(panels.LADAR_PT_view3d, ctx)
