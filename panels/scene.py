@@ -35,9 +35,9 @@ def _draw_scene_settings(layout, scene):
     layout.prop(props, "point_radius")
 
 
-class LADAR_PT_scene(bpy.types.Panel):
-    bl_label = "Ladar"
-    bl_idname = "LADAR_PT_scene"
+class _ScenePanel:
+    """Shared placement of the Scene-tab panels."""
+
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
     bl_context = "scene"
@@ -45,6 +45,11 @@ class LADAR_PT_scene(bpy.types.Panel):
     @classmethod
     def poll(cls, context):
         return context.scene is not None
+
+
+class LADAR_PT_scene(_ScenePanel, bpy.types.Panel):
+    bl_label = "Ladar"
+    bl_idname = "LADAR_PT_scene"
 
     def draw(self, context):
         layout = self.layout
@@ -54,16 +59,9 @@ class LADAR_PT_scene(bpy.types.Panel):
         simulate_button(layout)
 
 
-class LADAR_PT_atmosphere(bpy.types.Panel):
+class LADAR_PT_atmosphere(_ScenePanel, bpy.types.Panel):
     bl_label = "Ladar Atmosphere"
     bl_idname = "LADAR_PT_atmosphere"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "scene"
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None
 
     def draw(self, context):
         layout = self.layout

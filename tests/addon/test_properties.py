@@ -43,7 +43,8 @@ def test_property_definitions_follow_the_core_metadata(lad):
             assert f.to_core(rna.default) == pytest.approx(f.default, rel=1e-6)
             if f.conversion == "pow10":  # tiny values shown in a power-of-ten unit: 1e-12 A reads "1"
                 assert f"×1e{f.exponent}" in rna.name
-                assert 1.0 <= (rna.default or rna.hard_max) <= 1000.0
+                shown = rna.default or rna.hard_max
+                assert shown >= 1.0 and shown <= 1000.0
         elif f.kind == "int" and f.conversion == "":
             assert rna.default == f.default
             assert rna.hard_min == f.meta["lo"]
