@@ -40,6 +40,7 @@ def test_noisy_receiver_ranges_a_plate_with_high_snr():
     ideal = simulate_frame(plate(R, 20.0), np.eye(4), config_for(R, pixels=16, subsamples=2, fov_rad=5e-3,
                                                                  bins=128, bin_s=1e-9, margin_bins=50))
     assert "receiver_chain" in res.stats["stages_run"] and "receiver" in res.stats
+    assert np.array_equal(res.waveforms, ideal.waveforms)  # the chain leaves the noise-free cube untouched
     pts = res.points
     first = pts["echo_index"] == 1
     assert first.sum() == 16 * 16
