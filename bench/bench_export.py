@@ -12,20 +12,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import blender_env  # noqa: E402
-
-
-def _best_of(fn, repeat=3):
-    best, out = math.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
+from bench_flash import best_of  # noqa: E402  (bench/ is the script folder, first on sys.path)
 
 
 def _isolate(bpy, keep):
@@ -83,7 +74,7 @@ def main(argv=None) -> int:
         _isolate(bpy, keep)
         depsgraph = bpy.context.evaluated_depsgraph_get()
         depsgraph.update()
-        seconds, geometry = _best_of(lambda: export.scene_geometry_from_depsgraph(depsgraph))
+        seconds, geometry = best_of(lambda: export.scene_geometry_from_depsgraph(depsgraph))
         print(f"{label:40s} {geometry.n_triangles:>10,d} triangles  {seconds * 1e3:8.1f} ms  "
               f"({geometry.n_triangles / seconds / 1e6:5.1f} M triangles/s)")
     return 0

@@ -73,7 +73,7 @@ def bench_config() -> SimulationConfig:
     return cfg
 
 
-def best_of(fn, repeat):
+def best_of(fn, repeat=3):
     best, out = np.inf, None
     for _ in range(repeat):
         t = time.perf_counter()

@@ -69,9 +69,3 @@ def pulse_cdf(laser: LaserSettings, t_s):
         return ndtr(t_s / pulse_sigma_s(laser))
     return np.clip(t_s / laser.pulse_fwhm_s + 0.5, 0.0, 1.0)
 
-
-def pulse_rms_width_s(laser: LaserSettings) -> float:
-    """RMS duration of the pulse (s)."""
-    if laser.pulse_shape == "gaussian":
-        return pulse_sigma_s(laser)
-    return laser.pulse_fwhm_s / np.sqrt(12.0)

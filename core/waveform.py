@@ -31,10 +31,6 @@ def round_trip_time_s(range_m):
     return 2.0 * np.asarray(range_m, dtype=np.float64) / SPEED_OF_LIGHT_M_S
 
 
-def time_to_range_m(t_s):
-    return 0.5 * SPEED_OF_LIGHT_M_S * np.asarray(t_s, dtype=np.float64)
-
-
 def binning_method(laser: LaserSettings, gate: RangeGateSettings) -> str:
     """``splat`` for pulses much wider than a bin (Gaussian σ > 8 bins), else ``exact``."""
     if laser.pulse_shape == "gaussian" and pulse_sigma_s(laser) > 8.0 * gate.bin_width_s:

@@ -13,11 +13,4 @@ CLASSES = (LADAR_PT_sensor, LADAR_PT_sensor_laser, LADAR_PT_sensor_receiver, LAD
            LADAR_PT_atmosphere, LADAR_PT_brdf, LADAR_PT_view3d)
 
 
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(CLASSES)
