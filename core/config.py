@@ -20,8 +20,9 @@ from typing import Any
 
 SCHEMA_VERSION = 1
 
-#: Supported sensor system types (paper §2).  Later issues add the scanner, gated viewing and the profiler.
-SYSTEM_TYPES = ("flash",)
+#: Supported sensor system types (paper §2): 3D flash (§2.3), time-of-flight scanner (§2.1), burst
+#: illumination / gated viewing (§2.2) and range profiler (§5.3).
+SYSTEM_TYPES = ("flash", "scanner", "gated", "profiler")
 
 
 class ConfigError(ValueError):
@@ -127,7 +128,8 @@ class ReceiverSettings:
                                doc="Full horizontal field of view of the detector array")
     fov_y_rad: float = setting(0.02, lo=1e-7, hi=2.8, unit="rad", subtype="ANGLE",
                                doc="Full vertical field of view of the detector array")
-    subsamples: int = setting(4, lo=1, hi=64, doc="Sub-resolution rays per pixel side (S×S rays a pixel)")
+    subsamples: int = setting(4, lo=1, hi=1024, doc="Sub-resolution rays per pixel side (S×S rays a pixel; "
+                                                    "the range profiler's one pixel usually needs 64 or more)")
     aperture_diameter_m: float = setting(0.05, lo=0.0, hi=10.0, lo_open=True, unit="m", subtype="DISTANCE",
                                          doc="Diameter of the receiver optics entrance aperture")
     system_efficiency: float = setting(0.5, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
@@ -239,6 +241,66 @@ class DetectorSettings:
 
 
 @dataclass
+class ScannerSettings:
+    """Time-of-flight laser scanner (paper §2.1): one beam (or a stack of channels) steered by a scan pattern.
+
+    Scan angles are in the sensor frame (Blender camera frame: −Z forward, +Y up, +X right).  The beam is the
+    laser's ``beam_divergence_rad`` sampled by rings of sub-rays; the receiver collects the whole footprint
+    through ``receiver.aperture_diameter_m``; each pulse's waveform spans the range gate (``gate``)."""
+
+    pattern: str = setting("raster", choices=("raster", "oscillating", "rotating", "palmer"),
+                           doc="raster: unidirectional lines stacked vertically; oscillating: a sinusoidal "
+                               "across-track mirror (along-track from platform motion); rotating: spinning "
+                               "multi-channel head about the sensor's +Y axis; palmer: conical scan about −Z")
+    pulse_rate_hz: float = setting(100_000.0, lo=1.0, hi=1e8, unit="Hz",
+                                   doc="Pulse repetition frequency (per channel)")
+    scan_rate_hz: float = setting(100.0, lo=1e-3, hi=1e6, unit="Hz",
+                                  doc="Lines per second (raster), mirror oscillation frequency (oscillating), "
+                                      "revolutions per second (rotating, palmer)")
+    scan_width_rad: float = setting(0.5, lo=0.0, hi=6.283185307179586, unit="rad", subtype="ANGLE",
+                                    doc="Full across-scan angle (raster, oscillating) or azimuth extent "
+                                        "(rotating; 2π = a full turn)")
+    scan_height_rad: float = setting(0.5, lo=0.0, hi=3.14159, unit="rad", subtype="ANGLE",
+                                     doc="Full vertical extent of the raster lines, or of the rotating head's "
+                                         "channels")
+    n_lines: int = setting(100, lo=1, hi=1_000_000, doc="Raster: number of scan lines")
+    n_channels: int = setting(16, lo=1, hi=1024, doc="Rotating: channels (lasers) spread over scan_height_rad")
+    cone_half_angle_rad: float = setting(0.26, lo=0.0, hi=1.5, unit="rad", subtype="ANGLE",
+                                         doc="Palmer: half angle of the scan cone around −Z")
+    duration_s: float = setting(0.0, lo=0.0, hi=3600.0, unit="s", subtype="TIME_ABSOLUTE",
+                                doc="Scan duration; 0 = one full pattern (all raster lines, one mirror period, "
+                                    "one revolution or azimuth sweep)")
+    beam_subray_rings: int = setting(1, lo=0, hi=16,
+                                     doc="Rings of sub-rays across the beam footprint: 0 → 1 ray, 1 → 7, "
+                                         "2 → 19 (1 + 3r(r+1)); each carries an equal share of the energy")
+    motion_samples_per_s: float = setting(1000.0, lo=1.0, hi=1e6, unit="Hz",
+                                          doc="How often the add-on samples the sensor's animated pose during "
+                                              "the scan (poses are interpolated per pulse)")
+
+
+@dataclass
+class GatedSettings:
+    """Burst illumination / gated viewing (paper §2.2, §5.1): a flood-lit camera whose shutter opens
+    ``gate_width_s`` long at a delay; a sweep of delays gives range slices (one laser pulse per slice)."""
+
+    first_delay_s: float = setting(6.6e-6, lo=0.0, hi=1e-3, unit="s", subtype="TIME_ABSOLUTE",
+                                   doc="Delay after pulse emission at which the first slice's gate opens")
+    delay_step_s: float = setting(2e-9, lo=1e-12, hi=1e-4, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Delay increment from one slice to the next")
+    n_slices: int = setting(30, lo=1, hi=100_000, doc="Number of slices (gate delays) in the sweep")
+    gate_width_s: float = setting(20e-9, lo=1e-12, hi=1e-4, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Time the shutter stays open (full width at half transmission)")
+    shutter_edge_s: float = setting(0.0, lo=0.0, hi=1e-5, unit="s", subtype="TIME_ABSOLUTE",
+                                    doc="Linear rise and fall time of the shutter (0: rectangular gate)")
+    range_method: str = setting("centroid", choices=("centroid", "peak", "two_gate"),
+                                doc="Range from the slice stack: centroid of the intensity-vs-delay profile "
+                                    "around its maximum, 3-point interpolated peak, or the two-gate ratio of "
+                                    "the strongest pair of adjacent slices (physics.md §9)")
+    min_signal_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
+                                  doc="Pixels whose strongest slice is below this give no range")
+
+
+@dataclass
 class RunSettings:
     """What to compute and how (does not change the physics)."""
 
@@ -279,6 +341,8 @@ class SimulationConfig:
     laser: LaserSettings = field(default_factory=LaserSettings)
     receiver: ReceiverSettings = field(default_factory=ReceiverSettings)
     gate: RangeGateSettings = field(default_factory=RangeGateSettings)
+    scanner: ScannerSettings = field(default_factory=ScannerSettings)
+    gated: GatedSettings = field(default_factory=GatedSettings)
     detection: DetectionSettings = field(default_factory=DetectionSettings)
     atmosphere: AtmosphereSettings = field(default_factory=AtmosphereSettings)
     detector: DetectorSettings = field(default_factory=DetectorSettings)
@@ -287,7 +351,7 @@ class SimulationConfig:
     materials: dict = field(default_factory=dict)
 
 
-GROUPS = ("laser", "receiver", "gate", "detection", "atmosphere", "detector", "run")
+GROUPS = ("laser", "receiver", "gate", "scanner", "gated", "detection", "atmosphere", "detector", "run")
 
 
 # --------------------------------------------------------------------------------------------------------------
