@@ -21,6 +21,7 @@ from .echoes import Echoes, detect_echoes
 from .echoes_noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from .receiver import ChainSettings, apply_receiver_chain
 from .laser import cell_energy_fractions
+from .motion import split_pose
 from .propagation import (blur_cube_and_image, effective_extinction_per_m, prepare_frame_atmosphere, stage_seed,
                           turbulence_switches)
 from .radiometry import received_energy
@@ -73,17 +74,6 @@ def plan(config: SimulationConfig) -> dict:
     return {"stages_run": ran, "stages_skipped": skipped}
 
 
-def _sensor_axes(world_from_sensor):
-    m = np.asarray(world_from_sensor, dtype=np.float64)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise ConfigError("sensor.matrix_world", "shape %s" % (m.shape,), "a finite 4×4 matrix")
-    rot = m[:3, :3]
-    scale = np.linalg.norm(rot, axis=0)
-    if np.any(scale == 0):
-        raise ConfigError("sensor.matrix_world", "zero scale", "an invertible rotation (non-zero scale)")
-    return m[:3, 3].copy(), rot / scale
-
-
 def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0,
                    tracer: SceneTracer | None = None, progress=None, cancel=None) -> FrameResult:
     """Simulate one flash-ladar frame.  Raises ConfigError on bad input, Cancelled if ``cancel()`` is true."""
@@ -91,7 +81,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     validate(config)
     scene = scene.with_overrides(config.materials)
     scene.check()
-    origin, rot = _sensor_axes(world_from_sensor)
+    origin, rot = split_pose(world_from_sensor)
     times = dict.fromkeys(STAGES, 0.0)
 
     t0 = time.perf_counter()

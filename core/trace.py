@@ -38,7 +38,8 @@ class SceneTracer:
         return self._embree.run(np.ascontiguousarray(o), directions.astype(np.float32), query="INTERSECT")
 
     def intersect(self, origin_m, directions):
-        """Trace rays from one origin (world, float64) along unit directions (n, 3) float64.
+        """Trace rays from one origin (3,) or one origin per ray (n, 3) (world, float64) along unit directions
+        (n, 3) float64.
 
         Returns (prim (n,) int32, −1 on a miss; range_m (n,) float64, NaN on a miss; cos_theta (n,) float64,
         the cosine of the incidence angle, |d·n|, 0 on a miss).
@@ -58,7 +59,8 @@ class SceneTracer:
             n = self.unit_normal[p]
             d = directions[hit]
             dn = np.einsum("ij,ij->i", d, n)
-            t = np.einsum("ij,ij->i", self.v0[p] - origin_m, n) / np.where(dn == 0.0, np.inf, dn)
+            o = origin_m if origin_m.ndim == 1 else origin_m[hit]
+            t = np.einsum("ij,ij->i", self.v0[p] - o, n) / np.where(dn == 0.0, np.inf, dn)
             range_m[hit] = t
             cos_theta[hit] = np.abs(dn)
             bad = ~(t > 0)
