@@ -38,14 +38,18 @@ BLUR_NEGLIGIBLE_MTF = 0.999
 RNG_STAGE = {"beam_wander": 1, "scintillation": 2, "receiver": 3}
 
 
-def stage_seed(seed: int, frame: int, stage: str) -> np.random.SeedSequence:
-    """The seed sequence of one stage of one frame (independent streams, reproducible)."""
-    return np.random.SeedSequence([int(seed), int(frame) & 0xFFFFFFFF, RNG_STAGE[stage]])
+def stage_seed(seed: int, frame: int, stage: str, pulse: int | None = None) -> np.random.SeedSequence:
+    """The seed sequence of one stage of one frame (independent streams, reproducible); ``pulse`` selects
+    the stream of one pulse of the frame (a gated-viewing slice, a scanner tile)."""
+    key = [int(seed), int(frame) & 0xFFFFFFFF, RNG_STAGE[stage]]
+    if pulse is not None:
+        key.append(int(pulse) + 1)
+    return np.random.SeedSequence(key)
 
 
-def stage_rng(seed: int, frame: int, stage: str) -> np.random.Generator:
-    """The random generator of one stage of one frame."""
-    return np.random.default_rng(stage_seed(seed, frame, stage))
+def stage_rng(seed: int, frame: int, stage: str, pulse: int | None = None) -> np.random.Generator:
+    """The random generator of one stage of one frame (of one pulse, if given)."""
+    return np.random.default_rng(stage_seed(seed, frame, stage, pulse))
 
 
 def effective_extinction_per_m(config: SimulationConfig) -> float:
@@ -132,8 +136,10 @@ def turbulence_switches(config: SimulationConfig) -> dict:
     return skipped
 
 
-def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, frame: int) -> FrameAtmosphere:
-    """Evaluate the atmosphere of one frame: extinction, and the turbulence realisation at R_ref."""
+def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, frame: int,
+                             pulse: int | None = None) -> FrameAtmosphere:
+    """Evaluate the atmosphere of one frame: extinction, and the turbulence realisation at R_ref (of one pulse
+    of the frame when ``pulse`` is given: gated viewing draws a new realisation per slice)."""
     atm, laser = config.atmosphere, config.laser
     out = FrameAtmosphere(extinction_per_m=effective_extinction_per_m(config))
     if out.extinction_per_m == 0.0:
@@ -164,11 +170,11 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
         meta.update(free_space_radius_m=w, long_term_radius_m=w_lt, broadened_radius_m=radius,
                     beam_width_scale=out.beam_width_scale)
     if "beam_wander" in active:
-        offset_m = beam_wander_offsets(r_c2, stage_rng(config.run.seed, frame, "beam_wander"))
+        offset_m = beam_wander_offsets(r_c2, stage_rng(config.run.seed, frame, "beam_wander", pulse))
         out.beam_offset_tan = (float(offset_m[0]) / r_ref, float(offset_m[1]) / r_ref)
         meta["beam_wander_offset_m"] = [float(offset_m[0]), float(offset_m[1])]
     if "scintillation" in active:
-        rng = stage_rng(config.run.seed, frame, "scintillation")
+        rng = stage_rng(config.run.seed, frame, "scintillation", pulse)
         sub_pitch_m = (2 * det.half_width_tan * r_ref / (det.width_px * det.subsamples),
                        2 * det.half_height_tan * r_ref / (det.height_px * det.subsamples))
         if min(sub_pitch_m) > derived["cell_radius_m"]:
