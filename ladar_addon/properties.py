@@ -191,10 +191,13 @@ class FieldMap:
             return bpy.props.IntProperty(name=name, description=desc, subtype=subtype,
                                          default=self.to_blender(self.default), **kwargs)
         kwargs = {}
-        if lo is not None:
-            kwargs["min"] = self.to_blender(lo) if self.conversion != "distance" else lo
-        if hi is not None:
-            kwargs["max"] = self.to_blender(hi) if self.conversion != "distance" else hi
+        if self.conversion == "distance":
+            kwargs = distance_limits_bu(lo, hi)
+        else:
+            if lo is not None:
+                kwargs["min"] = self.to_blender(lo)
+            if hi is not None:
+                kwargs["max"] = self.to_blender(hi)
         default = self.to_blender(self.default)
         hi_b = kwargs.get("max")
         magnitude = abs(default) if default else (abs(hi_b) if hi_b is not None else 1.0)
@@ -202,6 +205,30 @@ class FieldMap:
         precision = 6 if self.subtype == "NONE" and magnitude <= 1.0 else 3
         return bpy.props.FloatProperty(name=name, description=desc, subtype=self.subtype, default=default,
                                        precision=precision, **kwargs)
+
+
+#: Metres per Blender unit that Blender allows (``UnitSettings.scale_length`` hard range).
+_SCALE_RNA = bpy.types.UnitSettings.bl_rna.properties["scale_length"]
+SCALE_LENGTH_RANGE = (float(_SCALE_RNA.hard_min), float(_SCALE_RNA.hard_max))
+
+
+def distance_limits_bu(lo_m, hi_m) -> dict:
+    """``min``/``max``/``soft_min``/``soft_max`` of a distance property stored in Blender units.
+
+    A property's range is fixed when it is registered, but Blender units are metres / ``scale_length`` of
+    whichever scene: the hard range covers ``[lo_m, hi_m]`` at every unit scale Blender allows (so no value the
+    core accepts is ever clipped on the way into a .blend), the soft range (slider drag) is the SI range read at
+    1 m per unit.  Values outside the SI range are reported by the core's validation, in metres.
+    """
+    s_min, s_max = SCALE_LENGTH_RANGE
+    limits = {}
+    if lo_m is not None:
+        limits["min"] = lo_m / s_max if lo_m >= 0 else lo_m / s_min
+        limits["soft_min"] = lo_m
+    if hi_m is not None:
+        limits["max"] = hi_m / s_min if hi_m >= 0 else hi_m / s_max
+        limits["soft_max"] = hi_m
+    return limits
 
 
 def _field_map(group, name, default, meta) -> FieldMap:
