@@ -379,7 +379,22 @@ def _check_cross_field(cfg: SimulationConfig) -> None:
     if 0.0 < cfg.atmosphere.visibility_m < 50.0:
         raise ConfigError("atmosphere.visibility_m", cfg.atmosphere.visibility_m,
                           "0 (off) or a visibility in [50, 1e+06] m")
-    cube = cfg.receiver.width_px * cfg.receiver.height_px * cfg.gate.n_bins * 4
+    if cfg.system_type == "gated":
+        _check_gated(cfg)
+        return
+    if cfg.system_type == "scanner":
+        from .scanner import n_scan_pulses  # the pulse count follows from the scan pattern
+        n_pulses = n_scan_pulses(cfg)
+        cube = n_pulses * cfg.gate.n_bins * 4
+        if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:
+            raise ConfigError("run.save_waveforms", True,
+                              f"false for this scan: {n_pulses} pulses × {cfg.gate.n_bins} bins of float32 "
+                              f"waveforms need {cube / 2**30:.2f} GiB, more than run.max_memory_bytes = "
+                              f"{cfg.run.max_memory_bytes / 2**30:.2f} GiB (or scan fewer pulses, use fewer "
+                              f"bins, or raise run.max_memory_bytes)")
+        return
+    pixels = 1 if cfg.system_type == "profiler" else cfg.receiver.width_px * cfg.receiver.height_px
+    cube = pixels * cfg.gate.n_bins * 4
     if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:
         max_bins = cfg.run.max_memory_bytes // (4 * cfg.receiver.width_px * cfg.receiver.height_px)
         raise ConfigError("gate.n_bins", cfg.gate.n_bins,
@@ -388,6 +403,29 @@ def _check_cross_field(cfg: SimulationConfig) -> None:
                           f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB "
                           f"(use fewer bins or pixels, set run.save_waveforms = false, or raise "
                           f"run.max_memory_bytes)")
+
+
+def _check_gated(cfg: SimulationConfig) -> None:
+    g = cfg.gated
+    if g.range_method == "two_gate":
+        if g.n_slices < 2:
+            raise ConfigError("gated.n_slices", g.n_slices, "at least 2 for the two-gate ratio method")
+        if abs(g.delay_step_s - g.gate_width_s) > 1e-9 * g.gate_width_s:
+            raise ConfigError("gated.delay_step_s", g.delay_step_s,
+                              f"equal to gated.gate_width_s = {g.gate_width_s:g} s for the two-gate ratio method "
+                              f"(adjacent gates), or choose range_method centroid or peak")
+        if g.shutter_edge_s > 0:
+            raise ConfigError("gated.shutter_edge_s", g.shutter_edge_s,
+                              "0 (a rectangular gate) for the two-gate ratio method")
+        if cfg.laser.pulse_fwhm_s > g.gate_width_s:
+            raise ConfigError("laser.pulse_fwhm_s", cfg.laser.pulse_fwhm_s,
+                              f"at most gated.gate_width_s = {g.gate_width_s:g} s for the two-gate ratio method "
+                              f"(the pulse must fit in one gate)")
+    stack = cfg.receiver.width_px * cfg.receiver.height_px * g.n_slices * 4
+    if stack > cfg.run.max_memory_bytes:
+        raise ConfigError("gated.n_slices", g.n_slices,
+                          f"fewer slices: the float32 slice stack would need {stack / 2**30:.2f} GiB, more than "
+                          f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB")
 
 
 def _from_mapping(cls, data: dict, prefix: str):

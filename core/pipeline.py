@@ -8,6 +8,7 @@ size.  The full waveform cube is allocated only when it is to be saved.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -52,6 +53,9 @@ class FrameResult:
     waveforms: np.ndarray | None  # (H, W, n_bins) float32 (J per bin) or None when not saved
     digital_waveforms: np.ndarray | None = None  # (H, W, n_bins) receiver output (counts), noisy mode only
     stats: dict = field(default_factory=dict)
+    pulses: dict | None = None          # scanner: per-pulse record (time, pose, direction, echoes, energy)
+    slices: np.ndarray | None = None    # gated viewing: (n_slices, H, W) float32 energy per slice (J)
+    slice_delays_s: np.ndarray | None = None  # gated viewing: gate opening delay of each slice (s)
 
 
 def plan(config: SimulationConfig) -> dict:
@@ -290,17 +294,48 @@ def run_metadata(config: SimulationConfig, result: FrameResult, frame: int, extr
     return meta
 
 
+def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
+             trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None) -> FrameResult:
+    """Simulate one frame of the sensor system ``config.system_type`` (paper §2):
+
+    * ``flash``    3D flash ladar (:func:`simulate_frame`);
+    * ``profiler`` range profiler (§5.3): the flash model with one detector element (receiver width/height are
+      ignored) whose field of view holds the target, all returning energy in one waveform;
+    * ``scanner``  time-of-flight scanner (core/scanner.py), the sensor moving along ``trajectory`` if given;
+    * ``gated``    burst illumination / gated viewing (core/gated.py).
+    """
+    kind = config.system_type
+    if kind == "scanner":
+        from .scanner import simulate_scan
+        return simulate_scan(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                             start_time_s=start_time_s, progress=progress, cancel=cancel)
+    if kind == "gated":
+        from .gated import simulate_gated
+        return simulate_gated(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
+                              cancel=cancel)
+    if kind == "profiler":
+        validate(config)
+        single = dataclasses.replace(config, receiver=dataclasses.replace(config.receiver, width_px=1, height_px=1))
+        result = simulate_frame(scene, world_from_sensor, single, frame=frame, tracer=tracer, progress=progress,
+                                cancel=cancel)
+        result.stats["notes"] = {"receiver": "range profiler: one detector element over the receiver field of "
+                                             "view (receiver.width_px/height_px ignored)"}
+        return result
+    return simulate_frame(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
+                          cancel=cancel)
+
+
 def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, out_dir, *, frame: int = 0,
                    overwrite: bool = False, extra_metadata: dict | None = None, tracer=None, progress=None,
-                   cancel=None):
-    """Simulate a frame and write its run folder.  Returns (run_path, FrameResult).
+                   cancel=None, trajectory=None, start_time_s: float = 0.0):
+    """Simulate a frame of any system type and write its run folder.  Returns (run_path, FrameResult).
 
     Nothing is written if the settings or the scene are invalid, if the folder exists and ``overwrite`` is
     false, or if the run is cancelled.
     """
     check_run_dir(out_dir, overwrite)
-    result = simulate_frame(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
-                            cancel=cancel)
+    result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                      start_time_s=start_time_s, progress=progress, cancel=cancel)
     if cancel is not None and cancel():
         raise Cancelled()
     meta = run_metadata(config, result, frame, extra_metadata)

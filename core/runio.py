@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError
+from .waveform import SPEED_OF_LIGHT_M_S
 
 EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
 
@@ -113,40 +114,70 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
     t0 = time.perf_counter()
     try:
         files = {}
-        write_exr(tmp / "range.exr", {"Y": result.range_image})
-        write_exr(tmp / "intensity.exr", {"Y": result.intensity_image})
-        write_exr(tmp / "energy.exr", {"Y": result.energy_image})
-        files.update({"range.exr": "first-echo range (m), NaN where no echo; row 0 = top",
-                      "intensity.exr": "first-echo peak amplitude (J per bin)",
-                      "energy.exr": "energy received per pixel before time binning (J)"})
+        if result.range_image is not None:
+            write_exr(tmp / "range.exr", {"Y": result.range_image})
+            write_exr(tmp / "intensity.exr", {"Y": result.intensity_image})
+            write_exr(tmp / "energy.exr", {"Y": result.energy_image})
+            gated = getattr(result, "slices", None) is not None
+            files.update({"range.exr": ("range from the slice stack (m)" if gated else "first-echo range (m)")
+                          + ", NaN where none; row 0 = top",
+                          "intensity.exr": ("strongest slice (J)" if gated else "first-echo peak amplitude (J per bin)"),
+                          "energy.exr": "energy received per pixel before time binning (J)"})
         write_ply(tmp / "points.ply", result.points)
         np.savez(tmp / "points.npz", **result.points)
         files["points.ply"] = "point cloud, world coordinates + per-point attributes"
-        files["points.npz"] = "the same point cloud as NumPy arrays (sensor and world coordinates)"
-        np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
-        files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
+        files["points.npz"] = "the same point cloud as NumPy arrays"
+        if result.range_echoes is not None:
+            np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
+            files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
         if getattr(result, "digital_waveforms", None) is not None:
             np.save(tmp / "counts.npy", result.digital_waveforms)
             files["counts.npy"] = "receiver output per pixel and bin (A/D counts, or electrons without the A/D)"
         if result.waveforms is not None:
             np.save(tmp / "waveforms.npy", result.waveforms)
-            files["waveforms.npy"] = "waveform cube (H, W, n_bins) float32, J per bin"
+            files["waveforms.npy"] = ("waveforms (n_pulses, n_bins) float32, J per bin" if result.waveforms.ndim == 2
+                                      else "waveform cube (H, W, n_bins) float32, J per bin")
+        if getattr(result, "pulses", None) is not None:
+            np.savez(tmp / "pulses.npz", **result.pulses)
+            files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
+        if getattr(result, "slices", None) is not None:
+            (tmp / "slices").mkdir()
+            for k, img in enumerate(result.slices):
+                write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img})
+            np.save(tmp / "slices.npy", result.slices)
+            files["slices/slice_NNNN.exr"] = "gated slices as an image sequence (J per pixel), 1-based"
+            files["slices.npy"] = "gated slices (n_slices, H, W) float32, J per pixel"
+        if metadata.get("system_type") == "profiler" and result.waveforms is not None:
+            _write_profile_csv(tmp / "profile.csv", result.waveforms.reshape(-1), metadata)
+            files["profile.csv"] = "the range profile: time_s, range_m, energy_j per bin"
         meta = dict(metadata)
         meta["files"] = files
         meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
         with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
             json.dump(meta, f, indent=2, default=_json_default)
-        if out.exists():  # overwrite asked: swap, then remove the old run
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-            os.rename(out, old / "run")
-            os.rename(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, out)
+        commit_run_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def commit_run_dir(tmp: Path, out: Path) -> None:
+    """Move a completed run folder into place; an existing run (overwrite asked) is swapped out, then removed."""
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        os.rename(out, old / "run")
+        os.rename(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out)
+
+
+def _write_profile_csv(path, waveform, metadata):
+    gate = metadata["settings"]["gate"]
+    t = gate["gate_start_s"] + (np.arange(len(waveform)) + 0.5) * gate["bin_width_s"]
+    table = np.column_stack([t, 0.5 * SPEED_OF_LIGHT_M_S * t, waveform])
+    np.savetxt(path, table, delimiter=",", header="time_s,range_m,energy_j", comments="", fmt="%.10g")
 
 
 def _json_default(obj):

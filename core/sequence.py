@@ -1,0 +1,107 @@
+"""Several frames in one run (paper §2.3, §5.2, Fig. 12): the sensor moves between frames and every frame's
+points are registered in one world coordinate system.
+
+The run folder holds one ordinary run folder per frame (``frame_0001/`` …), the merged point cloud of all frames
+(``points_merged.ply`` / ``.npz``, world coordinates, with a ``frame`` attribute) and a ``metadata.json`` listing
+the frames.  It is assembled in a hidden sibling folder and renamed into place at the end, so a failed or cancelled
+sequence leaves nothing behind.  When consecutive frames hand over the same SceneGeometry object (static
+geometry) the ray-tracing acceleration structure is built once and reused.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .config import ConfigError, SimulationConfig, config_to_dict, validate
+from .pipeline import Cancelled, run_metadata, simulate
+from .runio import _json_default, check_run_dir, commit_run_dir, software_versions, write_ply, write_run
+from .trace import SceneTracer
+
+
+def merge_points(point_sets: list[dict]) -> dict:
+    """Concatenate per-frame point dicts (the attributes every frame has)."""
+    point_sets = [p for p in point_sets if p]
+    if not point_sets:
+        return {}
+    keys = [k for k in point_sets[0] if all(k in p for p in point_sets)]
+    return {k: np.concatenate([p[k] for p in point_sets]) for k in keys}
+
+
+def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConfig, out_dir, *,
+                 overwrite: bool = False, trajectory_for_frame=None, start_time_for_frame=None,
+                 extra_metadata: dict | None = None, progress=None, cancel=None):
+    """Simulate ``frames`` (an iterable of frame numbers) and write one sequence run folder.
+
+    scene_for_frame(frame) -> SceneGeometry (return the same object for static geometry: its BVH is reused),
+    pose_for_frame(frame) -> 4×4 sensor→world matrix, trajectory_for_frame(frame) -> Trajectory or None
+    (scanner motion within a frame), start_time_for_frame(frame) -> seconds (the scanner's GPS-style time).
+    Returns (run_path, list of per-frame stats).
+    """
+    frames = [int(f) for f in frames]
+    if not frames:
+        raise ConfigError("frames", frames, "at least one frame")
+    if len(set(frames)) != len(frames):
+        raise ConfigError("frames", frames, "distinct frame numbers")
+    validate(config)
+    out = check_run_dir(out_dir, overwrite).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    t_wall = time.perf_counter()
+    tracer, bvh_builds, all_stats, point_sets = None, 0, [], []
+    try:
+        for i, frame in enumerate(frames):
+            if cancel is not None and cancel():
+                raise Cancelled()
+            scene = scene_for_frame(frame).with_overrides(config.materials)
+            if tracer is None or tracer.scene is not scene:
+                scene.check()
+                tracer = SceneTracer(scene)
+                bvh_builds += 1
+            else:
+                pass  # static geometry: the previous frame's BVH is reused
+            frame_progress = None
+            if progress is not None:
+                def frame_progress(fraction, text, _i=i, _f=frame):
+                    progress((_i + fraction) / len(frames), f"frame {_f} ({_i + 1}/{len(frames)}): {text}")
+            traj = trajectory_for_frame(frame) if trajectory_for_frame is not None else None
+            start = start_time_for_frame(frame) if start_time_for_frame is not None else 0.0
+            result = simulate(scene, pose_for_frame(frame), config, frame=frame, tracer=tracer, trajectory=traj,
+                              start_time_s=start, progress=frame_progress, cancel=cancel)
+            meta = run_metadata(config, result, frame, extra_metadata)
+            write_run(tmp / f"frame_{frame:04d}", result, meta)
+            all_stats.append(result.stats)
+            point_sets.append(result.points)
+            del result
+        merged = merge_points(point_sets)
+        files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
+        if merged:
+            write_ply(tmp / "points_merged.ply", merged)
+            np.savez(tmp / "points_merged.npz", **merged)
+            files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
+            files["points_merged.npz"] = "the same as NumPy arrays"
+        meta = {"format": "ladar-sequence", "format_version": 1, "system_type": config.system_type,
+                "frames": frames, "seed": config.run.seed, "settings": config_to_dict(config),
+                "software": software_versions(), "created_unix_s": time.time(),
+                "bvh_builds": bvh_builds,
+                "n_points": int(sum(len(p.get("range_m", ())) for p in point_sets)),
+                "frame_wall_time_s": [s["wall_time_s"] for s in all_stats],
+                "wall_time_s": time.perf_counter() - t_wall, "files": files}
+        if bvh_builds < len(frames):
+            meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
+                                                   f"({bvh_builds} built)"}
+        if extra_metadata:
+            meta.update(extra_metadata)
+        with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+            json.dump(meta, f, indent=2, default=_json_default)
+        if cancel is not None and cancel():
+            raise Cancelled()
+        commit_run_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out, all_stats
