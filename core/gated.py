@@ -25,6 +25,8 @@ at t when d_k + W/2 = t):
 * ``peak``      3-point parabolic interpolation of the maximum, t = d_k* + δ·step + W/2;
 * ``two_gate``  adjacent gates (step = W), the strongest adjacent pair E1, E2: r = E2/(E1 + E2); the pulse
   centre is at t = d_1 + W − P⁻¹(1 − r) (rectangular pulse of width τ: t0 = T − τ + rτ for its start).
+  Exact while the pulse straddles the boundary between the two gates; a pulse shorter than the gate that falls
+  entirely inside one gate gives r = 0 or 1 and only the gate is known — the method wants τ ≈ T.
 """
 from __future__ import annotations
 
