@@ -130,6 +130,9 @@ class ReceiverSettings:
                                doc="Full vertical field of view of the detector array")
     subsamples: int = setting(4, lo=1, hi=1024, doc="Sub-resolution rays per pixel side (S×S rays a pixel; "
                                                     "the range profiler's one pixel usually needs 64 or more)")
+    cell_range_spread: bool = setting(True, doc="Spread each sub-ray's return over the round-trip times its cell "
+                                                "of the surface spans (tilted, grazing surfaces) instead of one "
+                                                "instant: no sub-ray ripple or spurious echoes (docs/performance.md)")
     aperture_diameter_m: float = setting(0.05, lo=0.0, hi=10.0, lo_open=True, unit="m", subtype="DISTANCE",
                                          doc="Diameter of the receiver optics entrance aperture")
     system_efficiency: float = setting(0.5, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
@@ -315,18 +318,76 @@ class RunSettings:
 
 @dataclass
 class BRDFSettings:
-    """Monostatic BRDF of a material (paper eq. 3-3; physics.md §10).
+    """Monostatic BRDF of a material (paper §3.3, eq. 3-3; physics.md §10).
 
     ``lambertian``: f_r = reflectance/π.  ``steinvall``: f_r = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
+    ``table``: a measured f_r(θ) (paper §3.3: measured data where it exists, else eq. 3-3), linear in θ
+    between the tabulated angles, the first value below the first angle and the last value beyond the last
+    (:func:`core.brdf.table_brdf`).
     """
 
-    model: str = setting("lambertian", choices=("lambertian", "steinvall"), doc="BRDF model")
+    model: str = setting("lambertian", choices=("lambertian", "steinvall", "table"),
+                         doc="BRDF model: Lambertian, Steinvall (eq. 3-3) or a measured table of f_r vs angle")
     reflectance: float = setting(0.3, lo=0.0, hi=1.0, subtype="FACTOR",
                                  doc="Lambertian hemispherical reflectance ρ_d (f_r = ρ_d/π)")
     specular_a: float = setting(0.0, lo=0.0, hi=1e6, unit="1/sr", doc="Steinvall specular amplitude A")
     slope_s: float = setting(0.2, lo=1e-4, hi=10.0, doc="Steinvall rms facet slope s")
     diffuse_b: float = setting(0.1, lo=0.0, hi=1e3, unit="1/sr", doc="Steinvall diffuse amplitude B")
     diffuse_m: float = setting(1.0, lo=0.0, hi=100.0, doc="Steinvall diffuse exponent m (0: Lambertian)")
+    table_wavelength_m: float = setting(1.064e-6, lo=2e-7, hi=1.2e-5, unit="m", subtype="WAVELENGTH",
+                                        doc="Wavelength at which the BRDF table was measured")
+    #: Measured table (model "table"): incidence angles in degrees, strictly increasing in [0, 90] ...
+    table_angle_deg: list = field(default_factory=list)
+    #: ... and the monostatic BRDF f_r at each angle (1/sr), finite and ≥ 0.  At least 2 rows.
+    table_brdf_per_sr: list = field(default_factory=list)
+
+
+#: Table fields of BRDFSettings (lists; not Blender scalar properties: the add-on stores them as a collection).
+BRDF_TABLE_FIELDS = ("table_angle_deg", "table_brdf_per_sr")
+
+
+def check_brdf_table(angle_deg, brdf_per_sr, prefix: str = "") -> None:
+    """Raise ConfigError unless (angle_deg, brdf_per_sr) is a valid measured BRDF table: equal lengths, at least
+    2 rows, real numbers, angles strictly increasing within [0, 90]°, BRDF finite and ≥ 0 (1/sr)."""
+    a_path, v_path = f"{prefix}table_angle_deg", f"{prefix}table_brdf_per_sr"
+    for path, values in ((a_path, angle_deg), (v_path, brdf_per_sr)):
+        if not isinstance(values, (list, tuple)):
+            raise ConfigError(path, values, "a list of numbers")
+        for i, v in enumerate(values):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"{path}[{i}]", v, "a finite number")
+    if len(angle_deg) != len(brdf_per_sr):
+        raise ConfigError(v_path, f"{len(brdf_per_sr)} values",
+                          f"one BRDF value per angle ({len(angle_deg)} angles)")
+    if len(angle_deg) < 2:
+        raise ConfigError(a_path, list(angle_deg), "at least 2 rows (angle, BRDF)")
+    for i, a in enumerate(angle_deg):
+        if not 0.0 <= a <= 90.0:
+            raise ConfigError(f"{a_path}[{i}]", a, "an angle in [0, 90] degrees")
+        if i and a <= angle_deg[i - 1]:
+            raise ConfigError(f"{a_path}[{i}]", a, f"strictly increasing angles (greater than the previous "
+                                                   f"{angle_deg[i - 1]!r} deg)")
+    for i, v in enumerate(brdf_per_sr):
+        if v < 0.0:
+            raise ConfigError(f"{v_path}[{i}]", v, "a BRDF ≥ 0 (1/sr)")
+
+
+def _check_brdf(brdf: "BRDFSettings", prefix: str) -> None:
+    """The table of a BRDF: checked when the model is "table" or a table is present (another model keeps a
+    table it does not use, e.g. while the user compares models)."""
+    if brdf.model == "table" or brdf.table_angle_deg or brdf.table_brdf_per_sr:
+        check_brdf_table(brdf.table_angle_deg, brdf.table_brdf_per_sr, prefix)
+
+
+def _brdf_from_mapping(data, prefix: str) -> "BRDFSettings":
+    """BRDFSettings from a config table; table lists of whole numbers become floats."""
+    brdf = _from_mapping(BRDFSettings, data, prefix)
+    for name in BRDF_TABLE_FIELDS:
+        values = getattr(brdf, name)
+        if isinstance(values, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                     for v in values):
+            setattr(brdf, name, [float(v) for v in values])
+    return brdf
 
 
 #: BRDF used for triangles whose material has no ladar settings (grey Lambertian, 30 %).
@@ -371,6 +432,8 @@ def validate(obj, prefix: str = "") -> None:
                 validate(sub, f"{path}.{key}.")
         else:
             _check_value(path, value, f)
+    if isinstance(obj, BRDFSettings):
+        _check_brdf(obj, prefix)
     if isinstance(obj, SimulationConfig):
         _check_cross_field(obj)
 
@@ -443,7 +506,7 @@ def _from_mapping(cls, data: dict, prefix: str):
         elif key == "materials":
             if not isinstance(value, dict):
                 raise ConfigError(f"{prefix}{key}", value, "a table of material name -> BRDF settings")
-            kwargs[key] = {name: _from_mapping(BRDFSettings, sub, f"{prefix}{key}.{name}.")
+            kwargs[key] = {name: _brdf_from_mapping(sub, f"{prefix}{key}.{name}.")
                            for name, sub in value.items()}
         else:
             if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool):
@@ -526,7 +589,8 @@ def dump_config_toml(cfg: SimulationConfig) -> str:
         lines.append("")
     for name, brdf in data["materials"].items():
         lines.append(f"[materials.{json.dumps(name)}]")
-        lines += [f"{k} = {fmt(v)}" for k, v in brdf.items()]
+        lines += [f"{k} = [{', '.join(fmt(x) for x in v)}]" if isinstance(v, (list, tuple)) else f"{k} = {fmt(v)}"
+                  for k, v in brdf.items()]
         lines.append("")
     return "\n".join(lines)
 

@@ -1,10 +1,16 @@
-"""Blender presets for the atmosphere and the detector (Blender's preset system).
+"""Blender presets for the atmosphere, the detector, whole sensors and material BRDFs (Blender's preset system).
 
 Shipped presets live in the extension's ``presets/ladar_simulator/<kind>/`` folder (registered with
 ``bpy.utils.register_preset_path``, read-only); presets a user adds with the "+" button go to
 ``<user scripts>/presets/ladar_simulator/<kind>/``.  A preset is a Python file that sets the same properties
-the panels draw (``Scene.ladar_atmosphere.*``, ``Object.ladar.detector.*``), in their *stored* units (see
-``ladar_addon.properties``: Cn² and dark currents are stored scaled, distances in Blender units).
+the panels draw (``Scene.ladar_atmosphere.*``, ``Object.ladar.<group>.*``, ``Material.ladar_brdf.*``), in their
+*stored* units (see ``ladar_addon.properties``: wavelengths in nm, Cn² and dark currents stored scaled,
+distances in Blender units).
+
+* ``sensor``: a whole sensor — system type, laser, receiver, range gate, scanner, gated viewing, detection and
+  detector settings, and the camera's lens (which sets the receiver's field of view); the run settings (seed,
+  threads, memory) are left alone.
+* ``material``: a material's ladar BRDF (model, parameters, measured table rows), enabled.
 """
 from __future__ import annotations
 
@@ -13,12 +19,18 @@ import os
 import bpy
 from bl_operators.presets import AddPresetBase
 
-from .properties import ATMOSPHERE_FIELDS, SENSOR_FIELDS
+from .properties import ATMOSPHERE_FIELDS, BRDF_FIELDS, SENSOR_FIELDS
 
 #: The extension root (holds ``presets/``).
 EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ATMOSPHERE_SUBDIR = "ladar_simulator/atmosphere"
 DETECTOR_SUBDIR = "ladar_simulator/detector"
+SENSOR_SUBDIR = "ladar_simulator/sensor"
+MATERIAL_SUBDIR = "ladar_simulator/material"
+#: Sensor groups a whole-sensor preset stores (not "run": seed, threads and memory are not the sensor's).
+SENSOR_PRESET_GROUPS = tuple(g for g in SENSOR_FIELDS if g != "run")
+#: Camera settings a sensor preset stores: with the receiver's pixel counts they give its field of view.
+SENSOR_PRESET_CAMERA = ("sensor_fit", "sensor_width", "sensor_height", "lens")
 
 
 def shipped_preset_dir(subdir: str) -> str:
@@ -79,8 +91,50 @@ def draw_preset_header(layout, menu_cls, add_operator: str):
     op.remove_active = True
 
 
+class LADAR_MT_sensor_presets(bpy.types.Menu):
+    bl_label = "Sensor Presets"
+    preset_subdir = SENSOR_SUBDIR
+    preset_operator = "script.execute_preset"
+    preset_add_operator = "ladar.sensor_preset_add"
+    draw = bpy.types.Menu.draw_preset
+
+
+class LADAR_OT_sensor_preset_add(AddPresetBase, bpy.types.Operator):
+    """Add or remove a whole-sensor ladar preset (system type, laser, receiver, gate, scanner, gated viewing,
+    detection, detector and the camera lens)"""
+    bl_idname = "ladar.sensor_preset_add"
+    bl_label = "Add Sensor Preset"
+    preset_menu = "LADAR_MT_sensor_presets"
+    preset_subdir = SENSOR_SUBDIR
+    preset_defines = [SENSOR_EXPRESSION, "ladar = obj.ladar", "cam = obj.data"]
+
+    preset_values = (["ladar.system_type"] + [f"ladar.{g}" for g in SENSOR_PRESET_GROUPS]
+                     + [f"cam.{a}" for a in SENSOR_PRESET_CAMERA])
+
+
+class LADAR_MT_material_presets(bpy.types.Menu):
+    bl_label = "Material Presets"
+    preset_subdir = MATERIAL_SUBDIR
+    preset_operator = "script.execute_preset"
+    preset_add_operator = "ladar.material_preset_add"
+    draw = bpy.types.Menu.draw_preset
+
+
+class LADAR_OT_material_preset_add(AddPresetBase, bpy.types.Operator):
+    """Add or remove a ladar material preset (the material's BRDF model, parameters and measured table)"""
+    bl_idname = "ladar.material_preset_add"
+    bl_label = "Add Material Preset"
+    preset_menu = "LADAR_MT_material_presets"
+    preset_subdir = MATERIAL_SUBDIR
+    preset_defines = ["brdf = bpy.context.material.ladar_brdf"]
+
+    preset_values = (["brdf.enabled"] + [f"brdf.{f.attr}" for f in BRDF_FIELDS]
+                     + ["brdf.table", "brdf.table_source", "brdf.origin"])
+
+
 CLASSES = (LADAR_MT_atmosphere_presets, LADAR_MT_detector_presets, LADAR_OT_atmosphere_preset_add,
-           LADAR_OT_detector_preset_add)
+           LADAR_OT_detector_preset_add, LADAR_MT_sensor_presets, LADAR_OT_sensor_preset_add,
+           LADAR_MT_material_presets, LADAR_OT_material_preset_add)
 
 
 def register():

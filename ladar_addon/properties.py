@@ -13,6 +13,7 @@ group the core adds)
 ``run.seed``                                ``Scene.ladar.seed``
 ``atmosphere``                              ``Scene.ladar_atmosphere``
 ``materials[name]``                         ``Material.ladar_brdf`` of every material with ``enabled`` on
+                                            (a measured table as rows: ``ladar_addon.materials``)
 ==========================================  ==============================================================
 
 Every other plain setting of the core becomes a property of the same name, with its default, range (``lo``/
@@ -44,6 +45,7 @@ import numpy as np
 from ..core.config import (DEFAULT_BRDF, GROUPS, BRDFSettings, ConfigError, RunSettings, SimulationConfig,
                            field_specs, validate)
 from .errors import LadarError
+from .materials import LadarBRDFTableRow, extra_brdf_properties, read_table, write_table
 from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
 
 INT32_MAX = 2**31 - 1
@@ -304,7 +306,7 @@ LadarBRDFSettings = _make_group(
     {"enabled": bpy.props.BoolProperty(
         name="Ladar BRDF", default=False,
         description="Use these ladar BRDF settings for this material (off: the simulator's default grey "
-                    "Lambertian, 30 %)")})
+                    "Lambertian, 30 %)"), **extra_brdf_properties()})
 
 def _sensor_annotations():
     ann = {f.attr: f.property() for f in TOP_FIELDS}
@@ -352,7 +354,8 @@ class LadarSceneSettings(bpy.types.PropertyGroup):
         description="Bring the point cloud and the range/intensity images into the .blend after a run")
 
 
-CLASSES = (*_GROUP_CLASSES.values(), LadarSensorSettings, LadarAtmosphereSettings, LadarBRDFSettings,
+CLASSES = (*_GROUP_CLASSES.values(), LadarSensorSettings, LadarAtmosphereSettings, LadarBRDFTableRow,
+           LadarBRDFSettings,
            LadarSceneSettings)
 
 
@@ -396,7 +399,7 @@ def brdf_from_material(material) -> BRDFSettings:
     props = material.ladar_brdf
     if not props.enabled:
         return DEFAULT_BRDF
-    return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS})
+    return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS}, **read_table(props))
 
 
 def _read_group(props, fields, unit_scale_m):
@@ -482,6 +485,7 @@ def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
                 m.ladar_brdf.enabled = False
             else:
                 _write_group(m.ladar_brdf, BRDF_FIELDS, brdf, 1.0)
+                write_table(m.ladar_brdf, brdf.table_angle_deg, brdf.table_brdf_per_sr)
                 m.ladar_brdf.enabled = True
     except Exception:
         cam.lens = saved_lens

@@ -5,6 +5,8 @@ from .config_io import LADAR_OT_export_config, LADAR_OT_load_config
 from .simulate import LADAR_OT_simulate
 
 CLASSES = (LADAR_OT_simulate, LADAR_OT_export_config, LADAR_OT_load_config)
+from . import materials  # noqa: E402 - material BRDF operators (table import, Principled mapping, plot)
+CLASSES += materials.CLASSES
 
 
 register, unregister = bpy.utils.register_classes_factory(CLASSES)

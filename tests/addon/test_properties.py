@@ -18,7 +18,9 @@ def _core_paths(config):
 def test_every_core_setting_has_one_home_in_blender(lad):
     assert lad.properties.all_core_paths() == _core_paths(lad.config)
     brdf_attrs = set(lad.properties.LadarBRDFSettings.bl_rna.properties.keys()) - {"rna_type", "name"}
-    assert brdf_attrs == {n for n, _, _ in lad.config.field_specs(lad.config.BRDFSettings)} | {"enabled"}
+    # The measured table's lists (core.config.BRDF_TABLE_FIELDS) live in the "table" rows (ladar_addon.materials).
+    assert brdf_attrs == {n for n, _, _ in lad.config.field_specs(lad.config.BRDFSettings)} | {
+        "enabled", "table", "table_source", "origin", "plot"}
 
 
 def test_property_definitions_follow_the_core_metadata(lad):
@@ -194,4 +196,4 @@ def test_brdf_of_materials(lad, scene):
     assert lad.properties.brdf_from_material(None) == lad.config.DEFAULT_BRDF
     paint = brdf_material("Paint", model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08)
     brdf = lad.properties.brdf_from_material(paint)
-    assert dataclasses.astuple(brdf) == ("steinvall", 0.3, 0.05, 0.2, 0.08, 1.0)
+    assert dataclasses.astuple(brdf) == ("steinvall", 0.3, 0.05, 0.2, 0.08, 1.0, 1.064e-6, [], [])
