@@ -49,7 +49,11 @@ class Trajectory:
         if np.any(np.linalg.det(rots) < 0):
             raise ConfigError("trajectory.matrices", "a mirrored pose", "proper rotations (no negative scale)")
         self._rotations = Rotation.from_matrix(rots)
-        self._slerp = Slerp(self.times_s, self._rotations) if len(self.times_s) > 1 else None
+        #: every pose has the same orientation (a static sensor, or one that only translates)
+        self.rotation_is_constant = bool(np.all(rots == rots[0]))
+        self.rotation0 = rots[0]
+        self._slerp = (Slerp(self.times_s, self._rotations) if len(self.times_s) > 1 and not self.rotation_is_constant
+                       else None)
 
     @classmethod
     def static(cls, world_from_sensor) -> "Trajectory":
@@ -62,8 +66,7 @@ class Trajectory:
     def poses_at(self, t_s):
         """Origins (n, 3) and rotations (n, 3, 3) at times ``t_s`` (clamped to the sampled interval)."""
         t = np.clip(np.asarray(t_s, dtype=np.float64), self.times_s[0], self.times_s[-1])
-        if self._slerp is None:
-            return (np.broadcast_to(self._origins[0], (len(t), 3)).copy(),
-                    np.broadcast_to(self._rotations.as_matrix()[0], (len(t), 3, 3)).copy())
         origin = np.stack([np.interp(t, self.times_s, self._origins[:, k]) for k in range(3)], axis=1)
+        if self._slerp is None:
+            return origin, np.broadcast_to(self.rotation0, (len(t), 3, 3))
         return origin, self._slerp(t).as_matrix()

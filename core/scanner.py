@@ -157,6 +157,43 @@ def _perpendicular_axes(d):
     return u, v
 
 
+def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
+              width_scale: float = 1.0):
+    """The sub-rays of pulses [start, stop): (time_s, channel, scan_angle, origin (n, 3), nominal axis (n, 3)
+    in world coordinates, ray origins (n·m, 3), ray directions (n·m, 3)), sub-rays of a pulse consecutive.
+
+    ``wander_rad`` (n, 2) displaces each beam's centre (beam wander, turbulence), ``width_scale`` widens the
+    beam (turbulent broadening); the nominal axis is what the sensor believes it fired along."""
+    laser = config.laser
+    t_s, d_sensor, channel, angle = pulse_schedule(config, start, stop)
+    n = len(t_s)
+    origin, rot = trajectory.poses_at(t_s)
+    if trajectory.rotation_is_constant:
+        rot = trajectory.rotation0
+        axis_world = d_sensor @ rot.T
+    else:
+        axis_world = np.einsum("nij,nj->ni", rot, d_sensor)
+    rho_unit, phi, weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)
+    m = len(weight)
+    centre = d_sensor
+    if wander_rad is not None and np.any(wander_rad):
+        u, v = _perpendicular_axes(d_sensor)
+        centre = d_sensor + wander_rad[:, :1] * u + wander_rad[:, 1:] * v
+        centre /= np.linalg.norm(centre, axis=1, keepdims=True)
+    if m > 1:
+        uc, vc = _perpendicular_axes(centre)
+        rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
+        off = np.cos(phi)[None, :, None] * uc[:, None, :] + np.sin(phi)[None, :, None] * vc[:, None, :]
+        d_sub = np.cos(rho)[None, :, None] * centre[:, None, :] + np.sin(rho)[None, :, None] * off
+    else:
+        d_sub = centre[:, None, :]
+    if rot.ndim == 2:
+        d_world = d_sub.reshape(-1, 3) @ rot.T
+    else:
+        d_world = np.einsum("nij,nmj->nmi", rot, d_sub).reshape(-1, 3)
+    return t_s, channel, angle, origin, axis_world, np.repeat(origin, m, axis=0), d_world
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Atmosphere per pulse (paper §3.4 A, B, D for a single beam)
 # ----------------------------------------------------------------------------------------------------------
@@ -329,9 +366,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     gate, laser = config.gate, config.laser
     noisy = config.detector.mode == "noisy"
     save = config.run.save_waveforms
-    rho_unit, phi, weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)
+    weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)[2]
     m = len(weight)
-    theta = 0.5 * laser.beam_divergence_rad
     method = binning_method(laser, gate)
 
     skipped = {}
@@ -373,27 +409,14 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         n = b - a
         local = {}
         t = time.perf_counter()
-        t_s, d_sensor, channel, angle = pulse_schedule(config, a, b)
-        origin, rot = trajectory.poses_at(t_s)
-        axis_world = np.einsum("nij,nj->ni", rot, d_sensor)
         wander = np.zeros((n, 2))
         scint = np.ones(n)
         for ta in range(a, b, tile):  # random streams per fixed tile of pulses
             tb = min(ta + tile, b)
             w_t, s_t = atm.draw(config, frame, ta // tile, tb - ta)
             wander[ta - a:tb - a], scint[ta - a:tb - a] = w_t, s_t
-        u, v = _perpendicular_axes(d_sensor)
-        centre = d_sensor + wander[:, :1] * u + wander[:, 1:] * v
-        centre /= np.linalg.norm(centre, axis=1, keepdims=True)
-        if m > 1:
-            uc, vc = _perpendicular_axes(centre)
-            rho = rho_unit * theta * atm.width_scale
-            off = (np.cos(phi)[None, :, None] * uc[:, None, :] + np.sin(phi)[None, :, None] * vc[:, None, :])
-            d_sub = (np.cos(rho)[None, :, None] * centre[:, None, :] + np.sin(rho)[None, :, None] * off)
-        else:
-            d_sub = centre[:, None, :]
-        d_world = np.einsum("nij,nmj->nmi", rot, d_sub).reshape(-1, 3)
-        o_world = np.repeat(origin, m, axis=0)
+        t_s, channel, angle, origin, axis_world, o_world, d_world = scan_rays(
+            config, trajectory, a, b, wander_rad=wander, width_scale=atm.width_scale)
         local["rays"] = time.perf_counter() - t
         t = time.perf_counter()
         prim, range_m, cos_theta = tracer.intersect(o_world, d_world)

@@ -12,7 +12,30 @@ range 170–240 m away:
 * three instances of the collection "Bollard" (so the export's instancing path is exercised);
 * a ground plane (Lambertian 20 %).
 
-Options: ``--out PATH`` (default: ``sample_blends/flash_demo.blend``).
+``gated_board.blend`` — burst illumination / gated viewing of a reference board at 1 km (paper §4, §5.1):
+
+* sensor "Gated camera": 96×64 pixels, 8 × 5.3 mrad, 532 nm, 10 ns pulse of 20 mJ flooding the field of view,
+  a 20 ns gate swept in 30 slices of 3.34 ns (0.5 m) from 992 m to 1007 m, range by the slice centroid;
+* the board: three 1 m × 2 m panels (10 %, 50 %, glossy paint) at 1000 m, a staircase of four blocks at
+  996–1004 m beside it, ground;
+* atmosphere: visibility 15 km, Cn² = 5·10⁻¹⁵ m^-2/3 (scintillation per slice, wander, long-exposure blur).
+
+``forest_scan.blend`` — an airborne time-of-flight scanner over a vehicle in a forest (paper §2.1):
+
+* sensor "Scanner" 120 m above the ground, flying north (+Y) at 24 m/s (animated, frames 1–25 = 1 s), an
+  oscillating mirror ±25° across track at 50 Hz, 100 kHz pulses of 3 ns at 1064 nm, 1 mrad beam sampled by 19
+  sub-rays, range gate 95–145 m with 0.5 ns bins;
+* a 160 m × 160 m rolling ground, 60 trees (trunks and crowns of loose leaves, so pulses give several echoes),
+  a car-sized vehicle in a clearing.
+
+``aircraft_profile.blend`` — a range profiler on an aircraft-like target at 2 km (paper §5.3, Fig. 13):
+
+* sensor "Profiler": one detector with a 12 mrad field of view, 256 × 256 sub-rays, uniform flood beam,
+  1 ns pulse, 0.2 ns bins from 1985 m to 2015 m;
+* an aircraft (fuselage with a nose cone, wings, tailplane and fin), seen 35° off its nose.
+
+Options: ``--out DIR`` (default: ``sample_blends/``), ``--only NAME`` (flash_demo, gated_board, forest_scan,
+aircraft_profile).
 """
 from __future__ import annotations
 
@@ -144,16 +167,251 @@ def build_flash_demo(bpy, path: Path) -> None:
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
 
 
+def _materials(bpy, table):
+    mats = {}
+    for name, (colour, brdf) in table.items():
+        mat = bpy.data.materials.new(name)
+        mat.diffuse_color = colour
+        mat.ladar_brdf.enabled = True
+        for key, value in brdf.items():
+            setattr(mat.ladar_brdf, key, value)
+        mats[name] = mat
+    return mats
+
+
+def _camera(bpy, name, fov_x_rad, fov_y_rad, location, rotation):
+    cam_data = bpy.data.cameras.new(name)
+    cam_data.sensor_fit = "HORIZONTAL"
+    cam_data.lens = 0.5 * cam_data.sensor_width / math.tan(0.5 * fov_x_rad)
+    cam_data.clip_start, cam_data.clip_end = 1.0, 5000.0
+    cam = bpy.data.objects.new(name, cam_data)
+    cam.location = location
+    cam.rotation_euler = rotation
+    bpy.context.scene.collection.objects.link(cam)
+    bpy.context.scene.camera = cam
+    return cam
+
+
+def _new_scene(bpy, name, resolution):
+    bpy.ops.wm.read_homefile(use_empty=True)
+    scene = bpy.context.scene
+    scene.name = name
+    scene.unit_settings.system = "METRIC"
+    scene.frame_start = scene.frame_end = scene.frame_current = 1
+    scene.render.resolution_x, scene.render.resolution_y = resolution
+    scene.render.resolution_percentage = 100
+    return scene
+
+
+def _save(bpy, scene, sensor, path: Path):
+    scene.ladar.sensor = sensor
+    scene.ladar.output_dir = "//../runs/"
+    scene.ladar.seed = 1
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
+
+
+def build_gated_board(bpy, path: Path) -> None:
+    scene = _new_scene(bpy, "Gated viewing at 1 km", (96, 64))
+    root = scene.collection
+    mats = _materials(bpy, {k: MATERIALS[k] for k in ("Lambertian 10%", "Lambertian 50%", "Steinvall paint",
+                                                      "Ground", "Box")})
+    ground_z = -1.5
+    _mesh_object(bpy, "Ground", [(-30, 900, 0), (30, 900, 0), (30, 1100, 0), (-30, 1100, 0)], [(0, 1, 2, 3)],
+                 root, (0.0, 0.0, ground_z), (mats["Ground"],))
+    xs = [-2.5, -1.5, -0.5, 0.5]
+    verts = [(x, 0.0, z) for z in (0.0, 2.0) for x in xs]
+    faces = [(i, i + 1, i + 5, i + 4) for i in range(3)]
+    _mesh_object(bpy, "Board panels", verts, faces, root, (0.0, 1000.0, ground_z + 0.3),
+                 (mats["Lambertian 10%"], mats["Lambertian 50%"], mats["Steinvall paint"]), [0, 1, 2])
+    for i, y in enumerate((996.0, 998.5, 1001.5, 1004.0)):  # a staircase: 0.6 m wide blocks, 2.5–3 m apart
+        _box(bpy, f"Step {i + 1}", (0.6, 0.6, 2.2), root, (1.3 + 0.7 * i, y, ground_z), mats["Box"])
+    fov_x, fov_y = 8e-3, 8e-3 * 64 / 96
+    cam = _camera(bpy, "Gated camera", fov_x, fov_y, (0.0, 0.0, 0.0), (math.pi / 2, 0.0, 0.0))
+    ladar = cam.ladar
+    ladar.system_type = "gated"
+    ladar.receiver.width_px, ladar.receiver.height_px = 96, 64
+    ladar.receiver.subsamples = 3
+    ladar.receiver.aperture_diameter_m = 0.1
+    ladar.laser.wavelength_m = 532.0  # stored in nm
+    ladar.laser.pulse_energy_j = 0.02
+    ladar.laser.pulse_fwhm_s = 10e-9
+    ladar.gated.gate_width_s = 20e-9
+    ladar.gated.delay_step_s = 2 * 0.5 / SPEED_OF_LIGHT_M_S
+    ladar.gated.n_slices = 30
+    ladar.gated.first_delay_s = 2 * 992.5 / SPEED_OF_LIGHT_M_S - 0.5 * 20e-9
+    ladar.gated.range_method = "centroid"
+    atm = scene.ladar_atmosphere
+    atm.visibility_m = 15000.0
+    atm.cn2_m_23 = 5e-15
+    _save(bpy, scene, cam, path)
+
+
+def _tree(rng, x, y, z, height):
+    """A trunk (8-sided prism) and a crown of loose leaf triangles: (verts, faces, is_leaf per face)."""
+    verts, faces, leaf = [], [], []
+    r, trunk_h = 0.15 + 0.02 * height / 10, 0.45 * height
+    ring = [(x + r * math.cos(a), y + r * math.sin(a)) for a in (2 * math.pi * k / 8 for k in range(8))]
+    verts += [(px, py, z) for px, py in ring] + [(px, py, z + trunk_h) for px, py in ring]
+    faces += [(k, (k + 1) % 8, 8 + (k + 1) % 8, 8 + k) for k in range(8)]
+    leaf += [False] * 8
+    centre = (x, y, z + 0.65 * height)
+    radii = (0.22 * height, 0.22 * height, 0.32 * height)
+    n_leaves = 220
+    pos = rng.normal(size=(n_leaves, 3))
+    pos /= (abs(pos) ** 2).sum(axis=1, keepdims=True) ** 0.5
+    pos *= rng.uniform(0, 1, (n_leaves, 1)) ** (1 / 3)
+    for p in pos:
+        c = [centre[i] + p[i] * radii[i] for i in range(3)]
+        e1, e2 = rng.normal(size=3), rng.normal(size=3)
+        e1 = 0.35 * e1 / (e1 @ e1) ** 0.5
+        e2 = 0.35 * e2 / (e2 @ e2) ** 0.5
+        base = len(verts)
+        verts += [tuple(c), tuple(c + e1), tuple(c + e2)]
+        faces.append((base, base + 1, base + 2))
+        leaf.append(True)
+    return verts, faces, leaf
+
+
+def _ground_height(x, y):
+    return 1.5 * math.sin(x / 23.0) * math.cos(y / 31.0)
+
+
+def build_forest_scan(bpy, path: Path) -> None:
+    import numpy as np
+
+    scene = _new_scene(bpy, "Vehicle in a forest", (64, 64))
+    scene.frame_end = 25
+    scene.render.fps = 24
+    root = scene.collection
+    mats = _materials(bpy, {
+        "Ground": MATERIALS["Ground"],
+        "Bark": ((0.3, 0.2, 0.1, 1.0), {"model": "lambertian", "reflectance": 0.25}),
+        "Leaves": ((0.1, 0.5, 0.1, 1.0), {"model": "lambertian", "reflectance": 0.45}),  # NIR-bright foliage
+        "Car paint": MATERIALS["Steinvall paint"],
+        "Glass": ((0.1, 0.1, 0.2, 1.0), {"model": "steinvall", "specular_a": 0.5, "slope_s": 0.05,
+                                         "diffuse_b": 0.005, "diffuse_m": 1.0}),
+    })
+    n = 48
+    grid = [(-80 + 160 * i / n, -80 + 160 * j / n) for j in range(n + 1) for i in range(n + 1)]
+    verts = [(x, y, _ground_height(x, y)) for x, y in grid]
+    faces = [(j * (n + 1) + i, j * (n + 1) + i + 1, (j + 1) * (n + 1) + i + 1, (j + 1) * (n + 1) + i)
+             for j in range(n) for i in range(n)]
+    _mesh_object(bpy, "Ground", verts, faces, root, materials=(mats["Ground"],))
+    rng = np.random.default_rng(7)
+    tv, tf, tl = [], [], []
+    placed = 0
+    while placed < 60:
+        x, y = rng.uniform(-70, 70, 2)
+        if abs(x) < 9 and abs(y) < 9:  # the clearing around the vehicle
+            continue
+        v, f, leaf = _tree(rng, x, y, _ground_height(x, y), rng.uniform(9, 16))
+        tf += [tuple(k + len(tv) for k in face) for face in f]
+        tv += v
+        tl += leaf
+        placed += 1
+    _mesh_object(bpy, "Trees", tv, tf, root, materials=(mats["Bark"], mats["Leaves"]),
+                 face_materials=[1 if is_leaf else 0 for is_leaf in tl])
+    z0 = _ground_height(0.0, 0.0)
+    car = bpy.data.collections.new("Vehicle")
+    root.children.link(car)
+    _box(bpy, "Vehicle body", (1.8, 4.5, 0.9), car, (0.0, 0.0, z0 + 0.3), mats["Car paint"])
+    _box(bpy, "Vehicle cabin", (1.6, 2.2, 0.6), car, (0.0, -0.3, z0 + 1.2), mats["Glass"])
+    cam = _camera(bpy, "Scanner", math.radians(50.0), math.radians(50.0), (0.0, -12.0, 120.0), (0.0, 0.0, 0.0))
+    # fly north at 24 m/s: frames 1 → 25 (1 s); linear keys so the speed is constant
+    bpy.context.preferences.edit.keyframe_new_interpolation_type = "LINEAR"
+    cam.location = (0.0, -12.0, 120.0)
+    cam.keyframe_insert("location", frame=1)
+    cam.location = (0.0, 12.0, 120.0)
+    cam.keyframe_insert("location", frame=25)
+    cam.location = (0.0, -12.0, 120.0)
+    ladar = cam.ladar
+    ladar.system_type = "scanner"
+    ladar.laser.wavelength_m = 1064.0
+    ladar.laser.pulse_fwhm_s = 3e-9
+    ladar.laser.pulse_energy_j = 50e-6
+    ladar.laser.beam_divergence_rad = 1e-3
+    ladar.laser.divergence_fills_fov = False
+    ladar.receiver.aperture_diameter_m = 0.08
+    sc = ladar.scanner
+    sc.pattern = "oscillating"
+    sc.pulse_rate_hz = 100_000.0
+    sc.scan_rate_hz = 50.0
+    sc.scan_width_rad = math.radians(50.0)
+    sc.duration_s = 1.0
+    sc.beam_subray_rings = 2
+    sc.motion_samples_per_s = 200.0
+    ladar.gate.gate_start_s = 2 * 95.0 / SPEED_OF_LIGHT_M_S
+    ladar.gate.bin_width_s = 0.5e-9
+    ladar.gate.n_bins = int(math.ceil(2 * 50.0 / SPEED_OF_LIGHT_M_S / 0.5e-9))
+    ladar.detection.max_echoes = 5
+    ladar.run.save_waveforms = False
+    _save(bpy, scene, cam, path)
+
+
+def build_aircraft_profile(bpy, path: Path) -> None:
+    scene = _new_scene(bpy, "Aircraft range profile", (64, 64))
+    root = scene.collection
+    mats = _materials(bpy, {"Aircraft paint": ((0.7, 0.7, 0.75, 1.0),
+                                               {"model": "steinvall", "specular_a": 0.05, "slope_s": 0.2,
+                                                "diffuse_b": 0.08, "diffuse_m": 1.0})})
+    verts, faces = [], []
+    # fuselage along +X: a 16-sided tube 14 m long, radius 1 m, with a 3 m nose cone at +X
+    sides, r = 16, 1.0
+    for x in (-7.0, 7.0):
+        verts += [(x, r * math.cos(2 * math.pi * k / sides), r * math.sin(2 * math.pi * k / sides))
+                  for k in range(sides)]
+    faces += [(k, (k + 1) % sides, sides + (k + 1) % sides, sides + k) for k in range(sides)]
+    tip = len(verts)
+    verts.append((10.0, 0.0, 0.0))
+    faces += [(sides + k, sides + (k + 1) % sides, tip) for k in range(sides)]
+    faces.append(tuple(range(sides - 1, -1, -1)))  # flat tail cap
+
+    def plate(points):
+        base = len(verts)
+        verts.extend(points)
+        faces.append(tuple(range(base, base + len(points))))
+
+    plate([(1.5, -8.0, 0.0), (3.5, -8.0, 0.0), (4.0, 8.0, 0.0), (2.0, 8.0, 0.0)])          # wings (swept)
+    plate([(-7.0, -3.0, 0.3), (-5.8, -3.0, 0.3), (-5.5, 3.0, 0.3), (-6.7, 3.0, 0.3)])      # tailplane
+    plate([(-7.0, 0.0, 0.8), (-5.5, 0.0, 0.8), (-6.2, 0.0, 3.5), (-7.0, 0.0, 3.5)])        # fin
+    obj = _mesh_object(bpy, "Aircraft", verts, faces, root, (0.0, 2000.0, 0.0), (mats["Aircraft paint"],))
+    obj.rotation_euler = (0.0, 0.0, math.radians(-90.0 - 35.0))  # nose towards the sensor, 35° off
+    cam = _camera(bpy, "Profiler", 12e-3, 12e-3, (0.0, 0.0, 0.0), (math.pi / 2, 0.0, 0.0))
+    ladar = cam.ladar
+    ladar.system_type = "profiler"
+    ladar.receiver.width_px = ladar.receiver.height_px = 1
+    ladar.receiver.fov_x_rad = ladar.receiver.fov_y_rad = 12e-3
+    ladar.receiver.subsamples = 256
+    ladar.receiver.aperture_diameter_m = 0.2
+    ladar.laser.wavelength_m = 1064.0
+    ladar.laser.beam_profile = "uniform"
+    ladar.laser.pulse_fwhm_s = 1e-9
+    ladar.laser.pulse_energy_j = 0.1
+    ladar.gate.gate_start_s = 2 * 1985.0 / SPEED_OF_LIGHT_M_S
+    ladar.gate.bin_width_s = 0.2e-9
+    ladar.gate.n_bins = int(math.ceil(2 * 30.0 / SPEED_OF_LIGHT_M_S / 0.2e-9))
+    ladar.detection.max_echoes = 8
+    _save(bpy, scene, cam, path)
+
+
+BUILDERS = {"flash_demo": build_flash_demo, "gated_board": build_gated_board, "forest_scan": build_forest_scan,
+            "aircraft_profile": build_aircraft_profile}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--out", type=Path, default=HERE / "flash_demo.blend")
+    parser.add_argument("--out", type=Path, default=HERE, help="folder for the .blend files")
+    parser.add_argument("--only", choices=sorted(BUILDERS), action="append", help="build only this scene")
     args = parser.parse_args(argv)
     blender_env.isolate_user_resources()
     import bpy
 
     blender_env.install_extension()
-    build_flash_demo(bpy, args.out.resolve())
-    print(f"wrote {args.out}")
+    for name in args.only or BUILDERS:
+        path = (args.out / f"{name}.blend").resolve()
+        BUILDERS[name](bpy, path)
+        print(f"wrote {path}")
     return 0
 
 
