@@ -195,11 +195,19 @@ def run_summary(run_path, result) -> str:
     st = result.stats
     pts = result.points
     lines = [f"run      {run_path}"]
+    if "n_pulses" in st:
+        lines.append(f"pulses   {st['n_pulses']} fired ({st['subrays_per_pulse']} sub-rays each) over "
+                     f"{st['scan_duration_s']:.3g} s, {st['pulses_without_echo']} without an echo")
     lines.append(f"rays     {st['n_rays']} traced, {st['n_hits']} hits on {st['n_triangles']} triangles "
                  f"({st['threads']} threads, {st['wall_time_s']:.2f} s)")
+    if getattr(result, "slices", None) is not None:
+        d = np.asarray(st["slice_delays_s"])
+        lines.append(f"slices   {len(d)} gates, delays {d[0] * 1e9:.1f} – {d[-1] * 1e9:.1f} ns; range by "
+                     f"{st['range_method']}")
+    unit = "pulses" if "n_pulses" in st else "pixels"
     if len(pts["range_m"]):
         first = pts["echo_index"] == 1
-        lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} pixels with an echo, "
+        lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} {unit} with an echo, "
                      f"{int((pts['n_echoes'][first] > 1).sum())} with several; range "
                      f"{pts['range_m'].min():.3f} – {pts['range_m'].max():.3f} m")
     else:

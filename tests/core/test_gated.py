@@ -8,7 +8,7 @@ from core.config import ConfigError, LaserSettings, SimulationConfig, validate
 from core.gated import gate_response, pulse_cdf_integral, slice_delays_s, two_gate_range_m
 from core.laser import pulse_cdf
 from core.pipeline import run_simulation, simulate
-from core.runio import read_exr
+from core.runio import read_exr, run_summary
 from core.scene import SceneGeometry
 from core.trace import SceneTracer
 from scenes import C, plate
@@ -134,6 +134,7 @@ def test_run_folder_holds_the_slice_sequence(tmp_path):
     meta = json.loads((path / "metadata.json").read_text())
     np.testing.assert_allclose(meta["slice_delays_s"], slice_delays_s(cfg))
     assert np.isfinite(read_exr(path / "range.exr")["Y"]).all()
+    assert "5 gates" in run_summary(path, res)
 
 
 def test_turbulence_is_drawn_per_slice():

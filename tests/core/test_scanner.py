@@ -7,7 +7,7 @@ import pytest
 from core.config import ConfigError, SimulationConfig, validate
 from core.motion import Trajectory
 from core.pipeline import run_simulation, simulate
-from core.runio import read_ply
+from core.runio import read_ply, run_summary
 from core.scanner import (beam_subrays, n_scan_pulses, pulse_schedule, scan_duration_s, windowed_echoes)
 from core.scene import SceneGeometry
 from scenes import C, plate
@@ -182,6 +182,8 @@ def test_pulses_are_time_stamped_and_misses_recorded(tmp_path):
     np.testing.assert_allclose(ply["gps_time_s"], 1000.0 + ply["pulse_index"] / 4000.0)
     assert {"echo_index", "n_echoes", "intensity", "gps_time_s", "channel"} <= set(ply)
     assert not (path / "range.exr").exists()
+    summary = run_summary(path, res)
+    assert "160 fired" in summary and f"{res.stats['pulses_without_echo']} without an echo" in summary
 
 
 def test_windowed_waveforms_give_the_full_gate_echoes():
