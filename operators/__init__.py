@@ -7,6 +7,8 @@ from .simulate import LADAR_OT_simulate
 CLASSES = (LADAR_OT_simulate, LADAR_OT_export_config, LADAR_OT_load_config)
 from . import materials  # noqa: E402 - material BRDF operators (table import, Principled mapping, plot)
 CLASSES += materials.CLASSES
+from . import export_las  # noqa: E402 - LAS 1.4 export of a run's point cloud
+CLASSES += export_las.CLASSES
 
 
 register, unregister = bpy.utils.register_classes_factory(CLASSES)
