@@ -309,17 +309,28 @@ class PulseTable:
         self.rows = np.diff(pulse_cdf(laser, np.concatenate([edges, edges[:, -1:] + bin_width_s], axis=1)), axis=1)
         self.offsets = m
 
-    def waveforms(self, pulse_local, u, energy_j, n_pulses, n_bins):
-        """(n_pulses, n_bins) float64 J per bin; u in bins of the (window) gate."""
-        j = np.floor(u)
-        x = (u - j) * self.N
-        i = np.minimum(x.astype(np.int64), self.N - 1)
-        a = (x - i)[:, None]
-        w = (self.rows[i] * (1.0 - a) + self.rows[i + 1] * a) * energy_j[:, None]
-        bins = j.astype(np.int64)[:, None] + self.offsets[None, :]
-        ok = (bins >= 0) & (bins < n_bins)
-        flat = pulse_local.astype(np.int64)[:, None] * n_bins + bins
-        return np.bincount(flat[ok], weights=w[ok], minlength=n_pulses * n_bins).reshape(n_pulses, n_bins)
+    def waveforms(self, pulse_local, u, energy_j, n_pulses, n_bins, rays_per_chunk: int = 16384):
+        """(n_pulses, n_bins) float64 J per bin; u in bins of the (window) gate; pulse_local sorted ascending.
+        Rays are processed in chunks of whole pulses so the temporaries stay small (cache-sized)."""
+        out = np.zeros((n_pulses, n_bins))
+        a = 0
+        while a < len(u):
+            b = min(a + rays_per_chunk, len(u))
+            if b < len(u):  # end the chunk on a pulse boundary
+                b = int(np.searchsorted(pulse_local, pulse_local[b - 1], side="right")) if \
+                    pulse_local[b] == pulse_local[b - 1] else b
+            p0, p1 = int(pulse_local[a]), int(pulse_local[b - 1]) + 1
+            j = np.floor(u[a:b])
+            x = (u[a:b] - j) * self.N
+            i = np.minimum(x.astype(np.int64), self.N - 1)
+            w = x - i
+            w = (self.rows[i] * (1.0 - w)[:, None] + self.rows[i + 1] * w[:, None]) * energy_j[a:b, None]
+            bins = j.astype(np.int64)[:, None] + self.offsets[None, :]
+            ok = (bins >= 0) & (bins < n_bins)
+            flat = (pulse_local[a:b].astype(np.int64) - p0)[:, None] * n_bins + bins
+            out[p0:p1] += np.bincount(flat[ok], weights=w[ok], minlength=(p1 - p0) * n_bins).reshape(-1, n_bins)
+            a = b
+        return out
 
 
 def windowed_echoes(pulse_local, time_s, energy_j, n_pulses, config: SimulationConfig, method: str,
