@@ -28,6 +28,7 @@ from .propagation import (blur_cube_and_image, effective_extinction_per_m, prepa
 from .radiometry import received_energy
 from .rays import Detector, block_subray_tan, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
+from .sampling import cell_time_spread_s
 from .scene import SceneGeometry
 from .trace import SceneTracer
 from .waveform import SPEED_OF_LIGHT_M_S, accumulate_waveforms, binning_method, round_trip_time_s
@@ -117,6 +118,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     keep_cube = config.run.save_waveforms or whole_cube
     waveforms = np.zeros((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
     energy = np.zeros(det.n_pixels)
+    cell_x_tan, cell_y_tan = (p / det.subsamples for p in det.pixel_pitch_tan)
+    max_spread_s = 1000.0 * gate.n_bins * gate.bin_width_s
 
     def process(block):
         if cancel is not None and cancel():
@@ -141,10 +144,14 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
+        spread = None
+        if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/sampling.py)
+            spread = cell_time_spread_s(x_tan[hit], y_tan[hit], range_m[hit], tracer.unit_normal[prim[hit]] @ rot,
+                                        cell_x_tan, cell_y_tan, max_spread_s)
         # only pixels with returns get a waveform row (the others stay zero)
         active = np.unique(pix_local)
         wf = accumulate_waveforms(np.searchsorted(active, pix_local), round_trip_time_s(range_m[hit]), e,
-                                  len(active), config.laser, gate, method)
+                                  len(active), config.laser, gate, method, spread_s=spread)
         if waveforms is not None:
             waveforms[a + active] = wf
         local["waveform"] = time.perf_counter() - t
