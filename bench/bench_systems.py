@@ -16,7 +16,6 @@ ratios measured in the same run are the figures to track.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time

@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy.special import ndtri
@@ -143,7 +142,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                    progress=None, cancel=None):
     """Simulate one gated-viewing sweep (all slices of one frame).  Returns a pipeline.FrameResult with
     ``slices`` (n_slices, H, W), the range image from the slices, points and metadata."""
-    from .pipeline import Cancelled, FrameResult, _points, _reference_range
+    from .pipeline import Cancelled, FrameResult, _points, _reference_range, run_blocks
     from .motion import split_pose
 
     t_wall = time.perf_counter()
@@ -235,12 +234,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         return int(hit.sum()), local
 
     threads = config.run.threads or os.cpu_count() or 1
-    results = []
-    with ThreadPoolExecutor(max_workers=max(1, min(threads, len(blocks)))) as pool:
-        for i, res in enumerate(pool.map(process, blocks)):
-            results.append(res)
-            if progress is not None:
-                progress((i + 1) / len(blocks), f"block {i + 1}/{len(blocks)}")
+    results = run_blocks(process, blocks, threads, progress)
     n_hits = sum(r[0] for r in results)
     for _, local in results:
         for k, v in local.items():

@@ -246,6 +246,17 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                        digital_waveforms=digital, stats=stats)
 
 
+def run_blocks(process, blocks, threads: int, progress=None, label: str = "block"):
+    """``process(block)`` for every block on a thread pool (results in block order); progress after each."""
+    results = []
+    with ThreadPoolExecutor(max_workers=max(1, min(threads, len(blocks)))) as pool:
+        for i, res in enumerate(pool.map(process, blocks)):
+            results.append(res)
+            if progress is not None:
+                progress((i + 1) / len(blocks), f"{label} {i + 1}/{len(blocks)}")
+    return results
+
+
 def _noisy_echoes(digital, config: SimulationConfig) -> Echoes:
     """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
     core/echoes_noisy.py), in the pipeline's per-echo layout, with the detection SNR."""

@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -398,7 +397,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                   trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None, cancel=None):
     """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a pipeline.FrameResult whose images
     are None and whose ``points`` and ``pulses`` carry the products (see module docstring)."""
-    from .pipeline import Cancelled, FrameResult, _noisy_echoes
+    from .pipeline import Cancelled, FrameResult, _noisy_echoes, run_blocks
 
     t_wall = time.perf_counter()
     validate(config)
@@ -515,14 +514,9 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         return echoes, int(hit.sum()), local, None
 
     threads = config.run.threads or os.cpu_count() or 1
-    results = []
-    with ThreadPoolExecutor(max_workers=max(1, min(threads, len(blocks)))) as pool:
-        for i, res in enumerate(pool.map(process, blocks)):
-            ech, n_hit, local, report = res
-            ech.pixel = ech.pixel + blocks[i][0]
-            results.append(res)
-            if progress is not None:
-                progress((i + 1) / len(blocks), f"pulses {blocks[i][1]}/{n_pulses}")
+    results = run_blocks(process, blocks, threads, progress, label="pulse block")
+    for (a, _), res in zip(blocks, results):
+        res[0].pixel = res[0].pixel + a
     n_hits = sum(r[1] for r in results)
     for r in results:
         for k, v in r[2].items():

@@ -90,23 +90,9 @@ def _box(bpy, name, size, collection, location, material):
 
 
 def build_flash_demo(bpy, path: Path) -> None:
-    bpy.ops.wm.read_homefile(use_empty=True)
-    scene = bpy.context.scene
-    scene.name = "Flash demo"
-    scene.unit_settings.system = "METRIC"
-    scene.frame_start = scene.frame_end = scene.frame_current = 1
-    scene.render.resolution_x = scene.render.resolution_y = 64
-    scene.render.resolution_percentage = 100
+    scene = _new_scene(bpy, "Flash demo", (64, 64))
     root = scene.collection
-
-    mats = {}
-    for name, (colour, brdf) in MATERIALS.items():
-        mat = bpy.data.materials.new(name)
-        mat.diffuse_color = colour
-        mat.ladar_brdf.enabled = True
-        for key, value in brdf.items():
-            setattr(mat.ladar_brdf, key, value)
-        mats[name] = mat
+    mats = _materials(bpy, MATERIALS)
 
     ground_z = -SENSOR_HEIGHT_M
     _mesh_object(bpy, "Ground", [(-40, 90, 0), (40, 90, 0), (40, 380, 0), (-40, 380, 0)], [(0, 1, 2, 3)], root,

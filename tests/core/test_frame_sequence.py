@@ -9,7 +9,7 @@ from core.config import ConfigError
 from core.pipeline import Cancelled
 from core.runio import read_ply
 from core.trace import SceneTracer
-from scenes import C, config_for, plate
+from scenes import config_for, plate
 
 
 def pose(x_m, yaw_rad):
