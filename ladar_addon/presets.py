@@ -82,6 +82,97 @@ class LADAR_OT_detector_preset_add(AddPresetBase, bpy.types.Operator):
     preset_values = [f"detector.{f.attr}" for f in SENSOR_FIELDS["detector"]]
 
 
+# ------------------------------------------------------------------------------------------------------------
+# Shipped sensor and material presets: values in core (SI) units, converted and validated here
+# ------------------------------------------------------------------------------------------------------------
+def preset_sensor(context=None):
+    """The camera a sensor preset applies to (the same rule as :data:`SENSOR_EXPRESSION`)."""
+    context = context or bpy.context
+    obj = getattr(context, "object", None)
+    if obj is not None and obj.type == "CAMERA":
+        return obj
+    scene = context.scene
+    return scene.ladar.sensor or scene.camera
+
+
+def sensor_preset_config(settings: dict, scene, obj):
+    """The validated core config a sensor preset gives ``obj``: its current settings with ``settings``
+    (``{"system_type": ..., "<group>": {field: SI value}}``; ``receiver.fov_x_rad`` sets the camera angle, the
+    vertical field of view following from the square pixels) applied."""
+    import math
+
+    from ..core.config import GROUPS, ConfigError, config_from_dict, config_to_dict
+    from .properties import config_from_blender
+
+    unknown = [k for k in settings if k != "system_type" and k not in GROUPS]
+    if unknown:
+        raise ConfigError(f"preset.{unknown[0]}", settings[unknown[0]], "system_type or a settings group: "
+                          + ", ".join(GROUPS))
+    data = config_to_dict(config_from_blender(scene, obj))
+    for key, value in settings.items():
+        data[key] = {**data[key], **value} if isinstance(value, dict) else value
+    rx = data["receiver"]
+    if "fov_x_rad" in settings.get("receiver", {}):
+        rx["fov_y_rad"] = 2.0 * math.atan(math.tan(0.5 * rx["fov_x_rad"]) * rx["height_px"] / rx["width_px"])
+    return config_from_dict(data)
+
+
+def apply_sensor_preset(settings: dict, context=None):
+    """Apply a whole-sensor preset given in SI units (shipped preset files call this).  Only the settings named
+    change; everything is validated before anything changes.  Returns the sensor object."""
+    from .errors import LadarError
+    from .properties import SYSTEM_TYPE_FIELD, check_sensor, unit_scale
+    from .sensor import set_camera_receiver_fov
+
+    context = context or bpy.context
+    obj = preset_sensor(context)
+    if obj is None:
+        raise LadarError("no camera to apply the sensor preset to: select a camera or set Scene > Ladar > Sensor")
+    check_sensor(obj)
+    scene = context.scene
+    cfg = sensor_preset_config(settings, scene, obj)
+    scale = unit_scale(scene)
+    fields = {g: {f.name: f for f in maps} for g, maps in SENSOR_FIELDS.items()}
+    for f in (SYSTEM_TYPE_FIELD,):
+        if f.name in settings:
+            setattr(obj.ladar, f.attr, f.to_blender(getattr(cfg, f.name)))
+    for group, values in settings.items():
+        if group == "system_type":
+            continue
+        props = getattr(obj.ladar, group)
+        for name in values:
+            f = fields[group].get(name)
+            if f is not None:
+                setattr(props, f.attr, f.to_blender(getattr(getattr(cfg, group), name), scale))
+    rx = cfg.receiver
+    if "fov_x_rad" in settings.get("receiver", {}):
+        set_camera_receiver_fov(obj.data, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)
+    return obj
+
+
+def apply_material_preset(settings: dict, origin: str, context=None):
+    """Apply a material BRDF preset given in SI units (``BRDFSettings`` fields; a table as
+    ``table_angle_deg``/``table_brdf_per_sr`` lists) to the context's material, enabled, with ``origin`` shown
+    in the panel.  Validated before anything changes.  A preset without a table keeps the material's table."""
+    from ..core.config import BRDFSettings, validate
+    from .materials import read_table, write_table
+
+    material = (context or bpy.context).material
+    current = {f.name: f.to_core(getattr(material.ladar_brdf, f.attr)) for f in BRDF_FIELDS}
+    current.update(read_table(material.ladar_brdf))
+    brdf = BRDFSettings(**{**current, **settings})
+    validate(brdf, f"materials.{material.name}.")
+    props = material.ladar_brdf
+    for f in BRDF_FIELDS:
+        setattr(props, f.attr, f.to_blender(getattr(brdf, f.name)))
+    if "table_angle_deg" in settings:
+        write_table(props, brdf.table_angle_deg, brdf.table_brdf_per_sr)
+        props.table_source = "preset"
+    props.origin = origin
+    props.enabled = True
+    return material
+
+
 def draw_preset_header(layout, menu_cls, add_operator: str):
     """Preset menu plus add/remove buttons, for a panel's ``draw_header_preset``."""
     row = layout.row(align=True)

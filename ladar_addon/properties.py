@@ -151,7 +151,13 @@ class FieldMap:
                 return float(Decimal(text).scaleb(self.exponent))
             if self.conversion == "distance":
                 return float(text) * unit_scale
-            return float(text)
+            v, lo, hi = float(text), self.meta.get("lo"), self.meta.get("hi")
+            # A bound float32 cannot hold (2π) is stored rounded outwards: it reads back as the bound itself.
+            if hi is not None and v > hi and np.float32(hi) == np.float32(value):
+                return float(hi)
+            if lo is not None and v < lo and np.float32(lo) == np.float32(value):
+                return float(lo)
+            return v
         if self.kind == "int" and self.conversion == "mib":
             return int(value) * MIB
         if self.kind == "int":
