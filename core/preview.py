@@ -183,9 +183,10 @@ def bin_centres_range_m(gate_start_s: float, bin_width_s: float, n_bins: int) ->
     return 0.5 * SPEED_OF_LIGHT_M_S * t
 
 
-def waveform_png(path, range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)",
+def waveform_png(path, range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=(),
                  use_matplotlib: bool | None = None, overwrite: bool = False, size_px=(640, 360)) -> Path:
-    """A line plot of one waveform against range; returns the path."""
+    """A line plot of one waveform against range (``markers_m``: ranges marked by dashed lines, e.g. the
+    detected echoes; matplotlib only); returns the path."""
     range_m = np.asarray(range_m, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if range_m.shape != values.shape or values.ndim != 1 or len(values) == 0:
@@ -199,6 +200,10 @@ def waveform_png(path, range_m, values, *, title: str = "", ylabel: str = "energ
     fig = Figure(figsize=(size_px[0] / 100, size_px[1] / 100), dpi=100)
     ax = fig.add_subplot()
     ax.plot(range_m, values, lw=1.0, color="#1f5fa8")
+    for k, r in enumerate(np.atleast_1d(np.asarray(markers_m, dtype=np.float64))):
+        ax.axvline(r, color="#c0392b", lw=0.8, ls="--", label="detected echo" if k == 0 else None)
+    if len(np.atleast_1d(markers_m)):
+        ax.legend(loc="upper right", fontsize="small")
     ax.set_xlabel("range (m)")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)

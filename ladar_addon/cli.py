@@ -3,16 +3,19 @@
 
 Commands::
 
-    simulate         --out RUN_DIR [--frame N] [--seed N] [--config FILE] [--overwrite] [--sensor NAME]
-                     [--no-import]
+    simulate         [--out RUN_DIR] [--frame N | --frames 1-100[:STEP]] [--seed N] [--config FILE]
+                     [--overwrite | --if-exists {stop,replace,new}] [--sensor NAME] [--clouds {run,frame}]
+                     [--no-import] [--no-previews]
     export-config    --out FILE.json|FILE.toml [--sensor NAME]
     validate-config  FILE [--sensor NAME]
 
-Exit codes: 0 success, 1 user error (one line on stderr, naming the bad setting), 2 command-line usage error.
+Exit codes: 0 success, 1 user error (one line on stderr, naming the bad setting), 2 command-line usage error,
+130 interrupted (Ctrl-C; nothing of the run is left behind).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -26,29 +29,68 @@ from .errors import LadarError
 COMMAND_ID = "ladar"
 
 
+EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+_EPILOG = """exit codes: 0 success, 1 user error (one line on stderr naming the bad setting), 2 usage error,
+130 interrupted (nothing of the run is left behind)"""
+
+_SIMULATE_EPILOG = """examples:
+  blender -b scene.blend -c ladar simulate --out runs/r1 --seed 7
+  blender -b scene.blend -c ladar simulate --frames 1-100 --out runs/seq --config sweep.toml
+  blender -b scene.blend -c ladar simulate --frames 1-100:10 --if-exists new
+
+One frame writes a run folder (range/intensity/energy EXR + PNG previews, points.ply/.npz, metadata.json, ...);
+--frames writes a sequence folder: frame_NNNN/ run folders, points_merged.ply/.npz (world coordinates),
+images/<product>_NNNN.exr image sequences and metadata.json.  Static geometry is exported once and its BVH
+reused for every frame.  A run is assembled in a hidden folder and renamed into place when complete.
+
+""" + _EPILOG
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="blender -b scene.blend -c ladar",
-                     description="Ladar simulator: simulate the scene's ladar sensor, export or check configs.")
+    parser = argparse.ArgumentParser(prog="blender -b scene.blend -c ladar", epilog=_EPILOG,
+                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                     description="Ladar simulator: simulate the scene's ladar sensor (one frame or a frame range), "
+                                 "export or check configs.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    sim = sub.add_parser("simulate", help="simulate one frame of the ladar sensor and write a run folder")
-    sim.add_argument("--out", required=True, metavar="DIR",
-                     help="the run folder to write (must not exist unless --overwrite)")
-    sim.add_argument("--frame", type=int, default=None, help="scene frame (default: the current frame)")
-    sim.add_argument("--seed", type=int, default=None, help="run seed (default: the scene's or the config's)")
+    sim = sub.add_parser("simulate", help="simulate the ladar sensor (a frame or a frame range) into a run folder",
+                         description="Simulate the scene's ladar sensor and write a run folder.",
+                         epilog=_SIMULATE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sim.add_argument("--out", default=None, metavar="DIR",
+                     help="the run folder to write (default: <Scene > Ladar > Output Folder>/<sensor>_f<frame>, "
+                          "or _f<first>-<last> for --frames)")
+    which = sim.add_mutually_exclusive_group()
+    which.add_argument("--frame", type=int, default=None, metavar="N",
+                       help="scene frame (default: the current frame)")
+    which.add_argument("--frames", default=None, metavar="RANGE",
+                       help='a frame range into one sequence folder: "1-100", "1-100:5" (every 5th) or "1,4,10-12"')
+    sim.add_argument("--seed", type=int, default=None, metavar="N",
+                     help="run seed (default: the scene's or the config's)")
     sim.add_argument("--config", default=None, metavar="FILE",
-                     help="JSON or TOML settings that override the .blend's")
-    sim.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+                     help="JSON or TOML settings that override the .blend's (versioned schema; for sweeps)")
+    exists = sim.add_mutually_exclusive_group()
+    exists.add_argument("--overwrite", action="store_true",
+                        help="replace an existing run folder (same as --if-exists replace)")
+    exists.add_argument("--if-exists", choices=("stop", "replace", "new"), default=None,
+                        help="when the run folder exists: stop with an error (default), replace it, or use the "
+                             "next free name (<name>_2, ...)")
     sim.add_argument("--sensor", default=None, metavar="NAME",
                      help="camera object to simulate (default: Scene > Ladar > Sensor, else the scene camera)")
+    sim.add_argument("--clouds", choices=("run", "frame"), default=None,
+                     help="--frames: one merged point cloud (run) or one per frame (frame) in the scene "
+                          "(default: the scene's setting)")
     sim.add_argument("--no-import", action="store_true",
                      help="do not add the point cloud and images to the (unsaved) scene")
+    sim.add_argument("--no-previews", action="store_true", help="do not write false-colour PNG previews")
 
-    exp = sub.add_parser("export-config", help="write the sensor's settings as a JSON or TOML config file")
+    exp = sub.add_parser("export-config", help="write the sensor's settings as a JSON or TOML config file",
+                         epilog=_EPILOG)
     exp.add_argument("--out", required=True, metavar="FILE", help="output file ending in .json or .toml")
     exp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
 
-    val = sub.add_parser("validate-config", help="check a JSON or TOML config file against the settings schema")
+    val = sub.add_parser("validate-config", help="check a JSON or TOML config file against the settings schema",
+                         epilog=_EPILOG)
     val.add_argument("file", metavar="FILE")
     val.add_argument("--sensor", default=None, metavar="NAME",
                      help="camera whose settings the file overrides (default: the active sensor, if any)")
@@ -92,16 +134,27 @@ def export_config(scene, path, sensor=None) -> Path:
 
 
 def _cmd_simulate(scene, args) -> int:
-    from .simulate import simulate_scene
+    from ..core.runio import run_summary
+    from .simulate import SimulationJob, parse_frames, progress_printer
 
     sensor = _sensor(scene, args.sensor)
-    run_path, result = simulate_scene(scene, out_dir=args.out, frame=args.frame, seed=args.seed,
-                                      config_path=args.config, overwrite=args.overwrite, sensor=sensor,
-                                      import_results=not args.no_import)
-    from ..core.runio import run_summary
-
-    print(run_summary(run_path, result), flush=True)
-    return 0
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
+    job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
+                        config_path=args.config, if_exists=if_exists, sensor=sensor,
+                        import_results=not args.no_import, clouds=args.clouds.upper() if args.clouds else None,
+                        previews=not args.no_previews, progress=progress_printer())
+    job.run()
+    if frames is None:
+        print(run_summary(job.run_path, job.result), flush=True)
+    else:
+        n_points = sum(s.get("n_points", 0) for s in job.frame_stats)
+        meta = json.loads((job.run_path / "metadata.json").read_text(encoding="utf-8"))
+        print(f"run      {job.run_path}\n"
+              f"frames   {len(frames)} ({frames[0]} … {frames[-1]}), {n_points} points, "
+              f"{meta.get('bvh_builds')} BVH build(s), {job.source.exports} geometry export(s)\n"
+              f"time     {job.t_end - job.t_start:.2f} s", flush=True)
+    return EXIT_OK
 
 
 def _cmd_export_config(scene, args) -> int:
@@ -127,21 +180,26 @@ COMMANDS = {"simulate": _cmd_simulate, "export-config": _cmd_export_config,
 
 def cli_handler(argv) -> int:
     """Entry point of ``blender -c ladar``: returns the exit code (never exits the process)."""
+    from ..core.pipeline import Cancelled
+
     parser = build_parser()
     try:
         args = parser.parse_args(list(argv))
     except SystemExit as exc:  # usage errors (2) and --help (0)
-        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+        return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_USAGE)
     scene = bpy.context.scene
     try:
         return COMMANDS[args.command](scene, args)
     except (ConfigError, LadarError) as exc:
         print(f"ladar: error: {exc}", file=sys.stderr, flush=True)
-        return 1
+        return EXIT_USER_ERROR
     except OSError as exc:
         print(f"ladar: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr,
               flush=True)
-        return 1
+        return EXIT_USER_ERROR
+    except (KeyboardInterrupt, Cancelled):
+        print("ladar: interrupted: nothing of the run was written", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
 
 
 def register():

@@ -23,6 +23,10 @@ Coordinates are converted to metres with the scene's unit scale (``scale_length`
 """
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+
+import bpy
 import numpy as np
 
 from ..core.scene import SceneGeometry, merge_meshes
@@ -158,3 +162,105 @@ def scene_geometry_from_depsgraph(depsgraph, *, unit_scale: float | None = None,
                       "triangles": geometry.n_triangles, "vertices": int(len(geometry.vertices_m)),
                       "unit_scale_m": unit_scale})
     return geometry
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Frame ranges: does the exported geometry change from frame to frame?
+# ------------------------------------------------------------------------------------------------------------
+#: Modifiers whose result depends only on their own settings and the object's mesh (when neither is animated
+#: and no object pointer is set, they give the same geometry on every frame).
+SELF_CONTAINED_MODIFIERS = {"SUBSURF", "MIRROR", "ARRAY", "BEVEL", "SOLIDIFY", "TRIANGULATE", "DECIMATE", "WELD",
+                            "EDGE_SPLIT", "SMOOTH", "WEIGHTED_NORMAL", "REMESH", "SKIN", "WIREFRAME", "SCREW",
+                            "MULTIRES", "DISPLACE", "CAST", "SIMPLE_DEFORM", "BOOLEAN"}
+
+
+def _animated(id_block) -> bool:
+    anim = getattr(id_block, "animation_data", None) if id_block is not None else None
+    return anim is not None and (anim.action is not None or len(anim.drivers) > 0 or len(anim.nla_tracks) > 0)
+
+
+def _modifier_may_change(mod) -> bool:
+    if mod.type not in SELF_CONTAINED_MODIFIERS:
+        return True  # Geometry Nodes (Scene Time), armature, physics, particles, hooks, ...
+    for prop in mod.bl_rna.properties:  # an object or texture pointer: the other datablock may move/animate
+        if prop.type == "POINTER" and prop.identifier not in ("rna_type",):
+            value = getattr(mod, prop.identifier, None)
+            if isinstance(value, bpy.types.ID):
+                return True
+    return False
+
+
+def _object_time_reasons(obj) -> list[str]:
+    reasons = []
+    if _animated(obj):
+        reasons.append("animated")
+    data = obj.data
+    if _animated(data):
+        reasons.append("animated data")
+    keys = getattr(data, "shape_keys", None)
+    if _animated(keys):
+        reasons.append("animated shape keys")
+    if len(obj.constraints):
+        reasons.append("constraints")
+    if obj.rigid_body is not None:
+        reasons.append("rigid body")
+    if len(getattr(obj, "particle_systems", ())):
+        reasons.append("particles")
+    if any(_modifier_may_change(m) for m in obj.modifiers):
+        reasons.append("time-dependent modifier")
+    for slot in obj.material_slots:
+        if slot.material is not None and _animated(slot.material):
+            reasons.append("animated material")
+            break
+    return reasons
+
+
+def frame_dependent_objects(scene, depsgraph=None, exclude=()) -> dict:
+    """Objects whose exported geometry (or BRDF) *may* change with the frame: {name: [reasons]}.
+
+    Conservative: animation data (object, object data, shape keys, material), drivers, constraints, rigid
+    bodies, particles and every modifier outside :data:`SELF_CONTAINED_MODIFIERS` (Geometry Nodes may read the
+    scene time) count, for the object and every parent and instancer.  An empty result means one export serves
+    every frame; otherwise the caller re-exports each frame and compares :func:`geometry_digest`.
+    """
+    exclude = set(exclude)
+    candidates = [o for o in scene.objects if o.name not in exclude and o.get(RESULT_TAG) is None]
+    if depsgraph is not None:
+        for inst in depsgraph.object_instances:
+            candidates.append(inst.object.original)
+            if inst.is_instance and inst.parent is not None:
+                candidates.append(inst.parent.original)
+    found, seen = {}, set()
+    for obj in candidates:
+        chain = obj
+        while chain is not None:
+            if chain.name_full in seen:
+                break
+            seen.add(chain.name_full)
+            if chain.name not in exclude and chain.get(RESULT_TAG) is None:
+                reasons = _object_time_reasons(chain)
+                if reasons:
+                    found[chain.name] = reasons
+            chain = chain.parent
+    if _animated(scene) or _animated(scene.world):
+        found["<scene>"] = ["animated scene or world (drivers may move anything)"]
+    if scene.rigidbody_world is not None:
+        found["<scene>"] = found.get("<scene>", []) + ["rigid body world"]
+    return found
+
+
+def geometry_digest(geometry: SceneGeometry) -> str:
+    """A hash of the geometry and materials (equal digests: the same BVH and the same radiometry)."""
+    h = hashlib.blake2b(digest_size=16)
+    for arr in (geometry.vertices_m, geometry.triangles, geometry.material_ids):
+        h.update(str(arr.shape).encode())
+        h.update(np.ascontiguousarray(arr).tobytes())
+    for name, brdf in zip(geometry.material_names, geometry.materials):
+        h.update(name.encode())
+        for f in dataclasses.fields(brdf):
+            value = getattr(brdf, f.name)
+            if isinstance(value, (np.ndarray, list, tuple)):  # measured tables: every value, not a repr
+                h.update(np.asarray(value, dtype=np.float64).tobytes())
+            else:
+                h.update(repr(value).encode())
+    return h.hexdigest()

@@ -335,6 +335,16 @@ def _poll_camera(self, obj):
     return obj.type == "CAMERA"
 
 
+def _update_color_by(props, context):
+    from .results import recolor, result_objects
+    recolor(result_objects(context.scene), props.color_by)
+
+
+def _update_point_radius(props, context):
+    from .results import result_objects, set_point_radius
+    set_point_radius(result_objects(context.scene), props.point_radius)
+
+
 class LadarSceneSettings(bpy.types.PropertyGroup):
     """Scene-wide ladar settings: which camera is the sensor, where runs go, the run seed."""
 
@@ -345,12 +355,41 @@ class LadarSceneSettings(bpy.types.PropertyGroup):
         name="Output Folder", subtype="DIR_PATH", default="//ladar_runs", options=_BLEND_RELATIVE_PATH,
         description="Folder that receives one run folder per simulated frame (// = next to the .blend file)")
     seed: SEED_FIELD.property()
-    overwrite: bpy.props.BoolProperty(
-        name="Overwrite", default=False,
-        description="Replace an existing run folder and result objects of the same name (off: refuse)")
+    if_exists: bpy.props.EnumProperty(
+        name="If Exists", default="STOP", items=[
+            ("STOP", "Stop", "Refuse to run when the run folder or result objects of that name exist"),
+            ("REPLACE", "Replace", "Replace the run folder and the result objects and images of the same name"),
+            ("NEW", "New Name", "Keep what exists: the run gets the next free name (<name>_2, <name>_3, ...)")],
+        description="What a run does when its run folder or result objects already exist (never duplicated "
+                    "silently)")
+    use_frame_range: bpy.props.BoolProperty(
+        name="Frame Range", default=False,
+        description="Simulate the scene's frame range (start, end, step) into one sequence run folder instead "
+                    "of the current frame")
+    clouds: bpy.props.EnumProperty(
+        name="Point Clouds", default="RUN", items=[
+            ("RUN", "One per Run", "A frame range gives one point cloud of all frames (attribute frame)"),
+            ("FRAME", "One per Frame", "A frame range gives one point cloud per frame, in a collection")],
+        description="How the points of a frame range come into the scene")
+    write_previews: bpy.props.BoolProperty(
+        name="PNG Previews", default=True,
+        description="Write a false-colour PNG beside every EXR image of a run (and the profiler's waveform plot)")
+    color_by: bpy.props.EnumProperty(
+        name="Colour By", default="INTENSITY", update=_update_color_by,
+        items=[("INTENSITY", "Intensity", "Echo peak amplitude, 0 … its 99th percentile"),
+               ("RANGE", "Range", "Range from the sensor, minimum … maximum"),
+               ("ECHO", "Echo Number", "1 = first echo of its pixel or pulse"),
+               ("SNR", "Detection SNR", "Signal-to-noise ratio of the detection (noisy receiver only)"),
+               ("FRAME", "Frame", "Scene frame of the point (frame sequences)"),
+               ("CHANNEL", "Channel", "Scanner channel (rotating multi-channel scanner)")],
+        description="Point attribute that colours the result point clouds through the colour ramp")
     point_radius: bpy.props.FloatProperty(
         name="Point Radius", subtype="DISTANCE", default=0.05, min=0.0, soft_max=1.0,
-        description="Display radius of the points of imported point clouds")
+        update=_update_point_radius,
+        description="Display radius of the points of imported point clouds (all result clouds of the scene)")
+    last_run: bpy.props.StringProperty(
+        name="Last Run", subtype="DIR_PATH", default="",
+        description="Run folder of the latest simulation (waveform view and preview render use it by default)")
     reference_range_m: bpy.props.FloatProperty(
         name="Reference Range", subtype="DISTANCE", default=1000.0, min=1e-3, soft_max=1e5,
         description="Range of the read-only figures in the panels (transmission, turbulence, SNR); not used "

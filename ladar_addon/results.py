@@ -1,19 +1,31 @@
-"""Bring a run's results into Blender: a point-cloud object coloured by intensity, and the images.
+"""Bring a run's results into Blender: point clouds coloured by a chosen attribute, and the images.
 
-* The point cloud is a mesh of vertices only (one per echo) named after the run, in the collection
-  "Ladar Results", with point attributes ``intensity``, ``range_m``, ``echo_index`` (1 = first echo),
-  ``n_echoes``, ``time_s``, ``pixel_x``, ``pixel_y``, ``frame``, ``position_sensor`` and ``intensity_norm``
-  (intensity / its 99th percentile, clipped to 0…1), plus the colour attribute ``intensity_color``.
-* A Geometry Nodes modifier ("Ladar Point Cloud" group: Mesh to Points with a *Point Radius* input, then Set
-  Material) turns the vertices into points with the material "Ladar Intensity", which reads
-  ``intensity_norm`` through an Attribute node and a Color Ramp into the base and emission colour.
-* ``range.exr``, ``intensity.exr`` and ``energy.exr`` are loaded as images ``<run>.range`` etc.
+Point clouds
+    A mesh of vertices only (one per echo), in the collection "Ladar Results" (a sequence's per-frame clouds in a
+    child collection named after the run), with one point attribute per 1-D array of the run's points
+    (``intensity``, ``range_m``, ``echo_index`` (1 = first echo), ``n_echoes``, ``time_s``, ``pixel_x``/``pixel_y``,
+    ``frame``; ``snr`` with the noisy receiver; ``pulse_index``, ``channel``, ``gps_time_s`` … for the scanner),
+    ``position_sensor`` where present, ``intensity_norm`` (intensity / its 99th percentile, clipped to 0…1), and
+    the display value ``ladar_color`` (0…1) of the attribute chosen with ``Scene.ladar.color_by``
+    (:data:`COLOR_BY`) plus its colour ``ladar_rgb``.  Blender has no float64 attributes: ``gps_time_s`` is
+    stored relative to the object's custom property ``gps_time_offset_s`` so it keeps µs resolution.
+    A Geometry Nodes modifier ("Ladar Point Cloud": Mesh to Points with a *Point Radius* input, then Set
+    Material) shows the vertices as points with the material "Ladar Points", which maps ``ladar_color`` through a
+    Color Ramp (the legend: the object's custom properties ``ladar_color_by``, ``ladar_color_min`` and
+    ``ladar_color_max`` give the values at the ramp's ends).
+Images
+    ``range.exr``, ``intensity.exr``, ``energy.exr`` load as ``<run>.range`` … (Non-Color data) and their false
+    colour previews ``range.png`` … as ``<run>.range.png``; gated slices (``slices/slice_0001.exr`` …) load as
+    the image sequence ``<run>.slices`` (and ``<run>.slices.png``); a frame sequence's range/intensity/energy
+    images (``images/range_0001.exr`` …, numbered by scene frame) load as image sequences ``<run>.range`` ….
 
-An existing object or image of the same name is replaced only when ``overwrite`` is true; otherwise
-:class:`LadarError` is raised (call :func:`check_result_names` before a run to fail before any work).
+Nothing is duplicated silently: results whose names exist are replaced only when asked (``replace``); the
+caller picks new names otherwise (``ladar_addon.simulate``).  An import that fails half-way removes what it
+created.
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import bpy
@@ -24,37 +36,69 @@ from .export import RESULT_TAG
 
 RESULTS_COLLECTION = "Ladar Results"
 NODE_GROUP_NAME = "Ladar Point Cloud"
-MATERIAL_NAME = "Ladar Intensity"
+MATERIAL_NAME = "Ladar Points"
+COLOR_ATTRIBUTE = "ladar_color"
+COLOR_RGB_ATTRIBUTE = "ladar_rgb"
 IMAGE_PRODUCTS = ("range", "intensity", "energy")
 
-#: Colour ramp of the intensity display (perceptually uniform, after matplotlib's viridis), linear RGB.
+#: Colour ramp of the display (perceptually uniform, after matplotlib's viridis), linear RGB.
 RAMP = ((0.0, (0.267, 0.005, 0.329)), (0.25, (0.229, 0.322, 0.546)), (0.5, (0.128, 0.567, 0.551)),
         (0.75, (0.369, 0.789, 0.383)), (1.0, (0.993, 0.906, 0.144)))
 
-# name → (Blender attribute type, numpy dtype)
-POINT_ATTRIBUTES = {"intensity": ("FLOAT", np.float32), "range_m": ("FLOAT", np.float32),
-                    "echo_index": ("INT", np.int32), "n_echoes": ("INT", np.int32),
-                    "time_s": ("FLOAT", np.float32), "pixel_x": ("INT", np.int32),
-                    "pixel_y": ("INT", np.int32), "frame": ("INT", np.int32)}
+#: What the points can be coloured by: key → (point attribute, label, unit, scale).  Scales: "p99" = 0 … the
+#: 99th percentile (a few glints do not darken the rest), "minmax" = the data's minimum … maximum, "count" =
+#: whole numbers from 1 (or 0) … the maximum.
+COLOR_BY = {
+    "INTENSITY": ("intensity", "Intensity", "J per bin", "p99"),
+    "RANGE": ("range_m", "Range", "m", "minmax"),
+    "ECHO": ("echo_index", "Echo Number", "", "count"),
+    "SNR": ("snr", "Detection SNR", "", "p99"),
+    "FRAME": ("frame", "Frame", "", "minmax"),
+    "CHANNEL": ("channel", "Channel", "", "minmax"),
+}
+#: float64 point arrays stored relative to their minimum (object property ``<name>_offset``).
+OFFSET_ATTRIBUTES = ("gps_time_s",)
 
 
-def image_names(run_name: str) -> list[str]:
-    return [f"{run_name}.{p}" for p in IMAGE_PRODUCTS]
+# ------------------------------------------------------------------------------------------------------------
+# Names
+# ------------------------------------------------------------------------------------------------------------
+def frame_run_name(run_name: str, frame: int) -> str:
+    """Name of one frame's results inside a sequence run (its folder is ``frame_NNNN``)."""
+    return f"{run_name}_frame_{frame:04d}"
 
 
-def check_result_names(run_name: str, overwrite: bool) -> None:
+def result_names(run_name: str, frames=None, clouds: str = "RUN") -> tuple[list[str], list[str]]:
+    """(object names, image names) an import of run ``run_name`` creates; ``frames`` for a sequence run."""
+    images = [f"{run_name}.{p}{ext}" for p in (*IMAGE_PRODUCTS, "slices") for ext in ("", ".png")]
+    if frames is None:
+        return [run_name], images
+    images += [f"{frame_run_name(run_name, f)}.slices{ext}" for f in frames for ext in ("", ".png")]
+    objects = [run_name] if clouds == "RUN" else [frame_run_name(run_name, f) for f in frames]
+    return objects, images
+
+
+def existing_results(run_name: str, frames=None, clouds: str = "RUN") -> list[str]:
+    """Names of objects and images that an import of ``run_name`` would replace."""
+    objects, images = result_names(run_name, frames, clouds)
+    return [n for n in objects if bpy.data.objects.get(n) is not None] + \
+        [n for n in images if bpy.data.images.get(n) is not None]
+
+
+def check_result_names(run_name: str, overwrite: bool, frames=None, clouds: str = "RUN") -> None:
     """Raise LadarError if importing results named ``run_name`` would replace data and overwrite is off."""
     if overwrite:
         return
-    if bpy.data.objects.get(run_name) is not None:
-        raise LadarError(f"an object named {run_name!r} already exists: delete it, choose another run name or "
-                         f"enable overwrite")
-    for name in image_names(run_name):
-        if bpy.data.images.get(name) is not None:
-            raise LadarError(f"an image named {name!r} already exists: delete it, choose another run name or "
-                             f"enable overwrite")
+    taken = existing_results(run_name, frames, clouds)
+    if taken:
+        kind = "an object" if bpy.data.objects.get(taken[0]) is not None else "an image"
+        raise LadarError(f"{kind} named {taken[0]!r} already exists: delete it, keep it by choosing a new run "
+                         f"name (If Exists: New Name) or replace it (If Exists: Replace)")
 
 
+# ------------------------------------------------------------------------------------------------------------
+# Colour
+# ------------------------------------------------------------------------------------------------------------
 def intensity_norm(intensity: np.ndarray, percentile: float = 99.0) -> np.ndarray:
     """Intensity scaled to 0…1 by its ``percentile`` (clipped; a few glints do not darken the rest)."""
     intensity = np.asarray(intensity, dtype=np.float64)
@@ -63,6 +107,29 @@ def intensity_norm(intensity: np.ndarray, percentile: float = 99.0) -> np.ndarra
     if top <= 0.0:
         return np.zeros(intensity.shape, np.float32)
     return np.clip(np.nan_to_num(intensity / top, nan=0.0), 0.0, 1.0).astype(np.float32)
+
+
+def color_scale(values: np.ndarray, scale: str) -> tuple[float, float]:
+    """(value at the ramp's start, value at its end) for ``values`` on the scale kind of :data:`COLOR_BY`."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return 0.0, 1.0
+    if scale == "p99":
+        lo, hi = 0.0, float(np.percentile(v, 99.0))
+    elif scale == "count":
+        lo, hi = min(1.0, float(v.min())), float(v.max())
+    else:
+        lo, hi = float(v.min()), float(v.max())
+    if not hi > lo:
+        hi = lo + 1.0
+    return lo, hi
+
+
+def color_values(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``values`` mapped linearly onto 0…1 (lo → 0, hi → 1), clipped; NaN → 0."""
+    v = (np.asarray(values, dtype=np.float64) - lo) / (hi - lo)
+    return np.clip(np.nan_to_num(v, nan=0.0), 0.0, 1.0).astype(np.float32)
 
 
 def ramp_colors(values: np.ndarray) -> np.ndarray:
@@ -75,13 +142,118 @@ def ramp_colors(values: np.ndarray) -> np.ndarray:
     return out
 
 
-def _results_collection(scene):
+def available_color_by(obj) -> list[str]:
+    """The :data:`COLOR_BY` keys this point cloud has the attribute for."""
+    attrs = obj.data.attributes
+    return [k for k, (attr, *_) in COLOR_BY.items() if attrs.get(attr) is not None]
+
+
+def _read_attribute(mesh, name) -> np.ndarray:
+    attr = mesh.attributes[name]
+    dtype = {"INT": np.int32, "BOOLEAN": bool}.get(attr.data_type, np.float32)
+    out = np.empty(len(attr.data), dtype)
+    if len(out):
+        attr.data.foreach_get("value", out)
+    return out
+
+
+def apply_color(obj, color_by: str) -> tuple[float, float]:
+    """Colour a result point cloud by ``color_by`` (a :data:`COLOR_BY` key): writes ``ladar_color`` (0…1) and
+    ``ladar_rgb`` and records the legend on the object.  Returns the values at the ramp's ends.
+
+    Raises LadarError if the cloud lacks the attribute (e.g. SNR without the noisy receiver)."""
+    if color_by not in COLOR_BY:
+        raise LadarError(f"unknown colour attribute {color_by!r}: one of {', '.join(COLOR_BY)}")
+    attr_name, label, unit, scale = COLOR_BY[color_by]
+    mesh = obj.data
+    if mesh.attributes.get(attr_name) is None:
+        have = ", ".join(COLOR_BY[k][1] for k in available_color_by(obj))
+        raise LadarError(f"the point cloud {obj.name!r} has no {label.lower()} attribute ({attr_name}); it can be "
+                         f"coloured by: {have}")
+    values = _read_attribute(mesh, attr_name).astype(np.float64)
+    lo, hi = color_scale(values, scale)
+    norm = color_values(values, lo, hi)
+    value_attr = mesh.attributes.get(COLOR_ATTRIBUTE) or mesh.attributes.new(COLOR_ATTRIBUTE, "FLOAT", "POINT")
+    rgb_attr = mesh.color_attributes.get(COLOR_RGB_ATTRIBUTE) or \
+        mesh.color_attributes.new(COLOR_RGB_ATTRIBUTE, "FLOAT_COLOR", "POINT")
+    if len(norm):
+        value_attr.data.foreach_set("value", norm)
+        rgb_attr.data.foreach_set("color", ramp_colors(norm).ravel())
+    mesh.color_attributes.active_color = rgb_attr
+    mesh.update()
+    obj["ladar_color_by"] = color_by
+    obj["ladar_color_label"] = label + (f" ({unit})" if unit else "")
+    obj["ladar_color_min"] = lo
+    obj["ladar_color_max"] = hi
+    return lo, hi
+
+
+def result_objects(scene=None) -> list:
+    """Result point clouds (objects tagged with the run they came from), of ``scene`` or of the file."""
+    objs = scene.objects if scene is not None else bpy.data.objects
+    return [o for o in objs if o.get(RESULT_TAG) is not None and o.type == "MESH"]
+
+
+def recolor(objects, color_by: str) -> tuple[int, list[str]]:
+    """Apply :func:`apply_color` to ``objects``; returns (number recoloured, names lacking the attribute)."""
+    done, missing = 0, []
+    for obj in objects:
+        if COLOR_BY[color_by][0] in obj.data.attributes:
+            apply_color(obj, color_by)
+            done += 1
+        else:
+            missing.append(obj.name)
+    return done, missing
+
+
+def set_point_radius(objects, radius: float) -> int:
+    """Set the display radius (Blender units) of result point clouds; returns how many were changed."""
+    n = 0
+    for obj in objects:
+        mod = obj.modifiers.get("Ladar Points")
+        if mod is None or mod.node_group is None:
+            continue
+        mod[_socket_identifier(mod.node_group, "Point Radius")] = float(radius)
+        obj.update_tag()
+        n += 1
+    return n
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Display set-up
+# ------------------------------------------------------------------------------------------------------------
+def _results_collection(scene, child: str | None = None):
     coll = bpy.data.collections.get(RESULTS_COLLECTION)
     if coll is None:
         coll = bpy.data.collections.new(RESULTS_COLLECTION)
-    if scene.collection.children.get(coll.name) is None and coll not in scene.collection.children_recursive:
+    if coll not in scene.collection.children_recursive:
         scene.collection.children.link(coll)
-    return coll
+    if child is None:
+        return coll
+    sub = bpy.data.collections.get(child)
+    if sub is None:
+        sub = bpy.data.collections.new(child)
+    if sub not in coll.children_recursive:
+        coll.children.link(sub)
+    return sub
+
+
+def remove_run_objects(run_path) -> list[str]:
+    """Remove the result point clouds imported from ``run_path`` (or one of its frame folders)."""
+    root = Path(run_path).resolve()
+    removed = []
+    for obj in list(bpy.data.objects):
+        tag = obj.get(RESULT_TAG)
+        if tag is None:
+            continue
+        try:
+            path = Path(str(tag)).resolve()
+        except (OSError, RuntimeError):  # pragma: no cover - an unreadable tag
+            continue
+        if path == root or root in path.parents:
+            removed.append(obj.name)
+            _remove_object(obj)
+    return removed
 
 
 def _remove_object(obj):
@@ -92,7 +264,7 @@ def _remove_object(obj):
 
 
 def ensure_point_material():
-    """The "Ladar Intensity" material: Attribute(intensity_norm) → Color Ramp → base + emission colour."""
+    """The "Ladar Points" material: Attribute(ladar_color) → Color Ramp → base + emission colour."""
     mat = bpy.data.materials.get(MATERIAL_NAME)
     if mat is not None:
         return mat
@@ -103,9 +275,10 @@ def ensure_point_material():
     nodes.clear()
     attr = nodes.new("ShaderNodeAttribute")
     attr.attribute_type = "GEOMETRY"
-    attr.attribute_name = "intensity_norm"
+    attr.attribute_name = COLOR_ATTRIBUTE
     attr.location = (-700, 0)
     ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.name = ramp.label = "Ladar Legend"
     ramp.location = (-450, 0)
     elements = ramp.color_ramp.elements
     while len(elements) < len(RAMP):
@@ -128,6 +301,14 @@ def ensure_point_material():
     links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
     mat.diffuse_color = (*RAMP[2][1], 1.0)
     return mat
+
+
+def legend_ramp_node():
+    """The Color Ramp node of the point material (what the panel draws as the legend), or None."""
+    mat = bpy.data.materials.get(MATERIAL_NAME)
+    if mat is None or mat.node_tree is None:
+        return None
+    return mat.node_tree.nodes.get("Ladar Legend")
 
 
 def ensure_point_node_group():
@@ -171,80 +352,287 @@ def _socket_identifier(ng, name):
     raise KeyError(name)
 
 
-def create_point_cloud(name: str, points: dict, scene, *, unit_scale: float = 1.0, overwrite: bool = False,
-                       point_radius: float = 0.05, run_path: str | None = None):
-    """A vertices-only mesh object with the run's per-point attributes and the point display set-up."""
+# ------------------------------------------------------------------------------------------------------------
+# Point clouds
+# ------------------------------------------------------------------------------------------------------------
+def _attribute_type(arr: np.ndarray):
+    """(Blender attribute type, numpy dtype, foreach key) of a per-point array, or None to skip it."""
+    if arr.ndim == 2 and arr.shape[1] == 3 and arr.dtype.kind == "f":
+        return "FLOAT_VECTOR", np.float32, "vector"
+    if arr.ndim != 1:
+        return None
+    if arr.dtype.kind == "b":
+        return "BOOLEAN", bool, "value"
+    if arr.dtype.kind in "iu":
+        return "INT", np.int32, "value"
+    if arr.dtype.kind == "f":
+        return "FLOAT", np.float32, "value"
+    return None
+
+
+def create_point_cloud(name: str, points, scene, *, unit_scale: float = 1.0, replace: bool = False,
+                       point_radius: float = 0.05, run_path=None, color_by: str = "INTENSITY", collection=None):
+    """A vertices-only mesh object with the run's per-point attributes and the point display set-up.
+
+    ``points``: a mapping of per-point arrays with ``position_world`` (n, 3) in metres (a run's points.npz).
+    ``color_by`` falls back to intensity when the cloud lacks that attribute.
+    """
     old = bpy.data.objects.get(name)
     if old is not None:
-        if not overwrite:
+        if not replace:
             raise LadarError(f"an object named {name!r} already exists: enable overwrite to replace it")
         _remove_object(old)
     pos = np.asarray(points["position_world"], dtype=np.float64).reshape(-1, 3)
     n = len(pos)
     mesh = bpy.data.meshes.new(name)
-    mesh.vertices.add(n)
-    if n:
-        mesh.attributes["position"].data.foreach_set("vector", (pos / unit_scale).astype(np.float32).ravel())
-    for key, (btype, dtype) in POINT_ATTRIBUTES.items():
-        if key not in points:
-            continue
-        attr = mesh.attributes.new(key, btype, "POINT")
+    obj = None
+    try:
+        mesh.vertices.add(n)
         if n:
-            attr.data.foreach_set("value", np.asarray(points[key]).astype(dtype).ravel())
-    if "position_sensor" in points:
-        attr = mesh.attributes.new("position_sensor", "FLOAT_VECTOR", "POINT")
+            mesh.attributes["position"].data.foreach_set("vector", (pos / unit_scale).astype(np.float32).ravel())
+        offsets = {}
+        for key in points.keys():
+            if key == "position_world":
+                continue
+            arr = np.asarray(points[key])
+            if len(arr) != n or key in mesh.attributes:
+                continue
+            kind = _attribute_type(arr)
+            if kind is None:
+                continue
+            btype, dtype, field = kind
+            if key in OFFSET_ATTRIBUTES and n:
+                offsets[key] = float(np.nanmin(arr))
+                arr = arr - offsets[key]
+            attr = mesh.attributes.new(key, btype, "POINT")
+            if n:
+                attr.data.foreach_set(field, arr.astype(dtype).ravel())
+        attr = mesh.attributes.new("intensity_norm", "FLOAT", "POINT")
         if n:
-            attr.data.foreach_set("vector", np.asarray(points["position_sensor"], np.float32).ravel())
-    norm = intensity_norm(points.get("intensity", np.zeros(n)))
-    attr = mesh.attributes.new("intensity_norm", "FLOAT", "POINT")
-    color = mesh.color_attributes.new("intensity_color", "FLOAT_COLOR", "POINT")
-    if n:
-        attr.data.foreach_set("value", norm)
-        color.data.foreach_set("color", ramp_colors(norm).ravel())
-    mesh.color_attributes.active_color = color
-    mesh.update()
-
-    obj = bpy.data.objects.new(name, mesh)
-    obj[RESULT_TAG] = str(run_path) if run_path is not None else name
-    _results_collection(scene).objects.link(obj)
-    material = ensure_point_material()
-    mesh.materials.append(material)
-    ng = ensure_point_node_group()
-    mod = obj.modifiers.new("Ladar Points", "NODES")
-    mod.node_group = ng
-    mod[_socket_identifier(ng, "Point Radius")] = float(point_radius)
-    mod[_socket_identifier(ng, "Material")] = material
+            attr.data.foreach_set("value", intensity_norm(np.asarray(points["intensity"]) if "intensity" in points
+                                                          else np.zeros(n)))
+        mesh.update()
+        obj = bpy.data.objects.new(name, mesh)
+        for key, offset in offsets.items():
+            obj[f"{key.removesuffix('_s')}_offset_s" if key.endswith("_s") else f"{key}_offset"] = offset
+        obj[RESULT_TAG] = str(run_path) if run_path is not None else name
+        (collection or _results_collection(scene)).objects.link(obj)
+        material = ensure_point_material()
+        mesh.materials.append(material)
+        ng = ensure_point_node_group()
+        mod = obj.modifiers.new("Ladar Points", "NODES")
+        mod.node_group = ng
+        mod[_socket_identifier(ng, "Point Radius")] = float(point_radius)
+        mod[_socket_identifier(ng, "Material")] = material
+        apply_color(obj, color_by if COLOR_BY.get(color_by, ("",))[0] in mesh.attributes else "INTENSITY")
+    except BaseException:
+        if obj is not None:
+            _remove_object(obj)
+        elif mesh.users == 0:
+            bpy.data.meshes.remove(mesh)
+        raise
     return obj
 
 
-def load_images(run_path, run_name: str, *, overwrite: bool = False) -> list:
-    """Load the run's EXR images as ``<run>.range``, ``<run>.intensity``, ``<run>.energy`` (Non-Color)."""
-    images = []
-    for product, name in zip(IMAGE_PRODUCTS, image_names(run_name)):
-        path = Path(run_path) / f"{product}.exr"
-        if not path.is_file():
-            continue
-        old = bpy.data.images.get(name)
-        if old is not None:
-            if not overwrite:
-                raise LadarError(f"an image named {name!r} already exists: enable overwrite to replace it")
-            bpy.data.images.remove(old)
-        img = bpy.data.images.load(str(path), check_existing=False)
-        img.name = name
+# ------------------------------------------------------------------------------------------------------------
+# Images
+# ------------------------------------------------------------------------------------------------------------
+def load_image(path, name: str, *, replace: bool = False, sequence: bool = False, data: bool = True):
+    """Load an image file (the first file of a sequence when ``sequence``) as ``name``.
+
+    ``data``: EXR values (Non-Color); PNG previews keep their sRGB colour space."""
+    old = bpy.data.images.get(name)
+    if old is not None:
+        if not replace:
+            raise LadarError(f"an image named {name!r} already exists: enable overwrite to replace it")
+        bpy.data.images.remove(old)
+    img = bpy.data.images.load(str(path), check_existing=False)
+    img.name = name
+    if sequence:
+        img.source = "SEQUENCE"
+    if data:
         try:
             img.colorspace_settings.name = "Non-Color"
         except TypeError:  # pragma: no cover - colour management without that space
             pass
-        images.append(img)
+    return img
+
+
+def _load_run_images(run_path: Path, run_name: str, replace: bool) -> list:
+    """range/intensity/energy EXRs + PNG previews, and the gated slices as image sequences."""
+    images = []
+    for product in IMAGE_PRODUCTS:
+        for ext, data in ((".exr", True), (".png", False)):
+            path = run_path / f"{product}{ext}"
+            if path.is_file():
+                images.append(load_image(path, f"{run_name}.{product}" + (".png" if ext == ".png" else ""),
+                                         replace=replace, data=data))
+    images += _load_slices(run_path, run_name, replace)
     return images
 
 
-def import_run(run_path, result, scene, *, run_name: str | None = None, unit_scale: float = 1.0,
-               overwrite: bool = False, point_radius: float = 0.05):
-    """Point cloud object + images of a finished run.  Returns (object, [images])."""
-    run_name = run_name or Path(run_path).name
-    check_result_names(run_name, overwrite)
-    obj = create_point_cloud(run_name, result.points, scene, unit_scale=unit_scale, overwrite=overwrite,
-                             point_radius=point_radius, run_path=run_path)
-    images = load_images(run_path, run_name, overwrite=overwrite)
-    return obj, images
+def _load_slices(run_path: Path, run_name: str, replace: bool) -> list:
+    images = []
+    for ext, data in ((".exr", True), (".png", False)):
+        first = run_path / "slices" / f"slice_0001{ext}"
+        if first.is_file():
+            images.append(load_image(first, f"{run_name}.slices" + (".png" if ext == ".png" else ""),
+                                     replace=replace, sequence=True, data=data))
+    return images
+
+
+def _load_points(path: Path) -> dict:
+    with np.load(path) as npz:
+        return {k: npz[k] for k in npz.files}
+
+
+def read_run_info(run_path) -> dict:
+    """The run folder's metadata.json (a frame run or a sequence: ``format`` "ladar-run"/"ladar-sequence")."""
+    path = Path(run_path) / "metadata.json"
+    if not path.is_file():
+        raise LadarError(f"{run_path} is not a ladar run folder (no metadata.json)")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def import_run(run_path, scene, *, run_name: str | None = None, unit_scale: float = 1.0, replace: bool = False,
+               point_radius: float = 0.05, color_by: str = "INTENSITY", clouds: str = "RUN"):
+    """Point cloud object(s) and images of a finished run folder (one frame or a frame sequence).
+
+    A sequence run gets one merged cloud (``clouds`` = "RUN", with a ``frame`` attribute) or one cloud per frame
+    ("FRAME", in a child collection named after the run).  Returns (objects, images).  Nothing is left behind if
+    it fails (names taken and ``replace`` off: LadarError before anything is created).
+    """
+    run_path = Path(run_path)
+    run_name = run_name or run_path.name
+    info = read_run_info(run_path)
+    sequence = info.get("format") == "ladar-sequence"
+    frames = [int(f) for f in info["frames"]] if sequence else None
+    check_result_names(run_name, replace, frames, clouds)
+    if replace:  # earlier imports of this run folder (under any name or cloud layout) are stale
+        remove_run_objects(run_path)
+    objects, images = [], []
+    try:
+        if not sequence:
+            objects.append(create_point_cloud(run_name, _load_points(run_path / "points.npz"), scene,
+                                              unit_scale=unit_scale, replace=replace, point_radius=point_radius,
+                                              run_path=run_path, color_by=color_by))
+            images += _load_run_images(run_path, run_name, replace)
+        else:
+            if clouds == "RUN":
+                merged = run_path / "points_merged.npz"
+                points = _load_points(merged) if merged.is_file() else {"position_world": np.zeros((0, 3))}
+                objects.append(create_point_cloud(run_name, points, scene, unit_scale=unit_scale, replace=replace,
+                                                  point_radius=point_radius, run_path=run_path,
+                                                  color_by=color_by))
+            else:
+                coll = _results_collection(scene, run_name)
+                for f in frames:
+                    objects.append(create_point_cloud(
+                        frame_run_name(run_name, f), _load_points(run_path / f"frame_{f:04d}" / "points.npz"),
+                        scene, unit_scale=unit_scale, replace=replace, point_radius=point_radius,
+                        run_path=run_path / f"frame_{f:04d}", color_by=color_by, collection=coll))
+            images += _load_sequence_images(run_path, run_name, replace)
+            for f in frames:
+                images += _load_slices(run_path / f"frame_{f:04d}", frame_run_name(run_name, f), replace)
+    except BaseException:
+        for obj in objects:
+            if obj.name in bpy.data.objects:
+                _remove_object(obj)
+        for img in images:
+            if img.name in bpy.data.images:
+                bpy.data.images.remove(img)
+        raise
+    return objects, images
+
+
+def _load_sequence_images(run_path: Path, run_name: str, replace: bool) -> list:
+    images = []
+    folder = run_path / "images"
+    for product in IMAGE_PRODUCTS:
+        for ext, data in ((".exr", True), (".png", False)):
+            files = sorted(folder.glob(f"{product}_[0-9][0-9][0-9][0-9]{ext}")) if folder.is_dir() else []
+            if files:
+                images.append(load_image(files[0], f"{run_name}.{product}" + (".png" if ext == ".png" else ""),
+                                         replace=replace, sequence=True, data=data))
+    return images
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Waveform view
+# ------------------------------------------------------------------------------------------------------------
+def frame_run_folder(run_path, frame: int | None = None) -> Path:
+    """The run folder of one frame: ``run_path`` itself, or for a sequence its ``frame_NNNN`` (``frame``, else
+    the first frame)."""
+    run_path = Path(run_path)
+    info = read_run_info(run_path)
+    if info.get("format") != "ladar-sequence":
+        return run_path
+    frames = [int(f) for f in info["frames"]]
+    if frame is None or frame not in frames:
+        frame = frames[0]
+    return run_path / f"frame_{frame:04d}"
+
+
+def waveform_plot(run_path, *, pixel_x: int | None = None, pixel_y: int | None = None, pulse: int | None = None,
+                  frame: int | None = None, use_matplotlib: bool | None = None) -> tuple[Path, dict]:
+    """Plot one waveform of a run as a PNG in ``<run>/previews/`` (a new file; an existing plot of the same
+    waveform is reused, never replaced).  Returns (png path, what was plotted).
+
+    Image runs (flash, profiler): the waveform of pixel (``pixel_x``, ``pixel_y``), default (0, 0) — the range
+    profiler's one waveform.  Scanner runs: pulse ``pulse``, default the pulse that received the most energy.
+    The echoes detected on it are marked.  Raises LadarError when the run saved no waveforms."""
+    from ..core.config import ConfigError
+    from ..core.preview import bin_centres_range_m, waveform_png
+
+    folder = frame_run_folder(run_path, frame)
+    info = read_run_info(folder)
+    wf_file = folder / "waveforms.npy"
+    if not wf_file.is_file():
+        raise LadarError(f"the run {folder} has no waveforms.npy: enable Run > Save Waveforms and simulate again")
+    cube = np.load(wf_file, mmap_mode="r")
+    points = _load_points(folder / "points.npz") if (folder / "points.npz").is_file() else {}
+    if cube.ndim == 3:
+        h, w, n_bins = cube.shape
+        x = 0 if pixel_x is None else int(pixel_x)
+        y = 0 if pixel_y is None else int(pixel_y)
+        if not 0 <= x < w:
+            raise ConfigError("pixel_x", x, f"a column of the {w}×{h} receiver: 0 … {w - 1}")
+        if not 0 <= y < h:
+            raise ConfigError("pixel_y", y, f"a row of the {w}×{h} receiver: 0 … {h - 1}")
+        values = np.asarray(cube[y, x], dtype=np.float64)
+        mine = ((points.get("pixel_x", np.zeros(0)) == x) & (points.get("pixel_y", np.zeros(0)) == y)) \
+            if points else np.zeros(0, bool)
+        what = {"pixel_x": x, "pixel_y": y}
+        name = f"waveform_x{x:04d}_y{y:04d}.png"
+        title = "Range profile" if (h, w) == (1, 1) else f"Waveform of pixel ({x}, {y})"
+    elif cube.ndim == 2:
+        n_pulses, n_bins = cube.shape
+        p = int(np.argmax(np.asarray(cube).sum(axis=1))) if pulse is None else int(pulse)
+        if not 0 <= p < n_pulses:
+            raise ConfigError("pulse", p, f"a pulse of the scan: 0 … {n_pulses - 1}")
+        values = np.asarray(cube[p], dtype=np.float64)
+        mine = (points.get("pulse_index", np.zeros(0)) == p) if points else np.zeros(0, bool)
+        what = {"pulse": p}
+        name = f"waveform_pulse{p:08d}.png"
+        title = f"Waveform of pulse {p}"
+    else:
+        raise LadarError(f"{wf_file} has an unexpected shape {cube.shape}")
+    gate = info["settings"]["gate"]
+    range_m = bin_centres_range_m(gate["gate_start_s"], gate["bin_width_s"], n_bins)
+    echoes_m = np.asarray(points["range_m"])[mine] if points and mine.any() else np.zeros(0)
+    what.update({"frame": info.get("frame"), "n_bins": int(n_bins), "peak_j": float(values.max()),
+                 "energy_j": float(values.sum()), "echo_ranges_m": [float(r) for r in echoes_m]})
+    out = folder / "previews" / name
+    if not out.exists():
+        waveform_png(out, range_m, values, title=title, markers_m=echoes_m, use_matplotlib=use_matplotlib)
+    return out, what
+
+
+def show_waveform(run_path, run_name: str | None = None, **kwargs):
+    """:func:`waveform_plot`, loaded as the image ``<run>.waveform`` (replacing that view).  Returns
+    (image, what was plotted)."""
+    path, what = waveform_plot(run_path, **kwargs)
+    name = f"{run_name or Path(run_path).name}.waveform"
+    img = load_image(path, name, replace=True, data=False)
+    img.reload()
+    return img, what

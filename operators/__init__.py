@@ -2,9 +2,11 @@
 import bpy
 
 from .config_io import LADAR_OT_export_config, LADAR_OT_load_config
-from .simulate import LADAR_OT_simulate
+from .results import CLASSES as RESULT_CLASSES
+from .simulate import LADAR_OT_simulate, LADAR_OT_simulate_cancel
 
-CLASSES = (LADAR_OT_simulate, LADAR_OT_export_config, LADAR_OT_load_config)
+CLASSES = (LADAR_OT_simulate, LADAR_OT_simulate_cancel, LADAR_OT_export_config, LADAR_OT_load_config,
+           *RESULT_CLASSES)
 from . import materials  # noqa: E402 - material BRDF operators (table import, Principled mapping, plot)
 CLASSES += materials.CLASSES
 from . import export_las  # noqa: E402 - LAS 1.4 export of a run's point cloud

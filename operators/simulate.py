@@ -1,14 +1,32 @@
-"""``bpy.ops.ladar.simulate``: simulate the active ladar sensor at the current frame."""
+"""``bpy.ops.ladar.simulate`` (a frame or a frame range) and ``bpy.ops.ladar.simulate_cancel``.
+
+Invoked from the interface the simulation runs as a modal operator: the core works in a worker thread, a timer
+calls :meth:`SimulationJob.step` on the main thread, the status bar shows a progress bar (``panels.status``) and
+ESC (or the status bar's cancel button) stops it within one block of rays, leaving nothing behind.  Executed
+from a script or in background mode it runs to the end before returning (progress lines are printed).
+"""
 import bpy
 
 from ..core.config import ConfigError
 from ..core.pipeline import Cancelled
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.simulate import simulate_scene
+from ..ladar_addon.simulate import (SimulationJob, current_job, handle_modal_event, parse_frames, progress_printer,
+                                    set_current_job)
+
+_USER_ERRORS = (ConfigError, LadarError, Cancelled, OSError)
+
+
+def _tag_redraw(context):
+    wm = context.window_manager
+    for window in getattr(wm, "windows", ()):
+        for area in window.screen.areas:
+            if area.type in ("STATUSBAR", "PROPERTIES", "VIEW_3D"):
+                area.tag_redraw()
 
 
 class LADAR_OT_simulate(bpy.types.Operator):
-    """Simulate the ladar sensor at the current frame: write a run folder and import its point cloud and images"""
+    """Simulate the ladar sensor (the current frame, or a frame range): write a run folder and import its point \
+cloud and images.  ESC cancels"""
 
     bl_idname = "ladar.simulate"
     bl_label = "Simulate Ladar"
@@ -17,33 +35,106 @@ class LADAR_OT_simulate(bpy.types.Operator):
     sensor: bpy.props.StringProperty(
         name="Sensor", default="",
         description="Camera object to simulate (empty: Scene > Ladar > Sensor, else the scene camera)")
+    frames: bpy.props.StringProperty(
+        name="Frames", default="",
+        description='Frames to simulate into one sequence run folder, e.g. "1-100", "1-100:5" or "1,5,9" '
+                    "(empty: the current frame, or the scene's frame range when Scene > Ladar > Frame Range is on)")
 
     @classmethod
     def poll(cls, context):
+        if current_job() is not None:
+            cls.poll_message_set("A ladar simulation is running (ESC cancels it)")
+            return False
         return context.scene is not None
 
-    def execute(self, context):
+    def _job(self, context, progress=None):
         scene = context.scene
         sensor = None
         if self.sensor:
             sensor = bpy.data.objects.get(self.sensor)
             if sensor is None:
-                self.report({"ERROR"}, f"no object named {self.sensor!r}")
-                return {"CANCELLED"}
-        wm = context.window_manager
-        progress = None
-        if not bpy.app.background and wm is not None:
-            wm.progress_begin(0, 100)
+                raise LadarError(f"no object named {self.sensor!r}")
+        frames = None
+        if self.frames.strip():
+            frames = parse_frames(self.frames)
+        elif scene.ladar.use_frame_range:
+            frames = list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
+        return SimulationJob(scene, frames=frames, sensor=sensor, progress=progress)
 
-            def progress(fraction, message=""):
-                wm.progress_update(int(100 * fraction))
+    def execute(self, context):
+        """Blocking run (scripts, background mode)."""
         try:
-            run_path, result = simulate_scene(scene, sensor=sensor, progress=progress)
-        except (ConfigError, LadarError, Cancelled, OSError) as exc:
+            job = self._job(context, progress_printer() if bpy.app.background else None)
+            job.run()
+        except _USER_ERRORS as exc:
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
-        finally:
-            if progress is not None:
-                wm.progress_end()
-        self.report({"INFO"}, f"Ladar: {len(result.points['range_m'])} points in {run_path}")
+        self.report({"INFO"}, f"Ladar: {job.summary()}")
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        try:
+            job = self._job(context)
+        except _USER_ERRORS as exc:
+            self.report({"ERROR"}, str(exc) or type(exc).__name__)
+            return {"CANCELLED"}
+        job.start(threaded=True)
+        set_current_job(job)
+        self._job_ref = job
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.modal_handler_add(self)
+        _tag_redraw(context)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        job = self._job_ref
+        outcome = handle_modal_event(job, event.type, event.value)
+        if outcome in ("PASS_THROUGH", "RUNNING_MODAL"):
+            if event.type == "TIMER":
+                _tag_redraw(context)
+            return {outcome}
+        self._end(context)
+        if outcome == "FINISHED":
+            self.report({"INFO"}, f"Ladar: {job.summary()}")
+            return {"FINISHED"}
+        if job.state == "failed":
+            self.report({"ERROR"}, job.summary())
+        else:
+            self.report({"WARNING"}, f"Ladar: {job.run_name} cancelled, nothing written")
+        return {"CANCELLED"}
+
+    def cancel(self, context):
+        """Blender aborts the operator (a file is loaded, the window closes): stop the worker and clean up."""
+        job = getattr(self, "_job_ref", None)
+        if job is not None and not job.finished:
+            job.cancel()
+            job.wait(timeout_s=10.0)
+        self._end(context)
+
+    def _end(self, context):
+        timer = getattr(self, "_timer", None)
+        if timer is not None:
+            context.window_manager.event_timer_remove(timer)
+            self._timer = None
+        set_current_job(None)
+        _tag_redraw(context)
+
+
+class LADAR_OT_simulate_cancel(bpy.types.Operator):
+    """Cancel the running ladar simulation (nothing of it is written or imported)"""
+
+    bl_idname = "ladar.simulate_cancel"
+    bl_label = "Cancel Ladar Simulation"
+
+    @classmethod
+    def poll(cls, context):
+        return current_job() is not None
+
+    def execute(self, context):
+        job = current_job()
+        if job is not None:
+            job.cancel()
         return {"FINISHED"}

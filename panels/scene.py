@@ -30,7 +30,7 @@ def _draw_scene_settings(layout, scene):
                      icon="INFO")
     layout.prop(props, "output_dir")
     layout.prop(props, "seed")
-    layout.prop(props, "overwrite")
+    layout.prop(props, "if_exists")
     layout.prop(props, "import_results")
     layout.prop(props, "point_radius")
 

@@ -109,7 +109,7 @@ class LADAR_PT_sensor_run(_SensorGroupPanel, bpy.types.Panel):
         layout.prop(scene_props, "seed")
         draw_fields(layout, props, SENSOR_FIELDS["run"])
         layout.prop(scene_props, "output_dir")
-        layout.prop(scene_props, "overwrite")
+        layout.prop(scene_props, "if_exists")
 
 
 class LADAR_PT_sensor_detector(_SensorGroupPanel, bpy.types.Panel):

@@ -52,8 +52,11 @@ def test_bad_config_value_names_the_field_and_writes_nothing(lad, plate_scene, t
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("argv", [["simulate"], ["simulate", "--out", "x", "--frame", "abc"], ["bogus"], [],
-                                  ["export-config"], ["validate-config"]])
+@pytest.mark.parametrize("argv", [["simulate", "--out"], ["simulate", "--out", "x", "--frame", "abc"], ["bogus"],
+                                  [], ["export-config"], ["validate-config"],
+                                  ["simulate", "--frame", "1", "--frames", "1-3"],
+                                  ["simulate", "--overwrite", "--if-exists", "new"],
+                                  ["simulate", "--if-exists", "maybe"], ["simulate", "--clouds", "pixel"]])
 def test_usage_errors_return_2_without_exiting(lad, plate_scene, tmp_path, capsys, argv):
     code, _, err = _run(lad, capsys, *argv)
     assert code == 2
@@ -120,8 +123,8 @@ def test_ladar_run_script_in_a_fresh_process(lad, plate_scene, tmp_path):
     assert ok.returncode == 0, ok.stderr
     assert (tmp_path / "r1" / "range.exr").is_file()
     assert json.loads((tmp_path / "r1" / "metadata.json").read_text())["seed"] == 3
-    usage = run("simulate")
-    assert usage.returncode == 2 and "--out" in usage.stderr
+    usage = run("simulate", "--frames")
+    assert usage.returncode == 2 and "--frames: expected one argument" in usage.stderr
     bad = tmp_path / "bad.toml"
     bad.write_text("[gate]\nbin_width_s = 0.0\n")
     user = run("simulate", "--out", str(tmp_path / "r2"), "--config", str(bad))

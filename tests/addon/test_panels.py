@@ -75,7 +75,7 @@ def test_panels_draw_every_setting(lad, scene):
     drawn = {name for kind, name in _draw(panels.LADAR_PT_atmosphere, ctx) if kind == "prop"}
     assert drawn == {f.attr for f in props.ATMOSPHERE_FIELDS} | {"reference_range_m"}
     drawn = {name for kind, name in _draw(panels.LADAR_PT_scene, ctx) if kind == "prop"}
-    assert {"sensor", "output_dir", "seed", "overwrite"} <= drawn
+    assert {"sensor", "output_dir", "seed", "if_exists"} <= drawn
     _draw(panels.LADAR_PT_view3d, ctx)
 
     drawn = {name for kind, name in _draw(panels.LADAR_PT_brdf, ctx) if kind == "prop"}

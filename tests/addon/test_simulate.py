@@ -57,8 +57,17 @@ def test_operator_plate_at_100_m(lad, scene, tmp_path):
     assert {"GeometryNodeMeshToPoints", "GeometryNodeSetMaterial"} <= node_types
     mat = obj.data.materials[0]
     attr_nodes = [n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeAttribute"]
-    assert attr_nodes[0].attribute_name == "intensity_norm"
+    assert attr_nodes[0].attribute_name == "ladar_color"
     assert any(n.bl_idname == "ShaderNodeValToRGB" for n in mat.node_tree.nodes)
+    # coloured by intensity (the default): 0 … the 99th percentile of the intensities, clipped
+    intensity = _attribute(obj, "intensity")
+    assert obj["ladar_color_by"] == "INTENSITY" and obj["ladar_color_min"] == 0.0
+    assert obj["ladar_color_max"] == pytest.approx(np.percentile(intensity.astype(np.float64), 99), rel=1e-6)
+    np.testing.assert_allclose(_attribute(obj, "ladar_color"),
+                               np.clip(intensity / obj["ladar_color_max"], 0, 1), rtol=1e-5)
+    # a false-colour PNG beside each EXR, loaded next to the data images
+    assert {"range.png", "intensity.png", "energy.png"} <= {p.name for p in run.iterdir()}
+    assert bpy.data.images["Ladar_f0001.range.png"].filepath == str(run / "range.png")
     # the images
     img = bpy.data.images["Ladar_f0001.range"]
     assert tuple(img.size) == (16, 16)
@@ -81,12 +90,24 @@ def test_rerun_needs_overwrite_and_never_duplicates(lad, scene, tmp_path):
     with pytest.raises(lad.errors.LadarError, match="already exists"):
         lad.simulate.simulate_scene(scene, out_dir=tmp_path / "elsewhere" / "Ladar_f0001")
     assert not (tmp_path / "elsewhere").exists()
-    scene.ladar.overwrite = True
+    scene.ladar.if_exists = "REPLACE"
     assert bpy.ops.ladar.simulate() == {"FINISHED"}
     assert meta.read_text() != first
     assert [o.name for o in bpy.data.objects if o.name.startswith("Ladar_f0001")] == ["Ladar_f0001"]
-    assert [i.name for i in bpy.data.images if i.name.startswith("Ladar_f0001.range")] == ["Ladar_f0001.range"]
+    assert sorted(i.name for i in bpy.data.images if i.name.startswith("Ladar_f0001.range")) == \
+        ["Ladar_f0001.range", "Ladar_f0001.range.png"]
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["Ladar_f0001"]  # no leftovers
+    # keep what exists: the next free name for the folder and the results
+    replaced = meta.read_text()
+    scene.ladar.if_exists = "NEW"
+    assert bpy.ops.ladar.simulate() == {"FINISHED"}
+    assert bpy.ops.ladar.simulate() == {"FINISHED"}
+    assert meta.read_text() == replaced
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["Ladar_f0001", "Ladar_f0001_2", "Ladar_f0001_3"]
+    assert sorted(o.name for o in bpy.data.objects if o.name.startswith("Ladar_f0001")) == \
+        ["Ladar_f0001", "Ladar_f0001_2", "Ladar_f0001_3"]
+    assert bpy.data.objects["Ladar_f0001_3"][lad.export.RESULT_TAG] == str(tmp_path / "runs" / "Ladar_f0001_3")
+    assert scene.ladar.last_run == str(tmp_path / "runs" / "Ladar_f0001_3")
 
 
 def test_frame_seed_and_config_file(lad, scene, tmp_path, capsys):

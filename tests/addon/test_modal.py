@@ -1,0 +1,146 @@
+"""The modal simulate path without a window: a worker thread driven by SimulationJob.step (the operator's timer),
+ESC/cancel within a second leaving nothing behind, failures reported, the operator's modal() on stand-ins."""
+import time
+import types
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_scenes import add_camera, add_plate
+
+
+def _scene(scene, tmp_path, width=64, subsamples=2):
+    cam = add_camera(scene, width_px=width, height_px=width, fov_rad=0.004)
+    cam.ladar.receiver.subsamples = subsamples
+    cam.ladar.run.chunk_rays = 1024  # many small blocks: the core checks for cancellation before each
+    cam.ladar.run.threads = 1
+    add_plate(scene, size=4.0, location=(0, 0, -100))
+    scene.ladar.output_dir = str(tmp_path / "runs")
+    return cam
+
+
+def _snapshot():
+    return (set(bpy.data.objects.keys()), set(bpy.data.images.keys()), set(bpy.data.meshes.keys()),
+            set(bpy.data.collections.keys()))
+
+
+@pytest.mark.parametrize("frames", [None, [1, 2, 3, 4, 5, 6]])
+def test_cancel_mid_run_within_a_second_leaves_nothing(lad, scene, tmp_path, frames):
+    _scene(scene, tmp_path)
+    scene.frame_set(4)
+    before = _snapshot()
+    job = lad.simulate.SimulationJob(scene, frames=frames, frame=None if frames else 4)
+    job.start(threaded=True)
+    t0 = time.perf_counter()
+    while job.fraction == 0.0 and not job.finished:  # the core has started
+        job.step()
+        time.sleep(0.002)
+        assert time.perf_counter() - t0 < 60
+    assert not job.finished
+    job.cancel()
+    t_cancel = time.perf_counter()
+    while not job.step():
+        time.sleep(0.005)
+    stop_s = time.perf_counter() - t_cancel
+    assert job.state == "cancelled" and stop_s < 1.0, stop_s
+    assert not (tmp_path / "runs").exists()   # no run, no staging folder, not even the parent it created
+    assert _snapshot() == before               # no objects, images, meshes or collections
+    assert scene.frame_current == 4
+    assert "cancel" in job.text
+
+
+def test_step_serves_frames_and_imports_on_the_main_thread(lad, scene, tmp_path):
+    _scene(scene, tmp_path, width=16, subsamples=1)
+    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3])
+    job.start(threaded=True)
+    n_steps = 0
+    while not job.step():
+        n_steps += 1
+        time.sleep(0.01)
+        assert n_steps < 6000
+    assert job.state == "done" and job.fraction == 1.0
+    assert job.source.exports == 1  # static: exported once, in the constructor (main thread)
+    obj = bpy.data.objects["Ladar_f0001-0003"]
+    assert len(obj.data.vertices) == 3 * 256
+    assert job.max_step_s < 0.5  # each main-thread step is short (the interface stays responsive)
+    assert lad.simulate.current_job() is None
+
+
+def test_worker_failure_is_reported_and_writes_nothing(lad, scene, tmp_path):
+    _scene(scene, tmp_path, width=8, subsamples=1)
+    plate = bpy.data.objects["Plate"]
+    plate.keyframe_insert("location", frame=1)
+    plate.location.x = 500.0  # out of view at frame 3
+    plate.keyframe_insert("location", frame=3)
+    before = _snapshot()
+    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3])
+    job.start(threaded=True)
+    assert job.wait(timeout_s=60)
+    assert job.state == "failed"
+    assert "sees nothing" in job.summary()
+    assert not (tmp_path / "runs").exists() and _snapshot() == before
+    assert scene.frame_current == 1
+
+
+def test_modal_event_handling(lad, scene, tmp_path):
+    _scene(scene, tmp_path, width=16, subsamples=1)
+    handle = lad.simulate.handle_modal_event
+    job = lad.simulate.SimulationJob(scene)
+    job.start(threaded=True)
+    assert handle(job, "MOUSEMOVE", "NOTHING") == "PASS_THROUGH"  # the interface keeps its events
+    status = "PASS_THROUGH"
+    for _ in range(6000):
+        status = handle(job, "TIMER")
+        if status != "PASS_THROUGH":
+            break
+        time.sleep(0.01)
+    assert status == "FINISHED" and bpy.data.objects.get("Ladar_f0001") is not None
+
+    job = lad.simulate.SimulationJob(scene, out_dir=tmp_path / "esc")
+    job.start(threaded=True)
+    assert handle(job, "ESC", "PRESS") == "RUNNING_MODAL" and job.cancelled_requested()
+    assert "cancelling" in job.status_text()
+    for _ in range(6000):
+        status = handle(job, "TIMER")
+        if status != "PASS_THROUGH":
+            break
+        time.sleep(0.01)
+    assert status == "CANCELLED" and job.state == "cancelled"
+    assert not (tmp_path / "esc").exists() and bpy.data.objects.get("esc") is None
+
+
+def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
+    """The operator's modal()/_end() with a stand-in operator, context and events (no window needed)."""
+    _scene(scene, tmp_path, width=8, subsamples=1)
+    op_cls = lad.package.operators.simulate.LADAR_OT_simulate
+    removed = []
+    wm = types.SimpleNamespace(windows=[], event_timer_remove=removed.append)
+    ctx = types.SimpleNamespace(window_manager=wm)
+    job = lad.simulate.SimulationJob(scene)
+    job.start(threaded=True)
+    lad.simulate.set_current_job(job)
+    assert not op_cls.poll(types.SimpleNamespace(scene=scene))  # one run at a time
+    reports = []
+    op = types.SimpleNamespace(_job_ref=job, _timer="timer", report=lambda kind, msg: reports.append((kind, msg)))
+    op._end = types.MethodType(op_cls._end, op)
+    timer = types.SimpleNamespace(type="TIMER", value="NOTHING")
+    result = {"PASS_THROUGH"}
+    for _ in range(6000):
+        result = op_cls.modal(op, ctx, timer)
+        if result != {"PASS_THROUGH"}:
+            break
+        time.sleep(0.01)
+    assert result == {"FINISHED"}
+    assert removed == ["timer"] and lad.simulate.current_job() is None
+    assert reports and reports[-1][0] == {"INFO"} and "64 points" in reports[-1][1]
+    assert op_cls.poll(types.SimpleNamespace(scene=scene))
+
+
+def test_background_operator_prints_progress(lad, scene, tmp_path, capsys):
+    _scene(scene, tmp_path, width=8, subsamples=1)
+    assert bpy.app.background
+    assert bpy.ops.ladar.simulate("INVOKE_DEFAULT", frames="1-2") == {"FINISHED"}  # synchronous in background
+    out = capsys.readouterr().out
+    assert "ladar: 100.0%" in out and "frame 2 (2/2)" in out and "ladar: wrote" in out
+    assert len(bpy.data.objects["Ladar_f0001-0002"].data.vertices) == 128

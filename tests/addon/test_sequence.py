@@ -1,0 +1,157 @@
+"""Frame ranges: one sequence run folder, geometry and BVH reused while static, points registered in world
+coordinates, image sequences, per-run or per-frame clouds; and the CLI's --frames."""
+import json
+import os
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_scenes import add_camera, add_plate
+
+FOV = 0.004
+
+
+def _scene(scene, tmp_path, width=8):
+    cam = add_camera(scene, width_px=width, height_px=width, fov_rad=FOV)
+    cam.ladar.receiver.subsamples = 1
+    add_plate(scene, size=4.0, location=(0, 0, -100))
+    scene.ladar.output_dir = str(tmp_path / "runs")
+    return cam
+
+
+def _attribute(obj, name, dtype=np.float32):
+    attr = obj.data.attributes[name]
+    out = np.empty(len(attr.data), dtype)
+    attr.data.foreach_get("value", out)
+    return out
+
+
+def _positions(obj):
+    pos = np.empty(len(obj.data.vertices) * 3, np.float32)
+    obj.data.attributes["position"].data.foreach_get("vector", pos)
+    return pos.reshape(-1, 3)
+
+
+def _fcurves(obj):
+    """The F-curves of an object's action (Blender ≥ 4.4 layered actions, or the legacy list)."""
+    action = obj.animation_data.action
+    if hasattr(action, "fcurves"):
+        return action.fcurves
+    from bpy_extras import anim_utils
+    return anim_utils.action_get_channelbag_for_slot(action, obj.animation_data.action_slot).fcurves
+
+
+def test_static_scene_exports_once_and_builds_one_bvh(lad, scene, tmp_path):
+    _scene(scene, tmp_path)
+    scene.frame_set(7)
+    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3]).run()
+    run = tmp_path / "runs" / "Ladar_f0001-0003"
+    assert job.run_path == run and job.state == "done"
+    assert scene.frame_current == 7  # the scene returns to its frame
+    assert job.source.exports == 1 and job.source.time_dependent == {}
+    meta = json.loads((run / "metadata.json").read_text())
+    assert meta["format"] == "ladar-sequence" and meta["frames"] == [1, 2, 3]
+    assert meta["bvh_builds"] == 1 and meta["blender"]["geometry_exports"] == 1
+    assert {f"frame_{f:04d}" for f in (1, 2, 3)} <= {p.name for p in run.iterdir()}
+    for f in (1, 2, 3):
+        frame_meta = json.loads((run / f"frame_{f:04d}" / "metadata.json").read_text())
+        assert frame_meta["frame"] == f
+        assert (run / f"frame_{f:04d}" / "range.png").is_file()
+        # image sequences: hard links numbered by scene frame
+        link = run / "images" / f"range_{f:04d}.exr"
+        assert os.path.samefile(link, run / f"frame_{f:04d}" / "range.exr")
+        assert (run / "images" / f"intensity_{f:04d}.png").is_file()
+    # one merged cloud: 64 points per frame, registered in world coordinates on the plate
+    obj = bpy.data.objects["Ladar_f0001-0003"]
+    frames = _attribute(obj, "frame", np.int32)
+    assert np.bincount(frames, minlength=4)[1:].tolist() == [64, 64, 64]
+    np.testing.assert_allclose(_positions(obj)[:, 2], -100.0, atol=1e-3)
+    merged = lad.pipeline.np.load(run / "points_merged.npz")
+    assert len(merged["range_m"]) == 192
+    img = bpy.data.images["Ladar_f0001-0003.range"]
+    assert img.source == "SEQUENCE" and bpy.path.abspath(img.filepath) == str(run / "images" / "range_0001.exr")
+    assert bpy.data.images["Ladar_f0001-0003.range.png"].source == "SEQUENCE"
+    assert not [p for p in (tmp_path / "runs").iterdir() if p.name.startswith(".")]  # no staging left
+
+
+def test_animated_plate_reexports_and_rebuilds_only_when_it_moves(lad, scene, tmp_path):
+    _scene(scene, tmp_path)
+    plate = bpy.data.objects["Plate"]
+    plate.keyframe_insert("location", frame=1)   # still until frame 9, then a jump
+    plate.location.z = -130.0
+    plate.keyframe_insert("location", frame=9)
+    for fc in _fcurves(plate):
+        for key in fc.keyframe_points:
+            key.interpolation = "CONSTANT"
+    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3, 9], out_dir=tmp_path / "seq").run()
+    assert job.source.time_dependent == {"Plate": ["animated"]}
+    assert job.source.exports == 4                 # animated: every frame exported …
+    assert job.source.geometries == 2              # … but frames 1–3 give the same geometry
+    meta = json.loads((tmp_path / "seq" / "metadata.json").read_text())
+    assert meta["bvh_builds"] == 2
+    obj = bpy.data.objects["seq"]
+    rng, frames = _attribute(obj, "range_m"), _attribute(obj, "frame", np.int32)
+    for f, want in ((1, 100.0), (2, 100.0), (3, 100.0), (9, 130.0)):
+        np.testing.assert_allclose(rng[frames == f], want, atol=2e-3)
+
+
+def test_moving_sensor_registers_points_in_world_coordinates(lad, scene, tmp_path):
+    cam = _scene(scene, tmp_path)
+    cam.location = (-1.0, 0.0, 0.0)
+    cam.keyframe_insert("location", frame=1)
+    cam.location = (1.0, 0.0, 0.0)
+    cam.keyframe_insert("location", frame=3)
+    lad.simulate.simulate_sequence(scene, [1, 3], out_dir=tmp_path / "moving", clouds="FRAME")
+    coll = bpy.data.collections["moving"]
+    assert sorted(o.name for o in coll.objects) == ["moving_frame_0001", "moving_frame_0003"]
+    for f, x in ((1, -1.0), (3, 1.0)):
+        obj = bpy.data.objects[f"moving_frame_{f:04d}"]
+        assert set(_attribute(obj, "frame", np.int32)) == {f}
+        pos = _positions(obj)
+        np.testing.assert_allclose(pos[:, 2], -100.0, atol=1e-3)       # on the plate …
+        assert abs(pos[:, 0].mean() - x) < 1e-3                          # … under the sensor of that frame
+        assert obj[lad.export.RESULT_TAG] == str(tmp_path / "moving" / f"frame_{f:04d}")
+
+
+def test_sequence_names_are_checked_before_running(lad, scene, tmp_path):
+    _scene(scene, tmp_path)
+    lad.simulate.simulate_sequence(scene, [1, 2], out_dir=tmp_path / "s")
+    with pytest.raises(lad.config.ConfigError, match="does not exist yet"):
+        lad.simulate.simulate_sequence(scene, [1, 2], out_dir=tmp_path / "s")
+    path, _ = lad.simulate.simulate_sequence(scene, [1, 2], out_dir=tmp_path / "s", if_exists="NEW")
+    assert path.name == "s_2" and bpy.data.objects.get("s_2") is not None
+    # replacing a sequence imported per run by one imported per frame leaves no stale cloud behind
+    lad.simulate.simulate_sequence(scene, [1, 2], out_dir=tmp_path / "s", if_exists="REPLACE", clouds="FRAME")
+    assert bpy.data.objects.get("s") is None
+    assert {"s_frame_0001", "s_frame_0002"} <= set(bpy.data.objects.keys())
+    with pytest.raises(lad.config.ConfigError, match="frames"):
+        lad.simulate.parse_frames("5-1")
+    assert lad.simulate.parse_frames("1-10:4,20") == [1, 5, 9, 20]
+    for bad in ("", "a-b", "1-", "3,3", "1-5:0"):
+        with pytest.raises(lad.config.ConfigError, match="frames"):
+            lad.simulate.parse_frames(bad)
+
+
+def test_operator_frame_range(lad, scene, tmp_path):
+    _scene(scene, tmp_path)
+    scene.frame_start, scene.frame_end, scene.frame_step = 2, 6, 2
+    scene.ladar.use_frame_range = True
+    assert bpy.ops.ladar.simulate() == {"FINISHED"}
+    meta = json.loads((tmp_path / "runs" / "Ladar_f0002-0006" / "metadata.json").read_text())
+    assert meta["frames"] == [2, 4, 6]
+    assert bpy.ops.ladar.simulate(frames="10-11") == {"FINISHED"}
+    assert json.loads((tmp_path / "runs" / "Ladar_f0010-0011" / "metadata.json").read_text())["frames"] == [10, 11]
+
+
+def test_cli_frames(lad, scene, tmp_path, capsys):
+    _scene(scene, tmp_path)
+    code = lad.cli.cli_handler(["simulate", "--frames", "1-3", "--out", str(tmp_path / "cli_seq"), "--seed", "4"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "frames   3 (1 … 3), 192 points, 1 BVH build(s), 1 geometry export(s)" in out
+    assert "frame 2 (2/3)" in out  # progress lines name the frame
+    meta = json.loads((tmp_path / "cli_seq" / "metadata.json").read_text())
+    assert meta["seed"] == 4 and meta["frames"] == [1, 2, 3]
+    code = lad.cli.cli_handler(["simulate", "--frames", "3-1"])
+    assert code == 1 and "frames = '3-1'" in capsys.readouterr().err
