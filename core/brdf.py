@@ -18,10 +18,9 @@ table exactly at its angles, and adds no overshoot near a narrow specular peak (
 """
 from __future__ import annotations
 
+import io
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -205,17 +204,30 @@ def brdf_from_principled(base_color_rgb, roughness: float, metallic: float = 0.0
 # Plot
 # --------------------------------------------------------------------------------------------------------------
 def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: float | None = None,
-              dpi: int = 100) -> Path:
-    """Write a PNG plot of f_r(θ) for θ = 0…90° (matplotlib, Agg backend; written atomically).
+              dpi: int = 100, use_matplotlib: bool | None = None) -> Path:
+    """Write a 500×340 px PNG plot of f_r(θ) for θ = 0…90° (written atomically, replacing ``path``).
 
-    A log f_r axis when all values are positive (a specular peak and a diffuse floor both show), else linear.
-    A table's measured rows are drawn as markers over the interpolated curve.
+    With matplotlib (Agg canvas, no pyplot): axes, labels, a log f_r axis when all values are positive and span
+    more than a factor 20 (a specular peak and a diffuse floor both show), a table's measured rows as markers.
+    Without matplotlib (a Blender that lacks it): the bare curve drawn by ``core.preview``'s NumPy renderer
+    (log10 f_r above its minimum in the log case), no axes or text.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: leaves the user's backend alone
-    from matplotlib.figure import Figure
+    from . import preview
 
     theta = np.linspace(0.0, 90.0, 361)
     f_r = evaluate_brdf(brdf, np.cos(np.radians(theta)))
+    positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
+    log_axis = bool(positive and f_r.max() / f_r.min() > 20.0)
+    if use_matplotlib is None:
+        use_matplotlib = preview.have_matplotlib()
+    if not use_matplotlib:
+        shown = np.log10(f_r / f_r.min()) if log_axis else f_r
+        width, height = int(round(5.0 * dpi)), int(round(3.4 * dpi))
+        return preview.write_bytes_atomically(path, preview.encode_png(preview._numpy_plot(shown, width, height)),
+                                              overwrite=True)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: leaves the user's backend alone
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(5.0, 3.4), dpi=dpi)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
@@ -227,8 +239,7 @@ def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: 
     if brdf.model == "table":
         ax.plot(brdf.table_angle_deg, brdf.table_brdf_per_sr, "o", color="#c2410c", markersize=4,
                 label="measured")
-    positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
-    if positive and f_r.max() / f_r.min() > 20.0:
+    if log_axis:
         ax.set_yscale("log")
     else:
         ax.set_ylim(bottom=0.0)
@@ -242,14 +253,6 @@ def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return preview.write_bytes_atomically(path, buffer.getvalue(), overwrite=True)

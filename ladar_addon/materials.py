@@ -193,9 +193,9 @@ def plot_image_name(material) -> str:
 
 
 def plot_material_brdf(material, laser_wavelength_m: float | None = None):
-    """Plot the material's BRDF vs incidence angle (PNG via matplotlib/Agg) into a packed Blender image
-    (replacing the material's previous plot).  Returns the image.  A table that does not validate raises
-    ConfigError and leaves the previous plot in place."""
+    """Plot the material's BRDF vs incidence angle (``core.brdf.plot_brdf``: matplotlib, else a bare NumPy curve)
+    into a packed Blender image (replacing the material's previous plot).  Returns the image.  A table that
+    does not validate raises ConfigError and leaves the previous plot in place."""
     from ..core.brdf import plot_brdf
     from ..core.config import validate
 
