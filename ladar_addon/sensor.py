@@ -78,3 +78,44 @@ def set_camera_receiver_fov(camera, fov_x_rad: float, fov_y_rad: float, width_px
     size = camera.sensor_height if camera.sensor_fit == "VERTICAL" else camera.sensor_width
     angle = fov_x_rad if fit == "HORIZONTAL" else fov_y_rad
     camera.lens = 0.5 * size / math.tan(0.5 * angle)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# What each sensor system type uses (paper §2): the panels show only these settings
+# ------------------------------------------------------------------------------------------------------------
+#: Sensor settings groups each system type reads.  A group the core adds later and that is listed nowhere here
+#: is shown for every system type.
+SYSTEM_GROUPS = {
+    "flash": ("laser", "receiver", "gate", "detection", "detector", "run"),
+    "profiler": ("laser", "receiver", "gate", "detection", "detector", "run"),
+    "scanner": ("laser", "receiver", "gate", "scanner", "detection", "detector", "run"),
+    "gated": ("laser", "receiver", "gated", "detector", "run"),
+}
+#: Settings a system type ignores inside a group it uses: (group, name).
+SYSTEM_HIDDEN_FIELDS = {
+    "flash": frozenset(),
+    "profiler": frozenset({("receiver", "width_px"), ("receiver", "height_px")}),  # one detector element
+    "scanner": frozenset({("receiver", "width_px"), ("receiver", "height_px"), ("receiver", "subsamples"),
+                          ("laser", "divergence_fills_fov")}),  # a steered beam: no receiver array, no FOV fill
+    "gated": frozenset(),
+}
+#: Scanner settings that apply to some scan patterns only.
+SCAN_PATTERN_FIELDS = {"n_lines": ("raster",), "n_channels": ("rotating",), "cone_half_angle_rad": ("palmer",),
+                       "scan_width_rad": ("raster", "oscillating", "rotating"),
+                       "scan_height_rad": ("raster", "rotating")}
+
+
+def group_used(system_type: str, group: str) -> bool:
+    """Does a sensor of ``system_type`` read the settings group ``group``?"""
+    listed = set().union(*SYSTEM_GROUPS.values())
+    return group not in listed or group in SYSTEM_GROUPS.get(system_type, ())
+
+
+def field_used(system_type: str, group: str, name: str, scan_pattern: str | None = None) -> bool:
+    """Does a sensor of ``system_type`` read the setting ``group.name``?  (Scanner settings also depend on the
+    scan pattern.)"""
+    if not group_used(system_type, group) or (group, name) in SYSTEM_HIDDEN_FIELDS.get(system_type, ()):
+        return False
+    if group == "scanner" and scan_pattern is not None and name in SCAN_PATTERN_FIELDS:
+        return scan_pattern in SCAN_PATTERN_FIELDS[name]
+    return True

@@ -9,10 +9,33 @@ def draw_fields(layout, props, fields, skip=()):
 
 
 def simulate_button(layout, sensor_name=""):
-    row = layout.row()
+    """The Simulate button, or while a run is going its progress bar and a cancel button."""
+    from ..ladar_addon.simulate import current_job
+
+    row = layout.row(align=True)
     row.scale_y = 1.4
+    job = current_job()
+    if job is not None:
+        row.progress(factor=job.fraction, type="BAR", text=job.status_text())
+        row.operator("ladar.simulate_cancel", text="", icon="CANCEL")
+        return
     op = row.operator("ladar.simulate", text="Simulate", icon="RENDER_STILL")
     op.sensor = sensor_name
+    return op
+
+
+def simulate_options(layout, scene):
+    """The frame range switch, with the frames it simulates."""
+    props = scene.ladar
+    col = layout.column()
+    col.prop(props, "use_frame_range")
+    if props.use_frame_range:
+        step = max(1, scene.frame_step)
+        n = len(range(scene.frame_start, scene.frame_end + 1, step))
+        col.label(text=f"Frames {scene.frame_start} … {scene.frame_end}" + (f", step {step}" if step > 1 else "")
+                  + f": {n} frame{'s' if n != 1 else ''} into one sequence folder", icon="SEQUENCE")
+    else:
+        col.label(text=f"Frame {scene.frame_current}", icon="TIME")
 
 
 def active_sensor(scene):

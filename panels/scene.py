@@ -5,7 +5,7 @@ from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_atmosphere_presets, draw_preset_header
 from ..ladar_addon.properties import ATMOSPHERE_FIELDS
 from .common import (active_sensor, atmosphere_settings, draw_fields, draw_lines, reference_range_m,
-                     sensor_config, simulate_button)
+                     sensor_config, simulate_button, simulate_options)
 
 
 def draw_atmosphere_figures(layout, scene):
@@ -30,9 +30,6 @@ def _draw_scene_settings(layout, scene):
                      icon="INFO")
     layout.prop(props, "output_dir")
     layout.prop(props, "seed")
-    layout.prop(props, "if_exists")
-    layout.prop(props, "import_results")
-    layout.prop(props, "point_radius")
 
 
 class _ScenePanel:
@@ -56,7 +53,73 @@ class LADAR_PT_scene(_ScenePanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         _draw_scene_settings(layout, context.scene)
+        simulate_options(layout, context.scene)
         simulate_button(layout)
+
+
+class LADAR_PT_scene_output(_ScenePanel, bpy.types.Panel):
+    bl_label = "Output"
+    bl_idname = "LADAR_PT_scene_output"
+    bl_parent_id = "LADAR_PT_scene"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        props = context.scene.ladar
+        layout.prop(props, "if_exists")
+        layout.prop(props, "write_previews")
+        layout.prop(props, "import_results")
+        col = layout.column()
+        col.active = props.import_results
+        col.prop(props, "clouds")
+        layout.operator("ladar.import_run", text="Import Run Folder", icon="IMPORT")
+
+
+def draw_results(layout, scene, obj=None):
+    """Colouring, legend and point size of the result point clouds; waveform view and preview render."""
+    from ..ladar_addon.export import RESULT_TAG
+    from ..ladar_addon.results import COLOR_BY, legend_ramp_node, result_objects
+
+    props = scene.ladar
+    layout.prop(props, "color_by")
+    legend_obj = obj if obj is not None and obj.get(RESULT_TAG) is not None else None
+    if legend_obj is None:
+        clouds = result_objects(scene)
+        legend_obj = clouds[-1] if clouds else None
+    ramp = legend_ramp_node()
+    if ramp is not None:
+        layout.template_color_ramp(ramp, "color_ramp", expand=False)
+    if legend_obj is not None and legend_obj.get("ladar_color_by") is not None:
+        lo, hi = legend_obj["ladar_color_min"], legend_obj["ladar_color_max"]
+        row = layout.row()
+        row.label(text=f"{lo:.4g}")
+        row.label(text=str(legend_obj.get("ladar_color_label", "")))
+        row.label(text=f"{hi:.4g}")
+        if legend_obj["ladar_color_by"] != props.color_by:
+            layout.label(text=f"{legend_obj.name}: no {COLOR_BY[props.color_by][1].lower()} attribute",
+                         icon="INFO")
+    else:
+        layout.label(text="No result point clouds yet", icon="INFO")
+    layout.prop(props, "point_radius")
+    row = layout.row(align=True)
+    row.operator("ladar.waveform_view", text="Waveform", icon="GRAPH")
+    row.operator("ladar.render_preview", text="Preview Render", icon="RENDER_RESULT")
+    if props.last_run:
+        layout.label(text=f"Last run: {props.last_run}", icon="FILE_FOLDER")
+
+
+class LADAR_PT_scene_results(_ScenePanel, bpy.types.Panel):
+    bl_label = "Results"
+    bl_idname = "LADAR_PT_scene_results"
+    bl_parent_id = "LADAR_PT_scene"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        draw_results(layout, context.scene, getattr(context, "active_object", None))
 
 
 class LADAR_PT_atmosphere(_ScenePanel, bpy.types.Panel):
@@ -92,4 +155,24 @@ class LADAR_PT_view3d(bpy.types.Panel):
         layout.use_property_decorate = False
         layout.prop(context.scene.ladar, "sensor")
         layout.prop(context.scene.ladar, "output_dir")
+        simulate_options(layout, context.scene)
         simulate_button(layout)
+
+
+class LADAR_PT_view3d_results(bpy.types.Panel):
+    bl_label = "Results"
+    bl_idname = "LADAR_PT_view3d_results"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Ladar"
+    bl_parent_id = "LADAR_PT_view3d"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        draw_results(layout, context.scene, getattr(context, "active_object", None))

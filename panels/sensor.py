@@ -1,13 +1,29 @@
-"""Ladar sensor panel in the Object Data tab of cameras, with one sub-panel per settings group."""
+"""Ladar sensor panel in the Object Data tab of cameras, with one sub-panel per settings group.
+
+The system type chooses what shows (``ladar_addon.sensor.SYSTEM_GROUPS``/``field_used``): the scanner settings
+only for "scanner", the gated-viewing settings only for "gated", the range gate and echo detection not for
+"gated", the receiver's pixel counts not for "scanner"/"profiler", the scan-pattern settings by pattern.
+"""
 import math
 
 import bpy
 
 from ..ladar_addon import derived
-from ..ladar_addon.presets import LADAR_MT_detector_presets, draw_preset_header
+from ..ladar_addon.presets import LADAR_MT_detector_presets, LADAR_MT_sensor_presets, draw_preset_header
 from ..ladar_addon.properties import SENSOR_FIELDS, TOP_FIELDS
-from ..ladar_addon.sensor import camera_receiver_fov_rad
-from .common import atmosphere_settings, draw_fields, draw_lines, reference_range_m, sensor_config, simulate_button
+from ..ladar_addon.sensor import camera_receiver_fov_rad, field_used, group_used
+from .common import (atmosphere_settings, draw_lines, reference_range_m, sensor_config, simulate_button,
+                     simulate_options)
+
+C_M_S = 299_792_458.0
+
+
+def draw_group_fields(layout, props, group, system_type, skip=(), scan_pattern=None):
+    """One row per setting of ``group`` that ``system_type`` uses (labels, units and ranges come from the
+    property definitions)."""
+    for f in SENSOR_FIELDS[group]:
+        if f.attr not in skip and field_used(system_type, group, f.name, scan_pattern):
+            layout.prop(props, f.attr)
 
 
 class _SensorPanel:
@@ -21,9 +37,36 @@ class _SensorPanel:
         return obj is not None and obj.type == "CAMERA" and context.camera is not None
 
 
+def _system_lines(obj, cfg) -> list[str]:
+    """What the camera and the system settings make of the sensor (read-only)."""
+    kind = obj.ladar.system_type
+    rx = obj.ladar.receiver
+    if kind == "scanner":
+        if cfg is None:
+            return ["Scan figures unavailable: invalid sensor settings"]
+        from ..core.scanner import n_scan_pulses, scan_duration_s
+        sc = cfg.scanner
+        return [f"Scan: {sc.pattern}, {n_scan_pulses(cfg)} pulses in {scan_duration_s(cfg):.4g} s "
+                f"({sc.pulse_rate_hz:.4g} Hz)", "The camera gives the pose only (its angle is not used)"]
+    w, h = (1, 1) if kind == "profiler" else (rx.width_px, rx.height_px)
+    fov_x, fov_y = camera_receiver_fov_rad(obj.data, w, h)
+    lines = [f"Field of view {math.degrees(fov_x):.4g}° × {math.degrees(fov_y):.4g}° (from the camera)"]
+    if kind == "profiler":
+        lines.append("One detector element over the whole field of view")
+    elif kind == "gated":
+        g = obj.ladar.gated
+        first = 0.5 * C_M_S * g.first_delay_s
+        last = first + 0.5 * C_M_S * g.delay_step_s * (g.n_slices - 1)
+        lines.append(f"{g.n_slices} slices, gates opening at {first:.5g} … {last:.5g} m")
+    return lines
+
+
 class LADAR_PT_sensor(_SensorPanel, bpy.types.Panel):
     bl_label = "Ladar Sensor"
     bl_idname = "LADAR_PT_sensor"
+
+    def draw_header_preset(self, context):
+        draw_preset_header(self.layout, LADAR_MT_sensor_presets, "ladar.sensor_preset_add")
 
     def draw(self, context):
         layout = self.layout
@@ -32,18 +75,19 @@ class LADAR_PT_sensor(_SensorPanel, bpy.types.Panel):
         obj = context.object
         for f in TOP_FIELDS:
             layout.prop(obj.ladar, f.attr)
-        rx = obj.ladar.receiver
-        col = layout.column(align=True)
         try:
-            fov_x, fov_y = camera_receiver_fov_rad(obj.data, rx.width_px, rx.height_px)
-            col.label(text=f"Field of view {math.degrees(fov_x):.4g}° × {math.degrees(fov_y):.4g}° "
-                           f"(from the camera)", icon="CAMERA_DATA")
-        except ValueError as exc:
-            col.label(text=str(exc), icon="ERROR")
+            lines = _system_lines(obj, sensor_config(context.scene, obj))
+            icon = "CAMERA_DATA"
+        except Exception as exc:  # noqa: BLE001 - draw must never fail (e.g. an orthographic camera)
+            lines, icon = [str(exc)], "ERROR"
+        col = layout.column(align=True)
+        for i, text in enumerate(lines):
+            col.label(text=text, icon=icon if i == 0 else "BLANK1")
         scene = context.scene
         active = scene.ladar.sensor or scene.camera
         if active is not obj:
             col.label(text="Not the scene's active ladar sensor", icon="INFO")
+        simulate_options(layout, scene)
         simulate_button(layout, obj.name)
         row = layout.row(align=True)
         row.operator("ladar.export_config", text="Export Config", icon="EXPORT")
@@ -54,6 +98,10 @@ class _SensorGroupPanel(_SensorPanel):
     bl_parent_id = "LADAR_PT_sensor"
     group = ""
 
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and group_used(context.object.ladar.system_type, cls.group)
+
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
@@ -61,8 +109,11 @@ class _SensorGroupPanel(_SensorPanel):
         props = getattr(context.object.ladar, self.group)
         self.draw_group(context, layout, props)
 
+    def system_type(self, context):
+        return context.object.ladar.system_type
+
     def draw_group(self, context, layout, props):
-        draw_fields(layout, props, SENSOR_FIELDS[self.group])
+        draw_group_fields(layout, props, self.group, self.system_type(context))
 
 
 class LADAR_PT_sensor_laser(_SensorGroupPanel, bpy.types.Panel):
@@ -70,9 +121,10 @@ class LADAR_PT_sensor_laser(_SensorGroupPanel, bpy.types.Panel):
     group = "laser"
 
     def draw_group(self, context, layout, props):
-        draw_fields(layout, props, SENSOR_FIELDS["laser"], skip={"beam_divergence_rad"})
+        kind = self.system_type(context)
+        draw_group_fields(layout, props, "laser", kind, skip={"beam_divergence_rad"})
         row = layout.row()
-        row.active = not props.divergence_fills_fov
+        row.active = kind == "scanner" or not props.divergence_fills_fov
         row.prop(props, "beam_divergence_rad")
 
 
@@ -80,17 +132,47 @@ class LADAR_PT_sensor_receiver(_SensorGroupPanel, bpy.types.Panel):
     bl_label = "Receiver"
     group = "receiver"
 
+    def draw_group(self, context, layout, props):
+        kind = self.system_type(context)
+        draw_group_fields(layout, props, "receiver", kind)
+        if kind == "profiler":
+            layout.label(text="Range profiler: one detector element (pixel counts not used)", icon="INFO")
+        elif kind == "scanner":
+            layout.label(text="Scanner: the receiver collects the beam footprint", icon="INFO")
+
 
 class LADAR_PT_sensor_gate(_SensorGroupPanel, bpy.types.Panel):
     bl_label = "Range Gate"
     group = "gate"
 
     def draw_group(self, context, layout, props):
-        draw_fields(layout, props, SENSOR_FIELDS["gate"])
-        c = 299_792_458.0
-        start = 0.5 * c * props.gate_start_s
-        end = start + 0.5 * c * props.bin_width_s * props.n_bins
-        layout.label(text=f"Ranges {start:.4g} m … {end:.4g} m, {0.5 * c * props.bin_width_s:.3g} m per bin")
+        draw_group_fields(layout, props, "gate", self.system_type(context))
+        start = 0.5 * C_M_S * props.gate_start_s
+        end = start + 0.5 * C_M_S * props.bin_width_s * props.n_bins
+        layout.label(text=f"Ranges {start:.4g} m … {end:.4g} m, {0.5 * C_M_S * props.bin_width_s:.3g} m per bin")
+
+
+class LADAR_PT_sensor_scanner(_SensorGroupPanel, bpy.types.Panel):
+    bl_label = "Scanner"
+    group = "scanner"
+
+    def draw_group(self, context, layout, props):
+        layout.prop(props, "pattern")
+        draw_group_fields(layout, props, "scanner", self.system_type(context), skip={"pattern"},
+                          scan_pattern=props.pattern)
+        rings = props.beam_subray_rings
+        layout.label(text=f"{1 + 3 * rings * (rings + 1)} sub-rays per pulse", icon="INFO")
+
+
+class LADAR_PT_sensor_gated(_SensorGroupPanel, bpy.types.Panel):
+    bl_label = "Gated Viewing"
+    group = "gated"
+
+    def draw_group(self, context, layout, props):
+        draw_group_fields(layout, props, "gated", self.system_type(context))
+        spacing_m = 0.5 * C_M_S * props.delay_step_s
+        depth_m = 0.5 * C_M_S * props.gate_width_s
+        layout.label(text=f"Slice spacing {spacing_m:.4g} m, gate depth {depth_m:.4g} m", icon="INFO")
 
 
 class LADAR_PT_sensor_detection(_SensorGroupPanel, bpy.types.Panel):
@@ -107,7 +189,7 @@ class LADAR_PT_sensor_run(_SensorGroupPanel, bpy.types.Panel):
     def draw_group(self, context, layout, props):
         scene_props = context.scene.ladar
         layout.prop(scene_props, "seed")
-        draw_fields(layout, props, SENSOR_FIELDS["run"])
+        draw_group_fields(layout, props, "run", self.system_type(context))
         layout.prop(scene_props, "output_dir")
         layout.prop(scene_props, "if_exists")
 
@@ -121,7 +203,7 @@ class LADAR_PT_sensor_detector(_SensorGroupPanel, bpy.types.Panel):
         draw_preset_header(self.layout, LADAR_MT_detector_presets, "ladar.detector_preset_add")
 
     def draw_group(self, context, layout, props):
-        draw_fields(layout, props, SENSOR_FIELDS["detector"])
+        draw_group_fields(layout, props, "detector", self.system_type(context))
         layout.prop(context.scene.ladar, "reference_range_m")
         try:
             scene = context.scene
@@ -137,9 +219,14 @@ class LADAR_PT_sensor_detector(_SensorGroupPanel, bpy.types.Panel):
         draw_lines(layout.box(), lines)
 
 
-_KNOWN = {"laser", "receiver", "gate", "detection", "detector", "run"}
+_KNOWN = {"laser", "receiver", "gate", "scanner", "gated", "detection", "detector", "run"}
 #: Sub-panels for settings groups the core may add later (drawn generically, closed by default).
 EXTRA_GROUP_PANELS = tuple(
     type(f"LADAR_PT_sensor_{group}", (_SensorGroupPanel, bpy.types.Panel),
          {"bl_label": group.replace("_", " ").title(), "group": group, "bl_options": {"DEFAULT_CLOSED"}})
     for group in SENSOR_FIELDS if group not in _KNOWN)
+
+#: Every sensor panel, in drawing order.
+SENSOR_PANELS = (LADAR_PT_sensor, LADAR_PT_sensor_laser, LADAR_PT_sensor_receiver, LADAR_PT_sensor_gate,
+                 LADAR_PT_sensor_scanner, LADAR_PT_sensor_gated, LADAR_PT_sensor_detection,
+                 LADAR_PT_sensor_detector, LADAR_PT_sensor_run, *EXTRA_GROUP_PANELS)

@@ -1,7 +1,9 @@
-"""Panels: registered in the right Properties tabs, poll on the right data, and every drawn property exists.
+"""Panels: registered in the right Properties tabs, poll on the right data, every drawn property exists, and the
+system type chooses what shows; the status bar and panels show a running simulation.
 
 Headless Blender draws no UI, so each panel's ``draw`` runs against a recording layout that checks each
-``layout.prop(data, name)`` against the data's RNA and each ``layout.operator(idname)`` against the registry.
+``layout.prop(data, name)`` against the data's RNA and each ``layout.operator(idname)`` (and the properties set
+on it) against the registry.
 """
 import types
 
@@ -12,6 +14,8 @@ from blender_scenes import add_camera, brdf_material
 
 
 class RecordingLayout:
+    """A stand-in for ``UILayout`` that records what a panel draws and checks it against the registered RNA."""
+
     def __init__(self, log):
         self.__dict__["log"] = log
 
@@ -26,6 +30,9 @@ class RecordingLayout:
     def label(self, text="", **kwargs):
         self.log.append(("label", text))
 
+    def separator(self, **kwargs):
+        self.log.append(("separator", ""))
+
     def prop(self, data, name, **kwargs):
         assert name in data.bl_rna.properties, f"{type(data).__name__} has no property {name!r}"
         self.log.append(("prop", name))
@@ -36,9 +43,29 @@ class RecordingLayout:
 
     def operator(self, idname, **kwargs):
         module, name = idname.split(".")
-        assert hasattr(bpy.types, f"{module.upper()}_OT_{name}"), idname
+        cls = getattr(bpy.types, f"{module.upper()}_OT_{name}", None)
+        assert cls is not None, idname
         self.log.append(("operator", idname))
-        return types.SimpleNamespace()
+        props = {p.identifier for p in getattr(getattr(bpy.ops, module), name).get_rna_type().properties}
+        return _OperatorProps(props)
+
+    def progress(self, factor=0.0, type="BAR", text=""):
+        assert 0.0 <= factor <= 1.0 and type in ("BAR", "RING")
+        self.log.append(("progress", text))
+
+    def template_color_ramp(self, data, name, **kwargs):
+        assert data.bl_rna.properties[name].type == "POINTER", name
+        self.log.append(("color_ramp", data.name))
+
+
+class _OperatorProps:
+    """Operator properties returned by ``layout.operator``: only registered properties may be set."""
+
+    def __init__(self, names):
+        self.__dict__["names"] = names
+
+    def __setattr__(self, key, value):
+        assert key in self.names, f"the operator has no property {key!r}"
 
 
 def _draw(cls, context, method="draw"):
@@ -49,40 +76,153 @@ def _draw(cls, context, method="draw"):
         for key, value in vars(klass).items():
             if key.startswith("__"):
                 continue
+            if isinstance(value, classmethod):
+                value = types.MethodType(value.__func__, cls)
             setattr(fake, key, types.MethodType(value, fake) if isinstance(value, types.FunctionType) else value)
     getattr(fake, method)(context)
     return log
+
+
+def _props(log):
+    return {name for kind, name in log if kind == "prop"}
+
+
+def _context(scene, cam, mat=None, active=None):
+    return types.SimpleNamespace(object=cam, camera=cam.data, scene=scene, material=mat,
+                                 active_object=active if active is not None else cam)
 
 
 def test_panels_draw_every_setting(lad, scene):
     panels = lad.package.panels
     cam = add_camera(scene)
     mat = brdf_material("Paint", model="steinvall")
-    ctx = types.SimpleNamespace(object=cam, camera=cam.data, scene=scene, material=mat)
+    ctx = _context(scene, cam, mat)
     props = lad.properties
 
-    log = _draw(panels.LADAR_PT_sensor, ctx)
+    log = _draw(panels.sensor.LADAR_PT_sensor, ctx)
     assert ("operator", "ladar.simulate") in log and ("prop", "system_type") in log
+    assert ("prop", "use_frame_range") in log
     assert any(kind == "label" and "Field of view" in text for kind, text in log)
+    assert ("menu", "LADAR_MT_sensor_presets") in _draw(panels.sensor.LADAR_PT_sensor, ctx, "draw_header_preset")
     group_panels = {cls.group: cls for cls in panels.CLASSES if getattr(cls, "group", "")}
     assert set(group_panels) == set(props.SENSOR_FIELDS)  # a sub-panel for every sensor settings group
     for group, cls in group_panels.items():
         assert cls.bl_parent_id == "LADAR_PT_sensor" and cls.bl_context == "data"
-        drawn = {name for kind, name in _draw(cls, ctx) if kind == "prop"}
-        assert {f.attr for f in props.SENSOR_FIELDS[group]} <= drawn, group
-    assert "seed" in {name for kind, name in _draw(panels.LADAR_PT_sensor_run, ctx) if kind == "prop"}
+    assert "seed" in _props(_draw(panels.sensor.LADAR_PT_sensor_run, ctx))
 
-    drawn = {name for kind, name in _draw(panels.LADAR_PT_atmosphere, ctx) if kind == "prop"}
+    drawn = _props(_draw(panels.scene.LADAR_PT_atmosphere, ctx))
     assert drawn == {f.attr for f in props.ATMOSPHERE_FIELDS} | {"reference_range_m"}
-    drawn = {name for kind, name in _draw(panels.LADAR_PT_scene, ctx) if kind == "prop"}
-    assert {"sensor", "output_dir", "seed", "if_exists"} <= drawn
-    _draw(panels.LADAR_PT_view3d, ctx)
+    assert {"sensor", "output_dir", "seed", "use_frame_range"} <= _props(_draw(panels.scene.LADAR_PT_scene, ctx))
+    assert {"if_exists", "write_previews", "import_results", "clouds"} <= \
+        _props(_draw(panels.scene.LADAR_PT_scene_output, ctx))
+    _draw(panels.scene.LADAR_PT_view3d, ctx)
 
-    drawn = {name for kind, name in _draw(panels.LADAR_PT_brdf, ctx) if kind == "prop"}
-    assert drawn == {"model", "specular_a", "slope_s", "diffuse_b", "diffuse_m"}
+    drawn = _props(_draw(panels.LADAR_PT_brdf, ctx))
+    assert {"model", "specular_a", "slope_s", "diffuse_b", "diffuse_m"} <= drawn
+    assert "reflectance" not in drawn
     mat.ladar_brdf.model = "lambertian"
-    assert {name for kind, name in _draw(panels.LADAR_PT_brdf, ctx) if kind == "prop"} == {"model", "reflectance"}
+    drawn = _props(_draw(panels.LADAR_PT_brdf, ctx))
+    assert {"model", "reflectance"} <= drawn and "specular_a" not in drawn
     assert _draw(panels.LADAR_PT_brdf, ctx, "draw_header") == [("prop", "enabled")]
+
+
+#: What each system type must show and hide (paper §2; issue 6: "show only what the system type uses").
+EXPECTED = {
+    "flash": ({"laser", "receiver", "gate", "detection", "detector", "run"}, {"scanner", "gated"},
+              {"width_px", "height_px", "subsamples"}, set()),
+    "profiler": ({"laser", "receiver", "gate", "detection", "detector", "run"}, {"scanner", "gated"},
+                 {"subsamples", "aperture_diameter_m"}, {"width_px", "height_px"}),
+    "scanner": ({"laser", "receiver", "gate", "scanner", "detection", "detector", "run"}, {"gated"},
+                {"aperture_diameter_m", "system_efficiency"}, {"width_px", "height_px", "subsamples"}),
+    "gated": ({"laser", "receiver", "gated", "detector", "run"}, {"gate", "detection", "scanner"},
+              {"width_px", "height_px", "subsamples"}, set()),
+}
+
+
+@pytest.mark.parametrize("system_type", list(EXPECTED))
+def test_every_panel_draws_for_every_system_type(lad, scene, tmp_path, system_type):
+    """Every panel's poll, draw, draw_header and draw_header_preset run without error for every system type, and
+    the sensor sub-panels show exactly the settings the system type uses."""
+    panels = lad.package.panels
+    sensor = lad.package.ladar_addon.sensor
+    cam = add_camera(scene)
+    cam.ladar.system_type = system_type
+    mat = brdf_material("Paint")
+    shown, hidden, receiver_shown, receiver_hidden = EXPECTED[system_type]
+    for cls in panels.CLASSES:
+        ctx = _context(scene, cam, mat)
+        for method in ("draw", "draw_header", "draw_header_preset"):
+            if hasattr(cls, method):
+                _draw(cls, ctx, method)  # never raises, whatever the poll says
+        group = getattr(cls, "group", "")
+        if group:
+            assert cls.poll(ctx) == (group in shown or group not in shown | hidden), (group, system_type)
+            if cls.poll(ctx):
+                fields = lad.properties.SENSOR_FIELDS[group]
+                drawn = _props(_draw(cls, ctx)) & {f.attr for f in fields}
+                want = {f.attr for f in fields
+                        if sensor.field_used(system_type, group, f.name, cam.ladar.scanner.pattern)}
+                assert drawn == want, (group, system_type)
+    receiver = _props(_draw(panels.sensor.LADAR_PT_sensor_receiver, _context(scene, cam)))
+    assert receiver_shown <= receiver and not (receiver_hidden & receiver)
+    laser = _props(_draw(panels.sensor.LADAR_PT_sensor_laser, _context(scene, cam)))
+    assert ("divergence_fills_fov" in laser) == (system_type != "scanner")
+    labels = " ".join(text for kind, text in _draw(panels.sensor.LADAR_PT_sensor, _context(scene, cam))
+                      if kind == "label")
+    assert {"flash": "Field of view", "profiler": "One detector element", "scanner": "pulses in",
+            "gated": "30 slices"}[system_type] in labels
+
+
+@pytest.mark.parametrize("pattern, shown, hidden", [
+    ("raster", {"n_lines", "scan_width_rad", "scan_height_rad"}, {"n_channels", "cone_half_angle_rad"}),
+    ("oscillating", {"scan_width_rad"}, {"n_lines", "n_channels", "scan_height_rad", "cone_half_angle_rad"}),
+    ("rotating", {"n_channels", "scan_width_rad", "scan_height_rad"}, {"n_lines", "cone_half_angle_rad"}),
+    ("palmer", {"cone_half_angle_rad"}, {"n_lines", "n_channels", "scan_width_rad", "scan_height_rad"}),
+])
+def test_scan_pattern_settings(lad, scene, pattern, shown, hidden):
+    panels = lad.package.panels
+    cam = add_camera(scene)
+    cam.ladar.system_type = "scanner"
+    cam.ladar.scanner.pattern = pattern
+    drawn = _props(_draw(panels.sensor.LADAR_PT_sensor_scanner, _context(scene, cam)))
+    assert shown <= drawn and not (hidden & drawn)
+    assert {"pattern", "pulse_rate_hz", "scan_rate_hz", "beam_subray_rings", "motion_samples_per_s"} <= drawn
+
+
+def test_results_panel_legend_and_running_job(lad, scene, tmp_path):
+    panels = lad.package.panels
+    cam = add_camera(scene, width_px=8, height_px=8, fov_rad=0.004)
+    cam.ladar.receiver.subsamples = 1
+    from blender_scenes import add_plate
+    add_plate(scene, location=(0, 0, -100))
+    log = _draw(panels.scene.LADAR_PT_scene_results, _context(scene, cam))
+    assert ("label", "No result point clouds yet") in log
+    lad.simulate.simulate_scene(scene, out_dir=tmp_path / "r")
+    obj = bpy.data.objects["r"]
+    scene.ladar.color_by = "RANGE"
+    log = _draw(panels.scene.LADAR_PT_scene_results, _context(scene, cam, active=obj))
+    assert ("color_ramp", "Ladar Legend") in log and ("label", "Range (m)") in log
+    assert ("label", f"{obj['ladar_color_min']:.4g}") in log and ("label", f"{obj['ladar_color_max']:.4g}") in log
+    assert {("operator", "ladar.waveform_view"), ("operator", "ladar.render_preview")} <= set(log)
+    # while a run is going: a progress bar and a cancel button instead of Simulate, also in the status bar
+    assert _draw_status(lad) == []
+    job = lad.simulate.SimulationJob(scene, out_dir=tmp_path / "running")
+    lad.simulate.set_current_job(job)
+    try:
+        job.fraction, job.text = 0.25, "block 3/12"
+        log = _draw(panels.scene.LADAR_PT_scene, _context(scene, cam))
+        assert ("progress", "Ladar running: 25% block 3/12") in log and ("operator", "ladar.simulate_cancel") in log
+        assert ("operator", "ladar.simulate") not in log
+        assert _draw_status(lad) == [("progress", "Ladar running: 25% block 3/12"),
+                                     ("operator", "ladar.simulate_cancel")]
+    finally:
+        lad.simulate.set_current_job(None)
+
+
+def _draw_status(lad):
+    log = []
+    lad.package.panels.status.draw_status(types.SimpleNamespace(layout=RecordingLayout(log)), None)
+    return log
 
 
 def test_panel_polls(lad, scene):
