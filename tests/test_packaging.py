@@ -1,0 +1,100 @@
+"""scripts/build_extension.py offline: pins, the filled manifest, per-platform zips from Blender's own build.
+
+The real thing (download the wheels, install the linux zip into clean bpy 4.2 LTS and 5.0 environments and
+simulate a frame) needs PyPI, so it is the CI step ``scripts/smoke_bpy.sh`` rather than a unit test.  Here the
+wheels are stand-ins with real wheel file names, which is all Blender's build uses to split the platforms.
+"""
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+import build_extension as be  # noqa: E402
+
+WHEELS = {
+    "linux-x64": ["scipy-1.15.3-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                  "embreex-4.4.0.post1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
+                  "openexr-3.5.3-cp311-cp311-manylinux_2_28_x86_64.whl"],
+    "windows-x64": ["scipy-1.15.3-cp311-cp311-win_amd64.whl", "embreex-4.4.0.post1-cp311-cp311-win_amd64.whl",
+                    "openexr-3.5.3-cp311-cp311-win_amd64.whl"],
+}
+
+
+def _fake_wheels(root: Path, platforms=("linux-x64", "windows-x64")):
+    for platform in platforms:
+        (root / platform).mkdir(parents=True)
+        for name in WHEELS[platform]:
+            with zipfile.ZipFile(root / platform / name, "w") as z:
+                z.writestr(name.split("-")[0] + "/__init__.py", "")
+
+
+def test_pins_come_from_requirements():
+    """scipy 1.15.3: the newest that still supports the numpy 1.24.3 of Blender 4.2 LTS (design.md)."""
+    pins = be.pinned_versions()
+    assert pins == {"scipy": "1.15.3", "embreex": "4.4.0.post1", "OpenEXR": "3.5.3"}
+    text = (REPO / "requirements.txt").read_text()
+    assert all(f"{k}=={v}" in text for k, v in pins.items())
+
+
+def test_fill_manifest_adds_platforms_and_wheels_and_leaves_the_repository_alone():
+    source = (REPO / "blender_manifest.toml").read_text()
+    repo_manifest = tomllib.loads(source)
+    assert "wheels" not in repo_manifest and "platforms" not in repo_manifest  # a dev checkout needs no wheels
+    filled = be.fill_manifest(source, ["./wheels/a.whl", "./wheels/b.whl"], ["linux-x64", "windows-x64"])
+    data = tomllib.loads(filled)
+    assert data["wheels"] == ["./wheels/a.whl", "./wheels/b.whl"]
+    assert data["platforms"] == ["linux-x64", "windows-x64"]
+    assert {k: v for k, v in data.items() if k not in ("wheels", "platforms")} == repo_manifest
+    again = tomllib.loads(be.fill_manifest(filled, ["./wheels/c.whl"], ["macos-arm64"]))  # replaced, not doubled
+    assert again["wheels"] == ["./wheels/c.whl"] and again["platforms"] == ["macos-arm64"]
+    ignored = (REPO / ".gitignore").read_text().split()
+    assert {"/build/", "/dist/", "/wheels/"} <= set(ignored)  # wheels, stage and zips are never committed
+
+
+def test_offline_build_splits_the_platforms(tmp_path, capsys):
+    wheels = tmp_path / "wheels"
+    _fake_wheels(wheels)
+    code = be.main(["--offline", "--platforms", "linux-x64,windows-x64", "--wheels-dir", str(wheels),
+                    "--stage-dir", str(tmp_path / "stage"), "--out", str(tmp_path / "dist"), "--blender", ""])
+    assert code == 0, capsys.readouterr().out
+    zips = {p.name: p for p in (tmp_path / "dist").glob("*.zip")}
+    assert set(zips) == {"ladar_simulator-0.1.0-linux_x64.zip", "ladar_simulator-0.1.0-windows_x64.zip"}
+    for platform, name in (("linux-x64", "linux_x64"), ("windows-x64", "windows_x64")):
+        with zipfile.ZipFile(zips[f"ladar_simulator-0.1.0-{name}.zip"]) as z:
+            names = z.namelist()
+            manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
+        assert sorted(n for n in names if n.endswith(".whl")) == sorted(f"wheels/{w}" for w in WHEELS[platform])
+        assert manifest["build"]["generated"]["platforms"] == [platform]
+        assert len(manifest["wheels"]) == 6 and manifest["platforms"] == ["linux-x64", "windows-x64"]
+        for required in ("__init__.py", "core/las.py", "core/brdf.py", "ladar_addon/materials.py",
+                         "presets/ladar_simulator/sensor/Airborne_1064_nm_full_waveform.py",
+                         "presets/ladar_simulator/material/Retroreflective_sheeting.py"):
+            assert required in names
+        assert not any(n.split("/")[0] in {"tests", "scripts", "bench", "docs", ".venv", "build", "dist"}
+                       for n in names)
+    assert (tmp_path / "stage" / "ladar_simulator" / "wheels").is_dir()
+
+
+def test_a_platform_without_a_wheel_is_not_built(tmp_path, capsys):
+    wheels = tmp_path / "wheels"
+    _fake_wheels(wheels, platforms=("linux-x64",))
+    (wheels / "linux-x64" / WHEELS["linux-x64"][1]).unlink()  # no embreex for linux
+    (wheels / "windows-x64").mkdir()
+    for name in WHEELS["windows-x64"]:
+        (wheels / "windows-x64" / name).write_bytes(b"")
+    code = be.main(["--offline", "--platforms", "linux-x64,windows-x64", "--wheels-dir", str(wheels),
+                    "--stage-dir", str(tmp_path / "stage"), "--out", str(tmp_path / "dist"), "--blender", ""])
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "linux-x64 skipped, no wheel of embreex==4.4.0.post1" in out
+    assert [p.name for p in (tmp_path / "dist").glob("*.zip")] == ["ladar_simulator-0.1.0-windows_x64.zip"]
+
+
+def test_unknown_platform_is_an_argument_error():
+    with pytest.raises(SystemExit) as err:
+        be.main(["--platforms", "linux-arm64", "--offline"])
+    assert err.value.code == 2
