@@ -125,6 +125,13 @@ def test_ladar_run_script_in_a_fresh_process(lad, plate_scene, tmp_path):
     assert json.loads((tmp_path / "r1" / "metadata.json").read_text())["seed"] == 3
     usage = run("simulate", "--frames")
     assert usage.returncode == 2 and "--frames: expected one argument" in usage.stderr
+    helped = run("simulate", "--help")
+    assert helped.returncode == 0 and "--frames RANGE" in helped.stdout and "exit codes:" in helped.stdout
+    seq = run("simulate", "--frames", "2-3", "--out", str(tmp_path / "seq"), "--no-previews")
+    assert seq.returncode == 0, seq.stderr
+    assert "frames   2 (2 … 3), 128 points, 1 BVH build(s)" in seq.stdout
+    assert json.loads((tmp_path / "seq" / "metadata.json").read_text())["frames"] == [2, 3]
+    assert not (tmp_path / "seq" / "frame_0002" / "range.png").exists()
     bad = tmp_path / "bad.toml"
     bad.write_text("[gate]\nbin_width_s = 0.0\n")
     user = run("simulate", "--out", str(tmp_path / "r2"), "--config", str(bad))
