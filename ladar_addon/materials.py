@@ -188,6 +188,20 @@ def material_brdf_settings(material) -> BRDFSettings:
     return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS}, **read_table(props))
 
 
+def scene_laser_wavelength_m(scene) -> float | None:
+    """The laser wavelength of the scene's ladar sensor (Scene > Ladar > Sensor, else the scene camera), or None
+    when there is none or its settings cannot be read."""
+    from .properties import config_from_blender
+
+    obj = (scene.ladar.sensor or scene.camera) if scene is not None else None
+    if obj is None or obj.type != "CAMERA":
+        return None
+    try:
+        return config_from_blender(scene, obj).laser.wavelength_m
+    except Exception:  # noqa: BLE001 - an informative figure only (panels must draw)
+        return None
+
+
 def plot_image_name(material) -> str:
     return f"Ladar BRDF {material.name}"
 

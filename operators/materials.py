@@ -75,10 +75,9 @@ class LADAR_OT_brdf_plot(bpy.types.Operator):
         return _material_poll(context)
 
     def execute(self, context):
-        from ..panels.material import _laser_wavelength_m
         material = context.material
         try:
-            image = materials.plot_material_brdf(material, _laser_wavelength_m(context.scene))
+            image = materials.plot_material_brdf(material, materials.scene_laser_wavelength_m(context.scene))
         except (ConfigError, ImportError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -11,13 +11,6 @@ _MODEL_FIELDS = {"lambertian": {"reflectance"}, "steinvall": {"specular_a", "slo
 _MODEL_ONLY = set().union(*_MODEL_FIELDS.values())
 
 
-def _laser_wavelength_m(scene):
-    from .common import active_sensor, sensor_config
-    obj = active_sensor(scene) if scene is not None else None
-    cfg = sensor_config(scene, obj) if obj is not None else None
-    return cfg.laser.wavelength_m if cfg is not None else None
-
-
 class LADAR_PT_brdf(bpy.types.Panel):
     bl_label = "Ladar BRDF"
     bl_idname = "LADAR_PT_brdf"
@@ -63,9 +56,9 @@ class LADAR_PT_brdf(bpy.types.Panel):
             layout.label(text="Off: the simulator uses a grey Lambertian BRDF (30 %)", icon="INFO")
 
     def draw_table(self, context, layout, props):
-        from ..ladar_addon.materials import table_summary_lines
+        from ..ladar_addon.materials import scene_laser_wavelength_m, table_summary_lines
         box = layout.box()
-        lines = table_summary_lines(props, _laser_wavelength_m(getattr(context, "scene", None)))
+        lines = table_summary_lines(props, scene_laser_wavelength_m(getattr(context, "scene", None)))
         for i, text in enumerate(lines):
             warn = text.startswith(("Invalid", "Measured at", "No table"))
             box.label(text=text, icon="ERROR" if warn else ("PRESET" if i == 0 else "BLANK1"))
