@@ -132,7 +132,10 @@ def test_end_to_end_digital_waveforms():
     e = detect_echoes_noisy(out.data, DT, pulse=gaussian_pulse_kernel(FWHM, DT), max_echoes=2, k_sigma=5.0)
     assert e.range_m.shape == (H, W, 2)
     assert e.detected[..., 0].all()
-    err = (e.position_bins[..., 0] - centre) * DT * 0.5 * C_LIGHT_M_S
+    # the echo nearest the truth (a rare noise false alarm may come first: APD background events are
+    # heavy-tailed, see test_false_alarm* in test_receiver_false_alarms.py)
+    err = np.nanmin(np.abs(e.position_bins - centre[..., None]), axis=-1) * DT * 0.5 * C_LIGHT_M_S
     assert np.sqrt(np.mean(err ** 2)) < 0.05  # a few cm at SNR ≈ 20
     s = score_echoes(e, 0.5 * C_LIGHT_M_S * centre * DT, tolerance_m=0.5)
     assert s["missed"] == 0 and s["true_positives"] == H * W
+    assert s["false_alarms"] <= 0.01 * H * W
