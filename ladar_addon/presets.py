@@ -157,7 +157,10 @@ def apply_material_preset(settings: dict, origin: str, context=None):
     from ..core.config import BRDFSettings, validate
     from .materials import read_table, write_table
 
-    material = (context or bpy.context).material
+    material = getattr(context or bpy.context, "material", None)
+    if material is None:
+        from .errors import LadarError
+        raise LadarError("no material to apply the material preset to: select an object with a material")
     current = {f.name: f.to_core(getattr(material.ladar_brdf, f.attr)) for f in BRDF_FIELDS}
     current.update(read_table(material.ladar_brdf))
     brdf = BRDFSettings(**{**current, **settings})

@@ -2,6 +2,7 @@
 preset's values), validates; user presets (add → apply elsewhere) reproduce the settings."""
 import ast
 import math
+import types
 from pathlib import Path
 
 import bpy
@@ -135,6 +136,15 @@ def test_material_preset_worked_values(lad, scene):
     _execute("LADAR_MT_material_presets", PRESETS / "material" / "Concrete_(NIR).py", material=mat)
     brdf = lad.properties.brdf_from_material(mat)
     assert brdf.model == "lambertian" and brdf.reflectance == pytest.approx(0.35) and len(brdf.table_angle_deg) == 10
+    # Bad values and a missing material are errors that change nothing.
+    presets = lad.package.ladar_addon.presets
+    with pytest.raises(lad.config.ConfigError, match=r"materials.M.table_brdf_per_sr\[1\]"):
+        presets.apply_material_preset({"model": "table", "table_angle_deg": [0.0, 9.0],
+                                       "table_brdf_per_sr": [1.0, -1.0]}, "bad", context=types.SimpleNamespace(
+                                           material=mat))
+    assert lad.properties.brdf_from_material(mat).model == "lambertian"
+    with pytest.raises(lad.errors.LadarError, match="no material"):
+        presets.apply_material_preset({"model": "lambertian"}, "x", context=types.SimpleNamespace(material=None))
 
 
 def test_user_sensor_and_material_presets_round_trip(lad, scene, tmp_path):
