@@ -596,7 +596,7 @@ class SimulationJob:
         for folder in folders:
             if self._cancel.is_set():
                 raise Cancelled()
-            self._on_progress(self.fraction, f"previews {folder.name}")
+            self._on_progress(self.fraction, "PNG previews" + (f" {folder.name}" if self.sequence else ""))
             write_run_previews(folder, cancel=self._cancel.is_set)
 
     def _finish(self):

@@ -121,3 +121,21 @@ def test_profiler_waveform_view(lad, scene, tmp_path):
     assert what["echo_ranges_m"] == pytest.approx(sorted(result.points["range_m"].tolist()), rel=1e-9)
     with pytest.raises(lad.config.ConfigError, match="pixel_x"):
         lad.results.waveform_plot(run, pixel_x=1)
+
+
+def test_gated_sequence_loads_each_frames_slices(lad, scene, tmp_path):
+    cam = add_camera(scene, width_px=4, height_px=4, fov_rad=0.004)
+    cam.ladar.receiver.subsamples = 1
+    add_plate(scene, size=4.0, location=(0, 0, -150))
+    cam.ladar.system_type = "gated"
+    g = cam.ladar.gated
+    g.n_slices, g.first_delay_s, g.delay_step_s, g.gate_width_s = 3, 2 * 145 / 299_792_458.0, 20e-9, 40e-9
+    run, _ = lad.simulate.simulate_sequence(scene, [1, 2], out_dir=tmp_path / "gseq", clouds="FRAME")
+    for f in (1, 2):
+        img = bpy.data.images[f"gseq_frame_{f:04d}.slices"]
+        assert img.source == "SEQUENCE"
+        assert img.filepath == str(run / f"frame_{f:04d}" / "slices" / "slice_0001.exr")
+    assert bpy.data.images["gseq.range"].filepath == str(run / "images" / "range_0001.exr")
+    # the names are reserved: a second import of the same run without Replace is refused before anything changes
+    with pytest.raises(lad.errors.LadarError, match="already exists"):
+        lad.results.import_run(run, scene, clouds="FRAME")
