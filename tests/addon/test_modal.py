@@ -144,3 +144,46 @@ def test_background_operator_prints_progress(lad, scene, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "ladar: 100.0%" in out and "frame 2 (2/2)" in out and "ladar: wrote" in out
     assert len(bpy.data.objects["Ladar_f0001-0002"].data.vertices) == 128
+
+
+def test_invoke_runs_modally_with_a_window(lad, scene, tmp_path, monkeypatch):
+    """invoke() as the interface calls it (a window, not background): job started, timer and modal handler
+    added, status shown; then modal() on TIMER events until FINISHED, timer removed, one run at a time."""
+    _scene(scene, tmp_path, width=8, subsamples=1)
+    op_module = lad.package.operators.simulate
+    monkeypatch.setattr(op_module, "bpy", types.SimpleNamespace(app=types.SimpleNamespace(background=False),
+                                                                data=bpy.data))
+    calls = []
+    wm = types.SimpleNamespace(windows=[], event_timer_add=lambda dt, window: calls.append(("timer", dt)) or "T",
+                               modal_handler_add=lambda op: calls.append(("modal", op)),
+                               event_timer_remove=lambda t: calls.append(("remove", t)))
+    ctx = types.SimpleNamespace(scene=scene, window="W", window_manager=wm)
+    reports = []
+    op = types.SimpleNamespace(sensor="", frames="1-2", report=lambda kind, msg: reports.append((kind, msg)))
+    for name in ("_job", "_end"):
+        setattr(op, name, types.MethodType(getattr(op_module.LADAR_OT_simulate, name), op))
+    assert op_module.LADAR_OT_simulate.invoke(op, ctx, None) == {"RUNNING_MODAL"}
+    assert calls[:2] == [("timer", 0.1), ("modal", op)]
+    job = lad.simulate.current_job()
+    assert job is op._job_ref and job.sequence and job.frames == [1, 2]
+    assert _status(lad)[0][0] == "progress"
+    timer = types.SimpleNamespace(type="TIMER", value="NOTHING")
+    for _ in range(6000):
+        result = op_module.LADAR_OT_simulate.modal(op, ctx, timer)
+        if result != {"PASS_THROUGH"}:
+            break
+        time.sleep(0.01)
+    assert result == {"FINISHED"} and calls[-1] == ("remove", "T")
+    assert lad.simulate.current_job() is None and _status(lad) == []
+    assert (tmp_path / "runs" / "Ladar_f0001-0002" / "metadata.json").is_file()
+    # a user error is reported by invoke and nothing starts
+    op.frames = "2-1"
+    assert op_module.LADAR_OT_simulate.invoke(op, ctx, None) == {"CANCELLED"}
+    assert reports[-1][0] == {"ERROR"} and "frames" in reports[-1][1] and lad.simulate.current_job() is None
+
+
+def _status(lad):
+    from test_panels import RecordingLayout
+    log = []
+    lad.package.panels.status.draw_status(types.SimpleNamespace(layout=RecordingLayout(log)), None)
+    return log
