@@ -133,6 +133,12 @@ class ReceiverSettings:
     cell_range_spread: bool = setting(True, doc="Spread each sub-ray's return over the round-trip times its cell "
                                                 "of the surface spans (tilted, grazing surfaces) instead of one "
                                                 "instant: no sub-ray ripple or spurious echoes (docs/performance.md)")
+    subray_pattern: str = setting("grid", choices=("grid", "stratified", "sobol", "adaptive"),
+                                  doc="Where the S×S sub-rays of a pixel go: cell centres (grid), one jittered "
+                                      "point per cell (stratified), a scrambled Sobol net (sobol), or the grid "
+                                      "refined where a pixel's rays disagree (adaptive)")
+    subray_refine: int = setting(4, lo=2, hi=32, doc="Adaptive pattern: pixels whose sub-rays disagree (edges, "
+                                                     "several surfaces) are traced again with (refine·S)² rays")
     aperture_diameter_m: float = setting(0.05, lo=0.0, hi=10.0, lo_open=True, unit="m", subtype="DISTANCE",
                                          doc="Diameter of the receiver optics entrance aperture")
     system_efficiency: float = setting(0.5, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
@@ -160,6 +166,9 @@ class DetectionSettings:
     relative_threshold: float = setting(0.05, lo=0.0, hi=1.0, subtype="FACTOR",
                                         doc="Echoes weaker than this fraction of the pixel's strongest peak "
                                             "are dropped")
+    min_dip: float = setting(0.01, lo=0.0, hi=1.0, subtype="FACTOR",
+                             doc="Two peaks are separate echoes only if the waveform between them dips by this "
+                                 "fraction of the smaller one (0.01: just above the Sparrow limit of two pulses)")
     interpolation: str = setting("gaussian", choices=("gaussian", "parabolic", "none"),
                                  doc="Sub-bin peak interpolation: 3-point Gaussian, parabolic or none")
     noisy_threshold_mode: str = setting("adaptive", choices=("adaptive", "fixed"),

@@ -60,6 +60,41 @@ def interpolate_peak(y_minus, y_0, y_plus, method: str = "gaussian"):
     return np.clip(delta, -0.5, 0.5), peak
 
 
+def _merge_shallow(w, pix, j, min_dip):
+    """Drop candidate peaks not resolved from a neighbour: two time-adjacent peaks of a pixel are separate
+    echoes only if the waveform between them falls below (1 − min_dip) × the smaller peak; otherwise the
+    smaller one is part of the larger echo (a plateau's wiggles, a shoulder).  Candidates sorted by (pixel, bin).
+
+    Each round drops the smaller peak of every unresolved pair at once (never a group's maximum); the valley
+    between the survivors is the lowest of the valleys they enclosed."""
+    n_bins = w.shape[1]
+    flat = np.ascontiguousarray(w).reshape(-1)
+    pos = pix.astype(np.int64) * n_bins + j
+    peak = flat[pos]
+    same = pix[1:] == pix[:-1]
+    valley = np.full(len(pos) - 1, -np.inf)
+    if same.any():
+        # min over [pos_k, pos_k+1) of every consecutive pair (pairs across pixels are masked)
+        mins = np.minimum.reduceat(flat, pos)[:-1] if len(pos) > 1 else np.zeros(0)
+        valley = np.where(same, mins, -np.inf)
+    keep = np.ones(len(pos), bool)
+    idx = np.arange(len(pos))
+    while True:
+        k = idx[keep]
+        if len(k) < 2:
+            break
+        # valley between consecutive survivors: min of the valleys in between
+        v = np.minimum.reduceat(valley[:k[-1]], k[:-1])
+        v = np.where(pix[k[1:]] == pix[k[:-1]], v, -np.inf)
+        left, right = peak[k[:-1]], peak[k[1:]]
+        unresolved = v >= (1.0 - min_dip) * np.minimum(left, right)
+        if not unresolved.any():
+            break
+        victim = np.where(left < right, k[:-1], k[1:])[unresolved]
+        keep[victim] = False
+    return pix[keep], j[keep]
+
+
 def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
     """Find up to ``settings.max_echoes`` echoes per waveform row (n_pixels, n_bins)."""
     w = np.asarray(waveforms)
@@ -79,6 +114,8 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
         del rise
     cand &= w > np.maximum(threshold, 0.0)[:, None]
     pix, j = np.nonzero(cand)
+    if settings.min_dip > 0 and len(pix) > 1:
+        pix, j = _merge_shallow(w, pix, j, settings.min_dip)
     amp = w[pix, j]
     # rank per pixel by amplitude (strongest first) and keep max_echoes
     order = np.lexsort((-amp, pix))

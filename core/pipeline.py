@@ -28,7 +28,7 @@ from .propagation import (blur_cube_and_image, effective_extinction_per_m, prepa
 from .radiometry import received_energy
 from .rays import Detector, block_subray_tan, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
-from .sampling import cell_time_spread_s
+from .sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from .scene import SceneGeometry
 from .trace import SceneTracer
 from .waveform import SPEED_OF_LIGHT_M_S, accumulate_waveforms, binning_method, round_trip_time_s
@@ -118,8 +118,19 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     keep_cube = config.run.save_waveforms or whole_cube
     waveforms = np.zeros((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
     energy = np.zeros(det.n_pixels)
-    cell_x_tan, cell_y_tan = (p / det.subsamples for p in det.pixel_pitch_tan)
     max_spread_s = 1000.0 * gate.n_bins * gate.bin_width_s
+    rx = config.receiver
+    fine = None
+    if rx.subray_pattern == "adaptive":
+        fine = cell_energy_fractions(config.laser, dataclasses.replace(det, subsamples=det.subsamples * rx.subray_refine),
+                                     atm.beam_offset_tan, atm.beam_width_scale)
+    sampler = SubraySampler(det, rx.subray_pattern, (fx, fy), config.run.seed, laser=config.laser,
+                            beam_offset_tan=atm.beam_offset_tan, beam_width_scale=atm.beam_width_scale,
+                            refine=rx.subray_refine, fine_fractions=fine)
+    refined = []  # (refined pixels, rays) per block, adaptive pattern
+
+    def trace_tan(x_tan, y_tan):
+        return tracer.intersect(origin, tan_to_unit_direction(x_tan, y_tan) @ rot.T)
 
     def process(block):
         if cancel is not None and cancel():
@@ -127,30 +138,36 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         a, b = block
         local = {}
         t = time.perf_counter()
-        x_tan, y_tan, pixel, sub_x, sub_y = block_subray_tan(det, a, b)
-        d_world = tan_to_unit_direction(x_tan, y_tan) @ rot.T
-        fraction = fy[sub_y] * fx[sub_x]
+        smp = sampler.block(a, b)  # receiver.subray_pattern (core/sampling.py)
         local["rays"] = time.perf_counter() - t
         t = time.perf_counter()
-        prim, range_m, cos_theta = tracer.intersect(origin, d_world)
+        prim, range_m, cos_theta = trace_tan(smp.x_tan, smp.y_tan)
         local["trace"] = time.perf_counter() - t
+        if sampler.adaptive:  # second pass over the pixels whose rays disagree
+            t = time.perf_counter()
+            smp, (prim, range_m, cos_theta), bad = sampler.refine_pass(
+                smp, (prim, range_m, cos_theta), trace_tan, lambda p: tracer.unit_normal[p] @ rot,
+                scene.material_ids, adaptive_tolerance_m(config.laser, gate))
+            refined.append((len(bad), (b - a) * s2 + len(bad) * (det.subsamples * rx.subray_refine) ** 2))
+            local["refine"] = time.perf_counter() - t
+        x_tan, y_tan, pixel, sub_x, sub_y, fraction = smp.x_tan, smp.y_tan, smp.pixel, smp.sub_x, smp.sub_y, smp.weight
         t = time.perf_counter()
         hit = prim >= 0
+        spread, range_hit, cos_hit = None, range_m[hit], cos_theta[hit]
+        if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/sampling.py)
+            spread, range_hit, cos_hit = cell_returns(smp.take(hit), range_hit, cos_hit,
+                                                      tracer.unit_normal[prim[hit]] @ rot, max_spread_s)
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials,
-                            scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], fraction[hit])
+                            scene.material_ids[prim[hit]], cos_hit, range_hit, fraction[hit])
         if atm.pattern is not None:
             e *= atm.scintillation_at(x_tan[hit], y_tan[hit], sub_x[hit], sub_y[hit])
         pix_local = pixel[hit] - a
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
-        spread = None
-        if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/sampling.py)
-            spread = cell_time_spread_s(x_tan[hit], y_tan[hit], range_m[hit], tracer.unit_normal[prim[hit]] @ rot,
-                                        cell_x_tan, cell_y_tan, max_spread_s)
         # only pixels with returns get a waveform row (the others stay zero)
         active = np.unique(pix_local)
-        wf = accumulate_waveforms(np.searchsorted(active, pix_local), round_trip_time_s(range_m[hit]), e,
+        wf = accumulate_waveforms(np.searchsorted(active, pix_local), round_trip_time_s(range_hit), e,
                                   len(active), config.laser, gate, method, spread_s=spread)
         if waveforms is not None:
             waveforms[a + active] = wf
@@ -173,7 +190,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     n_hits = sum(r[1] for r in results)
     for _, _, local in results:
         for k, v in local.items():
-            times[k] += v
+            times[k] = times.get(k, 0.0) + v
     if n_hits == 0:
         raise ConfigError("sensor", "sees nothing",
                           f"a field of view containing geometry: all {det.n_pixels * s2} rays missed the "
@@ -235,6 +252,11 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
              "stage_times_s": times, "wall_time_s": time.perf_counter() - t_wall,
              "received_energy_j": float(energy_image.sum())}
     stats.update(run_plan)
+    stats["subray_pattern"] = config.receiver.subray_pattern
+    if refined:
+        stats["adaptive"] = {"refined_pixels": int(sum(r[0] for r in refined)),
+                             "rays_per_pixel_refined": (det.subsamples * config.receiver.subray_refine) ** 2}
+        stats["n_rays"] = int(sum(r[1] for r in refined))
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
     if receiver_report is not None:

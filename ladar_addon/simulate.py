@@ -548,6 +548,9 @@ class SimulationJob:
                 self._work_frame(work)
             if self._cancel.is_set():
                 raise Cancelled()
+            if self.run_path.exists() and not self.replace:  # appeared while the run was going
+                raise ConfigError("out", str(self.run_path), "a run folder that does not exist yet (it was "
+                                                             "created by someone else during the run)")
             commit_run_dir(work, self.run_path)
         except BaseException as exc:
             self._worker_error = exc

@@ -187,3 +187,15 @@ def _status(lad):
     log = []
     lad.package.panels.status.draw_status(types.SimpleNamespace(layout=RecordingLayout(log)), None)
     return log
+
+
+def test_a_folder_created_during_the_run_is_not_replaced(lad, scene, tmp_path):
+    _scene(scene, tmp_path, width=32, subsamples=2)
+    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3], out_dir=tmp_path / "runs" / "taken")
+    job.start(threaded=True)
+    (tmp_path / "runs" / "taken").mkdir(parents=True)
+    (tmp_path / "runs" / "taken" / "mine.txt").write_text("keep")
+    assert job.wait(timeout_s=60) and job.state == "failed"
+    assert "created by someone else" in job.summary()
+    assert [p.name for p in (tmp_path / "runs").iterdir()] == ["taken"]
+    assert [p.name for p in (tmp_path / "runs" / "taken").iterdir()] == ["mine.txt"]

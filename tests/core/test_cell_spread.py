@@ -111,6 +111,7 @@ def ground_config(subsamples, spread):
     """8×8 pixels over 1° (rows look 1°–2° down: ground from 86 m to 172 m, 5–21 m of range per pixel)."""
     cfg = config_for(80.0, pixels=8, subsamples=subsamples, fov_rad=np.radians(1.0), bins=700, margin_bins=0)
     cfg.receiver.cell_range_spread = spread
+    cfg.receiver.subray_pattern = "grid"
     cfg.laser.beam_profile = "uniform"
     return cfg
 
