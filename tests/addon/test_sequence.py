@@ -155,3 +155,24 @@ def test_cli_frames(lad, scene, tmp_path, capsys):
     assert meta["seed"] == 4 and meta["frames"] == [1, 2, 3]
     code = lad.cli.cli_handler(["simulate", "--frames", "3-1"])
     assert code == 1 and "frames = '3-1'" in capsys.readouterr().err
+
+
+def test_one_bvh_with_ladar_materials_and_the_full_settings_recorded(lad, scene, tmp_path):
+    """Materials with ladar BRDFs (and a config file's override) are applied to the geometry by the add-on, so the
+    core sees one scene object and builds one BVH; metadata still records the complete material table."""
+    from blender_scenes import brdf_material
+    cam = add_camera(scene, width_px=8, height_px=8, fov_rad=FOV)
+    cam.ladar.receiver.subsamples = 1
+    paint = brdf_material("Paint", reflectance=0.2)
+    add_plate(scene, size=4.0, location=(0, 0, -100), materials=(paint,))
+    config = tmp_path / "bright.toml"
+    config.write_text('schema_version = 1\n[materials."Paint"]\nreflectance = 0.8\n')
+    run, stats = lad.simulate.simulate_sequence(scene, [1, 2, 3], out_dir=tmp_path / "mat", config_path=config)
+    meta = json.loads((run / "metadata.json").read_text())
+    assert meta["bvh_builds"] == 1
+    assert meta["settings"]["materials"]["Paint"]["reflectance"] == 0.8
+    frame = json.loads((run / "frame_0002" / "metadata.json").read_text())
+    assert frame["settings"]["materials"]["Paint"]["reflectance"] == 0.8
+    # the override is what the simulation used: received energy ∝ reflectance (0.8 from the file, not 0.2)
+    _, single = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "plain", frame=2, import_results=False)
+    assert stats[1]["received_energy_j"] / single.stats["received_energy_j"] == pytest.approx(4.0, rel=1e-9)
