@@ -135,7 +135,7 @@ class ReceiverSettings:
                                                 "instant: no sub-ray ripple or spurious echoes (docs/performance.md)")
     subray_pattern: str = setting("grid", choices=("grid", "stratified", "sobol", "adaptive"),
                                   doc="Where the S×S sub-rays of a pixel go: cell centres (grid), one jittered "
-                                      "point per cell (stratified), a scrambled Sobol net (sobol), or the grid "
+                                      "point per cell (stratified), a scrambled Sobol net (sobol), or Sobol "
                                       "refined where a pixel's rays disagree (adaptive)")
     subray_refine: int = setting(4, lo=2, hi=32, doc="Adaptive pattern: pixels whose sub-rays disagree (edges, "
                                                      "several surfaces) are traced again with (refine·S)² rays")

@@ -26,7 +26,7 @@ from .motion import split_pose
 from .propagation import (blur_cube_and_image, effective_extinction_per_m, prepare_frame_atmosphere, stage_seed,
                           turbulence_switches)
 from .radiometry import received_energy
-from .rays import Detector, block_subray_tan, tan_to_unit_direction
+from .rays import Detector, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
 from .sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from .scene import SceneGeometry
@@ -122,8 +122,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     rx = config.receiver
     fine = None
     if rx.subray_pattern == "adaptive":
-        fine = cell_energy_fractions(config.laser, dataclasses.replace(det, subsamples=det.subsamples * rx.subray_refine),
-                                     atm.beam_offset_tan, atm.beam_width_scale)
+        det_fine = dataclasses.replace(det, subsamples=det.subsamples * rx.subray_refine)
+        fine = cell_energy_fractions(config.laser, det_fine, atm.beam_offset_tan, atm.beam_width_scale)
     sampler = SubraySampler(det, rx.subray_pattern, (fx, fy), config.run.seed, laser=config.laser,
                             beam_offset_tan=atm.beam_offset_tan, beam_width_scale=atm.beam_width_scale,
                             refine=rx.subray_refine, fine_fractions=fine)
