@@ -127,6 +127,11 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
         np.savez(tmp / "points.npz", **result.points)
         files["points.ply"] = "point cloud, world coordinates + per-point attributes"
         files["points.npz"] = "the same point cloud as NumPy arrays"
+        if len(result.points.get("range_m", ())):
+            from .las import write_las
+            write_las(tmp / "points.las", result.points, metadata={"system_type": metadata.get("system_type"),
+                                                                    "frame": metadata.get("frame")})
+            files["points.las"] = "the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time)"
         if result.range_echoes is not None:
             np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
             files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"

@@ -87,8 +87,8 @@ def test_run_folder_contents_and_metadata(tmp_path):
     cfg = config_for(100.0, pixels=8)
     path, res = run_simulation(plate(100.0, 10.0), np.eye(4), cfg, tmp_path / "run", frame=7)
     names = sorted(p.name for p in path.iterdir())
-    assert names == ["echoes.npz", "energy.exr", "intensity.exr", "metadata.json", "points.npz", "points.ply",
-                     "range.exr", "waveforms.npy"]
+    assert names == ["echoes.npz", "energy.exr", "intensity.exr", "metadata.json", "points.las", "points.npz",
+                     "points.ply", "range.exr", "waveforms.npy"]
     meta = json.loads((path / "metadata.json").read_text())
     assert meta["frame"] == 7 and meta["seed"] == 0
     assert meta["settings"]["gate"]["n_bins"] == cfg.gate.n_bins
@@ -97,6 +97,10 @@ def test_run_folder_contents_and_metadata(tmp_path):
     assert {"numpy", "scipy", "embreex", "OpenEXR", "python"} <= set(meta["software"])
     exr = read_exr(path / "range.exr")
     assert np.array_equal(exr["Y"], res.range_image)
+    from core.las import read_las
+    las = read_las(path / "points.las")["points"]
+    assert len(las["x"]) == len(res.points["range_m"])
+    np.testing.assert_allclose(las["z"], res.points["position_world"][:, 2], atol=1e-3)
     ply = read_ply(path / "points.ply")
     assert np.allclose(ply["z"], -100.0, atol=1e-3) and len(ply["x"]) == 64
     assert np.array_equal(ply["pixel_x"], res.points["pixel_x"])
