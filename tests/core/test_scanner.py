@@ -182,6 +182,10 @@ def test_pulses_are_time_stamped_and_misses_recorded(tmp_path):
     np.testing.assert_allclose(ply["gps_time_s"], 1000.0 + ply["pulse_index"] / 4000.0)
     assert {"echo_index", "n_echoes", "intensity", "gps_time_s", "channel"} <= set(ply)
     assert not (path / "range.exr").exists()
+    from core.las import read_las
+    las = read_las(path / "points.las")["points"]  # GPS time, return number and count carried into LAS 1.4
+    np.testing.assert_allclose(np.sort(las["gps_time"]), np.sort(res.points["gps_time_s"]), atol=1e-9)
+    assert set(las["return_number"]) == {1} and set(las["number_of_returns"]) == {1}
     summary = run_summary(path, res)
     assert "160 fired" in summary and f"{res.stats['pulses_without_echo']} without an echo" in summary
 
