@@ -152,7 +152,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     origin, rot = split_pose(world_from_sensor)
     times = {k: 0.0 for k in ("build_bvh", "rays", "trace", "radiometry", "gating", "products")}
     t0 = time.perf_counter()
-    built = tracer is None or tracer.scene is not scene
+    built = tracer is None or not tracer.serves(scene)
     if built:
         tracer = SceneTracer(scene)
     times["build_bvh"] = time.perf_counter() - t0

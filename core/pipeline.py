@@ -90,7 +90,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     times = dict.fromkeys(STAGES, 0.0)
 
     t0 = time.perf_counter()
-    if tracer is None or tracer.scene is not scene:
+    if tracer is None or not tracer.serves(scene):
         tracer = SceneTracer(scene)
     times["build_bvh"] = time.perf_counter() - t0
 

@@ -58,7 +58,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             if cancel is not None and cancel():
                 raise Cancelled()
             scene = scene_for_frame(frame).with_overrides(config.materials)
-            if tracer is None or tracer.scene is not scene:
+            if tracer is None or not tracer.serves(scene):
                 scene.check()
                 tracer = SceneTracer(scene)
                 bvh_builds += 1

@@ -32,6 +32,11 @@ class SceneTracer:
         self.unit_normal = normal / np.where(self.degenerate, 1.0, norm)[:, None]
         self.v0 = tri[:, 0]
 
+    def serves(self, scene: SceneGeometry) -> bool:
+        """True if this BVH was built on ``scene``'s geometry (the same vertex and triangle arrays): material
+        overrides (``SceneGeometry.with_overrides``) share the arrays, so they reuse the BVH."""
+        return self.scene.vertices_m is scene.vertices_m and self.scene.triangles is scene.triangles
+
     def bare_cast(self, origin_m, directions):
         """Primitive ids only: the bare embreex ray cast (used as the benchmark floor)."""
         o = np.broadcast_to((np.asarray(origin_m) - self.reference_m).astype(np.float32), directions.shape)

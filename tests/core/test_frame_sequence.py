@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from core import sequence
-from core.config import ConfigError
+from core.config import BRDFSettings, ConfigError
 from core.pipeline import Cancelled
 from core.runio import read_ply
 from core.trace import SceneTracer
@@ -33,6 +33,7 @@ def test_frames_register_on_the_wall_and_share_one_bvh(tmp_path, monkeypatch):
     wall = plate(50.0, 30.0)
     cfg = config_for(50.0, pixels=16, fov_rad=0.1, bins=512, margin_bins=128)
     cfg.run.save_waveforms = False
+    cfg.materials = {"plate": BRDFSettings(reflectance=0.5)}  # an override shares the geometry: same BVH
     poses = {1: pose(0.0, 0.0), 2: pose(3.0, 0.05), 3: pose(6.0, -0.05)}
     path, stats = sequence.run_sequence([1, 2, 3], lambda f: wall, poses.__getitem__, cfg, tmp_path / "seq")
     assert len(builds) == 1  # static geometry: one BVH for the three frames
