@@ -211,7 +211,10 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         digital, receiver_report = chain.data, chain.report
         times["receiver_chain"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        echo_parts = [_noisy_echoes(digital, config)]
+        fa_info = {}
+        echo_parts = [_noisy_echoes(digital, config, truth=waveforms, info=fa_info,
+                                    noise_sigma=receiver_report.get("noise_sigma"))]
+        receiver_report["false_alarms"] = fa_info  # noise detections counted against the noise-free cube
         times["echoes"] = time.perf_counter() - t0
     elif blur:
         t0 = time.perf_counter()
@@ -279,9 +282,14 @@ def run_blocks(process, blocks, threads: int, progress=None, label: str = "block
     return results
 
 
-def _noisy_echoes(digital, config: SimulationConfig) -> Echoes:
+def _noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None) -> Echoes:
     """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
-    core/echoes_noisy.py), in the pipeline's per-echo layout, with the detection SNR."""
+    core/echoes_noisy.py), in the pipeline's per-echo layout, with the detection SNR.
+
+    With ``truth`` (the noise-free waveforms the chain saw, (pixels, bins) J) every echo is classified as a
+    true return or a false alarm (core.echoes_noisy.classify_false_alarms): the returned Echoes carries a
+    per-echo bool ``false_alarm`` attribute and ``info`` (a dict) receives the counts, rates and the Gaussian
+    expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report)."""
     d, g = config.detection, config.gate
     h, w, n_bins = digital.shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
@@ -291,9 +299,25 @@ def _noisy_echoes(digital, config: SimulationConfig) -> Echoes:
                                 k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
                                 interpolation=d.interpolation)
     pix, slot = np.nonzero(found.detected)
-    return Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
-                  amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
-                  n_echoes=found.n_echoes[pix].astype(np.int16), snr=found.snr[pix, slot])
+    echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
+                    amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
+                    n_echoes=found.n_echoes[pix].astype(np.int16), snr=found.snr[pix, slot])
+    if truth is not None:
+        from .echoes_noisy import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
+        from .receiver import photons_per_joule
+        det = config.detector
+        primaries_per_j = float(photons_per_joule(config.laser.wavelength_m)) * det.quantum_efficiency
+        fa, summary = classify_false_alarms(
+            found, np.asarray(truth).reshape(h * w, n_bins), config.laser.pulse_fwhm_s / g.bin_width_s,
+            noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
+            abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j)
+        echoes.false_alarm = fa[pix, slot]
+        summary["threshold_mode"] = d.noisy_threshold_mode
+        summary["n_pixels"] = h * w
+        summary["n_bins"] = n_bins
+        if info is not None:
+            info.update(summary)
+    return echoes
 
 
 def _reference_range(tracer, det, origin, rot) -> float:

@@ -689,6 +689,21 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     (run if use_adc else skip).append("adc")
     out = np.empty((H * W, B), dtype=out_dtype)
     report["units"] = "counts" if use_adc else "electrons"
+    # mean and σ of a bin without signal at the output (the noise floor; echo detection's false-alarm model)
+    if table is not None:
+        pq = np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** _P_BITS
+        c = table.code.astype(np.float64)
+        m0 = float(np.dot(pq, c))
+        report["noise_mean"], report["noise_sigma"] = m0, float(np.sqrt(np.dot(pq, (c - m0) ** 2)))
+    else:
+        mult_var = gain * gain * (F if shot else F - 1.0) * b_mult
+        var0 = mult_var + (ds if shot else 0.0) + sigma_r ** 2
+        m0 = gain * b_mult + ds
+        if use_adc:
+            report["noise_mean"] = m0 / step + det.adc_offset_counts
+            report["noise_sigma"] = math.sqrt(var0 / step ** 2 + 1.0 / 12.0)
+        else:
+            report["noise_mean"], report["noise_sigma"] = m0, math.sqrt(var0)
 
     src2 = np.ascontiguousarray(src, dtype=np.float32).reshape(H * W, B)
     rows = max(1, _BLOCK_SAMPLES // max(B, 1))
