@@ -12,6 +12,12 @@ import numpy as np
 from .scene import SceneGeometry
 
 
+def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same memory seen the same way (SceneGeometry re-wraps its arrays in new view objects)."""
+    return a is b or (a.__array_interface__["data"][0] == b.__array_interface__["data"][0] and a.shape == b.shape
+                      and a.strides == b.strides and a.dtype == b.dtype)
+
+
 class SceneTracer:
     """A committed embreex scene for one SceneGeometry, reusable for any number of rays and frames."""
 
@@ -35,7 +41,7 @@ class SceneTracer:
     def serves(self, scene: SceneGeometry) -> bool:
         """True if this BVH was built on ``scene``'s geometry (the same vertex and triangle arrays): material
         overrides (``SceneGeometry.with_overrides``) share the arrays, so they reuse the BVH."""
-        return self.scene.vertices_m is scene.vertices_m and self.scene.triangles is scene.triangles
+        return _same_view(self.scene.vertices_m, scene.vertices_m) and _same_view(self.scene.triangles, scene.triangles)
 
     def bare_cast(self, origin_m, directions):
         """Primitive ids only: the bare embreex ray cast (used as the benchmark floor)."""
