@@ -13,4 +13,14 @@ from . import export_las  # noqa: E402 - LAS 1.4 export of a run's point cloud
 CLASSES += export_las.CLASSES
 
 
-register, unregister = bpy.utils.register_classes_factory(CLASSES)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+
+
+def register():
+    _register_classes()
+    export_las.register_menu()
+
+
+def unregister():
+    export_las.unregister_menu()
+    _unregister_classes()

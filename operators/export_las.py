@@ -55,3 +55,16 @@ class LADAR_OT_export_las(bpy.types.Operator, ExportHelper):
 
 
 CLASSES = (LADAR_OT_export_las,)
+
+
+def menu_export(self, context):
+    """File › Export › Ladar Point Cloud (.las)."""
+    self.layout.operator(LADAR_OT_export_las.bl_idname, text="Ladar Point Cloud (.las)")
+
+
+def register_menu():
+    bpy.types.TOPBAR_MT_file_export.append(menu_export)
+
+
+def unregister_menu():
+    bpy.types.TOPBAR_MT_file_export.remove(menu_export)

@@ -106,6 +106,7 @@ def draw_results(layout, scene, obj=None):
     row = layout.row(align=True)
     row.operator("ladar.waveform_view", text="Waveform", icon="GRAPH")
     row.operator("ladar.render_preview", text="Preview Render", icon="RENDER_RESULT")
+    row.operator("ladar.export_las", text="Export LAS", icon="EXPORT")
     if props.last_run:
         layout.label(text=f"Last run: {props.last_run}", icon="FILE_FOLDER")
 

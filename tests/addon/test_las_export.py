@@ -31,3 +31,9 @@ def test_export_las_operator(lad, scene, tmp_path):
     np.testing.assert_allclose(np.asarray(laspy.read(str(out)).z), pts["position_sensor"][:, 2], atol=1e-4)
     with pytest.raises(RuntimeError, match="No run to export"):
         bpy.ops.ladar.export_las(filepath=str(tmp_path / "none.las"))
+
+
+def test_export_las_is_in_the_file_export_menu(lad):
+    draw_funcs = getattr(bpy.types.TOPBAR_MT_file_export, "_dyn_ui_initialize", lambda: [])()
+    names = [getattr(f, "__name__", "") for f in draw_funcs]
+    assert "menu_export" in names
