@@ -119,6 +119,41 @@ def snr_linear(energy_j, wavelength_m, quantum_efficiency, gain, k_eff, dark_cur
     return gain * n_s / np.sqrt(var)
 
 
+def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s):
+    """Mean and variance [electrons] of one bin at the A/D output for ``n_signal_e`` mean signal photo-electrons
+    (after η) with the switches exactly as :func:`apply_receiver_chain` uses them (PIN/APD, linear mode):
+
+        shot noise on : mean = G(N_s + N_b + N_db) + N_ds,  var = G²F(N_s + N_b + N_db) + N_ds + G²N_s²/M + σ² + Δ²/12
+        shot noise off: mean the same,                       var = G²(F − 1)(N_s + N_b + N_db) + G²N_s²/M + σ² + Δ²/12
+
+    G = 1 for PIN; F = McIntyre F for an APD with excess noise on, else 1; N_b = η · background rate · Δt and
+    N_db, N_ds = I Δt/q only when switched on; M the speckle degrees of freedom (term absent when 0); σ the read
+    noise when on; Δ the A/D step when the A/D is on (physics.md §7, §8).  The A/D offset is not included.
+    Returns ``(mean, var, parts)`` with ``parts`` the terms used (gain, F, N_b, N_db, N_ds, σ, Δ, M)."""
+    if det.detector_type == "geiger":
+        raise ValueError("bin_moments: Geiger mode counts detections, not electrons")
+    gain = det.apd_gain if det.detector_type == "apd" else 1.0
+    F = float(mcintyre_excess_noise(gain, det.apd_k_eff)) if (det.detector_type == "apd"
+                                                               and det.enable_excess_noise) else 1.0
+    n_b = (float(background_photons(det.background_rate_photons_per_s, bin_width_s)) * det.quantum_efficiency
+           if det.enable_background else 0.0)
+    n_db = float(current_to_electrons(det.dark_current_bulk_a, bin_width_s)) if det.enable_dark_current else 0.0
+    n_ds = float(current_to_electrons(det.dark_current_surface_a, bin_width_s)) if det.enable_dark_current else 0.0
+    sigma_r = det.read_noise_e if det.enable_read_noise else 0.0
+    step = adc_step_e(det.adc_bits, det.adc_full_scale_e) if det.enable_adc else 0.0
+    M = det.speckle_dof
+    n_s = np.asarray(n_signal_e, dtype=np.float64)
+    n_mult = n_s + n_b + n_db
+    mean = gain * n_mult + n_ds
+    var = (gain * gain * F * n_mult + n_ds) if det.enable_shot_noise else gain * gain * (F - 1.0) * n_mult
+    if M > 0:
+        var = var + gain * gain * n_s * n_s / M
+    var = var + sigma_r ** 2 + step ** 2 / 12.0
+    parts = {"gain": gain, "excess_noise": F, "n_background_e": n_b, "n_dark_bulk_e": n_db, "n_dark_surface_e": n_ds,
+             "read_noise_e": sigma_r, "adc_step_e": step, "speckle_dof": M}
+    return mean, var, parts
+
+
 # ----------------------------------------------------------------------------------------------------------
 # A/D conversion
 # ----------------------------------------------------------------------------------------------------------
@@ -696,12 +731,11 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         m0 = float(np.dot(pq, c))
         report["noise_mean"], report["noise_sigma"] = m0, float(np.sqrt(np.dot(pq, (c - m0) ** 2)))
     else:
-        mult_var = gain * gain * (F if shot else F - 1.0) * b_mult
-        var0 = mult_var + (ds if shot else 0.0) + sigma_r ** 2
-        m0 = gain * b_mult + ds
+        m0, var0, _ = bin_moments(det, 0.0, tau)  # the same switches (Sheppard's Δ²/12 for the A/D)
+        m0, var0 = float(m0), float(var0)
         if use_adc:
             report["noise_mean"] = m0 / step + det.adc_offset_counts
-            report["noise_sigma"] = math.sqrt(var0 / step ** 2 + 1.0 / 12.0)
+            report["noise_sigma"] = math.sqrt(var0) / step
         else:
             report["noise_mean"], report["noise_sigma"] = m0, math.sqrt(var0)
 

@@ -9,7 +9,9 @@ import math
 
 from ..core.atmosphere.extinction import extinction_from_visibility
 from ..core.atmosphere.turbulence import derived_turbulence
-from ..core.receiver import mcintyre_excess_noise, photons_per_joule, snr_linear
+from ..core.laser import pulse_cdf
+from ..core.receiver import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
+                             photons_per_joule)
 
 #: Wavelength used when there is no sensor (the core default laser, Nd:YAG).
 DEFAULT_WAVELENGTH_M = 1.064e-6
@@ -47,29 +49,70 @@ def received_pixel_energy_j(cfg, range_m: float, reflectance: float = REFERENCE_
     return e_px * transmission * reflectance / math.pi * area / range_m ** 2 * rx.system_efficiency
 
 
+def peak_bin_fraction(laser, bin_width_s: float) -> float:
+    """Fraction of the pulse energy in the time bin the pulse is centred on: P(Δt/2) − P(−Δt/2)."""
+    return float(pulse_cdf(laser, 0.5 * bin_width_s) - pulse_cdf(laser, -0.5 * bin_width_s))
+
+
+def detector_snr(cfg, peak_bin_energy_j: float) -> dict:
+    """Peak-bin figures of the linear-mode receiver for ``peak_bin_energy_j`` of signal in one bin, with every
+    switch exactly as the chain applies it (:func:`core.receiver.bin_moments`, physics.md §7, §8):
+
+        SNR = G N_s / √var(N_s),  var = G²F(N_s + N_b + N_db) + N_ds + G²N_s²/M + σ_read² + Δ²/12  (shot noise on)
+
+    with τ = the bin width (the chain's integration time per sample), the signal clipped at the A/D full scale.
+    Returns signal electrons, mean/σ of a signal-free bin (the noise floor) in electrons and counts, the SNR and
+    whether the A/D saturates.  Ideal mode: no noise (σ 0, SNR ∞)."""
+    det = cfg.detector
+    tau = cfg.gate.bin_width_s
+    n_s = peak_bin_energy_j * float(photons_per_joule(cfg.laser.wavelength_m)) * det.quantum_efficiency
+    out = {"peak_signal_electrons": n_s, "bin_width_s": tau}
+    if det.mode == "ideal":
+        out.update(ideal=True, snr=math.inf, noise_floor_e=0.0, noise_floor_counts=0.0, adc_saturated=False)
+        return out
+    mean0, var0, parts = bin_moments(det, 0.0, tau)
+    mean_s, var_s, _ = bin_moments(det, n_s, tau)
+    signal_e = float(mean_s - mean0)  # G N_s
+    out.update(ideal=False, gain=parts["gain"], excess_noise_factor=parts["excess_noise"],
+               noise_floor_e=math.sqrt(float(var0)), noise_mean_e=float(mean0), adc_saturated=False)
+    if det.enable_adc:
+        step = adc_step_e(det.adc_bits, det.adc_full_scale_e)
+        top_e = (2 ** int(det.adc_bits) - 1 - det.adc_offset_counts) * step  # electrons at the top code
+        out["noise_floor_counts"] = out["noise_floor_e"] / step
+        if float(mean_s) > top_e:  # §8: clip at the A/D full scale
+            out["adc_saturated"] = True
+            signal_e = max(top_e - float(mean0), 0.0)
+    out["snr"] = signal_e / math.sqrt(float(var_s)) if var_s > 0 else math.inf
+    return out
+
+
 def detector_figures(cfg, range_m: float, transmission: float = 1.0,
                      reflectance: float = REFERENCE_REFLECTANCE) -> dict:
-    """Photons per fJ, APD excess noise F, received energy and signal photo-electrons per pixel, and the linear
-    mode SNR (physics.md §8; integration time = the pulse FWHM) for the reference target at ``range_m``."""
+    """Photons per fJ, APD excess noise F (1 when switched off), received energy and signal photo-electrons per
+    pixel and in the peak time bin, the noise floor and the peak-bin SNR (:func:`detector_snr`) for the
+    reference target at ``range_m``; Geiger mode: the detection probability per pulse (with speckle) and the
+    noise primaries per bin.  Every figure follows the detector's switches as the chain does."""
     det, lam = cfg.detector, cfg.laser.wavelength_m
-    apd = det.detector_type == "apd"
-    gain = det.apd_gain if apd else 1.0
-    k_eff = det.apd_k_eff if apd else 0.0
-    f = float(mcintyre_excess_noise(gain, k_eff)) if apd else 1.0
     energy = received_pixel_energy_j(cfg, range_m, reflectance, transmission)
-    tau = cfg.laser.pulse_fwhm_s
     n_s = energy * float(photons_per_joule(lam)) * det.quantum_efficiency
-    out = {"photons_per_fj": float(photons_per_joule(lam)) * 1e-15, "excess_noise_factor": f,
-           "received_energy_j": energy, "signal_electrons": n_s, "integration_time_s": tau}
+    frac = peak_bin_fraction(cfg.laser, cfg.gate.bin_width_s)
+    apd_f = det.detector_type == "apd" and det.enable_excess_noise
+    out = {"photons_per_fj": float(photons_per_joule(lam)) * 1e-15,
+           "excess_noise_factor": float(mcintyre_excess_noise(det.apd_gain, det.apd_k_eff)) if apd_f else 1.0,
+           "received_energy_j": energy, "signal_electrons": n_s, "peak_bin_fraction": frac}
     if det.detector_type == "geiger":
-        out["detection_probability"] = -math.expm1(-n_s)
+        m = det.speckle_dof
+        out["detection_probability"] = (-math.expm1(-m * math.log1p(n_s / m)) if m > 0 else -math.expm1(-n_s))
+        tau = cfg.gate.bin_width_s
+        noise = 0.0
+        if det.enable_background:
+            noise += float(background_photons(det.background_rate_photons_per_s, tau)) * det.quantum_efficiency
+        if det.enable_dark_current:
+            noise += float(current_to_electrons(det.dark_current_bulk_a + det.dark_current_surface_a, tau))
+        out["noise_primaries_per_bin"] = noise
+        out["ideal"] = det.mode == "ideal"
         return out
-    n_b = det.background_rate_photons_per_s * tau * det.quantum_efficiency if det.enable_background else 0.0
-    dark = det.enable_dark_current
-    adc_step = det.adc_full_scale_e / 2 ** det.adc_bits if det.enable_adc else 0.0
-    out["snr"] = float(snr_linear(energy, lam, det.quantum_efficiency, gain, k_eff, det.dark_current_bulk_a if dark else 0.0,
-                                  det.dark_current_surface_a if dark else 0.0, tau, n_b,
-                                  det.read_noise_e if det.enable_read_noise else 0.0, adc_step))
+    out.update(detector_snr(cfg, energy * frac))
     return out
 
 
@@ -101,13 +144,26 @@ def detector_lines(cfg, range_m: float, transmission: float = 1.0) -> list[str]:
         fig = detector_figures(cfg, range_m, transmission)
     except Exception as exc:  # noqa: BLE001 - draw must never fail
         return [f"Derived figures unavailable: {exc}"]
+    det = cfg.detector
     lines = [f"{fig['photons_per_fj']:.4g} photons per fJ at {cfg.laser.wavelength_m * 1e9:.0f} nm"]
-    if cfg.detector.detector_type == "apd":
-        lines.append(f"APD excess noise factor F {fig['excess_noise_factor']:.4g}")
+    if det.detector_type == "apd":
+        lines.append(f"APD gain {det.apd_gain:.4g}, excess noise factor F {fig['excess_noise_factor']:.4g}"
+                     + ("" if det.enable_excess_noise else " (excess noise off)"))
     target = f"10 % Lambertian at {range_m:.4g} m, beam filling the FOV"
     lines.append(f"Signal {fig['signal_electrons']:.4g} e⁻/pixel ({target})")
-    if "snr" in fig:
-        lines.append(f"SNR {fig['snr']:.4g} per pixel (pulse energy / pixels, τ = pulse FWHM)")
-    else:
-        lines.append(f"Detection probability {fig['detection_probability']:.3g} per pulse")
+    if det.detector_type == "geiger":
+        lines.append(f"Detection probability {fig['detection_probability']:.3g} per pulse"
+                     + (f" (speckle M = {det.speckle_dof:.3g})" if det.speckle_dof > 0 else ""))
+        lines.append(f"Noise {fig['noise_primaries_per_bin']:.3g} primaries per bin")
+        return lines
+    lines.append(f"Peak bin {fig['peak_signal_electrons']:.4g} e⁻ ({fig['peak_bin_fraction'] * 100:.3g} % of the pulse "
+                 f"in {cfg.gate.bin_width_s * 1e9:.3g} ns)")
+    if fig["ideal"]:
+        lines.append("Ideal receiver (mode = ideal): noise-free, SNR unbounded")
+        return lines
+    floor = f"Noise floor {fig['noise_floor_e']:.4g} e⁻ rms per bin"
+    if "noise_floor_counts" in fig:
+        floor += f" ({fig['noise_floor_counts']:.3g} counts)"
+    lines.append(floor)
+    lines.append(f"SNR {fig['snr']:.4g} in the peak bin" + (" — A/D saturates" if fig["adc_saturated"] else ""))
     return lines
