@@ -203,6 +203,9 @@ class AtmosphereSettings:
     scintillation_model: str = setting("auto", choices=("auto", "lognormal", "gamma_gamma"),
                                        doc="Scintillation pdf: log-normal (eq. 3-5) in weak turbulence, "
                                            "gamma-gamma in moderate/strong; auto picks by regime")
+    return_scintillation: bool = setting(True, doc="B: with scintillation, also the return path (target → "
+                                                   "receiver aperture): one aperture-averaged factor per pixel "
+                                                   "and pulse")
     beam_wander: bool = setting(True, doc="D: displace the beam centre randomly per pulse")
     turbulence_blur: str = setting("long", choices=("long", "short", "none"),
                                    doc="E: turbulence MTF blur of the received image (long or short exposure)")

@@ -8,6 +8,13 @@ rays that hit the scene (the paper applies one scintillation pattern at the targ
 * B  scintillation: one pattern per pulse, in metres on the plane ⟂ to the line of sight at R_ref, multiplied
      onto the illumination of every sub-ray at (x_tan·R_ref, y_tan·R_ref); where a sub-ray's footprint is
      larger than a scintillation cell, the pattern averaged over the footprint (FootprintAveragedPattern);
+* B' return path: the light scattered back by each pixel's footprint reaches the receiver aperture through
+     turbulence too.  One unit-mean gamma factor per pixel and pulse with variance
+     A_sp(D) · SI_sp · g(p_x/ρ_l) g(p_y/ρ_l): the spherical-wave point-receiver SI, aperture averaging
+     A_sp = (1 + 0.33 d²)^(−7/6), d² = kD²/4L (physics.md §3), and the average over the pixel footprint p
+     (box_average_variance_factor, correlation radius ρ_l) — small for a resolved diffuse target ("the return
+     path is an incoherent extended source"), up to A·SI for footprints below a cell; switch
+     ``atmosphere.return_scintillation`` (within B);
 * C  extinction: from ``extinction_per_m`` or from the visibility (Kim/Kruse) at the laser wavelength;
 * D  wander: the beam centre is displaced by a random offset drawn per pulse with ⟨r_c²⟩ (2.42 form);
 * E  blur: the turbulence MTF (spherical-wave r0 at R_ref) applied to every time slice of the received
@@ -27,7 +34,8 @@ import numpy as np
 from scipy.special import erf
 
 from .atmosphere import (beam_wander_offsets, beam_wander_variance, derived_turbulence,
-                         extinction_from_visibility, gaussian_beam_parameters, long_term_beam_radius,
+                         extinction_from_visibility, gaussian_beam_parameters, gaussian_random_field,
+                         long_term_beam_radius,
                          make_scintillation_pattern, short_term_beam_radius, turbulence_blur, turbulence_mtf_long)
 from .config import SimulationConfig
 
@@ -35,7 +43,7 @@ from .config import SimulationConfig
 BLUR_NEGLIGIBLE_MTF = 0.999
 
 #: Stage keys of the per-frame random streams.
-RNG_STAGE = {"beam_wander": 1, "scintillation": 2, "receiver": 3}
+RNG_STAGE = {"beam_wander": 1, "scintillation": 2, "receiver": 3, "return_scintillation": 4}
 
 
 def stage_seed(seed: int, frame: int, stage: str, pulse: int | None = None) -> np.random.SeedSequence:
@@ -72,12 +80,59 @@ class FrameAtmosphere:
     skipped: dict = field(default_factory=dict)
     ran: list = field(default_factory=list)
 
+    return_factor: np.ndarray | None = None  # (H, W) return-path factor per pixel (B'), None when off
+    subsamples: int = 1
+
     def scintillation_at(self, x_tan, y_tan, sub_x, sub_y):
-        """Pattern value for sub-rays at tan-plane coordinates / sub-ray cells."""
+        """Scintillation factor for sub-rays at tan-plane coordinates / sub-ray cells: the outgoing pattern at
+        the target times the return-path factor of the sub-ray's pixel."""
         if isinstance(self.pattern, FootprintAveragedPattern):
-            return self.pattern.values[sub_y, sub_x]
-        r = self.reference_range_m
-        return self.pattern.sample(np.asarray(x_tan) * r, np.asarray(y_tan) * r)
+            out = self.pattern.values[sub_y, sub_x]
+        elif self.pattern is None:
+            out = np.ones(np.shape(x_tan))
+        else:
+            r = self.reference_range_m
+            out = self.pattern.sample(np.asarray(x_tan) * r, np.asarray(y_tan) * r)
+        if self.return_factor is not None:
+            s = self.subsamples
+            out = out * self.return_factor[np.asarray(sub_y) // s, np.asarray(sub_x) // s]
+        return out
+
+
+def return_scintillation_variance(derived: dict, pixel_footprint_m) -> dict:
+    """Variance of the return-path factor of one pixel (B', module docstring; physics.md §3):
+    A_sp(D) · SI_sp · g(p_x/ρ_l) · g(p_y/ρ_l).  ``derived`` from :func:`derived_turbulence` (spherical wave, with
+    ``aperture_diameter_m``); ``pixel_footprint_m`` (p_x, p_y) at the reference range.  Case A of physics.md
+    (Cn² 1e-14, 1064 nm, 2 km, D = 5 cm): A_sp = 0.5741, SI_sp = 0.4373 → 0.2511 × g_x g_y."""
+    a = float(derived["aperture_averaging"])
+    si = float(derived["scintillation_index"])
+    rho = float(derived["cell_radius_m"])
+    gx = float(box_average_variance_factor(pixel_footprint_m[0], rho))
+    gy = float(box_average_variance_factor(pixel_footprint_m[1], rho))
+    return {"aperture_averaging_factor": a, "point_scintillation_index": si, "cell_radius_m": rho,
+            "pixel_footprint_m": [float(pixel_footprint_m[0]), float(pixel_footprint_m[1])],
+            "footprint_averaging_factor": gx * gy, "variance": a * si * gx * gy}
+
+
+def draw_return_factor(shape, pixel_footprint_m, variance_info: dict, rng, max_grid_px: int = 2048):
+    """Unit-mean gamma factors (H, W) with the variance of :func:`return_scintillation_variance` (exact
+    marginal).  Pixels closer than ~2 cell radii are correlated: a gamma translation field (physics.md §11) with
+    Gaussian correlation of 1/e radius ρ_l on the pixel grid (periodic grid of ≥ 8 ρ_l, at most ``max_grid_px``);
+    farther apart, independent draws.  Returns (values, model)."""
+    var = variance_info["variance"]
+    if not var > 0:
+        return np.ones(shape), "none"
+    alpha = 1.0 / var
+    rho = variance_info["cell_radius_m"]
+    px, py = variance_info["pixel_footprint_m"]
+    if min(px, py) >= 2.0 * rho:
+        return rng.gamma(alpha, var, size=shape), "gamma_independent_pixels"
+    from .atmosphere import gamma_factor_g_correlation, unit_gamma_from_gaussian
+    pitch = float(np.sqrt(px * py))  # isotropic grid (square pixels; the geometric mean otherwise)
+    n_min = int(np.ceil(8 * rho / pitch))
+    grid = (min(max(shape[0], n_min), max(shape[0], max_grid_px)), min(max(shape[1], n_min), max(shape[1], max_grid_px)))
+    g = gaussian_random_field(grid, pitch, gamma_factor_g_correlation(alpha, rho), rng)
+    return unit_gamma_from_gaussian(g[:shape[0], :shape[1]], alpha), "gamma_correlated_field"
 
 
 def box_average_variance_factor(side_m, radius_m):
@@ -118,7 +173,7 @@ def turbulence_switches(config: SimulationConfig) -> dict:
     atm, laser = config.atmosphere, config.laser
     skipped = {}
     if atm.cn2_m_23 == 0.0:
-        for name in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"):
+        for name in ("beam_broadening", "scintillation", "return_scintillation", "beam_wander", "turbulence_blur"):
             skipped[name] = "atmosphere.cn2_m_23 = 0: no turbulence"
         return skipped
     if not atm.beam_broadening:
@@ -131,6 +186,10 @@ def turbulence_switches(config: SimulationConfig) -> dict:
         skipped["beam_wander"] = "atmosphere.beam_wander = false"
     elif laser.beam_profile != "gaussian":
         skipped["beam_wander"] = "laser.beam_profile = uniform: wander applies to a Gaussian beam"
+    if not atm.scintillation:
+        skipped["return_scintillation"] = "atmosphere.scintillation = false"
+    elif not atm.return_scintillation:
+        skipped["return_scintillation"] = "atmosphere.return_scintillation = false"
     if atm.turbulence_blur == "none":
         skipped["turbulence_blur"] = "atmosphere.turbulence_blur = none"
     return skipped
@@ -186,6 +245,15 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
                                                      rng, wave="spherical", model=atm.scintillation_model,
                                                      max_grid_px=2048)
             meta["scintillation_pattern"] = {k: v for k, v in out.pattern.params.items() if k != "derived"}
+        if "return_scintillation" not in out.skipped:  # B': the return path through the receiver aperture
+            px_m = (2 * det.half_width_tan * r_ref / det.width_px, 2 * det.half_height_tan * r_ref / det.height_px)
+            info = return_scintillation_variance(derived, px_m)
+            out.return_factor, info["model"] = draw_return_factor(
+                (det.height_px, det.width_px), px_m, info,
+                stage_rng(config.run.seed, frame, "return_scintillation", pulse))
+            out.subsamples = det.subsamples
+            meta["return_scintillation"] = info
+            out.ran.append("return_scintillation")
     if "turbulence_blur" in active:
         pitch_rad = min(det.pixel_pitch_tan)
         nyquist = 0.5 / pitch_rad

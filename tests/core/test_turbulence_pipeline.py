@@ -36,7 +36,7 @@ def test_cn2_zero_is_bit_identical_and_skips_every_turbulence_stage():
     assert np.array_equal(res.waveforms, ref.waveforms)
     assert np.array_equal(res.energy_image, ref.energy_image)
     assert np.array_equal(res.range_image, ref.range_image, equal_nan=True)
-    for stage in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"):
+    for stage in ("beam_broadening", "scintillation", "return_scintillation", "beam_wander", "turbulence_blur"):
         assert stage in res.stats["stages_skipped"]
         assert stage not in res.stats["stages_run"]
     assert "atmosphere" not in res.stats
@@ -115,7 +115,8 @@ def test_scintillation_multiplies_the_illumination():
     """B: with one sub-ray per pixel the energy ratio (turbulent / calm) is the pattern itself: unit mean
     (within 5 % over ~4000 px and many cells), SI within 15 % of the all-regime value at R_ref, and a new
     pattern per frame."""
-    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False, turbulence_blur="none")
+    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False, turbulence_blur="none",
+                           return_scintillation=False)  # the outgoing pattern alone (return path: its own test)
     cfg.receiver.subsamples = 1
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 2e-4  # 0.2 m footprint, cells of ~1 cm
     cfg.laser.beam_profile = "uniform"
@@ -163,7 +164,7 @@ def test_footprint_averaged_scintillation_and_negligible_blur():
     variance SI·g(p_x/ρ)·g(p_y/ρ) (within 10 % over 4096 sub-rays); E is skipped, and said so, when the PSF
     is far below a pixel (MTF at Nyquist > 0.999)."""
     from core.propagation import box_average_variance_factor
-    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False)
+    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False, return_scintillation=False)
     cfg.receiver.subsamples = 1
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.2  # 200 m footprint: 3 m per sub-ray ≫ 1 cm cells
     cfg.laser.beam_profile = "uniform"
