@@ -28,6 +28,7 @@ from .propagation import (blur_cube_and_image, effective_extinction_per_m, prepa
 from .radiometry import received_energy
 from .rays import Detector, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
+from .culling import frustum_triangles
 from .sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from .scene import SceneGeometry
 from .trace import SceneTracer
@@ -80,22 +81,42 @@ def plan(config: SimulationConfig) -> dict:
 
 
 def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0,
-                   tracer: SceneTracer | None = None, progress=None, cancel=None) -> FrameResult:
-    """Simulate one flash-ladar frame.  Raises ConfigError on bad input, Cancelled if ``cancel()`` is true."""
+                   tracer: SceneTracer | None = None, progress=None, cancel=None,
+                   fov_culling: bool = True) -> FrameResult:
+    """Simulate one flash-ladar frame.  Raises ConfigError on bad input, Cancelled if ``cancel()`` is true.
+
+    ``tracer``: a SceneTracer built on this scene's geometry (static scenes: one BVH for all frames); otherwise
+    one is built, on the triangles inside the field of view only when ``fov_culling`` (core/culling.py)."""
     t_wall = time.perf_counter()
     validate(config)
     scene = scene.with_overrides(config.materials)
     scene.check()
     origin, rot = split_pose(world_from_sensor)
     times = dict.fromkeys(STAGES, 0.0)
-
-    t0 = time.perf_counter()
-    if tracer is None or not tracer.serves(scene):
-        tracer = SceneTracer(scene)
-    times["build_bvh"] = time.perf_counter() - t0
-
     det = Detector.from_settings(config.receiver)
     run_plan = plan(config)
+
+    t0 = time.perf_counter()
+    culling = {}
+    if tracer is None or not tracer.serves(scene):
+        keep = None
+        if fov_culling:  # objects outside the field of view are not traced
+            keep = frustum_triangles(scene.vertices_m, scene.triangles, origin, rot, det.half_width_tan,
+                                     det.half_height_tan)
+            culling = {"triangles_traced": int(keep.sum()), "triangles_total": scene.n_triangles,
+                       "time_s": time.perf_counter() - t0}
+            run_plan["stages_run"].append("fov_culling")
+        else:
+            run_plan["stages_skipped"]["fov_culling"] = "fov_culling = False: the whole scene is traced"
+        tracer = SceneTracer(scene, keep=keep)
+        culling["bvh"] = "built on the triangles in the field of view" if keep is not None else "built"
+    else:
+        culling["bvh"] = "reused"
+        run_plan["stages_skipped"]["fov_culling"] = ("static geometry: the given BVH of the whole scene is reused "
+                                                     "(no rebuild, no culling)")
+        run_plan["stages_skipped"]["build_bvh"] = "static geometry: the given BVH is reused"
+        run_plan["stages_run"] = [s for s in run_plan["stages_run"] if s != "build_bvh"]
+    times["build_bvh"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     needs_reference = any(s not in run_plan["stages_skipped"]
                           for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
@@ -255,6 +276,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
              "stage_times_s": times, "wall_time_s": time.perf_counter() - t_wall,
              "received_energy_j": float(energy_image.sum())}
     stats.update(run_plan)
+    stats["bvh"] = culling  # built, culled or reused (static geometry)
     stats["subray_pattern"] = config.receiver.subray_pattern
     if refined:
         stats["adaptive"] = {"refined_pixels": int(sum(r[0] for r in refined)),
