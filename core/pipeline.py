@@ -29,6 +29,7 @@ from .radiometry import received_energy
 from .rays import Detector, tan_to_unit_direction
 from .runio import check_run_dir, software_versions, write_run
 from .culling import frustum_triangles
+from .memory import check_flash_memory
 from .sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from .scene import SceneGeometry
 from .trace import SceneTracer
@@ -89,6 +90,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     one is built, on the triangles inside the field of view only when ``fov_culling`` (core/culling.py)."""
     t_wall = time.perf_counter()
     validate(config)
+    memory = check_flash_memory(config)  # refuse, naming the setting to change, what would not fit
     scene = scene.with_overrides(config.materials)
     scene.check()
     origin, rot = split_pose(world_from_sensor)
@@ -277,6 +279,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
              "received_energy_j": float(energy_image.sum())}
     stats.update(run_plan)
     stats["bvh"] = culling  # built, culled or reused (static geometry)
+    stats["memory_estimate_bytes"] = memory["total"]
     stats["subray_pattern"] = config.receiver.subray_pattern
     if refined:
         stats["adaptive"] = {"refined_pixels": int(sum(r[0] for r in refined)),
