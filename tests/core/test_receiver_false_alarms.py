@@ -76,6 +76,7 @@ def test_false_alarm_mask_and_eligible_bins():
     assert el[0, 89] and not el[0, 90] and not el[0, 114] and el[0, 115]
     assert el[1].all() and el[2].all()
     assert np.count_nonzero(~el[0]) == 25
+    assert np.array_equal(fa, el[pix, np.floor(pos).astype(int)])  # the two routes agree
 
 
 R = 500.0
