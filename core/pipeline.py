@@ -75,8 +75,8 @@ def plan(config: SimulationConfig) -> dict:
     if not keeps_cube:
         skipped["waveform_cube"] = ("run.save_waveforms = false: waveforms are built per block for echo "
                                     "detection and discarded")
-    optional = ("extinction", "beam_broadening", "scintillation", "beam_wander", "turbulence_blur",
-                "receiver_chain", "waveform_cube")
+    optional = ("extinction", "beam_broadening", "scintillation", "return_scintillation", "beam_wander",
+                "turbulence_blur", "receiver_chain", "waveform_cube")
     ran = list(STAGES) + [s for s in optional if s not in skipped]
     return {"stages_run": ran, "stages_skipped": skipped}
 
@@ -263,6 +263,9 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     points = _points(det, origin, rot, pixel, range_m, amp, echo_index, n_echoes, time_s, frame)
     if snr is not None:
         points["snr"] = snr.astype(np.float32)
+    flags = [getattr(e, "false_alarm", None) for e in echo_parts]
+    if noisy and all(f is not None for f in flags):
+        points["false_alarm"] = np.concatenate(flags).astype(np.uint8)  # 1: no true return near this echo
     h, w, e_max = det.height_px, det.width_px, config.detection.max_echoes
     range_echoes = np.full((h * w, e_max), np.nan, np.float32)
     intensity_echoes = np.zeros((h * w, e_max), np.float32)

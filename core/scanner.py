@@ -35,8 +35,8 @@ from .config import ConfigError, SimulationConfig, validate
 from .echoes import Echoes, detect_echoes
 from .laser import pulse_cdf, pulse_half_support_s
 from .motion import Trajectory
-from .propagation import (box_average_variance_factor, effective_extinction_per_m, stage_rng, stage_seed,
-                          turbulence_switches)
+from .propagation import (box_average_variance_factor, effective_extinction_per_m, return_scintillation_variance,
+                          stage_rng, stage_seed, turbulence_switches)
 from .radiometry import received_energy
 from .receiver import ChainSettings, apply_receiver_chain
 from .trace import SceneTracer
@@ -203,6 +203,7 @@ class ScanAtmosphere:
     wander_r2_rad2: float = 0.0      # ⟨r_c²⟩/R_ref²: mean square angular wander of the beam centre
     scint_model: str | None = None
     scint_params: dict = dataclasses.field(default_factory=dict)
+    return_variance: float = 0.0      # B': return path through the receiver aperture (aperture averaged)
     metadata: dict = dataclasses.field(default_factory=dict)
     skipped: dict = dataclasses.field(default_factory=dict)
 
@@ -225,6 +226,9 @@ class ScanAtmosphere:
             else:  # footprint-averaged: gamma of unit mean and the averaged variance
                 var = p["averaged_scintillation_index"]
                 scint = rng.gamma(1.0 / var, var, n)
+        if self.return_variance > 0:
+            rng = stage_rng(config.run.seed, frame, "return_scintillation", tile)
+            scint = scint * rng.gamma(1.0 / self.return_variance, self.return_variance, n)
         return wander, scint
 
 
@@ -240,7 +244,8 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
         out.skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
     out.skipped.update(turbulence_switches(config))
     out.skipped.setdefault("turbulence_blur", "scanner: single-element receiver, no image to blur")
-    active = [s for s in ("beam_broadening", "scintillation", "beam_wander") if s not in out.skipped]
+    active = [s for s in ("beam_broadening", "scintillation", "return_scintillation", "beam_wander")
+              if s not in out.skipped]
     if not active:
         return out
     r_ref = float(reference_range_m)
@@ -280,6 +285,12 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
             out.scint_model = model
         meta["scintillation"] = {"model": out.scint_model, "footprint_m": footprint_m, "cell_radius_m": rho,
                                  **out.scint_params}
+    if "return_scintillation" in active:
+        # the receiver (aperture D) looks at the illuminated footprint: the pixel footprint of physics.md §3
+        footprint_m = 2.0 * np.tan(0.5 * laser.beam_divergence_rad) * out.width_scale * r_ref
+        info = return_scintillation_variance(derived, (footprint_m, footprint_m))
+        out.return_variance = info["variance"]
+        meta["return_scintillation"] = info
     out.metadata["turbulence"] = meta
     return out
 
@@ -387,7 +398,10 @@ def _merge_echoes(parts) -> Echoes:
            for f in ("pixel", "position_bins", "amplitude", "echo_index", "n_echoes")}
     if all(p.snr is not None for p in parts):
         cat["snr"] = np.concatenate([p.snr for p in parts])[order]
-    return Echoes(**cat)
+    merged = Echoes(**cat)
+    if all(getattr(p, "false_alarm", None) is not None for p in parts):
+        merged.false_alarm = np.concatenate([p.false_alarm for p in parts])[order]
+    return merged
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -497,7 +511,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                     tb = min(ta + tile, n)
                     chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], chain_settings,
                                                  stage_seed(config.run.seed, frame, "receiver", (a + ta) // tile))
-                    ech = _noisy_echoes(chain.data, config)
+                    ech = _noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
+                                        noise_sigma=chain.report.get("noise_sigma"))
                     ech.pixel = ech.pixel + ta
                     parts.append(ech)
                     dig.append(chain.report)
@@ -535,6 +550,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
               "frame": np.full(len(p), frame, np.int32)}
     if echoes.snr is not None:
         points["snr"] = echoes.snr.astype(np.float32)
+    if getattr(echoes, "false_alarm", None) is not None:
+        points["false_alarm"] = echoes.false_alarm.astype(np.uint8)
     n_echo_per_pulse = np.zeros(n_pulses, np.int16)
     first = echoes.echo_index == 0
     n_echo_per_pulse[p[first]] = echoes.n_echoes[first]
@@ -544,8 +561,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
               "received_energy_j": pulse_energy}
     times["products"] = time.perf_counter() - t0
     ran = ["rays", "trace", "radiometry", "waveform", "echoes", "products"] + \
-        [s for s in ("extinction", "beam_broadening", "scintillation", "beam_wander", "receiver_chain",
-                     "waveform_cube", "motion") if s not in skipped]
+        [s for s in ("extinction", "beam_broadening", "scintillation", "return_scintillation", "beam_wander",
+                     "receiver_chain", "waveform_cube", "motion") if s not in skipped]
     if built:
         ran.insert(0, "build_bvh")
     else:
@@ -562,7 +579,12 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
     if noisy:
-        stats["receiver"] = results[0][3]
+        stats["receiver"] = dict(results[0][3])
+        if "false_alarm" in points:
+            n_fa = int(points["false_alarm"].sum())
+            stats["receiver"]["false_alarms"] = {
+                "n_false_alarms": n_fa, "per_pulse": n_fa / n_pulses,
+                "rule": "an echo with no noise-free signal within 2 pulse widths (core.echoes_noisy)"}
     return FrameResult(range_image=None, intensity_image=None, energy_image=None, range_echoes=None,
                        intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses)
 

@@ -173,9 +173,13 @@ def apply_color(obj, color_by: str) -> tuple[float, float]:
     values = _read_attribute(mesh, attr_name).astype(np.float64)
     lo, hi = color_scale(values, scale)
     norm = color_values(values, lo, hi)
-    value_attr = mesh.attributes.get(COLOR_ATTRIBUTE) or mesh.attributes.new(COLOR_ATTRIBUTE, "FLOAT", "POINT")
-    rgb_attr = mesh.color_attributes.get(COLOR_RGB_ATTRIBUTE) or \
+    if mesh.attributes.get(COLOR_ATTRIBUTE) is None:
+        mesh.attributes.new(COLOR_ATTRIBUTE, "FLOAT", "POINT")
+    if mesh.color_attributes.get(COLOR_RGB_ATTRIBUTE) is None:
         mesh.color_attributes.new(COLOR_RGB_ATTRIBUTE, "FLOAT_COLOR", "POINT")
+    # look both up again: adding an attribute may reallocate the layers and invalidate earlier references
+    value_attr = mesh.attributes[COLOR_ATTRIBUTE]
+    rgb_attr = mesh.color_attributes[COLOR_RGB_ATTRIBUTE]
     if len(norm):
         value_attr.data.foreach_set("value", norm)
         rgb_attr.data.foreach_set("color", ramp_colors(norm).ravel())

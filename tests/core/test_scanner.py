@@ -246,11 +246,21 @@ def test_scan_scintillation_statistics(divergence_rad, model):
         assert scint["model"] == model and scint["footprint_m"] > scint["cell_radius_m"]
         target = scint["averaged_scintillation_index"]
         assert target < 0.5 * meta["derived"]["scintillation_index"]
+    # the return path through the aperture multiplies an independent unit-mean factor (aperture averaged)
+    ret = meta["return_scintillation"]["variance"]
+    assert 0 < ret < meta["derived"]["scintillation_index"]
+    total = (1 + target) * (1 + ret) - 1
     calm = dataclasses.replace(cfg, atmosphere=dataclasses.replace(cfg.atmosphere, cn2_m_23=0.0))
     ref = simulate(scene, np.eye(4), calm)
     ratio = a.pulses["received_energy_j"] / ref.pulses["received_energy_j"]
     assert ratio.mean() == pytest.approx(1.0, abs=0.03)
+    assert ratio.var() == pytest.approx(total, rel=0.08)
+    # the outgoing path alone
+    one_way = simulate(scene, np.eye(4), dataclasses.replace(
+        cfg, atmosphere=dataclasses.replace(cfg.atmosphere, return_scintillation=False)))
+    ratio = one_way.pulses["received_energy_j"] / ref.pulses["received_energy_j"]
     assert ratio.var() == pytest.approx(target, rel=0.08)
+    assert "return_scintillation" in one_way.stats["stages_skipped"]
 
 
 def test_scan_turbulence_is_deterministic_per_seed():
@@ -278,6 +288,9 @@ def test_noisy_scanner_detects_with_snr():
     assert near.sum() >= n_scan_pulses(cfg)
     assert np.all(np.isfinite(res.points["snr"])) and res.points["snr"][near].min() > 5
     assert "receiver_chain" in res.stats["stages_run"]
+    # detections away from the wall's return are the counted false alarms
+    np.testing.assert_array_equal(res.points["false_alarm"].astype(bool), ~near)
+    assert res.stats["receiver"]["false_alarms"]["n_false_alarms"] == int((~near).sum())
 
 
 def test_scanner_settings_are_validated():
