@@ -95,8 +95,11 @@ def _merge_shallow(w, pix, j, min_dip):
     return pix[keep], j[keep]
 
 
-def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
-    """Find up to ``settings.max_echoes`` echoes per waveform row (n_pixels, n_bins)."""
+def detect_echoes(waveforms, settings: DetectionSettings, *, bin_offset=None) -> Echoes:
+    """Find up to ``settings.max_echoes`` echoes per waveform row (n_pixels, n_bins).
+
+    ``bin_offset`` (n_pixels,) int, optional: the gate bin of each row's first column (rows that are windows
+    of longer waveforms, zero outside); positions are then in gate bins."""
     w = np.asarray(waveforms)
     n_pix, n_bins = w.shape
     peak_max = w.max(axis=1)
@@ -131,7 +134,8 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
     ym = np.where(j > 0, w[pix, np.maximum(j - 1, 0)], 0.0).astype(np.float64)
     yp = np.where(j < n_bins - 1, w[pix, np.minimum(j + 1, n_bins - 1)], 0.0).astype(np.float64)
     delta, peak = interpolate_peak(ym, y0, yp, settings.interpolation)
-    position = j + 0.5 + delta
+    jg = j if bin_offset is None else j + np.asarray(bin_offset, dtype=np.int64)[pix]  # gate bins
+    position = jg + 0.5 + delta
     # flat tops (a rectangular pulse spanning several bins): the centre of the pulse is the plateau's centre
     # corrected by the partial edge bins, exact for a rectangular pulse: (j − y₋/y₀ + end + 1 + y₊/y₀)/2
     flat = (j < n_bins - 1) & (np.abs(yp - y0) <= _FLAT_RTOL * y0)
@@ -143,7 +147,7 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
             grow &= (end < n_bins - 1) & (np.abs(w[pix, np.minimum(end + 1, n_bins - 1)] - y0) <= _FLAT_RTOL * y0)
         y_right = np.where(end < n_bins - 1, w[pix, np.minimum(end + 1, n_bins - 1)], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            centre = 0.5 * (j - ym / y0 + end + 1 + y_right / y0)
+            centre = 0.5 * (jg - ym / y0 + (end + (jg - j)) + 1 + y_right / y0)
         position = np.where(flat, centre, position)
         peak = np.where(flat, y0, peak)
     start = np.searchsorted(pix, pix, side="left")
@@ -151,3 +155,36 @@ def detect_echoes(waveforms, settings: DetectionSettings) -> Echoes:
     return Echoes(pixel=pix.astype(np.int64), position_bins=position, amplitude=peak,
                   echo_index=(np.arange(len(pix)) - start).astype(np.int16),
                   n_echoes=(stop - start).astype(np.int16))
+
+
+def detect_echoes_windows(windows, settings: DetectionSettings) -> Echoes:
+    """:func:`detect_echoes` on waveforms stored as windows (core.waveform.WaveformWindows): the same echoes.
+
+    Every bin outside a pixel's window is exactly zero, which is what the detector assumes beyond the gate,
+    so each window is detected on its own (pixels grouped by window length, zero padding to the right) and the
+    positions are shifted back by the window's first bin."""
+    from .waveform import _bucket_size
+
+    parts = []
+    has = windows.length > 0
+    size = _bucket_size(np.maximum(windows.length, 1))
+    for lb in np.unique(size[has]):
+        rows = np.flatnonzero(has & (size == lb))
+        lengths = windows.length[rows]
+        dense = np.zeros((len(rows), int(lb)))
+        rr = np.repeat(np.arange(len(rows)), lengths)
+        col = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        src = windows.offset[rows][rr] + col
+        dense[rr, col] = windows.values[src]
+        found = detect_echoes(dense, settings, bin_offset=windows.start[rows])
+        found.pixel = rows[found.pixel]
+        parts.append(found)
+    if not parts:
+        empty = np.zeros(0)
+        return Echoes(np.zeros(0, np.int64), empty, empty, np.zeros(0, np.int16), np.zeros(0, np.int16))
+    pixel = np.concatenate([p.pixel for p in parts])
+    order = np.argsort(pixel, kind="stable")
+    return Echoes(pixel=pixel[order], position_bins=np.concatenate([p.position_bins for p in parts])[order],
+                  amplitude=np.concatenate([p.amplitude for p in parts])[order],
+                  echo_index=np.concatenate([p.echo_index for p in parts])[order],
+                  n_echoes=np.concatenate([p.n_echoes for p in parts])[order])

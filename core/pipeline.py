@@ -18,7 +18,7 @@ import numpy as np
 
 from . import __version__
 from .config import ConfigError, SimulationConfig, config_to_dict, validate
-from .echoes import Echoes, detect_echoes
+from .echoes import Echoes, detect_echoes, detect_echoes_windows
 from .echoes_noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from .receiver import ChainSettings, apply_receiver_chain
 from .laser import cell_energy_fractions
@@ -33,7 +33,7 @@ from .memory import check_flash_memory
 from .sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from .scene import SceneGeometry
 from .trace import SceneTracer
-from .waveform import SPEED_OF_LIGHT_M_S, accumulate_waveforms, binning_method, round_trip_time_s
+from .waveform import SPEED_OF_LIGHT_M_S, accumulate_waveform_windows, binning_method, round_trip_time_s
 
 #: Waveform memory of one block (float64 while accumulating): bounds the memory of a run.
 BLOCK_WAVEFORM_BYTES = 64 * 2**20
@@ -190,15 +190,16 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         t = time.perf_counter()
         # only pixels with returns get a waveform row (the others stay zero)
         active = np.unique(pix_local)
-        wf = accumulate_waveforms(np.searchsorted(active, pix_local), round_trip_time_s(range_hit), e,
-                                  len(active), config.laser, gate, method, spread_s=spread)
+        # one window of bins per pixel: a short return in a long gate costs its window only
+        wf = accumulate_waveform_windows(np.searchsorted(active, pix_local), round_trip_time_s(range_hit), e,
+                                         len(active), config.laser, gate, method, spread_s=spread)
         if waveforms is not None:
-            waveforms[a + active] = wf
+            wf.scatter_into(waveforms, a + active)
         local["waveform"] = time.perf_counter() - t
         if whole_cube:  # echoes are detected after the whole-cube stages
             return None, int(hit.sum()), local
         t = time.perf_counter()
-        echoes = detect_echoes(wf, config.detection)
+        echoes = detect_echoes_windows(wf, config.detection)
         echoes.pixel = active[echoes.pixel] + a
         local["echoes"] = time.perf_counter() - t
         return echoes, int(hit.sum()), local
