@@ -3,7 +3,8 @@
 Image-plane ("tan-plane") coordinates: a direction (x, y, −1) in the sensor frame, where the sensor frame is
 Blender's camera frame (looks along −Z, +Y up, +X right).  Pixel column ``ix`` runs left to right and row
 ``iy`` top to bottom; the detector spans x ∈ [−tan(fov_x/2), tan(fov_x/2)], y ∈ [−tan(fov_y/2), tan(fov_y/2)].
-Each sub-ray samples the centre of one cell of a regular S×S grid inside its pixel (the paper's quadratic grid).
+:func:`block_subray_tan` samples the centre of each cell of a regular S×S grid inside every pixel (the paper's
+quadratic grid); the flash pipeline's other patterns (jittered, Sobol, adaptive) are in core/sampling.py.
 """
 from __future__ import annotations
 

@@ -1,7 +1,11 @@
-"""Sub-resolution sampling of the receiver pixels: where each sub-ray goes, what it stands for.
+"""Sub-resolution sampling of the receiver pixels: where each sub-ray goes and what it stands for.
 
-A sub-ray samples a cell of its pixel in the tan plane (core/rays.py).  Besides its direction and its share of
-the beam energy, the cell has an extent: the surface it hits spans a range interval across the cell.  This
+Patterns (``receiver.subray_pattern``, :class:`SubraySampler`): the paper's regular S×S grid, jittered
+(stratified), Sobol nets and adaptive refinement of the pixels whose rays disagree; each ray carries a share of
+the beam energy such that a pixel's rays carry exactly the erf integral of the beam over the pixel.
+
+A sub-ray stands for a cell of its pixel in the tan plane (core/rays.py).  Besides its direction and its share
+of the beam energy the cell has an extent: the surface it hits spans a range interval across the cell.  This
 module computes that interval to first order (the time spread that core/waveform.py convolves with the pulse).
 
 Range over a plane, tan-plane direction p = (x, y, −1), unit normal n (sensor frame), R₀ at p₀:
