@@ -257,7 +257,6 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
     w = float(beam["w_m"])
     r_c2 = float(beam_wander_variance(atm.cn2_m_23, r_ref, laser.beam_waist_radius_m, focus))
     meta = {"reference_range_m": r_ref, "derived": derived, "beam_wander_variance_m2": r_c2}
-    radius = w
     if "beam_broadening" in active:
         w_lt = float(long_term_beam_radius(w, derived["rytov_variance_plane"], beam["lam"]))
         radius = float(short_term_beam_radius(w_lt, r_c2, w)) if "beam_wander" in active else w_lt
@@ -266,9 +265,9 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
     if "beam_wander" in active:
         out.wander_r2_rad2 = r_c2 / r_ref ** 2
         meta["beam_wander_rms_rad"] = float(np.sqrt(out.wander_r2_rad2))
+    # footprint of the (broadened) beam at R_ref: the 1/e² diameter of the divergence cone
+    footprint_m = 2.0 * np.tan(0.5 * laser.beam_divergence_rad) * out.width_scale * r_ref
     if "scintillation" in active:
-        # footprint of the (broadened) beam at R_ref: the 1/e² diameter of the divergence cone
-        footprint_m = 2.0 * np.tan(0.5 * laser.beam_divergence_rad) * out.width_scale * r_ref
         rho = derived["cell_radius_m"]
         si = derived["scintillation_index"]
         if footprint_m > rho:
@@ -287,7 +286,6 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
                                  **out.scint_params}
     if "return_scintillation" in active:
         # the receiver (aperture D) looks at the illuminated footprint: the pixel footprint of physics.md §3
-        footprint_m = 2.0 * np.tan(0.5 * laser.beam_divergence_rad) * out.width_scale * r_ref
         info = return_scintillation_variance(derived, (footprint_m, footprint_m))
         out.return_variance = info["variance"]
         meta["return_scintillation"] = info

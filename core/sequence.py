@@ -58,12 +58,10 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             if cancel is not None and cancel():
                 raise Cancelled()
             scene = scene_for_frame(frame).with_overrides(config.materials)
-            if tracer is None or not tracer.serves(scene):
+            if tracer is None or not tracer.serves(scene):  # static geometry keeps the previous frame's BVH
                 scene.check()
                 tracer = SceneTracer(scene)
                 bvh_builds += 1
-            else:
-                pass  # static geometry: the previous frame's BVH is reused
             frame_progress = None
             if progress is not None:
                 def frame_progress(fraction, text, _i=i, _f=frame):

@@ -139,9 +139,9 @@ class LADAR_PT_atmosphere(_ScenePanel, bpy.types.Panel):
         draw_preset_header(self.layout, LADAR_MT_atmosphere_presets, "ladar.atmosphere_preset_add")
 
 
-class LADAR_PT_view3d(bpy.types.Panel):
-    bl_label = "Ladar"
-    bl_idname = "LADAR_PT_view3d"
+class _View3DPanel:
+    """Placement shared by the 3D-viewport sidebar panels (tab "Ladar")."""
+
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "Ladar"
@@ -149,6 +149,11 @@ class LADAR_PT_view3d(bpy.types.Panel):
     @classmethod
     def poll(cls, context):
         return context.scene is not None
+
+
+class LADAR_PT_view3d(_View3DPanel, bpy.types.Panel):
+    bl_label = "Ladar"
+    bl_idname = "LADAR_PT_view3d"
 
     def draw(self, context):
         layout = self.layout
@@ -160,17 +165,10 @@ class LADAR_PT_view3d(bpy.types.Panel):
         simulate_button(layout)
 
 
-class LADAR_PT_view3d_results(bpy.types.Panel):
+class LADAR_PT_view3d_results(_View3DPanel, bpy.types.Panel):
     bl_label = "Results"
     bl_idname = "LADAR_PT_view3d_results"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Ladar"
     bl_parent_id = "LADAR_PT_view3d"
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None
 
     def draw(self, context):
         layout = self.layout
