@@ -142,7 +142,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                    progress=None, cancel=None):
     """Simulate one gated-viewing sweep (all slices of one frame).  Returns a pipeline.FrameResult with
     ``slices`` (n_slices, H, W), the range image from the slices, points and metadata."""
-    from .pipeline import Cancelled, FrameResult, _points, _reference_range, run_blocks
+    from .pipeline import Cancelled, FrameResult, _points, _reference_range, product_units, run_blocks
     from .motion import split_pose
 
     t_wall = time.perf_counter()
@@ -299,4 +299,5 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     return FrameResult(range_image=range_image, intensity_image=intensity, energy_image=energy_image,
                        range_echoes=range_echoes, intensity_echoes=intensity[:, :, None].copy(), points=points,
                        waveforms=None, digital_waveforms=None, stats=stats,
-                       slices=np.ascontiguousarray(stack), slice_delays_s=delays)
+                       slices=np.ascontiguousarray(stack), slice_delays_s=delays,
+                       units=product_units("gated", receiver_report and receiver_report["units"]))

@@ -15,7 +15,8 @@ GPS Time (double)           ``gps_time_s`` (scanner: the pulse's emission time);
                             gated and profiler frames) all get ``frame_time_s`` (default 0)
 Point Source ID (uint16)    ``frame`` (clipped to 0…65535), else 0
 Classification              0 (created, never classified); scan angle, user data, flags: 0
-extra bytes                 ``intensity_raw`` (float32, the simulator's intensity: J per bin or counts),
+extra bytes                 ``intensity_raw`` (float32, the simulator's intensity in the run's unit, named
+                            ``intensity_unit`` in the LadarSimulator VLR: J per bin, J, counts, electrons),
                             ``range_m`` (float64) and ``snr`` (float32) where the points have them
 ==========================  ===================================================================================
 
@@ -336,6 +337,8 @@ def write_run_las(run_dir, path, *, coordinates: str = "world", overwrite: bool 
     LadarSimulator VLR."""
     points, meta = run_points(run_dir)
     info = {k: meta[k] for k in ("system_type", "frame", "seed", "simulator_version") if k in meta}
+    if meta.get("units", {}).get("intensity"):
+        info["intensity_unit"] = meta["units"]["intensity"]
     info["run"] = Path(run_dir).name
     kwargs.setdefault("frame_time_s", float(meta.get("start_time_s", 0.0) or 0.0))
     return write_las(path, points, coordinates=coordinates, overwrite=overwrite, metadata=info, **kwargs)

@@ -59,6 +59,29 @@ class FrameResult:
     pulses: dict | None = None          # scanner: per-pulse record (time, pose, direction, echoes, energy)
     slices: np.ndarray | None = None    # gated viewing: (n_slices, H, W) float32 energy per slice (J)
     slice_delays_s: np.ndarray | None = None  # gated viewing: gate opening delay of each slice (s)
+    units: dict = field(default_factory=dict)  # product → unit (:func:`product_units`): files, previews, metadata
+
+
+def product_units(system_type: str, receiver_units: str | None = None) -> dict:
+    """The unit of every product of a run: the one source the run folder's file descriptions, ``metadata.json``
+    (``units``), the previews and the add-on's legends read.
+
+    ``receiver_units``: the noisy receiver chain's output unit (its report's ``units``: "counts", "electrons" or
+    "detections"); None or "J" for the ideal receiver.  Keys: ``range``, ``intensity`` (the intensity image, the
+    echoes' and points' ``intensity``), ``energy``, ``waveforms`` (noise-free), ``counts`` (the receiver output,
+    noisy only), ``slices`` (gated viewing)."""
+    noisy = receiver_units not in (None, "J")
+    units = {"range": "m", "energy": "J", "waveforms": "J per bin"}
+    if system_type == "gated":
+        # slice values: energy per slice (ideal), the receiver's output per slice (noisy; counts above the A/D
+        # offset for the range and intensity)
+        units["slices"] = receiver_units if noisy else "J"
+        units["intensity"] = units["slices"]
+    else:
+        units["intensity"] = receiver_units if noisy else "J per bin"
+    if noisy:
+        units["counts"] = receiver_units
+    return units
 
 
 def plan(config: SimulationConfig) -> dict:
@@ -302,7 +325,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                        energy_image=energy_image, range_echoes=range_echoes,
                        intensity_echoes=intensity_echoes, points=points,
                        waveforms=None if waveforms is None else waveforms.reshape(h, w, gate.n_bins),
-                       digital_waveforms=digital, stats=stats)
+                       digital_waveforms=digital, stats=stats,
+                       units=product_units(config.system_type, receiver_report and receiver_report["units"]))
 
 
 def run_blocks(process, blocks, threads: int, progress=None, label: str = "block"):

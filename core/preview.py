@@ -29,9 +29,10 @@ COLORMAP_STOPS = {
     "inferno": ((0.001, 0.000, 0.014), (0.341, 0.062, 0.429), (0.735, 0.216, 0.330), (0.978, 0.557, 0.035),
                 (0.988, 0.998, 0.645)),
 }
-#: What each image product shows: (title, unit, colour map, scale starts at zero).
-PRODUCTS = {"range": ("Range", "m", "viridis", False), "intensity": ("Intensity", "J per bin", "inferno", True),
-            "energy": ("Received energy", "J", "inferno", True), "slice": ("Gated slice", "J", "inferno", True)}
+#: What each image product shows: (title, colour map, scale starts at zero).  Units come from the run's
+#: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.pipeline.product_units).
+PRODUCTS = {"range": ("Range", "viridis", False), "intensity": ("Intensity", "inferno", True),
+            "energy": ("Received energy", "inferno", True), "slices": ("Gated slice", "inferno", True)}
 NO_DATA_RGB = (0.35, 0.35, 0.35)  # pixels without a value (NaN range): grey
 MIN_PREVIEW_PX = 256              # the NumPy renderer upscales small images to at least this size
 
@@ -243,6 +244,7 @@ def write_run_previews(run_dir, *, use_matplotlib: bool | None = None, cancel=No
 
     run_dir = Path(run_dir)
     written = []
+    units = run_units(run_dir)
 
     def stop():
         return cancel is not None and cancel()
@@ -252,14 +254,16 @@ def write_run_previews(run_dir, *, use_matplotlib: bool | None = None, cancel=No
         png = exr.with_suffix(".png")
         if not exr.is_file() or png.exists() or stop():
             continue
-        title, unit, cmap, zero_based = PRODUCTS[product]
-        written.append(false_colour_png(png, _first_channel(read_exr(exr)), title=title, unit=unit, cmap=cmap,
+        title, cmap, zero_based = PRODUCTS[product]
+        written.append(false_colour_png(png, _first_channel(read_exr(exr)), title=title, unit=units.get(product, ""),
+                                        cmap=cmap,
                                         zero_based=zero_based, use_matplotlib=use_matplotlib))
     slices = sorted((run_dir / "slices").glob("slice_*.exr")) if (run_dir / "slices").is_dir() else []
     if slices:
         stack = _slice_stack(run_dir, slices)
         vmax = float(np.nanmax(stack)) if np.isfinite(stack).any() else 1.0
-        title, unit, cmap, _ = PRODUCTS["slice"]
+        title, cmap, _ = PRODUCTS["slices"]
+        unit = units.get("slices", "")
         for k, exr in enumerate(slices):
             png = exr.with_suffix(".png")
             if png.exists() or stop():
@@ -275,6 +279,7 @@ def write_run_previews(run_dir, *, use_matplotlib: bool | None = None, cancel=No
             gate = _gate_settings(run_dir)
             rng = bin_centres_range_m(gate["gate_start_s"], gate["bin_width_s"], cube.shape[2])
             written.append(waveform_png(png, rng, np.asarray(cube[0, 0]), title="Range profile",
+                                        ylabel=f"energy ({units.get('waveforms', 'J per bin')})",
                                         use_matplotlib=use_matplotlib))
     return written
 
@@ -296,3 +301,12 @@ def _slice_stack(run_dir, slice_files) -> np.ndarray:
 def _gate_settings(run_dir) -> dict:
     meta = json.loads((Path(run_dir) / "metadata.json").read_text(encoding="utf-8"))
     return meta["settings"]["gate"]
+
+
+def run_units(run_dir) -> dict:
+    """The units of a run folder's products (``metadata.json`` → ``units``); empty for a folder without them
+    (a run written before units were recorded: its previews carry no unit rather than a wrong one)."""
+    path = Path(run_dir) / "metadata.json"
+    if not path.is_file():
+        return {}
+    return dict(json.loads(path.read_text(encoding="utf-8")).get("units", {}))

@@ -112,6 +112,7 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     t0 = time.perf_counter()
+    units = result.units
     try:
         files = {}
         if result.range_image is not None:
@@ -119,10 +120,11 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
             write_exr(tmp / "intensity.exr", {"Y": result.intensity_image})
             write_exr(tmp / "energy.exr", {"Y": result.energy_image})
             gated = getattr(result, "slices", None) is not None
-            files.update({"range.exr": ("range from the slice stack (m)" if gated else "first-echo range (m)")
-                          + ", NaN where none; row 0 = top",
-                          "intensity.exr": ("strongest slice (J)" if gated else "first-echo peak amplitude (J per bin)"),
-                          "energy.exr": "energy received per pixel before time binning (J)"})
+            files.update({"range.exr": ("range from the slice stack" if gated else "first-echo range")
+                          + f" ({units['range']}), NaN where none; row 0 = top",
+                          "intensity.exr": ("strongest slice" if gated else "first-echo peak amplitude")
+                          + f" ({units['intensity']})",
+                          "energy.exr": f"energy received per pixel before time binning ({units['energy']})"})
         write_ply(tmp / "points.ply", result.points)
         np.savez(tmp / "points.npz", **result.points)
         files["points.ply"] = "point cloud, world coordinates + per-point attributes"
@@ -130,18 +132,19 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
         if len(result.points.get("range_m", ())):
             from .las import write_las
             write_las(tmp / "points.las", result.points, metadata={"system_type": metadata.get("system_type"),
-                                                                    "frame": metadata.get("frame")})
+                                                                    "frame": metadata.get("frame"),
+                                                                    "intensity_unit": units["intensity"]})
             files["points.las"] = "the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time)"
         if result.range_echoes is not None:
             np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
             files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
         if getattr(result, "digital_waveforms", None) is not None:
             np.save(tmp / "counts.npy", result.digital_waveforms)
-            files["counts.npy"] = "receiver output per pixel and bin (A/D counts, or electrons without the A/D)"
+            files["counts.npy"] = f"receiver output per pixel and bin ({units['counts']})"
         if result.waveforms is not None:
             np.save(tmp / "waveforms.npy", result.waveforms)
-            files["waveforms.npy"] = ("waveforms (n_pulses, n_bins) float32, J per bin" if result.waveforms.ndim == 2
-                                      else "waveform cube (H, W, n_bins) float32, J per bin")
+            files["waveforms.npy"] = ("waveforms (n_pulses, n_bins)" if result.waveforms.ndim == 2
+                                      else "waveform cube (H, W, n_bins)") + f" float32, {units['waveforms']}"
         if getattr(result, "pulses", None) is not None:
             np.savez(tmp / "pulses.npz", **result.pulses)
             files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
@@ -150,12 +153,13 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
             for k, img in enumerate(result.slices):
                 write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img})
             np.save(tmp / "slices.npy", result.slices)
-            files["slices/slice_NNNN.exr"] = "gated slices as an image sequence (J per pixel), 1-based"
-            files["slices.npy"] = "gated slices (n_slices, H, W) float32, J per pixel"
+            files["slices/slice_NNNN.exr"] = f"gated slices as an image sequence ({units['slices']} per pixel), 1-based"
+            files["slices.npy"] = f"gated slices (n_slices, H, W) float32, {units['slices']} per pixel"
         if metadata.get("system_type") == "profiler" and result.waveforms is not None:
             _write_profile_csv(tmp / "profile.csv", result.waveforms.reshape(-1), metadata)
             files["profile.csv"] = "the range profile: time_s, range_m, energy_j per bin"
         meta = dict(metadata)
+        meta["units"] = dict(units)
         meta["files"] = files
         meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
         with open(tmp / "metadata.json", "w", encoding="utf-8") as f:

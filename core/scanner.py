@@ -409,7 +409,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                   trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None, cancel=None):
     """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a pipeline.FrameResult whose images
     are None and whose ``points`` and ``pulses`` carry the products (see module docstring)."""
-    from .pipeline import Cancelled, FrameResult, _noisy_echoes, run_blocks
+    from .pipeline import Cancelled, FrameResult, _noisy_echoes, product_units, run_blocks
 
     t_wall = time.perf_counter()
     validate(config)
@@ -584,7 +584,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                 "n_false_alarms": n_fa, "per_pulse": n_fa / n_pulses,
                 "rule": "an echo with no noise-free signal within 2 pulse widths (core.echoes_noisy)"}
     return FrameResult(range_image=None, intensity_image=None, energy_image=None, range_echoes=None,
-                       intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses)
+                       intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses,
+                       units=product_units("scanner", stats["receiver"]["units"] if noisy else None))
 
 
 def _reference_range(tracer, trajectory, config, n_pulses) -> float:

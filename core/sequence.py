@@ -52,7 +52,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     t_wall = time.perf_counter()
-    tracer, bvh_builds, all_stats, point_sets = None, 0, [], []
+    tracer, bvh_builds, all_stats, point_sets, units = None, 0, [], [], {}
     try:
         for i, frame in enumerate(frames):
             if cancel is not None and cancel():
@@ -74,6 +74,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             write_run(tmp / f"frame_{frame:04d}", result, meta)
             all_stats.append(result.stats)
             point_sets.append(result.points)
+            units = result.units  # the same settings every frame: the same units
             del result
         merged = merge_points(point_sets)
         files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
@@ -88,7 +89,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                 "bvh_builds": bvh_builds,
                 "n_points": int(sum(len(p.get("range_m", ())) for p in point_sets)),
                 "frame_wall_time_s": [s["wall_time_s"] for s in all_stats],
-                "wall_time_s": time.perf_counter() - t_wall, "files": files}
+                "wall_time_s": time.perf_counter() - t_wall, "units": dict(units), "files": files}
         if bvh_builds < len(frames):
             meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
                                                    f"({bvh_builds} built)"}

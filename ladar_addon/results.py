@@ -47,9 +47,10 @@ RAMP = ((0.0, (0.267, 0.005, 0.329)), (0.25, (0.229, 0.322, 0.546)), (0.5, (0.12
 
 #: What the points can be coloured by: key → (point attribute, label, unit, scale).  Scales: "p99" = 0 … the
 #: 99th percentile (a few glints do not darken the rest), "minmax" = the data's minimum … maximum, "count" =
-#: whole numbers from 1 (or 0) … the maximum.
+#: whole numbers from 1 (or 0) … the maximum.  Unit None: the run's own (``metadata.json`` → ``units``, kept on
+#: the object as ``ladar_unit_<attribute>`` by :func:`create_point_cloud`).
 COLOR_BY = {
-    "INTENSITY": ("intensity", "Intensity", "J per bin", "p99"),
+    "INTENSITY": ("intensity", "Intensity", None, "p99"),
     "RANGE": ("range_m", "Range", "m", "minmax"),
     "ECHO": ("echo_index", "Echo Number", "", "count"),
     "SNR": ("snr", "Detection SNR", "", "p99"),
@@ -165,6 +166,8 @@ def apply_color(obj, color_by: str) -> tuple[float, float]:
     if color_by not in COLOR_BY:
         raise LadarError(f"unknown colour attribute {color_by!r}: one of {', '.join(COLOR_BY)}")
     attr_name, label, unit, scale = COLOR_BY[color_by]
+    if unit is None:
+        unit = obj.get(f"ladar_unit_{attr_name}", "")
     mesh = obj.data
     if mesh.attributes.get(attr_name) is None:
         have = ", ".join(COLOR_BY[k][1] for k in available_color_by(obj))
@@ -375,11 +378,13 @@ def _attribute_type(arr: np.ndarray):
 
 
 def create_point_cloud(name: str, points, scene, *, unit_scale: float = 1.0, replace: bool = False,
-                       point_radius: float = 0.05, run_path=None, color_by: str = "INTENSITY", collection=None):
+                       point_radius: float = 0.05, run_path=None, color_by: str = "INTENSITY", collection=None,
+                       units: dict | None = None):
     """A vertices-only mesh object with the run's per-point attributes and the point display set-up.
 
     ``points``: a mapping of per-point arrays with ``position_world`` (n, 3) in metres (a run's points.npz).
-    ``color_by`` falls back to intensity when the cloud lacks that attribute.
+    ``color_by`` falls back to intensity when the cloud lacks that attribute.  ``units``: the run's product
+    units (``metadata.json`` → ``units``); the intensity's unit is kept on the object for the legend.
     """
     old = bpy.data.objects.get(name)
     if old is not None:
@@ -420,6 +425,8 @@ def create_point_cloud(name: str, points, scene, *, unit_scale: float = 1.0, rep
         for key, offset in offsets.items():
             obj[f"{key.removesuffix('_s')}_offset_s" if key.endswith("_s") else f"{key}_offset"] = offset
         obj[RESULT_TAG] = str(run_path) if run_path is not None else name
+        if units and units.get("intensity"):
+            obj["ladar_unit_intensity"] = units["intensity"]
         (collection or _results_collection(scene)).objects.link(obj)
         material = ensure_point_material()
         mesh.materials.append(material)
@@ -511,6 +518,7 @@ def import_run(run_path, scene, *, run_name: str | None = None, unit_scale: floa
     info = read_run_info(run_path)
     sequence = info.get("format") == "ladar-sequence"
     frames = [int(f) for f in info["frames"]] if sequence else None
+    units = info.get("units", {})
     check_result_names(run_name, replace, frames, clouds)
     if replace:  # earlier imports of this run folder (under any name or cloud layout) are stale
         remove_run_objects(run_path)
@@ -519,7 +527,7 @@ def import_run(run_path, scene, *, run_name: str | None = None, unit_scale: floa
         if not sequence:
             objects.append(create_point_cloud(run_name, _load_points(run_path / "points.npz"), scene,
                                               unit_scale=unit_scale, replace=replace, point_radius=point_radius,
-                                              run_path=run_path, color_by=color_by))
+                                              run_path=run_path, color_by=color_by, units=units))
             images += _load_run_images(run_path, run_name, replace)
         else:
             if clouds == "RUN":
@@ -527,14 +535,14 @@ def import_run(run_path, scene, *, run_name: str | None = None, unit_scale: floa
                 points = _load_points(merged) if merged.is_file() else {"position_world": np.zeros((0, 3))}
                 objects.append(create_point_cloud(run_name, points, scene, unit_scale=unit_scale, replace=replace,
                                                   point_radius=point_radius, run_path=run_path,
-                                                  color_by=color_by))
+                                                  color_by=color_by, units=units))
             else:
                 coll = _results_collection(scene, run_name)
                 for f in frames:
                     objects.append(create_point_cloud(
                         frame_run_name(run_name, f), _load_points(run_path / f"frame_{f:04d}" / "points.npz"),
                         scene, unit_scale=unit_scale, replace=replace, point_radius=point_radius,
-                        run_path=run_path / f"frame_{f:04d}", color_by=color_by, collection=coll))
+                        run_path=run_path / f"frame_{f:04d}", color_by=color_by, collection=coll, units=units))
             images += _load_sequence_images(run_path, run_name, replace)
             for f in frames:
                 images += _load_slices(run_path / f"frame_{f:04d}", frame_run_name(run_name, f), replace)

@@ -139,3 +139,16 @@ def test_preview_render(lad, scene, tmp_path):
     assert (tmp_path / "stairs" / "previews" / "render_2.png").is_file()  # the first render is kept
     cam = np.asarray(lad.package.ladar_addon.render.framing_camera(np.array([[0, 0, 0], [2, 0, 0]]), 4 / 3)[0])
     assert np.linalg.norm(cam[:3, 3] - [1, 0, 0]) == pytest.approx(1.1 * 1.0 / np.sin(np.radians(20)), rel=1e-6)
+
+
+def test_intensity_legend_carries_the_runs_unit(lad, scene, tmp_path):
+    """Issue 14: the noisy receiver's intensity is in A/D counts, the ideal one's in J per bin; the legend says
+    which (from the run's metadata.json units)."""
+    _staircase_run(lad, scene, tmp_path, "noisy_units", noisy=True)
+    obj = bpy.data.objects["noisy_units"]
+    lad.results.apply_color(obj, "INTENSITY")
+    assert obj["ladar_color_label"] == "Intensity (counts)"
+    bpy.ops.wm.read_homefile(use_empty=True)
+    _staircase_run(lad, bpy.context.scene, tmp_path, "ideal_units")
+    obj = bpy.data.objects["ideal_units"]
+    assert obj["ladar_color_by"] == "INTENSITY" and obj["ladar_color_label"] == "Intensity (J per bin)"
