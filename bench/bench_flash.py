@@ -21,12 +21,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from core.config import BRDFSettings, SimulationConfig  # noqa: E402
-from core.pipeline import simulate_frame  # noqa: E402
-from core.rays import Detector, block_subray_tan, tan_to_unit_direction  # noqa: E402
-from core.runio import software_versions  # noqa: E402
-from core.scene import SceneGeometry  # noqa: E402
-from core.trace import SceneTracer  # noqa: E402
+from core.config.settings import BRDFSettings, SimulationConfig  # noqa: E402
+from core.systems.flash import simulate_frame  # noqa: E402
+from core.geometry.rays import Detector, block_subray_tan, tan_to_unit_direction  # noqa: E402
+from core.fileio.run_folder import software_versions  # noqa: E402
+from core.geometry.scene import SceneGeometry  # noqa: E402
+from core.geometry.trace import SceneTracer  # noqa: E402
 
 
 def bench_scene(n_grid: int = 128) -> SceneGeometry:

@@ -42,9 +42,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from core.pipeline import simulate_frame  # noqa: E402
-from core.runio import software_versions  # noqa: E402
-from core.trace import SceneTracer  # noqa: E402
+from core.systems.flash import simulate_frame  # noqa: E402
+from core.fileio.run_folder import software_versions  # noqa: E402
+from core.geometry.trace import SceneTracer  # noqa: E402
 from sample_scenes import CACHE, flash_demo  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results"

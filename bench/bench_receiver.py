@@ -1,4 +1,4 @@
-"""Receiver-chain benchmark: 128×128 pixels × 1024 bins, noise on (core/receiver.py, paper Figure 4).
+"""Receiver-chain benchmark: 128×128 pixels × 1024 bins, noise on (core/physics/receiver/, paper Figure 4).
 
 Measures in one run: the floor — numpy drawing one float32 standard normal per sample
 (``rng.standard_normal(size, dtype=np.float32)``, one thread) — and ``apply_receiver_chain`` on the same cube
@@ -26,7 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from core.receiver import ChainSettings, DetectorSettings, apply_receiver_chain  # noqa: E402
+from core.physics.receiver.chain import ChainSettings, apply_receiver_chain  # noqa: E402
+from core.config.settings import DetectorSettings  # noqa: E402
 
 H = W = 128
 B = 1024

@@ -43,8 +43,8 @@ def terrain(n_triangles: int):
 def surrounding_terrain(n_triangles: int):
     """A 2 km × 2 km bumpy ground centred on the sensor (most of it behind or beside the field of view), with
     the benchmark's box 300 m ahead."""
-    from core.config import BRDFSettings
-    from core.scene import SceneGeometry
+    from core.config.settings import BRDFSettings
+    from core.geometry.scene import SceneGeometry
 
     n = max(2, int(round(np.sqrt(n_triangles / 2))))
     gx, gy = np.meshgrid(np.linspace(-1000, 1000, n + 1), np.linspace(-1000, 1000, n + 1))
@@ -88,9 +88,9 @@ def case_pipeline_vs_bare(repeat, threads):
     from concurrent.futures import ThreadPoolExecutor
 
     from bench_flash import sensor_pose
-    from core.pipeline import simulate_frame
-    from core.rays import Detector, block_subray_tan, tan_to_unit_direction
-    from core.trace import SceneTracer
+    from core.systems.flash import simulate_frame
+    from core.geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
+    from core.geometry.trace import SceneTracer
 
     scene, pose, cfg = terrain(32768), sensor_pose(), config(threads=threads)
     tracer = SceneTracer(scene)
@@ -120,10 +120,10 @@ def case_pipeline_vs_bare(repeat, threads):
 def case_scene(repeat, n_triangles):
     """Scene growth: BVH build (whole scene and culled) and a 128² × 2×2 frame with the BVH reused."""
     from bench_flash import sensor_pose
-    from core.culling import frustum_triangles
-    from core.pipeline import simulate_frame
-    from core.rays import Detector
-    from core.trace import SceneTracer
+    from core.geometry.culling import frustum_triangles
+    from core.systems.flash import simulate_frame
+    from core.geometry.rays import Detector
+    from core.geometry.trace import SceneTracer
 
     scene, pose, cfg = terrain(n_triangles), sensor_pose(), config(subsamples=2)
     build_s, tracer = best_of(lambda: SceneTracer(scene), repeat)
@@ -141,8 +141,8 @@ def case_scene(repeat, n_triangles):
 def case_sensor(repeat, pixels, save_waveforms):
     """Sensor growth: pixels² × 1 sub-ray on the benchmark terrain, 1024 bins."""
     from bench_flash import sensor_pose
-    from core.pipeline import simulate_frame
-    from core.trace import SceneTracer
+    from core.systems.flash import simulate_frame
+    from core.geometry.trace import SceneTracer
 
     scene, pose = terrain(32768), sensor_pose()
     cfg = config(pixels=pixels, subsamples=1, threads=1, save_waveforms=save_waveforms)
@@ -156,7 +156,7 @@ def case_sensor(repeat, pixels, save_waveforms):
 def case_culling(repeat, n_triangles):
     """A single frame (BVH built for it) of a sensor inside a 2 km terrain: whole scene vs culled."""
     from bench_flash import sensor_pose
-    from core.pipeline import simulate_frame
+    from core.systems.flash import simulate_frame
 
     scene, pose, cfg = surrounding_terrain(n_triangles), sensor_pose(), config(subsamples=2)
     full_s, full = best_of(lambda: simulate_frame(scene, pose, cfg, fov_culling=False), repeat)
@@ -173,8 +173,8 @@ def case_sample(repeat):
     """The planner's skips on sample_blends/flash_demo.blend (64² px × 4×4, 1668 bins)."""
     import dataclasses
 
-    from core.pipeline import simulate_frame
-    from core.trace import SceneTracer
+    from core.systems.flash import simulate_frame
+    from core.geometry.trace import SceneTracer
     from sample_scenes import flash_demo
 
     scene, pose, cfg = flash_demo()
@@ -207,7 +207,7 @@ def preload():
     import scipy.special  # noqa: F401
     import scipy.stats  # noqa: F401
 
-    import core.pipeline  # noqa: F401
+    import core.systems.flash  # noqa: F401
 
 
 def run_child(name, repeat, *args):
@@ -302,7 +302,7 @@ def main(argv=None):
     ap.add_argument("--out", default=str(RESULTS / "scaling.json"))
     ap.add_argument("--no-doc", action="store_true")
     args = ap.parse_args(argv)
-    from core.runio import software_versions
+    from core.fileio.run_folder import software_versions
 
     scenes = (10_000, 100_000) if args.quick else (10_000, 100_000, 500_000, 2_000_000)
     sensors = ((64, True), (128, True), (256, False)) if args.quick else \

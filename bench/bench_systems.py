@@ -26,13 +26,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from core.config import BRDFSettings, SimulationConfig  # noqa: E402
-from core.gated import simulate_gated  # noqa: E402
-from core.motion import Trajectory  # noqa: E402
-from core.runio import software_versions  # noqa: E402
-from core.scanner import n_scan_pulses, scan_rays, simulate_scan  # noqa: E402
-from core.scene import SceneGeometry  # noqa: E402
-from core.trace import SceneTracer  # noqa: E402
+from core.config.settings import BRDFSettings, SimulationConfig  # noqa: E402
+from core.systems.gated import simulate_gated  # noqa: E402
+from core.geometry.motion import Trajectory  # noqa: E402
+from core.fileio.run_folder import software_versions  # noqa: E402
+from core.config.derived import n_scan_pulses  # noqa: E402
+from core.systems.scanner import scan_rays, simulate_scan  # noqa: E402
+from core.geometry.scene import SceneGeometry  # noqa: E402
+from core.geometry.trace import SceneTracer  # noqa: E402
 
 C = 299_792_458.0
 

@@ -19,9 +19,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_flash import bench_scene, sensor_pose  # noqa: E402
-from core.config import SimulationConfig  # noqa: E402
-from core.pipeline import simulate_frame  # noqa: E402
-from core.trace import SceneTracer  # noqa: E402
+from core.config.settings import SimulationConfig  # noqa: E402
+from core.systems.flash import simulate_frame  # noqa: E402
+from core.geometry.trace import SceneTracer  # noqa: E402
 
 
 def config(cn2: float, fov_deg: float) -> SimulationConfig:

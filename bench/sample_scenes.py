@@ -18,8 +18,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from core.config import BRDFSettings, config_from_dict  # noqa: E402
-from core.scene import SceneGeometry  # noqa: E402
+from core.config.settings import BRDFSettings, config_from_dict  # noqa: E402
+from core.geometry.scene import SceneGeometry  # noqa: E402
 
 CACHE = ROOT / "bench" / "results" / "cache"
 

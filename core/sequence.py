@@ -17,10 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, SimulationConfig, config_to_dict, validate
-from .pipeline import Cancelled, run_metadata, simulate
-from .runio import _json_default, check_run_dir, commit_run_dir, software_versions, write_ply, write_run
-from .trace import SceneTracer
+from .errors import ConfigError
+from .config.settings import SimulationConfig, config_to_dict, validate
+from .errors import Cancelled
+from .systems.flash import run_metadata, simulate
+from .fileio.run_folder import json_default, check_run_dir, commit_run_dir, software_versions, write_ply, write_run
+from .geometry.trace import SceneTracer
 
 
 def merge_points(point_sets: list[dict]) -> dict:
@@ -96,7 +98,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
         if extra_metadata:
             meta.update(extra_metadata)
         with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
-            json.dump(meta, f, indent=2, default=_json_default)
+            json.dump(meta, f, indent=2, default=json_default)
         if cancel is not None and cancel():
             raise Cancelled()
         commit_run_dir(tmp, out)

@@ -23,7 +23,8 @@ from pathlib import Path
 
 import bpy
 
-from ..core.config import ConfigError, SimulationConfig, dump_config_json, dump_config_toml, load_config
+from ..core.errors import ConfigError
+from ..core.config.settings import SimulationConfig, dump_config_json, dump_config_toml, load_config
 from .errors import LadarError
 
 COMMAND_ID = "ladar"
@@ -134,7 +135,7 @@ def export_config(scene, path, sensor=None) -> Path:
 
 
 def _cmd_simulate(scene, args) -> int:
-    from ..core.runio import run_summary
+    from ..core.fileio.run_folder import run_summary
     from .simulate import SimulationJob, parse_frames, progress_printer
 
     sensor = _sensor(scene, args.sensor)
@@ -180,7 +181,7 @@ COMMANDS = {"simulate": _cmd_simulate, "export-config": _cmd_export_config,
 
 def cli_handler(argv) -> int:
     """Entry point of ``blender -c ladar``: returns the exit code (never exits the process)."""
-    from ..core.pipeline import Cancelled
+    from ..core.errors import Cancelled
 
     parser = build_parser()
     try:

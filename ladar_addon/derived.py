@@ -9,9 +9,9 @@ import math
 
 from ..core.atmosphere.extinction import extinction_from_visibility
 from ..core.atmosphere.turbulence import derived_turbulence
-from ..core.laser import pulse_cdf
-from ..core.receiver import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
-                             photons_per_joule)
+from ..core.physics.laser import pulse_cdf
+from ..core.physics.receiver.conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons,
+                                                 mcintyre_excess_noise, photons_per_joule)
 
 #: Wavelength used when there is no sensor (the core default laser, Nd:YAG).
 DEFAULT_WAVELENGTH_M = 1.064e-6
@@ -56,7 +56,7 @@ def peak_bin_fraction(laser, bin_width_s: float) -> float:
 
 def detector_snr(cfg, peak_bin_energy_j: float) -> dict:
     """Peak-bin figures of the linear-mode receiver for ``peak_bin_energy_j`` of signal in one bin, with every
-    switch exactly as the chain applies it (:func:`core.receiver.bin_moments`, physics.md §7, §8):
+    switch exactly as the chain applies it (:func:`core.physics.receiver.bin_moments`, physics.md §7, §8):
 
         SNR = G N_s / √var(N_s),  var = G²F(N_s + N_b + N_db) + N_ds + G²N_s²/M + σ_read² + Δ²/12  (shot noise on)
 

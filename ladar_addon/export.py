@@ -29,7 +29,7 @@ import hashlib
 import bpy
 import numpy as np
 
-from ..core.scene import SceneGeometry, merge_meshes
+from ..core.geometry.scene import SceneGeometry, merge_meshes
 from .properties import brdf_from_material, material_key
 
 #: Custom property that marks result point clouds (never exported as geometry).

@@ -24,7 +24,8 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..core.config import BRDFSettings, ConfigError, check_brdf_table
+from ..core.config.settings import BRDFSettings, check_brdf_table
+from ..core.errors import ConfigError
 
 
 class LadarBRDFTableRow(bpy.types.PropertyGroup):
@@ -86,10 +87,10 @@ def _wavelength_field():
 
 
 def import_brdf_table(material, path, wavelength_m: float | None = None) -> BRDFSettings:
-    """Read a CSV/text BRDF table (``core.brdf.load_brdf_table``), validate it and store it on ``material``:
+    """Read a CSV/text BRDF table (``core.physics.brdf.load_brdf_table``), validate it and store it on ``material``:
     model "table", ladar BRDF enabled.  The wavelength is the one the file states, else ``wavelength_m``
     (ConfigError if neither).  Nothing changes on a bad file.  Returns the material's new BRDF settings."""
-    from ..core.brdf import load_brdf_table
+    from ..core.physics.brdf import load_brdf_table
     from .properties import brdf_from_material
 
     angles, values, file_wavelength_m = load_brdf_table(path)
@@ -161,8 +162,8 @@ def principled_inputs(material) -> dict:
 
 def initialise_from_principled(material) -> tuple[BRDFSettings, dict]:
     """Set ``material``'s ladar BRDF to the starting Steinvall BRDF mapped from its Principled BSDF
-    (``core.brdf.brdf_from_principled``; the table, if any, is kept but unused).  Returns (BRDF, inputs)."""
-    from ..core.brdf import brdf_from_principled
+    (``core.physics.brdf.brdf_from_principled``; the table, if any, is kept but unused).  Returns (BRDF, inputs)."""
+    from ..core.physics.brdf import brdf_from_principled
     from .properties import BRDF_FIELDS, brdf_from_material
 
     inputs = principled_inputs(material)
@@ -207,11 +208,11 @@ def plot_image_name(material) -> str:
 
 
 def plot_material_brdf(material, laser_wavelength_m: float | None = None):
-    """Plot the material's BRDF vs incidence angle (``core.brdf.plot_brdf``: matplotlib, else a bare NumPy curve)
+    """Plot the material's BRDF vs incidence angle (``core.physics.brdf.plot_brdf``: matplotlib, else a bare NumPy curve)
     into a packed Blender image (replacing the material's previous plot).  Returns the image.  A table that
     does not validate raises ConfigError and leaves the previous plot in place."""
-    from ..core.brdf import plot_brdf
-    from ..core.config import validate
+    from ..core.physics.brdf import plot_brdf
+    from ..core.config.settings import validate
 
     brdf = material_brdf_settings(material)
     validate(brdf, f"materials.{material.name}.")

@@ -101,7 +101,8 @@ def sensor_preset_config(settings: dict, scene, obj):
     vertical field of view following from the square pixels) applied."""
     import math
 
-    from ..core.config import GROUPS, ConfigError, config_from_dict, config_to_dict
+    from ..core.config.settings import GROUPS, config_from_dict, config_to_dict
+    from ..core.errors import ConfigError
     from .properties import config_from_blender
 
     unknown = [k for k in settings if k != "system_type" and k not in GROUPS]
@@ -154,7 +155,7 @@ def apply_material_preset(settings: dict, origin: str, context=None):
     """Apply a material BRDF preset given in SI units (``BRDFSettings`` fields; a table as
     ``table_angle_deg``/``table_brdf_per_sr`` lists) to the context's material, enabled, with ``origin`` shown
     in the panel.  Validated before anything changes.  A preset without a table keeps the material's table."""
-    from ..core.config import BRDFSettings, validate
+    from ..core.config.settings import BRDFSettings, validate
     from .materials import read_table, write_table
 
     material = getattr(context or bpy.context, "material", None)

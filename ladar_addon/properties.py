@@ -42,8 +42,9 @@ from decimal import Decimal
 import bpy
 import numpy as np
 
-from ..core.config import (DEFAULT_BRDF, GROUPS, BRDFSettings, ConfigError, RunSettings, SimulationConfig,
-                           field_specs, validate)
+from ..core.config.settings import (DEFAULT_BRDF, GROUPS, BRDFSettings, RunSettings, SimulationConfig, field_specs,
+                                    validate)
+from ..core.errors import ConfigError
 from .errors import LadarError
 from .materials import LadarBRDFTableRow, extra_brdf_properties, read_table, write_table
 from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov

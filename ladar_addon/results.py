@@ -593,8 +593,8 @@ def waveform_plot(run_path, *, pixel_x: int | None = None, pixel_y: int | None =
     Image runs (flash, profiler): the waveform of pixel (``pixel_x``, ``pixel_y``), default (0, 0) — the range
     profiler's one waveform.  Scanner runs: pulse ``pulse``, default the pulse that received the most energy.
     The echoes detected on it are marked.  Raises LadarError when the run saved no waveforms."""
-    from ..core.config import ConfigError
-    from ..core.preview import bin_centres_range_m, waveform_png
+    from ..core.errors import ConfigError
+    from ..core.fileio.preview import bin_centres_range_m, waveform_png
 
     folder = frame_run_folder(run_path, frame)
     info = read_run_info(folder)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 
-from ..core.config import ConfigError
+from ..core.errors import ConfigError
 
 
 def receiver_fov_rad(sensor_fit: str, fit_angle_rad: float, width_px: int, height_px: int) -> tuple[float, float]:

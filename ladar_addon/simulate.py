@@ -16,7 +16,7 @@ inputs through a request that :meth:`~SimulationJob.step` serves.
 Run folders (``out_dir`` is the folder itself):
 
 * one frame: ``<Scene.ladar.output_dir>/<sensor>_f<frame:04d>`` by default — the products of
-  ``core.pipeline.run_simulation`` plus a false-colour PNG beside each EXR (``core.preview``);
+  ``core.systems.flash.run_simulation`` plus a false-colour PNG beside each EXR (``core.fileio.preview``);
 * a frame range: ``<output_dir>/<sensor>_f<first>-<last>`` — ``core.sequence``'s ``frame_NNNN/`` run folders,
   ``points_merged.ply``/``.npz`` and ``metadata.json``, plus PNG previews in every frame folder and
   ``images/range_NNNN.exr`` … (hard links to the frames' images, numbered by scene frame) so that each product
@@ -31,7 +31,7 @@ silently: ``if_exists`` = "STOP" refuses, "REPLACE" replaces it, "NEW" picks the
 Static geometry is exported once and its ray-tracing BVH reused for every frame: objects that may change with
 time are listed by ``export.frame_dependent_objects``; if there are any, each frame is re-exported and the BVH is
 rebuilt only when the geometry's digest changes.  A scanner whose sensor object is animated gets the sensor's
-pose sampled over the scan (sub-frames) as a ``core.motion.Trajectory``.
+pose sampled over the scan (sub-frames) as a ``core.geometry.motion.Trajectory``.
 """
 from __future__ import annotations
 
@@ -50,11 +50,13 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from .. import core
-from ..core.config import ConfigError, config_to_dict, load_config, validate
-from ..core.motion import Trajectory
-from ..core.pipeline import Cancelled, run_simulation
-from ..core.runio import commit_run_dir
+from ..core.errors import ConfigError
+from ..core.version import __version__ as core_version
+from ..core.config.settings import config_to_dict, load_config, validate
+from ..core.geometry.motion import Trajectory
+from ..core.errors import Cancelled
+from ..core.systems.flash import run_simulation
+from ..core.fileio.run_folder import commit_run_dir
 from .errors import LadarError
 from .export import frame_dependent_objects, geometry_digest, scene_geometry_from_depsgraph
 from .properties import check_sensor, config_from_blender, unit_scale
@@ -300,7 +302,7 @@ class FrameSource:
                 info["geometry"] = "exported"
         trajectory = None
         if self.cfg.system_type == "scanner":
-            from ..core.scanner import scan_duration_s
+            from ..core.config.derived import scan_duration_s
             trajectory = sample_trajectory(scene, sensor, frame, scan_duration_s(self.cfg),
                                            self.cfg.scanner.motion_samples_per_s, self.scale_m)
             info["motion_samples"] = 0 if trajectory is None else len(trajectory.times_s)
@@ -417,7 +419,7 @@ class SimulationJob:
 
     def _extra_metadata(self, first: FrameInputs) -> dict:
         blender = {"version": bpy.app.version_string, "file": bpy.data.filepath, "scene": self.scene.name,
-                   "sensor": self.sensor.name, "unit_scale_m": self.scale_m, "addon_version": core.__version__,
+                   "sensor": self.sensor.name, "unit_scale_m": self.scale_m, "addon_version": core_version,
                    "config_file": None if self.config_path is None else str(self.config_path),
                    "time_dependent_objects": self.source.time_dependent}
         if not self.sequence:
@@ -595,7 +597,7 @@ class SimulationJob:
     def _write_previews(self, folders):
         if not self.previews:
             return
-        from ..core.preview import write_run_previews
+        from ..core.fileio.preview import write_run_previews
         for folder in folders:
             if self._cancel.is_set():
                 raise Cancelled()

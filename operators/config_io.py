@@ -2,7 +2,7 @@
 import bpy
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..core.config import ConfigError
+from ..core.errors import ConfigError
 from ..ladar_addon.cli import export_config
 from ..ladar_addon.errors import LadarError
 from ..ladar_addon.properties import apply_config_to_blender

@@ -1,11 +1,11 @@
-"""``bpy.ops.ladar.export_las``: a run's point cloud as a LAS 1.4 file (core.las.write_run_las)."""
+"""``bpy.ops.ladar.export_las``: a run's point cloud as a LAS 1.4 file (core.fileio.las.write_run_las)."""
 from pathlib import Path
 
 import bpy
 from bpy_extras.io_utils import ExportHelper
 
-from ..core.config import ConfigError
-from ..core.las import write_run_las
+from ..core.errors import ConfigError
+from ..core.fileio.las import write_run_las
 from ..ladar_addon.export import RESULT_TAG
 
 

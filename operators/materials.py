@@ -2,7 +2,7 @@
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..core.config import ConfigError
+from ..core.errors import ConfigError
 from ..ladar_addon import materials
 
 

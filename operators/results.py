@@ -4,7 +4,7 @@ from pathlib import Path
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..core.config import ConfigError
+from ..core.errors import ConfigError
 from ..ladar_addon.errors import LadarError
 from ..ladar_addon.export import RESULT_TAG
 from ..ladar_addon.properties import unit_scale

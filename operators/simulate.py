@@ -7,8 +7,8 @@ from a script or in background mode it runs to the end before returning (progres
 """
 import bpy
 
-from ..core.config import ConfigError
-from ..core.pipeline import Cancelled
+from ..core.errors import ConfigError
+from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
 from ..ladar_addon.simulate import (SimulationJob, current_job, handle_modal_event, parse_frames, progress_printer,
                                     set_current_job)

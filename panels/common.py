@@ -59,7 +59,7 @@ def sensor_config(scene, obj):
 
 
 def atmosphere_settings(scene):
-    from ..core.config import AtmosphereSettings
+    from ..core.config.settings import AtmosphereSettings
     from ..ladar_addon.properties import ATMOSPHERE_FIELDS, unit_scale
     scale = unit_scale(scene)
     props = scene.ladar_atmosphere

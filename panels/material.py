@@ -65,11 +65,11 @@ class LADAR_PT_brdf(bpy.types.Panel):
 
     def draw_figures(self, layout, props):
         """π f_r(0°) and π f_r(60°): the Lambertian reflectance that returns the same energy at that angle."""
-        from ..core.brdf import lambertian_equivalent_reflectance
+        from ..core.physics.brdf import lambertian_equivalent_reflectance
         from ..ladar_addon.materials import material_brdf_settings
         try:
             brdf = material_brdf_settings(props.id_data)
-            from ..core.config import validate
+            from ..core.config.settings import validate
             validate(brdf)
             rho = lambertian_equivalent_reflectance(brdf, [0.0, 60.0])
         except Exception:  # noqa: BLE001 - draw must never fail; the table lines say what is wrong

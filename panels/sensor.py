@@ -8,14 +8,13 @@ import math
 
 import bpy
 
+from ..core.constants import SPEED_OF_LIGHT_M_S
 from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_detector_presets, LADAR_MT_sensor_presets, draw_preset_header
 from ..ladar_addon.properties import SENSOR_FIELDS, TOP_FIELDS
 from ..ladar_addon.sensor import camera_receiver_fov_rad, field_used, group_used
 from .common import (atmosphere_settings, draw_lines, reference_range_m, sensor_config, simulate_button,
                      simulate_options)
-
-C_M_S = 299_792_458.0
 
 
 def draw_group_fields(layout, props, group, system_type, skip=(), scan_pattern=None):
@@ -44,7 +43,7 @@ def _system_lines(obj, cfg) -> list[str]:
     if kind == "scanner":
         if cfg is None:
             return ["Scan figures unavailable: invalid sensor settings"]
-        from ..core.scanner import n_scan_pulses, scan_duration_s
+        from ..core.config.derived import n_scan_pulses, scan_duration_s
         sc = cfg.scanner
         return [f"Scan: {sc.pattern}, {n_scan_pulses(cfg)} pulses in {scan_duration_s(cfg):.4g} s "
                 f"({sc.pulse_rate_hz:.4g} Hz)", "The camera gives the pose only (its angle is not used)"]
@@ -55,8 +54,8 @@ def _system_lines(obj, cfg) -> list[str]:
         lines.append("One detector element over the whole field of view")
     elif kind == "gated":
         g = obj.ladar.gated
-        first = 0.5 * C_M_S * g.first_delay_s
-        last = first + 0.5 * C_M_S * g.delay_step_s * (g.n_slices - 1)
+        first = 0.5 * SPEED_OF_LIGHT_M_S * g.first_delay_s
+        last = first + 0.5 * SPEED_OF_LIGHT_M_S * g.delay_step_s * (g.n_slices - 1)
         lines.append(f"{g.n_slices} slices, gates opening at {first:.5g} … {last:.5g} m")
     return lines
 
@@ -147,9 +146,9 @@ class LADAR_PT_sensor_gate(_SensorGroupPanel, bpy.types.Panel):
 
     def draw_group(self, context, layout, props):
         draw_group_fields(layout, props, "gate", self.system_type(context))
-        start = 0.5 * C_M_S * props.gate_start_s
-        end = start + 0.5 * C_M_S * props.bin_width_s * props.n_bins
-        layout.label(text=f"Ranges {start:.4g} m … {end:.4g} m, {0.5 * C_M_S * props.bin_width_s:.3g} m per bin")
+        start = 0.5 * SPEED_OF_LIGHT_M_S * props.gate_start_s
+        end = start + 0.5 * SPEED_OF_LIGHT_M_S * props.bin_width_s * props.n_bins
+        layout.label(text=f"Ranges {start:.4g} m … {end:.4g} m, {0.5 * SPEED_OF_LIGHT_M_S * props.bin_width_s:.3g} m per bin")
 
 
 class LADAR_PT_sensor_scanner(_SensorGroupPanel, bpy.types.Panel):
@@ -170,8 +169,8 @@ class LADAR_PT_sensor_gated(_SensorGroupPanel, bpy.types.Panel):
 
     def draw_group(self, context, layout, props):
         draw_group_fields(layout, props, "gated", self.system_type(context))
-        spacing_m = 0.5 * C_M_S * props.delay_step_s
-        depth_m = 0.5 * C_M_S * props.gate_width_s
+        spacing_m = 0.5 * SPEED_OF_LIGHT_M_S * props.delay_step_s
+        depth_m = 0.5 * SPEED_OF_LIGHT_M_S * props.gate_width_s
         layout.label(text=f"Slice spacing {spacing_m:.4g} m, gate depth {depth_m:.4g} m", icon="INFO")
 
 

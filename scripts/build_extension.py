@@ -8,7 +8,7 @@
    --implementation cp --abi cp311 --platform <tag>`` of the bundled packages (:data:`BUNDLED`, versions pinned in
    ``requirements.txt``) into ``build/wheels/<platform>/`` (kept as a cache; ``--offline`` uses only the cache).
    numpy is not bundled: Blender ships it (4.2 LTS: 1.24.3), and a second numpy would break Blender's.
-   matplotlib is not bundled either: the plots fall back to a NumPy renderer without it (``core.preview``).
+   matplotlib is not bundled either: the plots fall back to a NumPy renderer without it (``core.fileio.preview``).
    A package with no wheel for a platform is reported and that platform is not built.
 2. **Stage.** ``build/stage/ladar_simulator/``: the package files (what ``scripts/blender_env.py`` installs for
    development), the wheels in ``wheels/``, and a copy of ``blender_manifest.toml`` whose ``platforms`` and

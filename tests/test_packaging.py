@@ -70,7 +70,7 @@ def test_offline_build_splits_the_platforms(tmp_path, capsys):
         assert sorted(n for n in names if n.endswith(".whl")) == sorted(f"wheels/{w}" for w in WHEELS[platform])
         assert manifest["build"]["generated"]["platforms"] == [platform]
         assert len(manifest["wheels"]) == 6 and manifest["platforms"] == ["linux-x64", "windows-x64"]
-        for required in ("__init__.py", "core/las.py", "core/brdf.py", "ladar_addon/materials.py",
+        for required in ("__init__.py", "core/fileio/las.py", "core/physics/brdf.py", "ladar_addon/materials.py",
                          "presets/ladar_simulator/sensor/Airborne_1064_nm_full_waveform.py",
                          "presets/ladar_simulator/material/Retroreflective_sheeting.py"):
             assert required in names

@@ -39,8 +39,8 @@ def lad(addon):
     for short, mod in [("properties", "ladar_addon.properties"), ("export", "ladar_addon.export"),
                        ("results", "ladar_addon.results"), ("simulate", "ladar_addon.simulate"),
                        ("cli", "ladar_addon.cli"), ("sensor", "ladar_addon.sensor"),
-                       ("errors", "ladar_addon.errors"), ("config", "core.config"), ("scene", "core.scene"),
-                       ("pipeline", "core.pipeline")]:
+                       ("errors", "ladar_addon.errors"), ("config", "core.config"), ("scene", "core.geometry.scene"),
+                       ("flash", "core.systems.flash")]:
         setattr(ns, short, importlib.import_module(f"{name}.{mod}"))
     return ns
 

@@ -1,4 +1,4 @@
-"""ladar_addon.derived: the receiver's derived panel figures follow the chain's switches (core.receiver.bin_moments)
+"""ladar_addon.derived: the receiver's derived panel figures follow the chain's switches (core.physics.receiver.bin_moments)
 and reproduce physics.md §8 (photons per fJ, McIntyre F, SNR table, Geiger P_d)."""
 import importlib
 import math

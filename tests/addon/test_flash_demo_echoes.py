@@ -24,7 +24,7 @@ def demo(lad, addon):
 def _run(lad, demo, **receiver):
     geometry, pose, cfg = demo
     cfg = dataclasses.replace(cfg, receiver=dataclasses.replace(cfg.receiver, **receiver))
-    return lad.pipeline.simulate_frame(geometry, pose, cfg).points
+    return lad.flash.simulate_frame(geometry, pose, cfg).points
 
 
 @pytest.mark.parametrize("pattern", ["grid", "sobol", "adaptive"])

@@ -55,7 +55,7 @@ def test_built_package_is_valid_and_excludes_development_files(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (archive,) = tmp_path.glob("ladar_simulator-0.1.0*.zip")
     names = zipfile.ZipFile(archive).namelist()
-    for required in ("blender_manifest.toml", "__init__.py", "core/config.py", "core/pipeline.py",
+    for required in ("blender_manifest.toml", "__init__.py", "core/config/settings.py", "core/systems/flash.py",
                      "ladar_addon/properties.py", "operators/simulate.py", "panels/sensor.py"):
         assert required in names
     for name in names:

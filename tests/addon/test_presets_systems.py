@@ -114,7 +114,7 @@ def test_every_material_preset_applies_and_round_trips(lad, scene, path):
             _same(getattr(brdf, name), value, f"{path.stem}: {name}")
     if brdf.model != "table":
         from importlib import import_module
-        brdf_mod = import_module(f"{lad.package.__name__}.core.brdf")
+        brdf_mod = import_module(f"{lad.package.__name__}.core.physics.brdf")
         assert 0.0 < brdf_mod.directional_hemispherical_reflectance(brdf) <= 1.0  # energy conservation
 
 
@@ -122,7 +122,7 @@ def test_material_preset_worked_values(lad, scene):
     """Glossy paint is physics.md §10's worked example: f_r(0°) = 0.1300, f_r(30°) = 0.06931 1/sr.
     Retroreflective sheeting: f_r = R_A/cos²θ → 70 at 0°, 40 at 30° (ASTM D4956 Type I anchors)."""
     from importlib import import_module
-    brdf_mod = import_module(f"{lad.package.__name__}.core.brdf")
+    brdf_mod = import_module(f"{lad.package.__name__}.core.physics.brdf")
     mat = bpy.data.materials.new("M")
     _execute("LADAR_MT_material_presets", PRESETS / "material" / "Paint_glossy.py", material=mat)
     f = brdf_mod.evaluate_brdf(lad.properties.brdf_from_material(mat), [1.0, math.cos(math.radians(30))])

@@ -28,7 +28,8 @@ def test_installed_as_an_extension(addon):
     assert blender_env.ADDON_MODULE in _enabled_modules()
     # the add-on's core is the package-relative one, never the top-level `core`
     assert "bl_ext.ladar_dev.ladar_simulator.core.config" in sys.modules
-    assert addon.ladar_addon.properties.SimulationConfig.__module__ == "bl_ext.ladar_dev.ladar_simulator.core.config"
+    assert (addon.ladar_addon.properties.SimulationConfig.__module__
+            == "bl_ext.ladar_dev.ladar_simulator.core.config.settings")
     repo = next(r for r in bpy.context.preferences.extensions.repos if r.module == blender_env.REPO_MODULE)
     assert (blender_env.Path(repo.directory) / "ladar_simulator" / "blender_manifest.toml").is_file()
 
@@ -72,3 +73,17 @@ def test_settings_survive_save_and_reload(addon, scene, tmp_path):
     assert abs(cam.ladar.laser.pulse_energy_j - 0.002) < 1e-9
     assert bpy.context.scene.ladar.seed == 1234
     assert abs(bpy.context.scene.ladar_atmosphere.extinction_per_m - 1e-4) < 1e-10
+
+
+def test_old_core_paths_resolve_inside_the_installed_package(addon):
+    """The moved-module finder works relative to the add-on's own copy of core (bl_ext.<repo>.<id>.core)."""
+    import importlib
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        old = importlib.import_module(f"{addon.__name__}.core.pipeline")
+    assert old is importlib.import_module(f"{addon.__name__}.core.systems.flash")
+    assert old.__spec__.name == f"{addon.__name__}.core.systems.flash"
+    assert any(issubclass(w.category, DeprecationWarning) and f"{addon.__name__}.core.systems.flash" in str(w.message)
+               for w in caught)

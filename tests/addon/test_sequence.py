@@ -67,7 +67,7 @@ def test_static_scene_exports_once_and_builds_one_bvh(lad, scene, tmp_path):
     frames = _attribute(obj, "frame", np.int32)
     assert np.bincount(frames, minlength=4)[1:].tolist() == [64, 64, 64]
     np.testing.assert_allclose(_positions(obj)[:, 2], -100.0, atol=1e-3)
-    merged = lad.pipeline.np.load(run / "points_merged.npz")
+    merged = lad.flash.np.load(run / "points_merged.npz")
     assert len(merged["range_m"]) == 192
     img = bpy.data.images["Ladar_f0001-0003.range"]
     assert img.source == "SEQUENCE" and bpy.path.abspath(img.filepath) == str(run / "images" / "range_0001.exr")

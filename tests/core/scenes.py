@@ -1,8 +1,8 @@
 """Small analytic scenes for the core tests (plates in the sensor frame: the sensor looks along −Z)."""
 import numpy as np
 
-from core.config import BRDFSettings, SimulationConfig
-from core.scene import SceneGeometry
+from core.config.settings import BRDFSettings, SimulationConfig
+from core.geometry.scene import SceneGeometry
 
 C = 299_792_458.0
 

@@ -5,12 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from core import pipeline
-from core.config import (ConfigError, SimulationConfig, config_from_dict, config_to_dict, dump_config_json,
-                         dump_config_toml, load_config, validate)
-from core.pipeline import Cancelled, run_simulation, simulate_frame
-from core.runio import read_exr, read_ply
-from core.scene import SceneGeometry
+from core.systems import flash as pipeline
+from core.errors import ConfigError
+from core.config.settings import (SimulationConfig, config_from_dict, config_to_dict, dump_config_json,
+                                  dump_config_toml, load_config, validate)
+from core.errors import Cancelled
+from core.systems.flash import run_simulation, simulate_frame
+from core.fileio.run_folder import read_exr, read_ply
+from core.geometry.scene import SceneGeometry
 from scenes import config_for, plate
 
 
@@ -97,7 +99,7 @@ def test_run_folder_contents_and_metadata(tmp_path):
     assert {"numpy", "scipy", "embreex", "OpenEXR", "python"} <= set(meta["software"])
     exr = read_exr(path / "range.exr")
     assert np.array_equal(exr["Y"], res.range_image)
-    from core.las import read_las
+    from core.fileio.las import read_las
     las = read_las(path / "points.las")["points"]
     assert len(las["x"]) == len(res.points["range_m"])
     np.testing.assert_allclose(las["z"], res.points["position_world"][:, 2], atol=1e-3)
@@ -124,7 +126,7 @@ def test_existing_run_is_not_overwritten_unless_asked(tmp_path):
 def test_failure_while_writing_leaves_nothing(tmp_path, monkeypatch):
     def broken(*args, **kwargs):
         raise OSError("disk full")
-    monkeypatch.setattr("core.runio.write_ply", broken)
+    monkeypatch.setattr("core.fileio.run_folder.write_ply", broken)
     with pytest.raises(OSError):
         run_simulation(plate(100.0, 10.0), np.eye(4), config_for(100.0, pixels=4), tmp_path / "run")
     assert list(tmp_path.iterdir()) == []

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from core import sequence
-from core.config import BRDFSettings, ConfigError
-from core.pipeline import Cancelled
-from core.runio import read_ply
-from core.trace import SceneTracer
+from core.config.settings import BRDFSettings
+from core.errors import ConfigError
+from core.errors import Cancelled
+from core.fileio.run_folder import read_ply
+from core.geometry.trace import SceneTracer
 from scenes import config_for, plate
 
 

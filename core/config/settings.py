@@ -1,0 +1,606 @@
+"""Typed, validated simulation settings (paper §3.1: scene, laser source, atmosphere, receiver).
+
+Every numeric setting is declared with :func:`setting`, which records its SI unit, its allowed range and a
+one-line physical description.  The same metadata drives
+
+* :func:`validate` — a bad value raises :class:`ConfigError` naming the field, the value and the range;
+* the versioned JSON/TOML config file (:func:`config_to_dict`, :func:`config_from_dict`);
+* the Blender properties, which ``ladar_addon`` generates 1:1 from these dataclasses.
+
+All values are SI (metres, seconds, joules, radians).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from .derived import n_scan_pulses
+
+SCHEMA_VERSION = 1
+
+#: Supported sensor system types (paper §2): 3D flash (§2.3), time-of-flight scanner (§2.1), burst
+#: illumination / gated viewing (§2.2) and range profiler (§5.3).
+SYSTEM_TYPES = ("flash", "scanner", "gated", "profiler")
+
+
+def setting(default, *, lo=None, hi=None, lo_open=False, hi_open=False, unit="", doc="", choices=None,
+            subtype="NONE"):
+    """A dataclass field carrying its allowed range, SI unit and physical description.
+
+    ``subtype`` is the Blender property subtype used by the add-on (DISTANCE, TIME_ABSOLUTE, ANGLE, ...).
+    """
+    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open, "unit": unit, "doc": doc,
+            "choices": choices, "subtype": subtype}
+    return field(default=default, metadata=meta)
+
+
+def _range_text(meta) -> str:
+    lo, hi = meta["lo"], meta["hi"]
+    left = "(" if meta["lo_open"] else "["
+    right = ")" if meta["hi_open"] else "]"
+    unit = f" {meta['unit']}" if meta["unit"] else ""
+    lo_s = "-inf" if lo is None else f"{lo:g}"
+    hi_s = "inf" if hi is None else f"{hi:g}"
+    return f"a finite number in {left}{lo_s}, {hi_s}{right}{unit}"
+
+
+def _check_value(path: str, value, f: dataclasses.Field):
+    meta = f.metadata
+    if meta.get("choices"):
+        if value not in meta["choices"]:
+            raise ConfigError(path, value, "one of " + ", ".join(repr(c) for c in meta["choices"]))
+        return
+    if isinstance(f.default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(path, value, "true or false")
+        return
+    if isinstance(f.default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                raise ConfigError(path, value, "a whole number (not a float) " + _range_text(meta)[2:])
+            raise ConfigError(path, value, "a whole number " + _range_text(meta)[2:])
+    elif isinstance(f.default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(path, value, _range_text(meta))
+        if not math.isfinite(value):
+            raise ConfigError(path, value, _range_text(meta))
+    else:
+        return
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if lo is not None and (value < lo or (meta["lo_open"] and value == lo)):
+        raise ConfigError(path, value, _range_text(meta))
+    if hi is not None and (value > hi or (meta["hi_open"] and value == hi)):
+        raise ConfigError(path, value, _range_text(meta))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Settings groups
+# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class LaserSettings:
+    """Laser source: temporal (pulse) and spatial (beam) energy distribution (paper §3.1)."""
+
+    pulse_energy_j: float = setting(1e-3, lo=0.0, hi=100.0, lo_open=True, unit="J",
+                                    doc="Energy of one transmitted pulse leaving the laser")
+    wavelength_m: float = setting(1.064e-6, lo=2e-7, hi=1.2e-5, unit="m", subtype="WAVELENGTH",
+                                  doc="Laser wavelength in vacuum")
+    pulse_shape: str = setting("gaussian", choices=("gaussian", "rectangular"),
+                               doc="Temporal pulse shape: Gaussian (FWHM) or rectangular (full width)")
+    pulse_fwhm_s: float = setting(5e-9, lo=1e-12, hi=1e-6, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Pulse duration: full width at half maximum (Gaussian) or full width "
+                                      "(rectangular)")
+    beam_profile: str = setting("gaussian", choices=("gaussian", "uniform"),
+                                doc="Spatial beam profile: Gaussian TEM00 or uniform over the field of view")
+    beam_divergence_rad: float = setting(0.02, lo=1e-7, hi=2.0, unit="rad", subtype="ANGLE",
+                                         doc="Full-angle beam divergence at the 1/e² intensity points")
+    divergence_fills_fov: bool = setting(True, doc="Set the Gaussian 1/e² divergence to the field-of-view "
+                                                   "diagonal (ignore beam_divergence_rad)")
+    beam_waist_radius_m: float = setting(0.01, lo=1e-4, hi=1.0, unit="m", subtype="DISTANCE",
+                                         doc="1/e² radius W0 of the beam leaving the transmitter (turbulence "
+                                             "broadening and wander, physics.md §4)")
+    beam_focus_range_m: float = setting(0.0, lo=0.0, hi=1e7, unit="m", subtype="DISTANCE",
+                                        doc="Focus range F0 of the transmitted beam; 0 = collimated")
+
+
+@dataclass
+class ReceiverSettings:
+    """Receiver geometry and optics (paper §3.1, eq. 3-4).  Monostatic: co-located with the laser."""
+
+    width_px: int = setting(64, lo=1, hi=8192, unit="px", doc="Detector columns")
+    height_px: int = setting(64, lo=1, hi=8192, unit="px", doc="Detector rows")
+    fov_x_rad: float = setting(0.02, lo=1e-7, hi=2.8, unit="rad", subtype="ANGLE",
+                               doc="Full horizontal field of view of the detector array")
+    fov_y_rad: float = setting(0.02, lo=1e-7, hi=2.8, unit="rad", subtype="ANGLE",
+                               doc="Full vertical field of view of the detector array")
+    subsamples: int = setting(4, lo=1, hi=1024, doc="Sub-resolution rays per pixel side (S×S rays a pixel; "
+                                                    "the range profiler's one pixel usually needs 64 or more)")
+    cell_range_spread: bool = setting(True, doc="Spread each sub-ray's return over the round-trip times its cell "
+                                                "of the surface spans (tilted, grazing surfaces) instead of one "
+                                                "instant: no sub-ray ripple or spurious echoes (docs/performance.md)")
+    subray_pattern: str = setting("grid", choices=("grid", "stratified", "sobol", "adaptive"),
+                                  doc="Where the S×S sub-rays of a pixel go: cell centres (grid), one jittered "
+                                      "point per cell (stratified), a scrambled Sobol net (sobol), or Sobol "
+                                      "refined where a pixel's rays disagree (adaptive)")
+    subray_refine: int = setting(4, lo=2, hi=32, doc="Adaptive pattern: pixels whose sub-rays disagree (edges, "
+                                                     "several surfaces) are traced again with (refine·S)² rays")
+    aperture_diameter_m: float = setting(0.05, lo=0.0, hi=10.0, lo_open=True, unit="m", subtype="DISTANCE",
+                                         doc="Diameter of the receiver optics entrance aperture")
+    system_efficiency: float = setting(0.5, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
+                                       doc="Transmit × receive optical efficiency η_sys of eq. 3-1")
+
+
+@dataclass
+class RangeGateSettings:
+    """The time window sampled into the waveform (per pixel)."""
+
+    gate_start_s: float = setting(0.0, lo=0.0, hi=1e-3, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Time after pulse emission at which the first bin opens")
+    bin_width_s: float = setting(1e-9, lo=1e-12, hi=1e-6, unit="s", subtype="TIME_ABSOLUTE",
+                                 doc="Duration of one waveform time bin")
+    n_bins: int = setting(1024, lo=1, hi=1_000_000, doc="Number of time bins in the range gate")
+
+
+@dataclass
+class DetectionSettings:
+    """Echo detection on each pixel's waveform (peak finding with sub-bin interpolation, physics.md §9)."""
+
+    max_echoes: int = setting(3, lo=1, hi=32, doc="Largest number of echoes reported per pixel")
+    threshold_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
+                                 doc="Absolute detection threshold on the waveform (energy per bin)")
+    relative_threshold: float = setting(0.05, lo=0.0, hi=1.0, subtype="FACTOR",
+                                        doc="Echoes weaker than this fraction of the pixel's strongest peak "
+                                            "are dropped")
+    min_dip: float = setting(0.01, lo=0.0, hi=1.0, subtype="FACTOR",
+                             doc="Two peaks are separate echoes only if the waveform between them dips by this "
+                                 "fraction of the smaller one (0.01: just above the Sparrow limit of two pulses)")
+    interpolation: str = setting("gaussian", choices=("gaussian", "parabolic", "none"),
+                                 doc="Sub-bin peak interpolation: 3-point Gaussian, parabolic or none")
+    noisy_threshold_mode: str = setting("adaptive", choices=("adaptive", "fixed"),
+                                        doc="Noisy receiver: threshold at k_sigma × the waveform's robust noise "
+                                            "σ (adaptive) or at threshold_counts above the baseline (fixed)")
+    k_sigma: float = setting(5.0, lo=0.5, hi=100.0, doc="Noisy receiver: adaptive threshold in noise σ")
+    threshold_counts: float = setting(0.0, lo=0.0, hi=1e12,
+                                      doc="Noisy receiver: fixed threshold above the baseline (counts)")
+    matched_filter: bool = setting(True, doc="Noisy receiver: correlate the waveform with the pulse shape "
+                                             "before peak finding")
+
+
+@dataclass
+class AtmosphereSettings:
+    """Atmosphere between sensor and scene (paper §3.4, effects A–E; physics.md §1–6)."""
+
+    extinction_per_m: float = setting(0.0, lo=0.0, hi=1.0, unit="1/m",
+                                      doc="Aerosol extinction coefficient σ_atm of eq. 3-1 (one-way); used when "
+                                          "visibility_m is 0")
+    visibility_m: float = setting(0.0, lo=0.0, hi=1e6, unit="m", subtype="DISTANCE",
+                                  doc="Meteorological visibility (2 % contrast); when > 0 it sets the "
+                                      "extinction at the laser wavelength (0: use extinction_per_m)")
+    visibility_model: str = setting("kim", choices=("kim", "kruse"),
+                                    doc="Visibility-to-extinction model (physics.md §6)")
+    cn2_m_23: float = setting(0.0, lo=0.0, hi=1e-11, unit="m^-2/3",
+                              doc="Refractive-index structure constant Cn², constant along the path "
+                                  "(0: no turbulence)")
+    beam_broadening: bool = setting(True, doc="A: widen the Gaussian beam to its turbulent short-term "
+                                              "(or long-term, without wander) radius")
+    scintillation: bool = setting(True, doc="B: multiply a random scintillation pattern onto the "
+                                            "illumination at the target")
+    scintillation_model: str = setting("auto", choices=("auto", "lognormal", "gamma_gamma"),
+                                       doc="Scintillation pdf: log-normal (eq. 3-5) in weak turbulence, "
+                                           "gamma-gamma in moderate/strong; auto picks by regime")
+    return_scintillation: bool = setting(True, doc="B: with scintillation, also the return path (target → "
+                                                   "receiver aperture): one aperture-averaged factor per pixel "
+                                                   "and pulse")
+    beam_wander: bool = setting(True, doc="D: displace the beam centre randomly per pulse")
+    turbulence_blur: str = setting("long", choices=("long", "short", "none"),
+                                   doc="E: turbulence MTF blur of the received image (long or short exposure)")
+
+
+@dataclass
+class DetectorSettings:
+    """Detector and read-out electronics (paper Figure 4; physics.md §7, §8; core/physics/receiver/).
+    ``mode = "ideal"`` skips every step: the products are those of the noise-free pipeline, bit for bit."""
+
+    mode: str = setting("ideal", choices=("ideal", "noisy"),
+                        doc="ideal: no detector effects (noise-free energies); noisy: the full receiver chain")
+    detector_type: str = setting("apd", choices=("pin", "apd", "geiger"),
+                                 doc="PIN (G = 1), linear-mode APD, or Geiger-mode photon counting")
+    quantum_efficiency: float = setting(0.4, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
+                                        doc="Quantum efficiency η (Geiger: photon detection efficiency)")
+    apd_gain: float = setting(100.0, lo=1.0, hi=1e4, doc="Mean APD gain G (ignored for PIN)")
+    apd_k_eff: float = setting(0.02, lo=0.0, hi=1.0, doc="Effective ionization ratio k_eff (McIntyre F)")
+    dark_current_bulk_a: float = setting(1e-12, lo=0.0, hi=1e-3, unit="A",
+                                         doc="Bulk dark current (multiplied by the gain)")
+    dark_current_surface_a: float = setting(1e-9, lo=0.0, hi=1e-3, unit="A",
+                                            doc="Surface dark current (not multiplied)")
+    background_rate_photons_per_s: float = setting(0.0, lo=0.0, hi=1e18, unit="1/s",
+                                                   doc="Background (solar) photon rate per pixel at the "
+                                                       "detector, before η")
+    read_noise_e: float = setting(300.0, lo=0.0, hi=1e7, unit="e-", doc="RMS read-out noise (Gaussian)")
+    adc_bits: int = setting(12, lo=1, hi=32, doc="A/D converter resolution")
+    adc_full_scale_e: float = setting(2.048e6, lo=1.0, hi=1e15, unit="e-",
+                                      doc="Electrons at A/D full scale (step Δ = full scale / 2**bits)")
+    adc_offset_counts: int = setting(16, lo=0, hi=2**31, doc="Digital offset (pedestal) added to every sample")
+    speckle_dof: float = setting(0.0, lo=0.0, hi=1e9,
+                                 doc="Speckle degrees of freedom M (contrast 1/√M); 0 = no speckle")
+    speckle_correlated: bool = setting(False, doc="Spatially correlate the speckle with the MTF_speckle "
+                                                  "(pupil) spectrum instead of independent pixels")
+    geiger_pulses: int = setting(100, lo=1, hi=10_000_000, doc="Pulses accumulated into a Geiger histogram")
+    geiger_dead_time_bins: int = setting(1_000_000, lo=0, hi=100_000_000,
+                                         doc="Geiger dead time in bins (≥ n_bins: one detection per pulse)")
+    enable_optics_mtf: bool = setting(False, doc="Blur each time slice by the diffraction × pixel MTF")
+    optics_pixel_mtf: bool = setting(False, doc="Include the pixel-aperture sinc in MTF_opt (off when the ray "
+                                                "tracer already integrates over the pixel)")
+    enable_shot_noise: bool = setting(True, doc="Poisson photon/electron statistics")
+    enable_background: bool = setting(True, doc="Add the background photon rate")
+    enable_dark_current: bool = setting(True, doc="Add bulk and surface dark current")
+    enable_excess_noise: bool = setting(True, doc="APD excess noise (gain fluctuations)")
+    enable_read_noise: bool = setting(True, doc="Add Gaussian read-out noise")
+    enable_adc: bool = setting(True, doc="A/D conversion to integer counts (else float32 electrons)")
+    threads: int = setting(0, lo=0, hi=256, doc="Worker threads (0: all cores); never changes the result")
+
+
+@dataclass
+class ScannerSettings:
+    """Time-of-flight laser scanner (paper §2.1): one beam (or a stack of channels) steered by a scan pattern.
+
+    Scan angles are in the sensor frame (Blender camera frame: −Z forward, +Y up, +X right).  The beam is the
+    laser's ``beam_divergence_rad`` sampled by rings of sub-rays; the receiver collects the whole footprint
+    through ``receiver.aperture_diameter_m``; each pulse's waveform spans the range gate (``gate``)."""
+
+    pattern: str = setting("raster", choices=("raster", "oscillating", "rotating", "palmer"),
+                           doc="raster: unidirectional lines stacked vertically; oscillating: a sinusoidal "
+                               "across-track mirror (along-track from platform motion); rotating: spinning "
+                               "multi-channel head about the sensor's +Y axis; palmer: conical scan about −Z")
+    pulse_rate_hz: float = setting(100_000.0, lo=1.0, hi=1e8, unit="Hz",
+                                   doc="Pulse repetition frequency (per channel)")
+    scan_rate_hz: float = setting(100.0, lo=1e-3, hi=1e6, unit="Hz",
+                                  doc="Lines per second (raster), mirror oscillation frequency (oscillating), "
+                                      "revolutions per second (rotating, palmer)")
+    scan_width_rad: float = setting(0.5, lo=0.0, hi=6.283185307179586, unit="rad", subtype="ANGLE",
+                                    doc="Full across-scan angle (raster, oscillating) or azimuth extent "
+                                        "(rotating; 2π = a full turn)")
+    scan_height_rad: float = setting(0.5, lo=0.0, hi=3.14159, unit="rad", subtype="ANGLE",
+                                     doc="Full vertical extent of the raster lines, or of the rotating head's "
+                                         "channels")
+    n_lines: int = setting(100, lo=1, hi=1_000_000, doc="Raster: number of scan lines")
+    n_channels: int = setting(16, lo=1, hi=1024, doc="Rotating: channels (lasers) spread over scan_height_rad")
+    cone_half_angle_rad: float = setting(0.26, lo=0.0, hi=1.5, unit="rad", subtype="ANGLE",
+                                         doc="Palmer: half angle of the scan cone around −Z")
+    duration_s: float = setting(0.0, lo=0.0, hi=3600.0, unit="s", subtype="TIME_ABSOLUTE",
+                                doc="Scan duration; 0 = one full pattern (all raster lines, one mirror period, "
+                                    "one revolution or azimuth sweep)")
+    beam_subray_rings: int = setting(1, lo=0, hi=16,
+                                     doc="Rings of sub-rays across the beam footprint: 0 → 1 ray, 1 → 7, "
+                                         "2 → 19 (1 + 3r(r+1)); each carries an equal share of the energy")
+    motion_samples_per_s: float = setting(1000.0, lo=1.0, hi=1e6, unit="Hz",
+                                          doc="How often the add-on samples the sensor's animated pose during "
+                                              "the scan (poses are interpolated per pulse)")
+
+
+@dataclass
+class GatedSettings:
+    """Burst illumination / gated viewing (paper §2.2, §5.1): a flood-lit camera whose shutter opens
+    ``gate_width_s`` long at a delay; a sweep of delays gives range slices (one laser pulse per slice)."""
+
+    first_delay_s: float = setting(6.6e-6, lo=0.0, hi=1e-3, unit="s", subtype="TIME_ABSOLUTE",
+                                   doc="Delay after pulse emission at which the first slice's gate opens")
+    delay_step_s: float = setting(2e-9, lo=1e-12, hi=1e-4, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Delay increment from one slice to the next")
+    n_slices: int = setting(30, lo=1, hi=100_000, doc="Number of slices (gate delays) in the sweep")
+    gate_width_s: float = setting(20e-9, lo=1e-12, hi=1e-4, unit="s", subtype="TIME_ABSOLUTE",
+                                  doc="Time the shutter stays open (full width at half transmission)")
+    shutter_edge_s: float = setting(0.0, lo=0.0, hi=1e-5, unit="s", subtype="TIME_ABSOLUTE",
+                                    doc="Linear rise and fall time of the shutter (0: rectangular gate)")
+    range_method: str = setting("centroid", choices=("centroid", "peak", "two_gate"),
+                                doc="Range from the slice stack: centroid of the intensity-vs-delay profile "
+                                    "around its maximum, 3-point interpolated peak, or the two-gate ratio of "
+                                    "the strongest pair of adjacent slices (physics.md §9)")
+    min_signal_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
+                                  doc="Pixels whose strongest slice is below this give no range")
+
+
+@dataclass
+class RunSettings:
+    """What to compute and how (does not change the physics)."""
+
+    seed: int = setting(0, lo=0, hi=2**63 - 1, doc="Run seed: all random numbers derive from it")
+    chunk_rays: int = setting(262_144, lo=1024, hi=100_000_000,
+                              doc="Rays traced and processed per chunk (bounds memory)")
+    threads: int = setting(0, lo=0, hi=256, doc="Worker threads for ray tracing (0: all cores)")
+    save_waveforms: bool = setting(True, doc="Write the per-pixel waveform cube to the run folder")
+    max_memory_bytes: int = setting(4 * 2**30, lo=2**20, hi=2**44, unit="B",
+                                    doc="Largest waveform cube (bytes) a run may allocate")
+
+
+@dataclass
+class BRDFSettings:
+    """Monostatic BRDF of a material (paper §3.3, eq. 3-3; physics.md §10).
+
+    ``lambertian``: f_r = reflectance/π.  ``steinvall``: f_r = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
+    ``table``: a measured f_r(θ) (paper §3.3: measured data where it exists, else eq. 3-3), linear in θ
+    between the tabulated angles, the first value below the first angle and the last value beyond the last
+    (:func:`core.physics.brdf.table_brdf`).
+    """
+
+    model: str = setting("lambertian", choices=("lambertian", "steinvall", "table"),
+                         doc="BRDF model: Lambertian, Steinvall (eq. 3-3) or a measured table of f_r vs angle")
+    reflectance: float = setting(0.3, lo=0.0, hi=1.0, subtype="FACTOR",
+                                 doc="Lambertian hemispherical reflectance ρ_d (f_r = ρ_d/π)")
+    specular_a: float = setting(0.0, lo=0.0, hi=1e6, unit="1/sr", doc="Steinvall specular amplitude A")
+    slope_s: float = setting(0.2, lo=1e-4, hi=10.0, doc="Steinvall rms facet slope s")
+    diffuse_b: float = setting(0.1, lo=0.0, hi=1e3, unit="1/sr", doc="Steinvall diffuse amplitude B")
+    diffuse_m: float = setting(1.0, lo=0.0, hi=100.0, doc="Steinvall diffuse exponent m (0: Lambertian)")
+    table_wavelength_m: float = setting(1.064e-6, lo=2e-7, hi=1.2e-5, unit="m", subtype="WAVELENGTH",
+                                        doc="Wavelength at which the BRDF table was measured")
+    #: Measured table (model "table"): incidence angles in degrees, strictly increasing in [0, 90] ...
+    table_angle_deg: list = field(default_factory=list)
+    #: ... and the monostatic BRDF f_r at each angle (1/sr), finite and ≥ 0.  At least 2 rows.
+    table_brdf_per_sr: list = field(default_factory=list)
+
+
+#: Table fields of BRDFSettings (lists; not Blender scalar properties: the add-on stores them as a collection).
+BRDF_TABLE_FIELDS = ("table_angle_deg", "table_brdf_per_sr")
+
+
+def check_brdf_table(angle_deg, brdf_per_sr, prefix: str = "") -> None:
+    """Raise ConfigError unless (angle_deg, brdf_per_sr) is a valid measured BRDF table: equal lengths, at least
+    2 rows, real numbers, angles strictly increasing within [0, 90]°, BRDF finite and ≥ 0 (1/sr)."""
+    a_path, v_path = f"{prefix}table_angle_deg", f"{prefix}table_brdf_per_sr"
+    for path, values in ((a_path, angle_deg), (v_path, brdf_per_sr)):
+        if not isinstance(values, (list, tuple)):
+            raise ConfigError(path, values, "a list of numbers")
+        for i, v in enumerate(values):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"{path}[{i}]", v, "a finite number")
+    if len(angle_deg) != len(brdf_per_sr):
+        raise ConfigError(v_path, f"{len(brdf_per_sr)} values",
+                          f"one BRDF value per angle ({len(angle_deg)} angles)")
+    if len(angle_deg) < 2:
+        raise ConfigError(a_path, list(angle_deg), "at least 2 rows (angle, BRDF)")
+    for i, a in enumerate(angle_deg):
+        if not 0.0 <= a <= 90.0:
+            raise ConfigError(f"{a_path}[{i}]", a, "an angle in [0, 90] degrees")
+        if i and a <= angle_deg[i - 1]:
+            raise ConfigError(f"{a_path}[{i}]", a, f"strictly increasing angles (greater than the previous "
+                                                   f"{angle_deg[i - 1]!r} deg)")
+    for i, v in enumerate(brdf_per_sr):
+        if v < 0.0:
+            raise ConfigError(f"{v_path}[{i}]", v, "a BRDF ≥ 0 (1/sr)")
+
+
+def _check_brdf(brdf: "BRDFSettings", prefix: str) -> None:
+    """The table of a BRDF: checked when the model is "table" or a table is present (another model keeps a
+    table it does not use, e.g. while the user compares models)."""
+    if brdf.model == "table" or brdf.table_angle_deg or brdf.table_brdf_per_sr:
+        check_brdf_table(brdf.table_angle_deg, brdf.table_brdf_per_sr, prefix)
+
+
+def _brdf_from_mapping(data, prefix: str) -> "BRDFSettings":
+    """BRDFSettings from a config table; table lists of whole numbers become floats."""
+    brdf = _from_mapping(BRDFSettings, data, prefix)
+    for name in BRDF_TABLE_FIELDS:
+        values = getattr(brdf, name)
+        if isinstance(values, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                     for v in values):
+            setattr(brdf, name, [float(v) for v in values])
+    return brdf
+
+
+#: BRDF used for triangles whose material has no ladar settings (grey Lambertian, 30 %).
+DEFAULT_BRDF = BRDFSettings()
+
+
+@dataclass
+class SimulationConfig:
+    """All settings of one simulation run, minus the scene geometry and the sensor pose."""
+
+    system_type: str = setting("flash", choices=SYSTEM_TYPES, doc="Sensor system type (paper §2)")
+    laser: LaserSettings = field(default_factory=LaserSettings)
+    receiver: ReceiverSettings = field(default_factory=ReceiverSettings)
+    gate: RangeGateSettings = field(default_factory=RangeGateSettings)
+    scanner: ScannerSettings = field(default_factory=ScannerSettings)
+    gated: GatedSettings = field(default_factory=GatedSettings)
+    detection: DetectionSettings = field(default_factory=DetectionSettings)
+    atmosphere: AtmosphereSettings = field(default_factory=AtmosphereSettings)
+    detector: DetectorSettings = field(default_factory=DetectorSettings)
+    run: RunSettings = field(default_factory=RunSettings)
+    #: BRDF overrides by material name (a sweep can change materials without editing the .blend)
+    materials: dict = field(default_factory=dict)
+
+
+GROUPS = ("laser", "receiver", "gate", "scanner", "gated", "detection", "atmosphere", "detector", "run")
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Validation and (de)serialization
+# --------------------------------------------------------------------------------------------------------------
+def validate(obj, prefix: str = "") -> None:
+    """Check every field of a settings dataclass (recursively); raise ConfigError on the first bad one."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        path = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            validate(value, path + ".")
+        elif isinstance(value, dict):
+            for key, sub in value.items():
+                if not isinstance(sub, BRDFSettings):
+                    raise ConfigError(f"{path}.{key}", sub, "a BRDF settings table")
+                validate(sub, f"{path}.{key}.")
+        else:
+            _check_value(path, value, f)
+    if isinstance(obj, BRDFSettings):
+        _check_brdf(obj, prefix)
+    if isinstance(obj, SimulationConfig):
+        _check_cross_field(obj)
+
+
+def _check_cross_field(cfg: SimulationConfig) -> None:
+    if 0.0 < cfg.atmosphere.visibility_m < 50.0:
+        raise ConfigError("atmosphere.visibility_m", cfg.atmosphere.visibility_m,
+                          "0 (off) or a visibility in [50, 1e+06] m")
+    if cfg.system_type == "gated":
+        _check_gated(cfg)
+        return
+    if cfg.system_type == "scanner":
+        n_pulses = n_scan_pulses(cfg)
+        cube = n_pulses * cfg.gate.n_bins * 4
+        if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:
+            raise ConfigError("run.save_waveforms", True,
+                              f"false for this scan: {n_pulses} pulses × {cfg.gate.n_bins} bins of float32 "
+                              f"waveforms need {cube / 2**30:.2f} GiB, more than run.max_memory_bytes = "
+                              f"{cfg.run.max_memory_bytes / 2**30:.2f} GiB (or scan fewer pulses, use fewer "
+                              f"bins, or raise run.max_memory_bytes)")
+        return
+    pixels = 1 if cfg.system_type == "profiler" else cfg.receiver.width_px * cfg.receiver.height_px
+    cube = pixels * cfg.gate.n_bins * 4
+    if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:
+        max_bins = cfg.run.max_memory_bytes // (4 * cfg.receiver.width_px * cfg.receiver.height_px)
+        raise ConfigError("gate.n_bins", cfg.gate.n_bins,
+                          f"at most {max_bins} bins for a {cfg.receiver.width_px}×{cfg.receiver.height_px} "
+                          f"receiver: the float32 waveform cube would need {cube / 2**30:.2f} GiB, more than "
+                          f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB "
+                          f"(use fewer bins or pixels, set run.save_waveforms = false, or raise "
+                          f"run.max_memory_bytes)")
+
+
+def _check_gated(cfg: SimulationConfig) -> None:
+    g = cfg.gated
+    if g.range_method == "two_gate":
+        if g.n_slices < 2:
+            raise ConfigError("gated.n_slices", g.n_slices, "at least 2 for the two-gate ratio method")
+        if abs(g.delay_step_s - g.gate_width_s) > 1e-9 * g.gate_width_s:
+            raise ConfigError("gated.delay_step_s", g.delay_step_s,
+                              f"equal to gated.gate_width_s = {g.gate_width_s:g} s for the two-gate ratio method "
+                              f"(adjacent gates), or choose range_method centroid or peak")
+        if g.shutter_edge_s > 0:
+            raise ConfigError("gated.shutter_edge_s", g.shutter_edge_s,
+                              "0 (a rectangular gate) for the two-gate ratio method")
+        if cfg.laser.pulse_fwhm_s > g.gate_width_s:
+            raise ConfigError("laser.pulse_fwhm_s", cfg.laser.pulse_fwhm_s,
+                              f"at most gated.gate_width_s = {g.gate_width_s:g} s for the two-gate ratio method "
+                              f"(the pulse must fit in one gate)")
+    stack = cfg.receiver.width_px * cfg.receiver.height_px * g.n_slices * 4
+    if stack > cfg.run.max_memory_bytes:
+        raise ConfigError("gated.n_slices", g.n_slices,
+                          f"fewer slices: the float32 slice stack would need {stack / 2**30:.2f} GiB, more than "
+                          f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB")
+
+
+def _from_mapping(cls, data: dict, prefix: str):
+    if not isinstance(data, dict):
+        raise ConfigError(prefix.rstrip(".") or "config", data, "a table of settings")
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        if key not in names:
+            raise ConfigError(f"{prefix}{key}", value, "a known setting: " + ", ".join(sorted(names)))
+        f = names[key]
+        if dataclasses.is_dataclass(f.default_factory() if f.default_factory is not dataclasses.MISSING
+                                    else None):
+            kwargs[key] = _from_mapping(type(f.default_factory()), value, f"{prefix}{key}.")
+        elif key == "materials":
+            if not isinstance(value, dict):
+                raise ConfigError(f"{prefix}{key}", value, "a table of material name -> BRDF settings")
+            kwargs[key] = {name: _brdf_from_mapping(sub, f"{prefix}{key}.{name}.")
+                           for name, sub in value.items()}
+        else:
+            if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            kwargs[key] = value
+    return cls(**kwargs)
+
+
+def config_to_dict(cfg: SimulationConfig) -> dict:
+    """Plain nested dict (JSON/TOML-ready) with the schema version."""
+    data = {"schema_version": SCHEMA_VERSION}
+    data.update(dataclasses.asdict(cfg))
+    return data
+
+
+def config_from_dict(data: dict, base: SimulationConfig | None = None) -> SimulationConfig:
+    """Build and validate a config from a dict.  Keys present override ``base`` (default settings if None)."""
+    if not isinstance(data, dict):
+        raise ConfigError("config", type(data).__name__, "a table of settings")
+    data = dict(data)
+    version = data.pop("schema_version", SCHEMA_VERSION)
+    if version != SCHEMA_VERSION:
+        raise ConfigError("schema_version", version, f"{SCHEMA_VERSION} (this version of the simulator)")
+    merged = config_to_dict(base) if base is not None else config_to_dict(SimulationConfig())
+    merged.pop("schema_version")
+    for key, value in data.items():
+        if key in GROUPS and isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = {**merged[key], **value}
+        elif key == "materials" and isinstance(value, dict):
+            merged[key] = {**merged.get(key, {}), **value}
+        else:
+            merged[key] = value
+    cfg = _from_mapping(SimulationConfig, merged, "")
+    validate(cfg)
+    return cfg
+
+
+def load_config(path, base: SimulationConfig | None = None) -> SimulationConfig:
+    """Read a JSON (``.json``) or TOML (``.toml``) config file; its keys override ``base``."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError("config file", str(path), "an existing .json or .toml file")
+    text = path.read_text(encoding="utf-8")
+    try:
+        if path.suffix.lower() == ".toml":
+            import tomllib
+            data = tomllib.loads(text)
+        elif path.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            raise ConfigError("config file", str(path), "a file ending in .json or .toml")
+    except (json.JSONDecodeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError("config file", str(path), f"valid {path.suffix[1:].upper()} ({exc})") from exc
+    return config_from_dict(data, base)
+
+
+def dump_config_json(cfg: SimulationConfig) -> str:
+    return json.dumps(config_to_dict(cfg), indent=2, sort_keys=False)
+
+
+def dump_config_toml(cfg: SimulationConfig) -> str:
+    """Minimal TOML writer for the config's flat groups (numbers, strings, booleans)."""
+    data = config_to_dict(cfg)
+
+    def fmt(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, float):
+            return repr(v)
+        return str(v)
+
+    lines = [f"schema_version = {SCHEMA_VERSION}", f"system_type = {fmt(data['system_type'])}", ""]
+    for group in GROUPS:
+        lines.append(f"[{group}]")
+        lines += [f"{k} = {fmt(v)}" for k, v in data[group].items()]
+        lines.append("")
+    for name, brdf in data["materials"].items():
+        lines.append(f"[materials.{json.dumps(name)}]")
+        lines += [f"{k} = [{', '.join(fmt(x) for x in v)}]" if isinstance(v, (list, tuple)) else f"{k} = {fmt(v)}"
+                  for k, v in brdf.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def field_specs(cls) -> list[tuple[str, Any, dict]]:
+    """(name, default, metadata) of every plain setting of a settings class: what the add-on turns into
+    Blender properties."""
+    out = []
+    for f in dataclasses.fields(cls):
+        if f.default is dataclasses.MISSING:
+            continue
+        out.append((f.name, f.default, dict(f.metadata)))
+    return out

@@ -1,0 +1,229 @@
+"""The run folder: every product of a run written atomically next to a metadata record.
+
+A run is assembled in a hidden sibling folder and renamed into place only when every file is complete, so a
+failed or cancelled run leaves nothing behind, and an existing run is never replaced unless asked.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..constants import SPEED_OF_LIGHT_M_S
+
+EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
+
+
+def check_run_dir(out_dir, overwrite: bool) -> Path:
+    """Raise ConfigError (writing nothing) if the run folder exists and overwrite is off."""
+    out = Path(out_dir)
+    if out.exists() and not overwrite:
+        raise ConfigError("out", str(out), "a run folder that does not exist yet (or set overwrite to replace "
+                                           "the existing run)")
+    if out.exists() and not out.is_dir():
+        raise ConfigError("out", str(out), "a folder path (a file of that name exists)")
+    return out
+
+
+def write_exr(path, channels: dict):
+    """Write float32 channels {name: (H, W)} as one scanline EXR (ZIP compression)."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    data = {name: np.ascontiguousarray(arr, dtype=np.float32) for name, arr in channels.items()}
+    OpenEXR.File(header, data).write(str(path))
+
+
+def read_exr(path) -> dict:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        return {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+
+
+_PLY_TYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dtype(np.int32): "int",
+              np.dtype(np.int16): "short", np.dtype(np.uint8): "uchar", np.dtype(np.int64): "int"}
+
+
+def write_ply(path, points: dict):
+    """Binary little-endian PLY: x, y, z (world, double) and every 1-D per-point attribute."""
+    pos = points["position_world"]
+    fields = [("x", pos[:, 0]), ("y", pos[:, 1]), ("z", pos[:, 2])]
+    for name, arr in points.items():
+        if arr.ndim == 1:
+            fields.append((name, arr.astype(np.int32) if arr.dtype == np.int64 else arr))
+    dtype = np.dtype([(n, a.dtype.newbyteorder("<")) for n, a in fields])
+    table = np.empty(len(pos), dtype=dtype)
+    for n, a in fields:
+        table[n] = a
+    header = ["ply", "format binary_little_endian 1.0", "comment ladar simulator point cloud",
+              f"element vertex {len(pos)}"]
+    header += [f"property {_PLY_TYPES[np.dtype(a.dtype)]} {n}" for n, a in fields]
+    header.append("end_header")
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(table.tobytes())
+
+
+def read_ply(path) -> dict:
+    """Read a PLY written by :func:`write_ply` (binary little-endian vertices only)."""
+    inverse = {"double": "<f8", "float": "<f4", "int": "<i4", "short": "<i2", "uchar": "u1"}
+    with open(path, "rb") as f:
+        names, types, n = [], [], 0
+        while True:
+            line = f.readline().decode("ascii").strip()
+            if line.startswith("element vertex"):
+                n = int(line.split()[-1])
+            elif line.startswith("property"):
+                _, t, name = line.split()
+                names.append(name)
+                types.append(inverse[t])
+            elif line == "end_header":
+                break
+        table = np.frombuffer(f.read(), dtype=np.dtype(list(zip(names, types))), count=n)
+    return {name: table[name] for name in names}
+
+
+def software_versions() -> dict:
+    versions = {"python": platform.python_version(), "numpy": np.__version__, "platform": platform.platform()}
+    for mod in ("scipy", "embreex", "OpenEXR"):
+        try:
+            versions[mod] = getattr(__import__(mod), "__version__", "unknown")
+        except ImportError:  # pragma: no cover - all are requirements
+            versions[mod] = "missing"
+    from ..version import __version__
+    versions["ladar_core"] = __version__
+    if "bpy" in sys.modules:
+        versions["blender"] = sys.modules["bpy"].app.version_string
+    return versions
+
+
+def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Path:
+    """Write a FrameResult's products and ``metadata.json`` atomically into ``out_dir``."""
+    out = check_run_dir(out_dir, overwrite).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    t0 = time.perf_counter()
+    units = result.units
+    try:
+        files = {}
+        if result.range_image is not None:
+            write_exr(tmp / "range.exr", {"Y": result.range_image})
+            write_exr(tmp / "intensity.exr", {"Y": result.intensity_image})
+            write_exr(tmp / "energy.exr", {"Y": result.energy_image})
+            gated = getattr(result, "slices", None) is not None
+            files.update({"range.exr": ("range from the slice stack" if gated else "first-echo range")
+                          + f" ({units['range']}), NaN where none; row 0 = top",
+                          "intensity.exr": ("strongest slice" if gated else "first-echo peak amplitude")
+                          + f" ({units['intensity']})",
+                          "energy.exr": f"energy received per pixel before time binning ({units['energy']})"})
+        write_ply(tmp / "points.ply", result.points)
+        np.savez(tmp / "points.npz", **result.points)
+        files["points.ply"] = "point cloud, world coordinates + per-point attributes"
+        files["points.npz"] = "the same point cloud as NumPy arrays"
+        if len(result.points.get("range_m", ())):
+            from .las import write_las
+            write_las(tmp / "points.las", result.points, metadata={"system_type": metadata.get("system_type"),
+                                                                    "frame": metadata.get("frame"),
+                                                                    "intensity_unit": units["intensity"]})
+            files["points.las"] = "the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time)"
+        if result.range_echoes is not None:
+            np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
+            files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
+        if getattr(result, "digital_waveforms", None) is not None:
+            np.save(tmp / "counts.npy", result.digital_waveforms)
+            files["counts.npy"] = f"receiver output per pixel and bin ({units['counts']})"
+        if result.waveforms is not None:
+            np.save(tmp / "waveforms.npy", result.waveforms)
+            files["waveforms.npy"] = ("waveforms (n_pulses, n_bins)" if result.waveforms.ndim == 2
+                                      else "waveform cube (H, W, n_bins)") + f" float32, {units['waveforms']}"
+        if getattr(result, "pulses", None) is not None:
+            np.savez(tmp / "pulses.npz", **result.pulses)
+            files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
+        if getattr(result, "slices", None) is not None:
+            (tmp / "slices").mkdir()
+            for k, img in enumerate(result.slices):
+                write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img})
+            np.save(tmp / "slices.npy", result.slices)
+            files["slices/slice_NNNN.exr"] = f"gated slices as an image sequence ({units['slices']} per pixel), 1-based"
+            files["slices.npy"] = f"gated slices (n_slices, H, W) float32, {units['slices']} per pixel"
+        if metadata.get("system_type") == "profiler" and result.waveforms is not None:
+            _write_profile_csv(tmp / "profile.csv", result.waveforms.reshape(-1), metadata)
+            files["profile.csv"] = "the range profile: time_s, range_m, energy_j per bin"
+        meta = dict(metadata)
+        meta["units"] = dict(units)
+        meta["files"] = files
+        meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
+        with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+            json.dump(meta, f, indent=2, default=json_default)
+        commit_run_dir(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def commit_run_dir(tmp: Path, out: Path) -> None:
+    """Move a completed run folder into place; an existing run (overwrite asked) is swapped out, then removed."""
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        os.rename(out, old / "run")
+        os.rename(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out)
+
+
+def _write_profile_csv(path, waveform, metadata):
+    gate = metadata["settings"]["gate"]
+    t = gate["gate_start_s"] + (np.arange(len(waveform)) + 0.5) * gate["bin_width_s"]
+    table = np.column_stack([t, 0.5 * SPEED_OF_LIGHT_M_S * t, waveform])
+    np.savetxt(path, table, delimiter=",", header="time_s,range_m,energy_j", comments="", fmt="%.10g")
+
+
+def json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+
+
+def run_summary(run_path, result) -> str:
+    """A few lines a person reads after a run: what was seen, what ran, what was skipped, where it went."""
+    st = result.stats
+    pts = result.points
+    lines = [f"run      {run_path}"]
+    if "n_pulses" in st:
+        lines.append(f"pulses   {st['n_pulses']} fired ({st['subrays_per_pulse']} sub-rays each) over "
+                     f"{st['scan_duration_s']:.3g} s, {st['pulses_without_echo']} without an echo")
+    lines.append(f"rays     {st['n_rays']} traced, {st['n_hits']} hits on {st['n_triangles']} triangles "
+                 f"({st['threads']} threads, {st['wall_time_s']:.2f} s)")
+    if getattr(result, "slices", None) is not None:
+        d = np.asarray(st["slice_delays_s"])
+        lines.append(f"slices   {len(d)} gates, delays {d[0] * 1e9:.1f} – {d[-1] * 1e9:.1f} ns; range by "
+                     f"{st['range_method']}")
+    unit = "pulses" if "n_pulses" in st else "pixels"
+    if len(pts["range_m"]):
+        first = pts["echo_index"] == 1
+        lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} {unit} with an echo, "
+                     f"{int((pts['n_echoes'][first] > 1).sum())} with several; range "
+                     f"{pts['range_m'].min():.3f} – {pts['range_m'].max():.3f} m")
+    else:
+        lines.append("echoes   none detected")
+    lines.append(f"energy   {st['received_energy_j']:.4g} J received in total")
+    times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
+    lines.append(f"stages   {times} (s, summed over threads)")
+    if st.get("stages_skipped"):
+        lines.append("skipped  " + "; ".join(f"{k} ({v})" for k, v in st["stages_skipped"].items()))
+    return "\n".join(lines)

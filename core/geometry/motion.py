@@ -1,0 +1,72 @@
+"""Sensor motion: a trajectory of poses sampled in time, interpolated per pulse (paper §2.1, moving platforms).
+
+The add-on samples the sensor object's ``matrix_world`` at sub-frames over the scan; the core interpolates the
+position linearly and the orientation by spherical linear interpolation (scipy ``Slerp``), so every pulse is
+fired from, and its points registered with, the pose at its own time stamp.  Times are float64 seconds from the
+start of the scan (or frame).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from ..errors import ConfigError
+
+
+def split_pose(world_from_sensor):
+    """(origin (3,), rotation (3, 3) with unit columns) of a 4×4 sensor-to-world matrix (scale removed)."""
+    m = np.asarray(world_from_sensor, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ConfigError("sensor.matrix_world", "shape %s" % (m.shape,), "a finite 4×4 matrix")
+    rot = m[:3, :3]
+    scale = np.linalg.norm(rot, axis=0)
+    if np.any(scale == 0):
+        raise ConfigError("sensor.matrix_world", "zero scale", "an invertible rotation (non-zero scale)")
+    return m[:3, 3].copy(), rot / scale
+
+
+@dataclass
+class Trajectory:
+    """Sensor poses at increasing times: ``times_s`` (n,) and ``matrices`` (n, 4, 4) sensor→world."""
+
+    times_s: np.ndarray
+    matrices: np.ndarray
+
+    def __post_init__(self):
+        self.times_s = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
+        self.matrices = np.asarray(self.matrices, dtype=np.float64).reshape(-1, 4, 4)
+        if len(self.times_s) != len(self.matrices) or len(self.times_s) == 0:
+            raise ConfigError("trajectory", f"{len(self.times_s)} times, {len(self.matrices)} poses",
+                              "as many poses as times (at least one)")
+        if not np.all(np.isfinite(self.times_s)) or np.any(np.diff(self.times_s) <= 0):
+            raise ConfigError("trajectory.times_s", "not strictly increasing", "strictly increasing finite times")
+        parts = [split_pose(m) for m in self.matrices]
+        self._origins = np.array([p[0] for p in parts])
+        rots = np.array([p[1] for p in parts])
+        # a reflection (negative determinant) cannot be interpolated as a rotation
+        if np.any(np.linalg.det(rots) < 0):
+            raise ConfigError("trajectory.matrices", "a mirrored pose", "proper rotations (no negative scale)")
+        self._rotations = Rotation.from_matrix(rots)
+        #: every pose has the same orientation (a static sensor, or one that only translates)
+        self.rotation_is_constant = bool(np.all(rots == rots[0]))
+        self.rotation0 = rots[0]
+        self._slerp = (Slerp(self.times_s, self._rotations) if len(self.times_s) > 1 and not self.rotation_is_constant
+                       else None)
+
+    @classmethod
+    def static(cls, world_from_sensor) -> "Trajectory":
+        return cls(np.zeros(1), np.asarray(world_from_sensor, dtype=np.float64)[None])
+
+    @property
+    def is_static(self) -> bool:
+        return len(self.times_s) == 1 or (np.allclose(self.matrices, self.matrices[0], rtol=0, atol=0))
+
+    def poses_at(self, t_s):
+        """Origins (n, 3) and rotations (n, 3, 3) at times ``t_s`` (clamped to the sampled interval)."""
+        t = np.clip(np.asarray(t_s, dtype=np.float64), self.times_s[0], self.times_s[-1])
+        origin = np.stack([np.interp(t, self.times_s, self._origins[:, k]) for k in range(3)], axis=1)
+        if self._slerp is None:
+            return origin, np.broadcast_to(self.rotation0, (len(t), 3, 3))
+        return origin, self._slerp(t).as_matrix()

@@ -1,0 +1,259 @@
+"""Monostatic BRDF models (paper §3.3, eq. 3-3; physics.md §10): Lambertian, Steinvall, and measured tables.
+
+Paper §3.3: "If the material has measured BRDF data, that is used, otherwise a parameterized version is used
+to calculate the reflection according to equation (3-3)."  A measured table (model ``"table"``) holds f_r at
+increasing incidence angles θ_i (degrees, 0–90) at one stated wavelength; :func:`table_brdf` evaluates it
+
+* linearly in θ (degrees) between neighbouring rows:  f_r(θ) = f_i + (f_{i+1} − f_i)(θ − θ_i)/(θ_{i+1} − θ_i);
+* below the first angle: the first value (the monostatic BRDF is even in θ, so a table starting at θ_0 > 0
+  extended symmetrically and interpolated linearly through −θ_0 … θ_0 gives exactly this constant);
+* beyond the last angle, up to 90°: the last value (held constant; the received energy still vanishes at
+  grazing incidence through the cos θ factor of eq. 3-1).
+
+Linear interpolation keeps f_r ≥ 0 and within the range of the two neighbouring measurements, reproduces the
+table exactly at its angles, and adds no overshoot near a narrow specular peak (a cubic would).
+
+:func:`brdf_from_principled` maps Blender's Principled BSDF (base colour, roughness, metallic, IOR) onto a
+*starting* Steinvall BRDF; see its docstring for the formula.
+"""
+from __future__ import annotations
+
+import io
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..config.settings import BRDFSettings, check_brdf_table
+from ..errors import ConfigError
+
+
+def steinvall_brdf(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
+    """Steinvall (2000) monostatic BRDF, paper eq. 3-3, in 1/sr.
+
+    f_r(θ) = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
+
+    The specular term is evaluated as A·exp(−tan²θ/s² − 6 ln cosθ) (physics.md §10) with cosθ clamped to
+    [1e-150, 1], so grazing incidence gives a finite value (→ 0 for the specular lobe) instead of 0·∞.
+    """
+    c = np.clip(np.asarray(cos_theta, dtype=np.float64), 1e-150, 1.0)
+    c2 = c * c
+    tan2 = np.maximum((1.0 - c2) / c2, 0.0)
+    with np.errstate(over="ignore"):
+        exponent = -tan2 / (slope_s * slope_s) - 6.0 * np.log(c)
+    specular = specular_a * np.exp(np.minimum(exponent, 700.0)) if specular_a else np.zeros_like(c)
+    diffuse = diffuse_b * c ** diffuse_m
+    return specular + diffuse
+
+
+def lambertian_brdf(cos_theta, reflectance):
+    """Lambertian BRDF f_r = ρ_d/π (1/sr), independent of angle (physics.md §10)."""
+    return np.full(np.shape(cos_theta), reflectance / np.pi, dtype=np.float64)
+
+
+def table_brdf(cos_theta, angle_deg, brdf_per_sr):
+    """f_r(θ) (1/sr) of a measured table: linear in θ (degrees) between rows, the first value below the
+    first angle, the last value beyond the last angle (module docstring).  cos θ is clipped to [0, 1]."""
+    theta_deg = np.degrees(np.arccos(np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)))
+    return np.interp(theta_deg, np.asarray(angle_deg, dtype=np.float64), np.asarray(brdf_per_sr, np.float64))
+
+
+def evaluate_brdf(brdf: BRDFSettings, cos_theta):
+    """f_r(θ) for one material's settings."""
+    if brdf.model == "lambertian":
+        return lambertian_brdf(cos_theta, brdf.reflectance)
+    if brdf.model == "table":
+        return table_brdf(cos_theta, brdf.table_angle_deg, brdf.table_brdf_per_sr)
+    return steinvall_brdf(cos_theta, brdf.specular_a, brdf.slope_s, brdf.diffuse_b, brdf.diffuse_m)
+
+
+def evaluate_materials(materials, material_ids, cos_theta):
+    """f_r per ray for rays hitting triangles of the given material indices (vectorized per material)."""
+    out = np.zeros(np.shape(cos_theta), dtype=np.float64)
+    for index in np.unique(material_ids):
+        sel = material_ids == index
+        out[sel] = evaluate_brdf(materials[int(index)], cos_theta[sel])
+    return out
+
+
+def directional_hemispherical_reflectance(brdf: BRDFSettings) -> float:
+    """ρ_DH(0) at normal incidence (physics.md §10): 4πs²A(1 − e^(−1/s²)) + 4πB/(m + 4) (Steinvall), ρ_d
+    (Lambertian).  A physically plausible material has ρ_DH ≤ 1.  Not defined for a measured monostatic
+    table (it holds no bistatic information): ValueError."""
+    if brdf.model == "table":
+        raise ValueError("ρ_DH needs a bistatic BRDF; a monostatic table does not define it")
+    if brdf.model == "lambertian":
+        return brdf.reflectance
+    s2 = brdf.slope_s ** 2
+    return 4 * np.pi * s2 * brdf.specular_a * (1 - np.exp(-1 / s2)) + 4 * np.pi * brdf.diffuse_b / (
+        brdf.diffuse_m + 4)
+
+
+def lambertian_equivalent_reflectance(brdf: BRDFSettings, theta_deg) -> np.ndarray:
+    """π f_r(θ): the reflectance ρ_d a Lambertian surface needs to return the same energy at incidence θ."""
+    return np.pi * evaluate_brdf(brdf, np.cos(np.radians(np.asarray(theta_deg, dtype=np.float64))))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Measured tables from text files
+# --------------------------------------------------------------------------------------------------------------
+_WAVELENGTH_RE = re.compile(r"wavelength[^0-9]*?([0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?)\s*(nm|um|µm|micron|m)\b",
+                            re.IGNORECASE)
+_WAVELENGTH_UNITS_M = {"nm": 1e-9, "um": 1e-6, "µm": 1e-6, "micron": 1e-6, "m": 1.0}
+_SPLIT_RE = re.compile(r"[,;\s]+")
+
+
+def _parse_float(token: str):
+    try:
+        return float(token)
+    except ValueError:
+        return None
+
+
+def parse_brdf_table(text: str, source: str = "table") -> tuple[list, list, float | None]:
+    """Read a measured BRDF table: one row per line, incidence angle (degrees) then f_r (1/sr).
+
+    Columns are separated by commas, semicolons, tabs or spaces.  Empty lines and comment lines (starting
+    with ``#``, ``%`` or ``//``) are skipped anywhere; non-numeric header lines are allowed before the first
+    row.  A comment or header such as ``# wavelength = 1064 nm`` (units nm, um/µm or m) states the wavelength.
+
+    Returns ``(angle_deg, brdf_per_sr, wavelength_m or None)``, validated with
+    :func:`core.config.check_brdf_table`; a bad line or value raises ConfigError naming the file and line.
+    """
+    angles, values, lines_of_rows = [], [], []
+    wavelength_m = None
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip().lstrip("\ufeff")
+        if not line:
+            continue
+        is_comment = line.startswith(("#", "%", "//"))
+        tokens = [t for t in _SPLIT_RE.split(line.lstrip("#%/").strip()) if t]
+        numbers = [_parse_float(t) for t in tokens]
+        if is_comment or not tokens or numbers[0] is None:
+            match = _WAVELENGTH_RE.search(line)
+            if match and wavelength_m is None:
+                wavelength_m = float(match.group(1)) * _WAVELENGTH_UNITS_M[match.group(2).lower()]
+            if is_comment or not angles:
+                continue  # a comment anywhere, or a header line before the first row
+            raise ConfigError(f"{source} line {number}", raw.strip(),
+                              "two numbers per row: incidence angle (degrees), BRDF (1/sr)")
+        if len(numbers) != 2 or numbers[1] is None:
+            raise ConfigError(f"{source} line {number}", raw.strip(),
+                              "exactly two numbers per row: incidence angle (degrees), BRDF (1/sr)")
+        angles.append(numbers[0])
+        values.append(numbers[1])
+        lines_of_rows.append(number)
+    try:
+        check_brdf_table(angles, values)
+    except ConfigError as exc:
+        index = re.search(r"\[(\d+)\]$", exc.field)
+        where = f" (line {lines_of_rows[int(index.group(1))]})" if index else ""
+        raise ConfigError(f"{source}: {exc.field}{where}", exc.value, exc.allowed) from None
+    if wavelength_m is not None and not 2e-7 <= wavelength_m <= 1.2e-5:
+        raise ConfigError(f"{source}: wavelength", wavelength_m, "a wavelength in [2e-07, 1.2e-05] m")
+    return angles, values, wavelength_m
+
+
+def load_brdf_table(path) -> tuple[list, list, float | None]:
+    """:func:`parse_brdf_table` of a UTF-8 (or Latin-1) text file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError("BRDF table file", str(path), "an existing CSV or text file")
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
+    return parse_brdf_table(text, path.name)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# A starting BRDF from Blender's Principled BSDF
+# --------------------------------------------------------------------------------------------------------------
+#: Smallest facet slope the Principled mapping produces (a mirror-smooth surface would need A → ∞).
+PRINCIPLED_MIN_SLOPE = 0.01
+
+
+def brdf_from_principled(base_color_rgb, roughness: float, metallic: float = 0.0, ior: float = 1.5,
+                         specular_ior_level: float = 0.5) -> BRDFSettings:
+    """A *starting* Steinvall BRDF (eq. 3-3) from Principled BSDF inputs — a visible-light appearance model,
+    so the result is a first guess at the laser wavelength, not a measurement.
+
+    With Y = 0.2126 R + 0.7152 G + 0.0722 B the luminance of the linear base colour (clipped to [0, 1]):
+
+    * dielectric Fresnel reflectance at normal incidence F0 = ((n − 1)/(n + 1))² · 2 · specular_ior_level
+      (Blender's "Specular IOR Level" 0.5 leaves F0 unchanged), clipped to [0, 1];
+    * specular (facet) reflectance ρ_F = (1 − metallic) F0 + metallic Y;
+    * diffuse reflectance ρ_d = (1 − metallic)(1 − F0) Y;
+    * rms facet slope s = max(roughness², 0.01) (Blender's GGX α = roughness²; Beckmann s ≈ α);
+    * A = ρ_F/(4π s²) (Beckmann form, physics.md §10), B = ρ_d/π, m = 0 (Lambertian diffuse lobe).
+    """
+    rgb = np.clip(np.asarray(base_color_rgb, dtype=np.float64)[:3], 0.0, 1.0)
+    luminance = float(np.dot([0.2126, 0.7152, 0.0722], rgb))
+    roughness = min(max(float(roughness), 0.0), 1.0)
+    metallic = min(max(float(metallic), 0.0), 1.0)
+    f0 = min(max(((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * specular_ior_level, 0.0), 1.0)
+    rho_facet = (1.0 - metallic) * f0 + metallic * luminance
+    rho_diffuse = (1.0 - metallic) * (1.0 - f0) * luminance
+    slope = max(roughness * roughness, PRINCIPLED_MIN_SLOPE)
+    return BRDFSettings(model="steinvall", specular_a=rho_facet / (4.0 * math.pi * slope * slope), slope_s=slope,
+                        diffuse_b=rho_diffuse / math.pi, diffuse_m=0.0)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Plot
+# --------------------------------------------------------------------------------------------------------------
+def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: float | None = None,
+              dpi: int = 100, use_matplotlib: bool | None = None) -> Path:
+    """Write a 500×340 px PNG plot of f_r(θ) for θ = 0…90° (written atomically, replacing ``path``).
+
+    With matplotlib (Agg canvas, no pyplot): axes, labels, a log f_r axis when all values are positive and span
+    more than a factor 20 (a specular peak and a diffuse floor both show), a table's measured rows as markers.
+    Without matplotlib (a Blender that lacks it): the bare curve drawn by ``core.fileio.preview``'s NumPy renderer
+    (log10 f_r above its minimum in the log case), no axes or text.
+    """
+    from ..fileio import preview
+
+    theta = np.linspace(0.0, 90.0, 361)
+    f_r = evaluate_brdf(brdf, np.cos(np.radians(theta)))
+    positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
+    log_axis = bool(positive and f_r.max() / f_r.min() > 20.0)
+    if use_matplotlib is None:
+        use_matplotlib = preview.have_matplotlib()
+    if not use_matplotlib:
+        shown = np.log10(f_r / f_r.min()) if log_axis else f_r
+        width, height = int(round(5.0 * dpi)), int(round(3.4 * dpi))
+        return preview.write_bytes_atomically(path, preview.encode_png(preview._numpy_plot(shown, width, height)),
+                                              overwrite=True)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: leaves the user's backend alone
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.0, 3.4), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    label = {"lambertian": f"Lambertian, ρ = {brdf.reflectance:.3g}",
+             "steinvall": f"Steinvall A={brdf.specular_a:.3g}, s={brdf.slope_s:.3g}, B={brdf.diffuse_b:.3g}, "
+                          f"m={brdf.diffuse_m:.3g}",
+             "table": f"table at {brdf.table_wavelength_m * 1e9:.0f} nm (linear in θ)"}[brdf.model]
+    ax.plot(theta, f_r, color="#1f5fa8", label=label)
+    if brdf.model == "table":
+        ax.plot(brdf.table_angle_deg, brdf.table_brdf_per_sr, "o", color="#c2410c", markersize=4,
+                label="measured")
+    if log_axis:
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(bottom=0.0)
+    ax.set_xlim(0.0, 90.0)
+    ax.set_xlabel("incidence angle θ (deg)")
+    ax.set_ylabel("monostatic BRDF f_r (1/sr)")
+    text = title or "Ladar BRDF"
+    if laser_wavelength_m:
+        text += f" — laser {laser_wavelength_m * 1e9:.0f} nm"
+    ax.set_title(text, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return preview.write_bytes_atomically(path, buffer.getvalue(), overwrite=True)

@@ -1,0 +1,479 @@
+"""Receiver chain: photons, detector noise, gain, read-out and A/D conversion (paper §3.1 Figure 4).
+
+Physics references are to ``/work/shared/reference/physics.md``:
+§5 (optics MTF, used through :mod:`core.physics.receiver.speckle`), §7 (speckle), §8 (photons and detector noise).
+
+Chain order (paper Figure 4, right of the ``Quant`` step)::
+
+    energy J/bin --(Quant: E λ/hc)--> mean photons --(MTF_opt ⊛)--> --(η ⊗)--> --(speckle ⊗)-->
+    --(+ background, + bulk dark)--> Poisson primaries --(G, excess noise F)--> --(+ surface dark)-->
+    --(+ read-out noise)--> --(A/D: step Δ, offset, clip)--> digital counts
+
+All random steps are applied to *means* first and sampled once at the end of each linear stage, which is
+exactly equivalent in distribution to the photon-by-photon picture: blurring a Poisson photon field photon by
+photon gives a Poisson field with the blurred mean; binomial thinning (η) of Poisson(N) is Poisson(ηN); a
+gamma-distributed speckle factor on the mean gives the negative-binomial counts of §7.
+
+Speed: a cube is processed in fixed-size pixel blocks, each with its own generator spawned from one
+``SeedSequence`` (spawn key = block index), so the output depends only on the seed and the cube shape, never
+on the number of threads.  Poisson primaries are sampled exactly and sparsely (a Poisson total per block or
+per pixel, then placement by inverse-CDF search or uniform index), with a per-bin ``rng.poisson`` only for
+bins whose mean exceeds ``DENSE_MEAN``; the APD gain with excess noise is the exact sum of n gamma-distributed
+single-electron gains, i.e. one Gamma(n/(F-1), G(F-1)) draw per *non-zero* bin.  See docs/receiver.md.
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...config.settings import DetectorSettings, validate
+from .adc import adc_convert, adc_dtype
+from .code_tables import (CAUGHT_TABLES, P_BITS, TABLE_MIN_SIGMA_STEPS, CaughtCodeTables, CodeTable, noise_code_pmf,
+                          uniform_uint32)
+from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
+                          photons_per_joule)
+from .geiger import geiger_histogram
+from .samplers import DENSE_MEAN, NORMAL_MEAN, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
+
+#: Table route: signal bins with a mean below this are drawn by sparse placement (one Poisson total first).
+_SPARSE_MEAN = 1e-3
+#: Largest mean number of primaries per bin carried (float32 safe); larger means are clipped and reported.
+_MEAN_CAP = 1e30
+#: Samples (pixels × bins) per random block.  Fixed: the result depends on the seed and shape only.
+_BLOCK_SAMPLES = 1 << 18
+
+STEPS = ("photon_conversion", "optics_mtf", "quantum_efficiency", "speckle", "background", "dark_current",
+         "shot_noise", "gain", "excess_noise", "read_noise", "adc")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Settings
+# ----------------------------------------------------------------------------------------------------------
+@dataclass
+class ChainSettings:
+    """Everything :func:`apply_receiver_chain` needs: the detector plus the physical context."""
+
+    detector: DetectorSettings = field(default_factory=DetectorSettings)
+    wavelength_m: float = 1.064e-6
+    bin_width_s: float = 1e-9
+    aperture_diameter_m: float = 0.05
+    ifov_x_rad: float = 0.02 / 64
+    ifov_y_rad: float = 0.02 / 64
+
+    @classmethod
+    def from_config(cls, cfg, detector: DetectorSettings | None = None) -> "ChainSettings":
+        """Context from a :class:`core.config.SimulationConfig`; detector from ``detector`` or ``cfg.detector``."""
+        det = detector if detector is not None else getattr(cfg, "detector", DetectorSettings())
+        r = cfg.receiver
+        return cls(det, cfg.laser.wavelength_m, cfg.gate.bin_width_s, r.aperture_diameter_m,
+                   r.fov_x_rad / r.width_px, r.fov_y_rad / r.height_px)
+
+
+@dataclass
+class ChainOutput:
+    """Result of :func:`apply_receiver_chain`.
+
+    ``data``: digital counts (uint16/uint32) after the A/D, float32 electrons if the A/D is off, int32
+    detections for Geiger mode, or the input array itself in ideal mode.  ``report``: steps run/skipped,
+    units, clipping counts, approximations used."""
+
+    data: np.ndarray
+    report: dict
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The chain
+# ----------------------------------------------------------------------------------------------------------
+def _seed_sequence(rng) -> np.random.SeedSequence:
+    if isinstance(rng, np.random.SeedSequence):
+        return rng
+    if isinstance(rng, np.random.Generator):
+        return np.random.SeedSequence(rng.integers(0, 2**63, size=4).tolist())
+    return np.random.SeedSequence(rng)
+
+
+def _child(ss, *key) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(
+        np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + tuple(key))))
+
+
+def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_table=True) -> ChainOutput:
+    """Apply the receiver chain of the paper's Figure 4 (physics.md §5, §7, §8) to a waveform cube.
+
+    waveforms_j : (H, W, B) float32 signal energy per pixel per time bin [J] (no background: that is added here).
+    settings    : :class:`ChainSettings` (``settings.detector`` switches the steps).
+    rng         : ``np.random.Generator``, ``SeedSequence`` or int seed.  Same seed → identical output,
+                  independent of the thread count.
+
+    noise_table : draw the bins without signal photo-electrons from the exact tabulated code distribution
+                  (:class:`CodeTable`; A/D on, read noise ≥ 0.002 Δ).  False forces the per-bin route (tests).
+
+    Ideal mode returns ``waveforms_j`` itself (bit for bit) and reports every step skipped.
+    """
+    det = settings.detector
+    validate(det)
+    cube = np.asarray(waveforms_j)
+    if cube.ndim != 3:
+        raise ValueError(f"waveforms_j must be (H, W, B), got shape {cube.shape}")
+    report = {"mode": det.mode, "detector_type": det.detector_type, "steps_run": [], "steps_skipped": [],
+              "approximations": [], "n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0,
+              "n_optics_negative_clamped": 0, "units": "J"}
+    if det.mode == "ideal":
+        report["steps_skipped"] = list(STEPS)
+        return ChainOutput(waveforms_j, report)
+
+    if cube.size and not (np.isfinite(cube.min()) and np.isfinite(cube.max())):
+        raise ValueError("waveforms_j contains NaN or Inf")
+    if cube.size and cube.min() < 0:
+        raise ValueError("waveforms_j contains negative energies")
+    H, W, B = cube.shape
+    ss = _seed_sequence(rng)
+    run, skip = report["steps_run"], report["steps_skipped"]
+    geiger = det.detector_type == "geiger"
+
+    # Quant: J -> mean photons (deterministic factor, fused into the block kernel); optics MTF acts on means
+    k_sig = float(photons_per_joule(settings.wavelength_m))
+    run.append("photon_conversion")
+    src = cube
+    if det.enable_optics_mtf:
+        from .speckle import apply_mtf, optics_mtf_2d
+        # zero padding (light from outside the field of view is not simulated) against FFT wrap-around:
+        # 8 diffraction widths λ/D, at most the image size
+        ifov = min(settings.ifov_x_rad, settings.ifov_y_rad)
+        pad = int(min(max(H, W), math.ceil(8.0 * settings.wavelength_m / settings.aperture_diameter_m / ifov) + 1))
+        mtf = optics_mtf_2d((H, W), settings.wavelength_m, settings.aperture_diameter_m,
+                            settings.ifov_x_rad, settings.ifov_y_rad, pixel=det.optics_pixel_mtf, pad=(pad, pad))
+        padded = np.pad(cube.astype(np.float32, copy=False), ((0, pad), (0, pad), (0, 0)))
+        blurred, n_neg = apply_mtf(padded, mtf, axes=(0, 1), clamp_negative=True)
+        src = np.ascontiguousarray(blurred[:H, :W])
+        report["n_optics_negative_clamped"] = n_neg
+        report["optics_pad_px"] = pad
+        run.append("optics_mtf")
+    else:
+        skip.append("optics_mtf")
+    k_sig *= det.quantum_efficiency
+    run.append("quantum_efficiency")
+
+    spk = None
+    if det.speckle_dof > 0 and geiger:
+        run.append("speckle")  # redrawn per pulse inside the Geiger simulation
+    elif det.speckle_dof > 0:
+        from .speckle import speckle_gain_field
+        spk = speckle_gain_field((H, W), det.speckle_dof, _child(ss, 1), correlated=det.speckle_correlated,
+                                 wavelength_m=settings.wavelength_m,
+                                 aperture_diameter_m=settings.aperture_diameter_m,
+                                 ifov_rad=settings.ifov_x_rad).astype(np.float32).reshape(-1)
+        run.append("speckle")
+    else:
+        skip.append("speckle")
+
+    tau = settings.bin_width_s
+    b_mult = 0.0
+    if det.enable_background and det.background_rate_photons_per_s > 0:
+        b_mult += float(background_photons(det.background_rate_photons_per_s, tau)) * det.quantum_efficiency
+        run.append("background")
+    else:
+        skip.append("background")
+    ds = 0.0
+    if det.enable_dark_current and (det.dark_current_bulk_a > 0 or det.dark_current_surface_a > 0):
+        b_mult += float(current_to_electrons(det.dark_current_bulk_a, tau))
+        ds = float(current_to_electrons(det.dark_current_surface_a, tau))
+        run.append("dark_current")
+    else:
+        skip.append("dark_current")
+
+    shot = det.enable_shot_noise
+    (run if shot else skip).append("shot_noise")
+
+    if geiger:
+        for s in ("gain", "excess_noise", "read_noise", "adc"):
+            skip.append(s)
+        hist = _geiger_chain(src, k_sig, spk, b_mult + ds, det, ss, report)
+        report["units"] = "detections"
+        return ChainOutput(hist, report)
+
+    gain = 1.0 if det.detector_type == "pin" else det.apd_gain
+    F = 1.0
+    if det.detector_type == "apd":
+        run.append("gain")
+        if det.enable_excess_noise:
+            F = float(mcintyre_excess_noise(gain, det.apd_k_eff))
+            run.append("excess_noise")
+        else:
+            skip.append("excess_noise")
+    else:
+        skip += ["gain", "excess_noise"]
+    sigma_r = det.read_noise_e if det.enable_read_noise else 0.0
+    (run if det.enable_read_noise and sigma_r > 0 else skip).append("read_noise")
+
+    use_adc = det.enable_adc
+    step = adc_step_e(det.adc_bits, det.adc_full_scale_e) if use_adc else 0.0
+    out_dtype = adc_dtype(det.adc_bits) if use_adc else np.float32
+    # Bins without signal photo-electrons all have the same code distribution: tabulate it exactly once
+    # (noise_code_pmf, CodeTable) and draw those bins with one 32-bit uniform each.  Needs the A/D (discrete
+    # output) and a Gaussian read noise of at least 0.002 Δ; otherwise the per-bin route below.
+    table = None
+    if noise_table and use_adc and sigma_r >= TABLE_MIN_SIGMA_STEPS * step:
+        try:
+            k0, pmf = noise_code_pmf(step, n_mult=b_mult, gain=gain, excess_noise=F, shot=shot,
+                                     surface_dark_e=ds, surface_dark_poisson=shot and ds > 0,
+                                     gauss_mean_e=0.0 if shot else ds, gauss_var_e2=sigma_r ** 2)
+            table = CodeTable(k0, pmf, det.adc_offset_counts, 2 ** int(det.adc_bits) - 1, out_dtype)
+            if shot:  # bins that caught 1 … 16 signal photo-electrons: their own tables, built on first use
+                table.caught = CaughtCodeTables(
+                    CAUGHT_TABLES, step, dict(n_mult=b_mult, gain=gain, excess_noise=F, surface_dark_e=ds,
+                                               surface_dark_poisson=ds > 0, gauss_var_e2=sigma_r ** 2),
+                    det.adc_offset_counts, 2 ** int(det.adc_bits) - 1, out_dtype)
+        except ValueError as exc:  # too many codes: per-bin route
+            report["noise_table_refused"] = str(exc)
+    report["noise_sampling"] = "table" if table is not None else "per-bin"
+    if table is not None:
+        report["noise_table"] = {"codes": table.n_entries, "ambiguous_cells": table.n_ambiguous_cells,
+                                 "probability_step": 2.0 ** -P_BITS, "max_probability_error": table.max_prob_error}
+        report["approximations"].append(
+            f"bins without signal photo-electrons: A/D codes from the exact code distribution with "
+            f"probabilities rounded to multiples of 2^-32 (largest change {table.max_prob_error:.1e})")
+
+    # surface dark (not multiplied): Gaussian folded into the read noise when its skewness contribution
+    # lambda/sigma_tot^3 is negligible (< 1e-3); otherwise exact Poisson.  Always exact on the table route.
+    ds_gauss = False
+    if ds > 0 and shot and table is None:
+        sig_tot2 = sigma_r ** 2 + ds + step ** 2 / 12.0
+        skew = ds / sig_tot2 ** 1.5
+        if skew < 1e-3:
+            ds_gauss = True
+            report["approximations"].append(
+                f"surface dark Poisson({ds:.4g}) as Gaussian with exact mean/variance "
+                f"(skewness contribution {skew:.2e})")
+
+    (run if use_adc else skip).append("adc")
+    out = np.empty((H * W, B), dtype=out_dtype)
+    report["units"] = "counts" if use_adc else "electrons"
+    # mean and σ of a bin without signal at the output (the noise floor; echo detection's false-alarm model)
+    if table is not None:
+        pq = np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS
+        c = table.code.astype(np.float64)
+        m0 = float(np.dot(pq, c))
+        report["noise_mean"], report["noise_sigma"] = m0, float(np.sqrt(np.dot(pq, (c - m0) ** 2)))
+    else:
+        m0, var0, _ = bin_moments(det, 0.0, tau)  # the same switches (Sheppard's Δ²/12 for the A/D)
+        m0, var0 = float(m0), float(var0)
+        if use_adc:
+            report["noise_mean"] = m0 / step + det.adc_offset_counts
+            report["noise_sigma"] = math.sqrt(var0) / step
+        else:
+            report["noise_mean"], report["noise_sigma"] = m0, math.sqrt(var0)
+
+    src2 = np.ascontiguousarray(src, dtype=np.float32).reshape(H * W, B)
+    rows = max(1, _BLOCK_SAMPLES // max(B, 1))
+    blocks = [(i, r0, min(r0 + rows, H * W)) for i, r0 in enumerate(range(0, H * W, rows))]
+    params = dict(k_sig=k_sig, b_mult=b_mult, ds=ds, ds_gauss=ds_gauss, shot=shot, gain=gain, F=F,
+                  sigma_r=sigma_r, adc=use_adc, bits=det.adc_bits, fs=det.adc_full_scale_e,
+                  offset=det.adc_offset_counts)
+
+    local = threading.local()
+
+    def work(blk):
+        i, r0, r1 = blk
+        if not hasattr(local, "ws"):
+            local.ws = {}
+        fn = _process_block if table is None else _process_block_table
+        return fn(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1], params,
+                  local.ws, table)
+
+    threads = det.threads or (os.cpu_count() or 1)
+    if threads > 1 and len(blocks) > 1:
+        with ThreadPoolExecutor(max_workers=threads) as ex:
+            stats = list(ex.map(work, blocks))
+    else:
+        stats = [work(b) for b in blocks]
+    for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
+        report[key] = int(sum(s[key] for s in stats))
+    if table is not None:
+        report["noise_table"]["caught_bins_from_tables"] = int(sum(s.get("caught_table", 0) for s in stats))
+        report["noise_table"]["caught_bins_per_bin"] = int(sum(s.get("caught_per_bin", 0) for s in stats))
+    if report["n_mean_clipped"]:
+        report["approximations"].append(f"{report['n_mean_clipped']} bins had a mean above {_MEAN_CAP:g} "
+                                        f"primaries and were clipped to it")
+    if any(s["normal_bins"] for s in stats):
+        report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
+                                        f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
+    return ChainOutput(out.reshape(H, W, B), report)
+
+
+def _buf(ws, name, n, dtype):
+    a = ws.get(name)
+    if a is None or a.size < n or a.dtype != dtype:
+        a = np.empty(n, dtype=dtype)
+        ws[name] = a
+    return a[:n]
+
+
+def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
+    """One block of pixels (P, B), A/D on, with the tabulated code distribution of signal-free bins.
+
+    Exact decomposition: the primaries of a bin are n = n_s + n_b (independent Poisson, signal and
+    background/bulk dark).  Every bin first gets a code from ``table`` (the law of a bin with n_s = 0); then
+    the signal primaries n_s are drawn exactly for the bins with a non-zero mean (one Poisson each; sparse
+    placement below a mean of 1e-3) and the bins with n_s > 0 are redrawn from the law given n_s: by the
+    tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform, which is independent of n_s), else
+    per bin: n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read noise, A/D.
+    Cost: one 32-bit uniform and one table look-up per bin, plus one Poisson draw per bin with signal."""
+    P, B = E.shape
+    N = P * B
+    stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
+    of = out.reshape(-1)
+    r = uniform_uint32(rng, N)
+    stats["n_adc_low"], stats["n_adc_high"] = table.sample(r, of, _buf(ws, "cell", N, np.uint32))
+    Ef = E.reshape(-1)
+    mask = Ef != 0  # boolean mask: much faster than a float scan
+    nnz = int(np.count_nonzero(mask))
+    if not nnz:
+        return stats
+    dense = nnz * 2 > N  # most bins hold signal: work on the whole block (no index array)
+    nz = None if dense else np.flatnonzero(mask)
+    with np.errstate(over="ignore"):
+        s = Ef.astype(np.float64) if dense else Ef[nz].astype(np.float64)
+        s *= p["k_sig"]
+        if spk is not None and dense:
+            sv = s.reshape(P, B)
+            sv *= spk[:, None]
+        elif spk is not None:
+            s *= spk[nz // B]
+    bad = ~(s <= _MEAN_CAP)
+    if bad.any():
+        stats["n_mean_clipped"] = int(np.count_nonzero(bad))
+        s[bad] = _MEAN_CAP
+    if p["shot"]:
+        # exact Poisson counts: one draw per bin (numpy: 8–10 ns below a mean of 0.1, ~30 ns at 1) except for
+        # very faint bins (pulse tails, FFT round-off), placed sparsely — usually no event at all
+        faint = s < _SPARSE_MEAN
+        if faint.any():
+            n = np.empty(s.size)
+            fi = np.flatnonzero(faint)
+            n[fi] = poisson_sparse_counts(s[fi], rng)
+            bi = np.flatnonzero(~faint)
+            n[bi], stats["normal_bins"] = poisson_dense(s[bi], rng)
+        else:
+            n, stats["normal_bins"] = poisson_dense(s, rng)
+        caught = np.flatnonzero(n > 0)
+        sig, n = (caught if dense else nz[caught]), n[caught]
+        if not sig.size:
+            return stats
+        rs = r[sig]
+        lo_t, hi_t = table.clipped(rs)  # those bins' signal-free codes are replaced
+        stats["n_adc_low"] -= lo_t
+        stats["n_adc_high"] -= hi_t
+        few = n <= table.caught.m_max
+        if few.any():  # codes given the caught count, from the tables (the same uniform r: independent of n)
+            codes, lo, hi = table.caught.sample(n[few], rs[few])
+            of[sig[few]] = codes
+            stats["n_adc_low"] += lo
+            stats["n_adc_high"] += hi
+            stats["caught_table"] = int(np.count_nonzero(few))
+            sig, n = sig[~few], n[~few]
+            if not sig.size:
+                return stats
+        stats["caught_per_bin"] = int(sig.size)
+        if p["b_mult"] > 0:
+            n += rng.poisson(p["b_mult"], sig.size)
+    else:
+        sig = np.arange(N) if dense else nz
+        n = s + p["b_mult"]
+        lo_t, hi_t = table.clipped(r[sig])
+        stats["n_adc_low"] -= lo_t
+        stats["n_adc_high"] -= hi_t
+    y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
+    if p["ds"] > 0:
+        y += rng.poisson(p["ds"], sig.size) if p["shot"] else p["ds"]
+    if p["sigma_r"] > 0:
+        y += p["sigma_r"] * rng.standard_normal(sig.size)
+    codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
+    stats["n_adc_low"] += lo
+    stats["n_adc_high"] += hi
+    of[sig] = codes
+    return stats
+
+
+def _process_block(E, out, rng, spk, p, ws, table=None) -> dict:
+    """One block of pixels (P, B): exact sampling of the §8 statistics, written into ``out``.
+    ``ws``: per-thread scratch buffers (reused across blocks: fresh large allocations are slow)."""
+    P, B = E.shape
+    N = P * B
+    stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
+    s = _buf(ws, "s", N, np.float32).reshape(P, B)
+    with np.errstate(over="ignore"):  # overflow -> inf -> clipped to _MEAN_CAP and reported below
+        np.multiply(E, np.float32(p["k_sig"]), out=s)  # mean signal primaries (after eta)
+    if spk is not None:
+        with np.errstate(over="ignore"):
+            s *= spk[:, None]
+    sf = s.reshape(-1)
+    smax = float(sf.max()) if N else 0.0
+    if not math.isfinite(smax) or smax > _MEAN_CAP:
+        bad = ~(sf <= _MEAN_CAP)
+        stats["n_mean_clipped"] = int(np.count_nonzero(bad))
+        sf[bad] = _MEAN_CAP
+        smax = _MEAN_CAP
+    if p["shot"]:
+        n = _buf(ws, "n", N, np.float32).reshape(P, B)
+        nf = n.reshape(-1)
+        nf.fill(0.0)
+        if smax > 0:
+            if smax >= DENSE_MEAN:  # bright bins: one exact Poisson draw each
+                hi = np.flatnonzero(sf >= DENSE_MEAN)
+                cnt, nb = poisson_dense(sf[hi], rng)
+                stats["normal_bins"] += nb
+                nf[hi] = cnt
+                sf[hi] = 0.0
+            mask = sf != 0
+            nnz = int(np.count_nonzero(mask))
+            if nnz * 4 < N:  # faint bins, compact: inverse-CDF placement over the non-zero bins only
+                nz = np.flatnonzero(mask)
+                nf[nz] += poisson_sparse_counts(sf[nz], rng)
+            elif nnz:
+                np.add(nf, poisson_sparse_counts(sf, rng), out=nf, casting="unsafe")
+        if p["b_mult"] > 0:
+            poisson_uniform_rows(p["b_mult"], P, B, rng, out=n)
+    else:
+        n = s
+        if p["b_mult"] > 0:
+            n += np.float32(p["b_mult"])
+    y = gamma_gain(n, p["gain"], p["F"], rng, out=n)  # in place
+    mu = 0.0
+    var = p["sigma_r"] ** 2
+    if p["ds"] > 0:
+        if not p["shot"]:
+            mu += p["ds"]
+        elif p["ds_gauss"]:
+            mu += p["ds"]
+            var += p["ds"]
+        else:
+            poisson_uniform_rows(p["ds"], P, B, rng, out=y)
+    if var > 0:
+        z = _buf(ws, "z", N, np.float32).reshape(P, B)
+        rng.standard_normal(dtype=np.float32, out=z)
+        z *= np.float32(math.sqrt(var))
+        y += z
+    if mu:
+        y += np.float32(mu)
+    if p["adc"]:
+        _, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"], out=out, overwrite_input=p["bits"] <= 23)
+        stats["n_adc_low"], stats["n_adc_high"] = lo, hi
+    else:
+        out[...] = y
+    return stats
+
+
+def _geiger_chain(src, k_sig, spk, noise_per_bin, det, ss, report):
+    H, W, B = src.shape
+    rate = np.asarray(src, dtype=np.float64).reshape(H * W, B) * k_sig
+    hist, info = geiger_histogram(rate, det.geiger_pulses, _child(ss, 2), noise_per_bin=noise_per_bin,
+                                  dead_time_bins=det.geiger_dead_time_bins,
+                                  speckle_dof=det.speckle_dof if det.speckle_dof > 0 else None)
+    report.update({f"geiger_{k}": v for k, v in info.items()})
+    return hist.reshape(H, W, B)

@@ -1,0 +1,234 @@
+"""Bins without signal: the exact A/D code distribution, tabulated once per run (physics.md §8)."""
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+#: Probabilities of the tabulated code sampler are multiples of 2**-32 (one 32-bit uniform per sample).
+P_BITS = 32
+#: The table route needs a Gaussian part σ ≥ this × Δ (otherwise the characteristic function decays too
+#: slowly for the alias sum and the distribution is close to a lattice): the exact per-bin route is used.
+TABLE_MIN_SIGMA_STEPS = 2e-3
+#: Bins that caught up to this many signal photo-electrons take tabulated codes too (CaughtCodeTables).
+CAUGHT_TABLES = 16
+#: Largest FFT size (A/D indices spanned by the noise distribution) for the table route.
+_TABLE_MAX_CODES = 1 << 20
+
+
+def noise_code_pmf(step_e, *, n_mult=0.0, gain=1.0, excess_noise=1.0, shot=True, surface_dark_e=0.0,
+                   surface_dark_poisson=False, gauss_mean_e=0.0, gauss_var_e2=0.0, fixed_primaries=None,
+                   tail=1e-15):
+    """Exact probabilities of the A/D index k = rint(X/Δ) of a bin without signal (physics.md §8).
+
+    X = Σ_{i ≤ n} g_i + D + Z (electrons):
+      n ~ Poisson(``n_mult``) multiplied primaries (background + bulk dark; exactly ``n_mult`` — a continuous
+        amount — when ``shot`` is off), each with the single-electron gain g ~ Gamma(1/(F − 1), G(F − 1)) of
+        :func:`gamma_gain` (g = G exactly when F = 1);
+      D ~ Poisson(``surface_dark_e``) unmultiplied electrons when ``surface_dark_poisson``;
+      Z ~ N(``gauss_mean_e``, ``gauss_var_e2``): read-out noise (and the surface dark where it is folded in).
+    Its characteristic function is φ_X(t) = exp[n(φ_g(t) − 1)] · exp[d(e^{it} − 1)] · exp(iμt − σ²t²/2),
+    φ_g(t) = (1 − iθt)^(−a).  Since p_k = ∫_{(k−½)Δ}^{(k+½)Δ} f_X(x) dx samples f_X ⊛ box_Δ at kΔ, the Poisson
+    summation formula gives its discrete-time Fourier transform exactly:
+
+        Σ_k p_k e^{iωk} = Σ_j φ_X((ω + 2πj)/Δ) · sinc((ω + 2πj)/2π),
+
+    evaluated at the M frequencies of an FFT window holding all of the mass (tails beyond it < ``tail``) and
+    inverted by one FFT.  Errors: float64 round-off (~1e-16 × √M) and the alias sum truncated where
+    |φ_Z| < 1e-18.  Needs a Gaussian part σ > 0.  Returns ``(k0, p)``: p[i] = P(k = k0 + i), float64, Σ = 1.
+
+    ``fixed_primaries`` (1-D integers m_1, m_2, …): the laws given m_j *additional* multiplied primaries (a bin
+    that caught m_j signal photo-electrons), factor φ_g(t)^m_j; returns ``(k0, P)`` with P[j, i] = P(k = k0 + i
+    | m_j) on one common window.
+    """
+    step = float(step_e)
+    sigma = math.sqrt(gauss_var_e2)
+    if not sigma > 0 or not step > 0:
+        raise ValueError("noise_code_pmf needs a Gaussian part (σ > 0) and an A/D step Δ > 0")
+    G, F, b, d = float(gain), float(excess_noise), float(n_mult), float(surface_dark_e)
+    gamma_gain_on = F > 1.0 + 1e-12
+    theta = G * (F - 1.0) if gamma_gain_on else 0.0
+    a = 1.0 / (F - 1.0) if gamma_gain_on else 0.0
+    if shot:
+        mean = G * b
+        var = G * G * (F if gamma_gain_on else 1.0) * b
+    else:
+        mean, var = G * b, G * theta * b
+    d_p = d if surface_dark_poisson else 0.0
+    mean += d_p + gauss_mean_e
+    var += d_p + gauss_var_e2
+    # tail scale of the multiplied part (exponential-like, scale θ; Poisson lattice step G) and of D
+    scale = max(theta, G if (shot and b > 0) else 0.0, 1.0 if d_p > 0 else 0.0)
+    fixed = None if fixed_primaries is None else np.asarray(fixed_primaries, dtype=np.float64).reshape(-1, 1)
+    mean_hi = mean
+    if fixed is not None:  # m extra primaries: + G m mean, + G²(F − 1) m variance
+        mean_lo, mean_hi = mean + G * fixed.min(), mean + G * fixed.max()
+        mean = mean_lo
+        var += G * theta * fixed.max()
+        scale = max(scale, G)
+
+    def cf(t):
+        lc = (1j * gauss_mean_e) * t - (0.5 * gauss_var_e2) * t * t
+        if fixed is not None:
+            lc = lc + fixed * (-a * np.log1p((-1j * theta) * t) if gamma_gain_on else (1j * G) * t)
+        if b > 0:
+            if gamma_gain_on:
+                lg = -a * np.log1p((-1j * theta) * t)
+                lc = lc + (b * np.expm1(lg) if shot else b * lg)
+            else:
+                lc = lc + (b * np.expm1((1j * G) * t) if shot else (1j * G * b) * t)
+        if d_p > 0:
+            lc = lc + d_p * np.expm1(1j * t)
+        return np.exp(lc)
+
+    n_alias = int(math.ceil(1.5 * step / sigma)) + 1  # |φ_Z((π + 2πJ)/Δ)| < 1e-18
+    half = 40.0 * math.sqrt(var) + 80.0 * scale + 4.0 * step
+    for _ in range(8):
+        k0 = int(math.floor((mean - half) / step)) - 2
+        k1 = int(math.ceil((mean_hi + half) / step)) + 2
+        M = 1 << max(4, int(k1 - k0).bit_length())
+        if M > _TABLE_MAX_CODES:
+            raise ValueError(f"noise distribution spans {M} A/D codes (> {_TABLE_MAX_CODES})")
+        omega = 2.0 * np.pi * np.fft.fftfreq(M)
+        acc = 0.0
+        for j in range(-n_alias, n_alias + 1):
+            w = omega + 2.0 * np.pi * j
+            acc = acc + cf(w / step) * np.sinc(w / (2.0 * np.pi))
+        p = np.fft.fft(np.atleast_2d(acc) * np.exp(-1j * omega * k0), axis=-1).real / M
+        edge = max(1, M // 16)
+        if np.all(p[:, :edge].sum(axis=1) + p[:, -edge:].sum(axis=1) < tail):
+            break
+        half *= 2.0
+    else:  # pragma: no cover - the window doubles 8 times
+        raise ValueError("noise distribution tails did not converge")
+    np.maximum(p, 0.0, out=p)  # round-off negatives (~1e-17)
+    p /= p.sum(axis=1, keepdims=True)
+    return k0, (p[0] if fixed is None else p)
+
+
+class CodeTable:
+    """Inverse-CDF sampler of A/D codes from one uniform 32-bit integer per sample (exact up to probabilities
+    rounded to multiples of 2**-32).
+
+    Entries: [clipped below code 0], the A/D codes in order, [clipped above full scale]; T_i = round(2³² C_i)
+    their cumulative probabilities; a sample r ∈ [0, 2³²) takes the entry i with T_{i−1} ≤ r < T_i.
+    Level 1: the top 16 bits of r index a 65536-cell table holding the code when one entry covers the whole
+    cell; the few cells that straddle an entry boundary hold a sentinel, and those samples are resolved by a
+    binary search on T (at most one cell per entry boundary, i.e. ≤ (entries − 1)/65536 of the samples).
+    """
+
+    def __init__(self, k0, pmf, offset, top, dtype, cell_bits=16):
+        self.CELL_BITS = int(cell_bits)
+        pmf = np.asarray(pmf, dtype=np.float64)
+        raw = k0 + np.arange(pmf.size, dtype=np.int64) + int(offset)
+        low, high = raw < 0, raw > top
+        mid = ~(low | high)
+        p = np.concatenate([[pmf[low].sum()], pmf[mid], [pmf[high].sum()]])
+        code = np.concatenate([[0], raw[mid], [top]]).astype(dtype)
+        cum = np.cumsum(p)
+        cum /= cum[-1]
+        T = np.floor(cum * 2.0 ** P_BITS + 0.5).astype(np.uint64)
+        T[-1] = np.uint64(1 << P_BITS)
+        self.T, self.code = T, code
+        self.t_low = int(T[0])        # r < t_low: clipped at code 0
+        self.t_high = int(T[-2])      # r ≥ t_high: clipped at full scale
+        p_q = np.diff(np.concatenate([[0], T.astype(np.int64)]))
+        drawable = code[p_q > 0]
+        self.n_entries = int(np.count_nonzero(p_q))
+        self.max_prob_error = float(np.max(np.abs(p_q / 2.0 ** P_BITS - p)))
+        # cell h holds r ∈ [h·2^s, (h+1)·2^s), s = 32 − CELL_BITS.  Its first r falls in entry #{i: T_i ≤ h·2^s}
+        # = #{i: ⌈T_i/2^s⌉ ≤ h}; the cell is ambiguous when a boundary T_i lies strictly inside it.
+        n_cells, sh = 1 << self.CELL_BITS, P_BITS - self.CELL_BITS
+        Ti = T[:-1].astype(np.int64)
+        first = np.cumsum(np.bincount(-((-Ti) >> sh), minlength=n_cells + 1))[:n_cells]
+        amb = np.zeros(n_cells, dtype=bool)
+        amb[(Ti >> sh)[(Ti & ((1 << sh) - 1)) != 0]] = True
+        self.n_ambiguous_cells = int(np.count_nonzero(amb))
+        table = code[first]
+        c_lo, c_hi = int(drawable.min()), int(drawable.max())  # any value outside [c_lo, c_hi] is never drawn
+        self.sentinel = c_hi + 1 if c_hi < np.iinfo(dtype).max else (c_lo - 1 if c_lo > 0 else None)
+        self.amb_cells = None
+        if self.sentinel is not None:
+            table[amb] = self.sentinel
+        else:  # pragma: no cover - every code value up to the dtype's top is drawable
+            self.amb_cells = amb
+        self.table = table
+
+    def sample(self, r, out, scratch=None):
+        """Codes for the uniform uint32 ``r`` into ``out`` (1-D, table dtype).  Returns (n_low, n_high):
+        how many were clipped at code 0 and at full scale."""
+        shift = np.uint32(P_BITS - self.CELL_BITS)
+        cell = np.right_shift(r, shift, out=scratch)
+        np.take(self.table, cell, out=out)
+        if self.n_ambiguous_cells:
+            amb = np.flatnonzero(self.amb_cells[cell] if self.amb_cells is not None else out == self.sentinel)
+            if amb.size:
+                out[amb] = self.code[np.searchsorted(self.T, r[amb].astype(np.uint64), side="right")]
+        return self.clipped(r)
+
+    def clipped(self, r):
+        n_low = int(np.count_nonzero(r < np.uint32(self.t_low))) if self.t_low > 0 else 0
+        n_high = int(np.count_nonzero(r >= np.uint32(self.t_high))) if self.t_high < (1 << P_BITS) else 0
+        return n_low, n_high
+
+
+class CaughtCodeTables:
+    """Code laws of bins that caught m = 1 … ``m_max`` signal photo-electrons (plus everything a signal-free bin
+    has), from :func:`noise_code_pmf` with ``fixed_primaries``; built on first use (thread-safe), sampled with
+    one 32-bit uniform each like :class:`CodeTable` (4096-cell level-1 tables stacked into one array)."""
+
+    def __init__(self, m_max, step_e, pmf_kwargs, offset, top, dtype, cell_bits=12):
+        self.m_max, self.cell_bits = int(m_max), int(cell_bits)
+        self._args = (step_e, pmf_kwargs, offset, top, dtype)
+        self._lock = threading.Lock()
+        self.tables = None
+
+    def _build(self):
+        with self._lock:
+            if self.tables is not None:
+                return
+            step_e, kw, offset, top, dtype = self._args
+            k0, P = noise_code_pmf(step_e, fixed_primaries=np.arange(1, self.m_max + 1), **kw)
+            tabs = [CodeTable(k0, P[j], offset, top, dtype, self.cell_bits) for j in range(self.m_max)]
+            stack = np.empty((self.m_max, 1 << self.cell_bits), dtype=np.int64)
+            for j, t in enumerate(tabs):
+                stack[j] = t.table
+                if t.n_ambiguous_cells:
+                    amb = t.amb_cells if t.amb_cells is not None else t.table == t.sentinel
+                    stack[j, amb] = -1
+            self.stack = stack.reshape(-1)
+            self.t_low = np.array([t.t_low for t in tabs], dtype=np.int64)
+            self.t_high = np.array([t.t_high for t in tabs], dtype=np.int64)
+            self.clip_low = bool(np.any(self.t_low > 0))
+            self.clip_high = bool(np.any(self.t_high < (1 << P_BITS)))
+            self.max_prob_error = max(t.max_prob_error for t in tabs)
+            self.tables = tabs
+
+    def sample(self, m, r):
+        """Codes for caught counts ``m`` (1 … m_max) and uniforms ``r`` (uint32).  Returns (codes int64, n_low,
+        n_high)."""
+        if self.tables is None:
+            self._build()
+        mi = m.astype(np.int32) - 1
+        flat = (r >> np.uint32(P_BITS - self.cell_bits)).astype(np.int32)
+        flat |= mi << self.cell_bits
+        codes = self.stack[flat]
+        amb = np.flatnonzero(codes < 0)
+        if amb.size:
+            for j in np.unique(mi[amb]):
+                sel = amb[mi[amb] == j]
+                t = self.tables[j]
+                codes[sel] = t.code[np.searchsorted(t.T, r[sel].astype(np.uint64), side="right")]
+        n_low = n_high = 0
+        if self.clip_low:
+            n_low = int(np.count_nonzero(r.astype(np.int64) < self.t_low[mi]))
+        if self.clip_high:
+            n_high = int(np.count_nonzero(r.astype(np.int64) >= self.t_high[mi]))
+        return codes, n_low, n_high
+
+
+def uniform_uint32(rng, n):
+    """``n`` independent uniform 32-bit integers from the generator's raw 64-bit stream."""
+    return rng.bit_generator.random_raw((n + 1) // 2).view(np.uint32)[:n]
+

@@ -1,0 +1,328 @@
+"""Time: the scene's impulse response accumulated into waveform bins, convolved with the pulse (paper §3.1,
+"the scene as an impulse response to the three-dimensional energy distribution of the laser illumination").
+
+Each sub-ray returns the energy E_i at the round-trip time t_i = 2R_i/c.  The energy bin j collects is the pulse
+integrated over the bin (no point sampling, so pulses narrower than a bin are exact):
+
+    w_j = Σ_i E_i [P(t_{j+1} − t_i) − P(t_j − t_i)],   t_j = t_gate + jΔ,   P the pulse CDF.
+
+Two exact-in-energy methods:
+
+* ``exact``: the sum above, evaluated over the bins within the pulse's support (Gaussian ±6.1σ);
+* ``splat``: when the pulse spans many bins (σ > 8Δ), each impulse is split linearly between the two nearest
+  bin centres (energy and centroid preserved) and the per-pixel impulse histogram is convolved with the
+  bin-integrated pulse by FFT.  Its relative error is O(Δ²/8σ²) < 0.2 %.
+
+Cell range spread (``spread_s``): a sub-ray stands for a cell of the pixel, and the surface inside the cell
+spans a range interval (a tilted or grazing surface).  To first order the range is linear over the cell, so
+the cell's round-trip times are uniform over a box of width a = (2/c)|∂R/∂x|δx convolved with one of width
+b = (2/c)|∂R/∂y|δy (a trapezoid).  The return is then the pulse ⊛ U(a) ⊛ U(b) instead of the pulse at the cell
+centre's time (:func:`core.physics.laser.pulse_box_cdf`, exact piecewise); energy and centroid are unchanged, and the
+cells of a pixel tile its range extent continuously instead of as S separate spikes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import fftconvolve
+
+from ..config.settings import LaserSettings, RangeGateSettings
+from .laser import (boxes_cdf, gaussian_box_cdf, gaussian_box_terms, pulse_box_cdf, pulse_cdf, pulse_half_support_s,
+                    pulse_sigma_s, sorted_spreads)
+from ..constants import SPEED_OF_LIGHT_M_S
+
+#: Largest number of (ray, bin) terms evaluated at once by the exact method (bounds memory, ~100 MB).
+MAX_TERMS = 4_000_000
+
+
+def round_trip_time_s(range_m):
+    """t = 2R/c (float64)."""
+    return 2.0 * np.asarray(range_m, dtype=np.float64) / SPEED_OF_LIGHT_M_S
+
+
+def binning_method(laser: LaserSettings, gate: RangeGateSettings) -> str:
+    """``splat`` for pulses much wider than a bin (Gaussian σ > 8 bins), else ``exact``."""
+    if laser.pulse_shape == "gaussian" and pulse_sigma_s(laser) > 8.0 * gate.bin_width_s:
+        return "splat"
+    return "exact"
+
+
+@dataclass
+class WaveformWindows:
+    """Waveforms of n pixels stored as one window per pixel: pixel k's bins [start[k], start[k] + length[k])
+    of the gate are ``values[offset[k]:offset[k + 1]]`` (J per bin, float64); every bin outside its window is
+    exactly 0 (no return reaches it).  A pulse of a few bins in a gate of thousands costs its window only."""
+
+    start: np.ndarray   # (n,) int64
+    length: np.ndarray  # (n,) int64
+    offset: np.ndarray  # (n + 1,) int64
+    values: np.ndarray  # (offset[-1],) float64
+    n_bins: int
+
+    @property
+    def n_pixels(self) -> int:
+        return len(self.start)
+
+    def bins(self):
+        """(row, bin) of every stored value."""
+        row = np.repeat(np.arange(self.n_pixels), self.length)
+        return row, self.start[row] + (np.arange(len(self.values)) - self.offset[row])
+
+    def dense(self) -> np.ndarray:
+        """The (n, n_bins) float64 waveforms."""
+        out = np.zeros((self.n_pixels, self.n_bins))
+        row, col = self.bins()
+        out[row, col] = self.values
+        return out
+
+    def scatter_into(self, cube, rows) -> None:
+        """Write the windows into rows ``rows`` (n,) of a zeroed (pixels, n_bins) cube (any float dtype)."""
+        row, col = self.bins()
+        cube[np.asarray(rows)[row], col] = self.values
+
+
+def _windows_for(pixel_local, lo, hi, n_pixels, n_bins):
+    """Per pixel the smallest window covering its rays' bins [lo_i, hi_i] (rays sorted by pixel; rays with
+    hi < lo touch nothing)."""
+    ok = hi >= lo
+    start = np.zeros(n_pixels, np.int64)
+    stop = np.zeros(n_pixels, np.int64)
+    if ok.any():
+        p, lo_ok, hi_ok = pixel_local[ok], lo[ok], hi[ok]
+        seg = np.flatnonzero(np.r_[True, p[1:] != p[:-1]])
+        start[p[seg]] = np.minimum.reduceat(lo_ok, seg)
+        stop[p[seg]] = np.maximum.reduceat(hi_ok, seg) + 1
+    length = stop - start
+    offset = np.zeros(n_pixels + 1, np.int64)
+    np.cumsum(length, out=offset[1:])
+    return WaveformWindows(start, length, offset, np.zeros(int(offset[-1])), n_bins)
+
+
+def accumulate_waveforms(pixel_local, time_s, energy_j, n_pixels, laser: LaserSettings,
+                         gate: RangeGateSettings, method: str | None = None, *, spread_s=None):
+    """Waveforms (n_pixels, n_bins) float64 in J per bin for rays of the given pixels (local indices, sorted).
+
+    ``spread_s`` (n, 2), optional: the full widths (s) of the two boxes of round-trip times each ray's cell
+    spans (module docstring); rays whose boxes are all negligible take the impulse path unchanged.
+    """
+    return accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, method,
+                                       spread_s=spread_s).dense()
+
+
+def accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser: LaserSettings,
+                                gate: RangeGateSettings, method: str | None = None, *,
+                                spread_s=None) -> WaveformWindows:
+    """:func:`accumulate_waveforms` as one window per pixel (:class:`WaveformWindows`): the same values, bit
+    for bit, without the (n_pixels × n_bins) array."""
+    method = method or binning_method(laser, gate)
+    pixel_local = np.asarray(pixel_local, dtype=np.int64)
+    keep = energy_j > 0
+    pixel_local, time_s, energy_j = pixel_local[keep], time_s[keep], energy_j[keep]
+    # position of each return in bin units, relative to the gate opening
+    u = (time_s - gate.gate_start_s) / gate.bin_width_s
+    spread = None
+    if spread_s is not None:
+        spread_s = np.asarray(spread_s, dtype=np.float64)[keep]
+        if method == "exact":
+            spread = sorted_spreads(laser, spread_s)
+        else:  # splat: boxes narrower than 1 % of a bin are below the method's own O(Δ²) error
+            spread = np.sort(np.abs(spread_s), axis=1)[:, ::-1].copy()
+            spread[spread < 1e-2 * gate.bin_width_s] = 0.0
+    boxed = np.zeros(len(u), bool) if spread is None else spread[:, 0] > 0
+    impulse = ~boxed
+    imp = _impulse_terms(u[impulse], laser, gate, method)
+    box = _spread_terms(u[boxed], spread[boxed], laser, gate, method) if boxed.any() else None
+    lo = np.empty(len(u), np.int64)
+    hi = np.empty(len(u), np.int64)
+    lo[impulse], hi[impulse] = imp["lo"], imp["hi"]
+    if box is not None:
+        lo[boxed], hi[boxed] = box["lo"], box["hi"]
+    n_out = gate.n_bins if method == "exact" else gate.n_bins + 2 * _splat_pad(laser, gate)
+    win = _windows_for(pixel_local, lo, hi, n_pixels, n_out)
+    if method == "exact":
+        _add_impulses_exact(win, pixel_local[impulse], u[impulse], energy_j[impulse], imp, laser, gate)
+    else:
+        _add_impulses_splat(win, pixel_local[impulse], energy_j[impulse], imp)
+    if box is not None:
+        _add_spread(win, pixel_local[boxed], energy_j[boxed], box, laser, gate, method)
+    if method == "exact":
+        return win
+    return _splat_convolve(win, laser, gate)
+
+
+def _ragged_add(win, pixel, col, weight, valid):
+    """Add ``weight`` at bins ``col`` of pixels ``pixel`` (a run of whole pixels, sorted) into the windows."""
+    p0, p1 = int(pixel[0]), int(pixel[-1]) + 1
+    base = win.offset[p0]
+    flat = win.offset[pixel].reshape(-1, 1) - base + col - win.start[pixel].reshape(-1, 1)
+    win.values[base:win.offset[p1]] += np.bincount(flat[valid], weights=weight[valid],
+                                                   minlength=int(win.offset[p1] - base))
+
+
+def _impulse_terms(u, laser, gate, method):
+    """Bins touched by impulse returns: [lo, hi] per ray (gate bins, exact; padded histogram, splat)."""
+    if method == "exact":
+        half = pulse_half_support_s(laser) / gate.bin_width_s
+        k = int(np.ceil(2 * half)) + 2  # bins touched by one pulse
+        first = np.floor(u - half).astype(np.int64)
+        return {"k": k, "half": half, "first": first, "lo": np.maximum(first, 0),
+                "hi": np.minimum(first + k - 1, gate.n_bins - 1)}
+    pad = _splat_pad(laser, gate)
+    n_ext = gate.n_bins + 2 * pad
+    c = u - 0.5 + pad  # impulse at position u (bin units, bin centres at j + 0.5) in the padded index space
+    j0 = np.floor(c).astype(np.int64)
+    return {"c": c, "j0": j0, "lo": np.maximum(j0, 0), "hi": np.minimum(j0 + 1, n_ext - 1)}
+
+
+def _add_impulses_exact(win, pixel_local, u, energy_j, terms, laser, gate):
+    """Impulse returns: pulse CDF differences over the bins within the pulse's support."""
+    n_bins, k, half = gate.n_bins, terms["k"], terms["half"]
+    inside = (u + half >= 0) & (u - half < n_bins)
+    pixel_local, u, energy_j, first = pixel_local[inside], u[inside], energy_j[inside], terms["first"][inside]
+    offsets = np.arange(k)
+    # sub-chunks end on pixel boundaries so every pixel's sum runs over the same rays in the same order,
+    # whatever the block size: products do not depend on chunking
+    for a, b in _pixel_chunks(pixel_local, k, whole_pixels=True):
+        uu = u[a:b]
+        bins = first[a:b, None] + offsets[None, :]
+        # bin j spans [j, j+1) in bin units; the pulse CDF is evaluated at the edges relative to the return
+        lower = (bins - uu[:, None]) * gate.bin_width_s
+        cdf = pulse_cdf(laser, np.concatenate([lower, lower[:, -1:] + gate.bin_width_s], axis=1))
+        weight = np.diff(cdf, axis=1) * energy_j[a:b, None]
+        valid = (bins >= 0) & (bins < n_bins) & (weight > 0)
+        _ragged_add(win, pixel_local[a:b], bins, weight, valid)
+
+
+def _splat_pad(laser, gate) -> int:
+    return int(np.ceil(pulse_half_support_s(laser) / gate.bin_width_s)) + 1
+
+
+def _add_impulses_splat(win, pixel_local, energy_j, terms):
+    """Impulses split linearly between the two nearest bin centres (the padded histogram)."""
+    j0, frac = terms["j0"], terms["c"] - terms["j0"]
+    n_ext = win.n_bins
+    for j, w in ((j0, 1.0 - frac), (j0 + 1, frac)):
+        ok = (j >= 0) & (j < n_ext)
+        if ok.any():
+            _ragged_add(win, pixel_local[ok], j[ok, None], (energy_j * w)[ok, None], np.ones((ok.sum(), 1), bool))
+
+
+def _splat_convolve(hist: WaveformWindows, laser, gate) -> WaveformWindows:
+    """Each pixel's histogram window convolved with the bin-integrated pulse, cut to the gate: pixels grouped
+    by window length, one FFT convolution per group (a row's result does not depend on the others)."""
+    pad = _splat_pad(laser, gate)
+    n_bins = gate.n_bins
+    # bin-integrated pulse for an impulse at a bin centre: kernel[m] = P((m + 0.5)Δ) − P((m − 0.5)Δ)
+    m = np.arange(-pad, pad + 1)
+    kernel = np.diff(pulse_cdf(laser, (np.append(m, pad + 1) - 0.5) * gate.bin_width_s))
+    # output window in gate bins: [start − 2·pad, start + length) ∩ [0, n_bins)
+    g0 = hist.start - 2 * pad
+    g_lo = np.clip(g0, 0, n_bins)
+    g_hi = np.clip(hist.start + hist.length, 0, n_bins)
+    has = (hist.length > 0) & (g_hi > g_lo)
+    out_len = np.where(has, g_hi - g_lo, 0)
+    offset = np.zeros(hist.n_pixels + 1, np.int64)
+    np.cumsum(out_len, out=offset[1:])
+    out = WaveformWindows(np.where(has, g_lo, 0), out_len, offset, np.zeros(int(offset[-1])), n_bins)
+    size = bucket_size(np.maximum(hist.length, 1))
+    for lb in np.unique(size[has]):
+        rows = np.flatnonzero(has & (size == lb))
+        dense = np.zeros((len(rows), int(lb)))
+        rr = np.repeat(np.arange(len(rows)), hist.length[rows])
+        src = np.concatenate([np.arange(hist.offset[r], hist.offset[r + 1]) for r in rows])
+        dense[rr, src - hist.offset[rows][rr]] = hist.values[src]
+        conv = fftconvolve(dense, kernel[None, :], mode="full", axes=1)  # index 0 ↔ gate bin start − 2·pad
+        conv = np.maximum(conv, 0.0)
+        for i, r in enumerate(rows):
+            a = g_lo[r] - g0[r]
+            out.values[offset[r]:offset[r + 1]] = conv[i, a:a + out_len[r]]
+    return out
+
+
+def bucket_size(k):
+    """Round term counts up to a few sizes (≤ 25 % waste) so rays of similar support are evaluated together."""
+    k = np.maximum(np.asarray(k, dtype=np.int64), 1)
+    step = np.maximum(4, 2 ** np.maximum(np.floor(np.log2(k)).astype(np.int64) - 2, 0))
+    return (-(-k // step)) * step
+
+
+def _pixel_chunks(pixel_local, n_terms_per_ray, budget=MAX_TERMS, whole_pixels=False):
+    """Ray ranges [a, b) of about ``budget`` terms that end on pixel boundaries (a pixel's rays are split only
+    when they alone exceed the budget — at offsets fixed relative to the pixel — unless ``whole_pixels``), so
+    every pixel's sum runs over the same rays in the same order whatever the caller's block size."""
+    n = len(pixel_local)
+    if n == 0:
+        return []
+    per = max(1, budget // max(int(n_terms_per_ray), 1))
+    starts = np.flatnonzero(np.r_[True, pixel_local[1:] != pixel_local[:-1]])
+    ends = np.r_[starts[1:], n]
+    chunks = []
+    i = 0
+    while i < len(starts):
+        s, e = int(starts[i]), int(ends[i])
+        if e - s > per:  # one pixel alone over budget
+            chunks += [(s, e)] if whole_pixels else [(x, min(x + per, e)) for x in range(s, e, per)]
+            i += 1
+            continue
+        # as many whole pixels as fit
+        j = int(np.searchsorted(ends, s + per, side="right")) - 1
+        j = max(j, i)
+        chunks.append((s, int(ends[j])))
+        i = j + 1
+    return chunks
+
+
+def _spread_terms(u, spread_s, laser, gate, method):
+    """Bins touched by returns spread over a box of times: per ray [lo, hi], the CDF's parameters."""
+    dt = gate.bin_width_s
+    out = {"kind": np.zeros(len(u), np.int64), "spread": spread_s}
+    if method == "exact" and laser.pulse_shape == "gaussian":  # narrow boxes folded into a per-ray σ
+        sigma, box_a, box_b, kind = gaussian_box_terms(laser, spread_s)
+        half = (pulse_half_support_s(laser) / pulse_sigma_s(laser) * sigma + 0.5 * (box_a + box_b)) / dt
+        out.update(sigma=sigma, a=box_a, b=box_b, kind=kind)
+        n_out, offset = gate.n_bins, 0.0
+    elif method == "exact":
+        half = (pulse_half_support_s(laser) + 0.5 * (spread_s[:, 0] + spread_s[:, 1])) / dt
+        n_out, offset = gate.n_bins, 0.0
+    else:
+        pad = _splat_pad(laser, gate)
+        half = 1.0 + 0.5 * (spread_s[:, 0] + spread_s[:, 1]) / dt  # trapezoid ⊛ U(1) plus the bin's half
+        n_out, offset = gate.n_bins + 2 * pad, pad - 0.5  # centre index space of the splat histogram
+    c = u + offset
+    out["c"] = c
+    out["lo"] = np.maximum(np.floor(c - half), 0).astype(np.int64)
+    out["hi"] = np.minimum(np.floor(c + half), n_out - 1).astype(np.int64)
+    return out
+
+
+def _add_spread(win, pixel_local, energy_j, terms, laser, gate, method):
+    """Returns whose cell spans a range interval: the pulse ⊛ trapezoid integrated over each bin (exact), or
+    the trapezoid ⊛ U(Δ) over each bin of the padded histogram (splat, convolved with the pulse afterwards)."""
+    dt = gate.bin_width_s
+    gaussian_exact = method == "exact" and laser.pulse_shape == "gaussian"
+    lo, hi, c, kind = terms["lo"], terms["hi"], terms["c"], terms["kind"]
+    size = bucket_size(hi - lo + 1)
+    inside = hi >= lo
+    # fixed order over (kind, bucket size): every pixel's sum is independent of the caller's blocks
+    for kd in np.unique(kind[inside]):
+        for kb in np.unique(size[inside & (kind == kd)]):
+            sel = np.flatnonzero(inside & (kind == kd) & (size == kb))
+            offsets = np.arange(kb + 1)
+            for a, b in _pixel_chunks(pixel_local[sel], kb + 1):
+                idx = sel[a:b]
+                edges = lo[idx, None] + offsets[None, :]  # bin edges j (bins span [j, j + 1) in this index space)
+                if gaussian_exact:
+                    cdf = gaussian_box_cdf((edges - c[idx, None]) * dt, terms["sigma"][idx, None],
+                                           terms["a"][idx, None], terms["b"][idx, None], int(kd))
+                elif method == "exact":
+                    cdf = pulse_box_cdf(laser, (edges - c[idx, None]) * dt, terms["spread"][idx])
+                else:
+                    # the splat's linear split between centres is a box of one bin: widths (a, b, Δ) in bins
+                    w3 = np.sort(np.concatenate([terms["spread"][idx] / dt, np.ones((len(idx), 1))], axis=1),
+                                 axis=1)
+                    cdf = boxes_cdf(edges - 0.5 - c[idx, None], w3[:, None, ::-1])
+                weight = np.diff(cdf, axis=1) * energy_j[idx, None]
+                bins = edges[:, :-1]
+                valid = (bins <= hi[idx, None]) & (weight > 0)
+                _ragged_add(win, pixel_local[idx], bins, weight, valid)

@@ -1,0 +1,583 @@
+"""Time-of-flight laser scanner (paper §2.1): pulses steered by a scan pattern, each with its own waveform.
+
+Scan patterns (angles in the sensor frame: −Z forward, +Y up, +X right; α to +X, β to +Y,
+d = (cos β sin α, sin β, −cos β cos α)), pulse k fired at t_k = k / PRF:
+
+* raster       unidirectional lines, line period 1/scan_rate, α sweeps −W/2 → +W/2, lines from β = +H/2 down;
+* oscillating  a sinusoidal across-track mirror α = (W/2) sin(2π f t), β = 0 (along-track from motion);
+* rotating     a head spinning about +Y, α = −W/2 + 2π f t, n_channels fired together at β ∈ [+H/2, −H/2];
+* palmer       a conical scan: the beam at the cone half angle c around −Z, azimuth φ = 2π f t.
+
+The beam footprint is sampled by rings of sub-rays of equal energy: ring k > 0 holds 6k rays and the rings'
+boundaries enclose the cumulative energy fractions (1 + 3k(k+1))/N of the beam; each ray sits at the angle that
+halves its ring's energy, so the N sub-rays carry exactly the pulse energy (Gaussian: enclosed fraction
+1 − exp(−2ρ²/θ²) with θ the 1/e² half-angle; uniform: ρ²/θ²).
+
+Each pulse is fired from, and its echoes registered with, the sensor pose at its own time stamp (core/geometry/motion.py),
+so a scan from a moving platform lands in world coordinates; the ~µs flight time is neglected in the pose.
+The point of an echo is placed along the pulse's nominal beam axis at the echo range, as a real scanner does.
+
+Waveforms are built per pulse over a window of the range gate just wide enough for that pulse's returns
+(windows of 16, 32, 64 … bins, never more than the gate), which gives the same echoes as the full gate; the full
+gate is used where it must be (noisy receiver: noise and false alarms everywhere; saved waveforms).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+
+import numpy as np
+
+from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_turbulence, gaussian_beam_parameters,
+                          long_term_beam_radius, short_term_beam_radius)
+from ..errors import ConfigError
+from ..config.derived import n_pulse_times, n_scan_pulses, scan_duration_s
+from ..config.settings import SimulationConfig, validate
+from ..physics.detection.peaks import Echoes, detect_echoes
+from ..physics.laser import pulse_cdf, pulse_half_support_s
+from ..geometry.motion import Trajectory
+from ..physics.propagation import (box_average_variance_factor, effective_extinction_per_m,
+                                   return_scintillation_variance, stage_rng, stage_seed, turbulence_switches)
+from ..physics.radiometry import received_energy
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..geometry.trace import SceneTracer
+from ..constants import SPEED_OF_LIGHT_M_S
+from ..physics.waveform import accumulate_waveforms, binning_method, round_trip_time_s
+
+#: Pulses per random-number tile (noisy receiver): streams are per tile, so results do not depend on blocks.
+NOISE_TILE_PULSES = 4096
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Scan pattern
+# ----------------------------------------------------------------------------------------------------------
+def direction_from_angles(alpha, beta):
+    """Unit vectors (n, 3) in the sensor frame for horizontal angle α (to +X) and vertical angle β (to +Y)."""
+    cb = np.cos(beta)
+    return np.stack([cb * np.sin(alpha), np.sin(beta) * np.ones_like(alpha), -cb * np.cos(alpha)], axis=-1)
+
+
+def pulse_schedule(config: SimulationConfig, start: int = 0, stop: int | None = None, indices=None):
+    """Pulses [start, stop) (or the given pulse ``indices``) of the scan: (time_s (n,) float64, direction (n, 3)
+    sensor frame, channel (n,) int16, scan_angle_rad (n,) float64 — the across-scan angle α, or the azimuth for
+    the rotating head and palmer).
+
+    Pulses are numbered in time order; the rotating head's channels fired at one time are consecutive.
+    """
+    s = config.scanner
+    n_ch = s.n_channels if s.pattern == "rotating" else 1
+    total = n_pulse_times(config) * n_ch
+    stop = total if stop is None else min(stop, total)
+    idx = np.arange(start, stop, dtype=np.int64) if indices is None else np.asarray(indices, dtype=np.int64)
+    k, channel = idx // n_ch, idx % n_ch
+    t = k / s.pulse_rate_hz
+    if s.pattern == "raster":
+        line_period = 1.0 / s.scan_rate_hz
+        line = np.floor(t / line_period + 1e-9)
+        u = t / line_period - line
+        alpha = -0.5 * s.scan_width_rad + s.scan_width_rad * u
+        step = s.scan_height_rad / max(s.n_lines - 1, 1)
+        beta = 0.5 * s.scan_height_rad - step * np.minimum(line, s.n_lines - 1) if s.n_lines > 1 else 0.0 * t
+        d = direction_from_angles(alpha, beta)
+        angle = alpha
+    elif s.pattern == "oscillating":
+        alpha = 0.5 * s.scan_width_rad * np.sin(2 * np.pi * s.scan_rate_hz * t)
+        d = direction_from_angles(alpha, np.zeros_like(alpha))
+        angle = alpha
+    elif s.pattern == "rotating":
+        alpha = -0.5 * s.scan_width_rad + 2 * np.pi * s.scan_rate_hz * t
+        elevations = (np.linspace(0.5 * s.scan_height_rad, -0.5 * s.scan_height_rad, n_ch) if n_ch > 1
+                      else np.zeros(1))
+        d = direction_from_angles(alpha, elevations[channel])
+        angle = np.mod(alpha + np.pi, 2 * np.pi) - np.pi
+    else:  # palmer
+        phi = 2 * np.pi * s.scan_rate_hz * t
+        c = s.cone_half_angle_rad
+        d = np.stack([np.sin(c) * np.cos(phi), np.sin(c) * np.sin(phi), -np.cos(c) * np.ones_like(phi)], axis=-1)
+        angle = np.mod(phi + np.pi, 2 * np.pi) - np.pi
+    return t, d, channel.astype(np.int16), angle
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Beam sub-rays
+# ----------------------------------------------------------------------------------------------------------
+def beam_subrays(n_rings: int, profile: str = "gaussian"):
+    """Equal-energy sub-rays of a beam: (ρ/θ (m,), azimuth φ (m,), energy fraction (m,)) with
+    m = 1 + 3R(R+1) and θ the 1/e² half-angle (Gaussian) or the edge half-angle (uniform)."""
+    counts = np.array([1] + [6 * k for k in range(1, n_rings + 1)])
+    m = int(counts.sum())
+    cum = np.cumsum(counts) / m             # energy enclosed by each ring's outer boundary
+    inner = np.concatenate([[0.0], cum[:-1]])
+    mid = 0.5 * (inner + cum)               # each ray at the angle that halves its ring's energy
+    mid[0] = 0.0                            # the centre ray sits on the axis
+    if profile == "gaussian":
+        rho = np.sqrt(-0.5 * np.log1p(-mid))
+    else:
+        rho = np.sqrt(mid)
+    rho_all, phi_all = [], []
+    for k, n in enumerate(counts):
+        j = np.arange(n)
+        rho_all.append(np.full(n, rho[k]))
+        phi_all.append(2 * np.pi * (j + 0.5 * (k % 2)) / n)
+    return np.concatenate(rho_all), np.concatenate(phi_all), np.full(m, 1.0 / m)
+
+
+def _perpendicular_axes(d):
+    """Unit vectors u (≈ +X) and v (≈ +Y) perpendicular to unit directions d (n, 3)."""
+    up = np.zeros_like(d)
+    up[:, 1] = 1.0
+    u = np.cross(d, up)
+    norm = np.linalg.norm(u, axis=1)
+    along_y = norm < 1e-9
+    u[along_y] = (1.0, 0.0, 0.0)
+    norm[along_y] = 1.0
+    u /= norm[:, None]
+    v = np.cross(u, d)
+    return u, v
+
+
+def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
+              width_scale: float = 1.0):
+    """The sub-rays of pulses [start, stop): (time_s, channel, scan_angle, origin (n, 3), nominal axis (n, 3)
+    in world coordinates, ray origins (n·m, 3), ray directions (n·m, 3)), sub-rays of a pulse consecutive.
+
+    ``wander_rad`` (n, 2) displaces each beam's centre (beam wander, turbulence), ``width_scale`` widens the
+    beam (turbulent broadening); the nominal axis is what the sensor believes it fired along."""
+    laser = config.laser
+    t_s, d_sensor, channel, angle = pulse_schedule(config, start, stop)
+    n = len(t_s)
+    origin, rot = trajectory.poses_at(t_s)
+    if trajectory.rotation_is_constant:
+        rot = trajectory.rotation0
+        axis_world = d_sensor @ rot.T
+    else:
+        axis_world = np.einsum("nij,nj->ni", rot, d_sensor)
+    rho_unit, phi, weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)
+    m = len(weight)
+    centre = d_sensor
+    if wander_rad is not None and np.any(wander_rad):
+        u, v = _perpendicular_axes(d_sensor)
+        centre = d_sensor + wander_rad[:, :1] * u + wander_rad[:, 1:] * v
+        centre /= np.linalg.norm(centre, axis=1, keepdims=True)
+    if m > 1:
+        uc, vc = _perpendicular_axes(centre)
+        rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
+        off = np.cos(phi)[None, :, None] * uc[:, None, :] + np.sin(phi)[None, :, None] * vc[:, None, :]
+        d_sub = np.cos(rho)[None, :, None] * centre[:, None, :] + np.sin(rho)[None, :, None] * off
+    else:
+        d_sub = centre[:, None, :]
+    if rot.ndim == 2:
+        d_world = d_sub.reshape(-1, 3) @ rot.T
+    else:
+        d_world = np.einsum("nij,nmj->nmi", rot, d_sub).reshape(-1, 3)
+    return t_s, channel, angle, origin, axis_world, np.repeat(origin, m, axis=0), d_world
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Atmosphere per pulse (paper §3.4 A, B, D for a single beam)
+# ----------------------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class ScanAtmosphere:
+    extinction_per_m: float
+    width_scale: float = 1.0
+    wander_r2_rad2: float = 0.0      # ⟨r_c²⟩/R_ref²: mean square angular wander of the beam centre
+    scint_model: str | None = None
+    scint_params: dict = dataclasses.field(default_factory=dict)
+    return_variance: float = 0.0      # B': return path through the receiver aperture (aperture averaged)
+    metadata: dict = dataclasses.field(default_factory=dict)
+    skipped: dict = dataclasses.field(default_factory=dict)
+
+    def draw(self, config, frame, tile, n):
+        """Per-pulse wander offsets (n, 2) rad and scintillation factors (n,) for one tile of pulses."""
+        wander = np.zeros((n, 2))
+        scint = np.ones(n)
+        if self.wander_r2_rad2 > 0:
+            rng = stage_rng(config.run.seed, frame, "beam_wander", tile)
+            wander = beam_wander_offsets(self.wander_r2_rad2, rng, size=n).reshape(n, 2)
+        if self.scint_model is not None:
+            rng = stage_rng(config.run.seed, frame, "scintillation", tile)
+            p = self.scint_params
+            if self.scint_model == "lognormal":
+                s2 = p["sigma2_lnI"]
+                scint = np.exp(np.sqrt(s2) * rng.standard_normal(n) - 0.5 * s2)
+            elif self.scint_model == "gamma_gamma":
+                a, b = p["alpha"], p["beta"]
+                scint = rng.gamma(a, 1.0 / a, n) * rng.gamma(b, 1.0 / b, n)
+            else:  # footprint-averaged: gamma of unit mean and the averaged variance
+                var = p["averaged_scintillation_index"]
+                scint = rng.gamma(1.0 / var, var, n)
+        if self.return_variance > 0:
+            rng = stage_rng(config.run.seed, frame, "return_scintillation", tile)
+            scint = scint * rng.gamma(1.0 / self.return_variance, self.return_variance, n)
+        return wander, scint
+
+
+def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -> ScanAtmosphere:
+    """Turbulence of a scan evaluated at R_ref (median range of the pulse axes): beam broadening (A),
+    per-pulse scintillation of the footprint (B: log-normal or gamma-gamma point statistics when the footprint
+    is smaller than a cell, else a gamma law with the footprint-averaged variance), per-pulse wander (D).
+    The turbulence blur (E) of an imaging receiver has no meaning for a single-element scanner (its effect on
+    the beam is the broadening)."""
+    atm, laser = config.atmosphere, config.laser
+    out = ScanAtmosphere(effective_extinction_per_m(config))
+    if out.extinction_per_m == 0.0:
+        out.skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
+    out.skipped.update(turbulence_switches(config))
+    out.skipped.setdefault("turbulence_blur", "scanner: single-element receiver, no image to blur")
+    active = [s for s in ("beam_broadening", "scintillation", "return_scintillation", "beam_wander")
+              if s not in out.skipped]
+    if not active:
+        return out
+    r_ref = float(reference_range_m)
+    lam = laser.wavelength_m
+    focus = laser.beam_focus_range_m if laser.beam_focus_range_m > 0 else np.inf
+    derived = derived_turbulence(atm.cn2_m_23, lam, r_ref, wave="spherical",
+                                 aperture_diameter_m=config.receiver.aperture_diameter_m)
+    beam = gaussian_beam_parameters(lam, laser.beam_waist_radius_m, r_ref, focus)
+    w = float(beam["w_m"])
+    r_c2 = float(beam_wander_variance(atm.cn2_m_23, r_ref, laser.beam_waist_radius_m, focus))
+    meta = {"reference_range_m": r_ref, "derived": derived, "beam_wander_variance_m2": r_c2}
+    if "beam_broadening" in active:
+        w_lt = float(long_term_beam_radius(w, derived["rytov_variance_plane"], beam["lam"]))
+        radius = float(short_term_beam_radius(w_lt, r_c2, w)) if "beam_wander" in active else w_lt
+        out.width_scale = radius / w
+        meta.update(free_space_radius_m=w, broadened_radius_m=radius, beam_width_scale=out.width_scale)
+    if "beam_wander" in active:
+        out.wander_r2_rad2 = r_c2 / r_ref ** 2
+        meta["beam_wander_rms_rad"] = float(np.sqrt(out.wander_r2_rad2))
+    # footprint of the (broadened) beam at R_ref: the 1/e² diameter of the divergence cone
+    footprint_m = 2.0 * np.tan(0.5 * laser.beam_divergence_rad) * out.width_scale * r_ref
+    if "scintillation" in active:
+        rho = derived["cell_radius_m"]
+        si = derived["scintillation_index"]
+        if footprint_m > rho:
+            var = float(si * box_average_variance_factor(footprint_m, rho) ** 2)
+            out.scint_model, out.scint_params = "footprint_gamma", {"averaged_scintillation_index": var}
+        else:
+            model = atm.scintillation_model
+            if model == "auto":
+                model = derived["pdf_model"]
+            if model == "lognormal":
+                out.scint_params = {"sigma2_lnI": float(np.log1p(si))}
+            else:
+                out.scint_params = {"alpha": float(derived["gamma_alpha"]), "beta": float(derived["gamma_beta"])}
+            out.scint_model = model
+        meta["scintillation"] = {"model": out.scint_model, "footprint_m": footprint_m, "cell_radius_m": rho,
+                                 **out.scint_params}
+    if "return_scintillation" in active:
+        # the receiver (aperture D) looks at the illuminated footprint: the pixel footprint of physics.md §3
+        info = return_scintillation_variance(derived, (footprint_m, footprint_m))
+        out.return_variance = info["variance"]
+        meta["return_scintillation"] = info
+    out.metadata["turbulence"] = meta
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Waveforms per pulse
+# ----------------------------------------------------------------------------------------------------------
+class PulseTable:
+    """The bin-integrated Gaussian pulse tabulated against the return's position inside its bin.
+
+    A return at u = j + f bins (0 ≤ f < 1) puts w_m(f) = P((m + 1 − f)Δ) − P((m − f)Δ) into bin j + m,
+    m = −K … K (K covers the pulse's ±6.1σ support).  Rows are tabulated at f = i/N (N = 512) and interpolated
+    linearly in f: each row sums to the same energy, so energy is kept exactly, and the interpolation error is
+    ≈ (1/N)²/8 · |∂²w/∂f²| ≈ 5·10⁻⁷/σ² (σ in bins) of the bin value — far below the waveform's own precision,
+    at a fraction of the cost of evaluating the CDF for every ray and bin (scanners fire millions of pulses).
+    """
+
+    N = 512
+
+    def __init__(self, laser, bin_width_s):
+        half = pulse_half_support_s(laser) / bin_width_s
+        self.k = int(np.ceil(half)) + 1
+        m = np.arange(-self.k, self.k + 1)
+        f = np.arange(self.N + 1) / self.N
+        edges = (m[None, :] - f[:, None]) * bin_width_s
+        self.rows = np.diff(pulse_cdf(laser, np.concatenate([edges, edges[:, -1:] + bin_width_s], axis=1)), axis=1)
+        self.offsets = m
+
+    def waveforms(self, pulse_local, u, energy_j, n_pulses, n_bins, rays_per_chunk: int = 16384):
+        """(n_pulses, n_bins) float64 J per bin; u in bins of the (window) gate; pulse_local sorted ascending.
+        Rays are processed in chunks of whole pulses so the temporaries stay small (cache-sized)."""
+        out = np.zeros((n_pulses, n_bins))
+        a = 0
+        while a < len(u):
+            b = min(a + rays_per_chunk, len(u))
+            if b < len(u):  # end the chunk on a pulse boundary
+                b = int(np.searchsorted(pulse_local, pulse_local[b - 1], side="right")) if \
+                    pulse_local[b] == pulse_local[b - 1] else b
+            p0, p1 = int(pulse_local[a]), int(pulse_local[b - 1]) + 1
+            j = np.floor(u[a:b])
+            x = (u[a:b] - j) * self.N
+            i = np.minimum(x.astype(np.int64), self.N - 1)
+            w = x - i
+            w = (self.rows[i] * (1.0 - w)[:, None] + self.rows[i + 1] * w[:, None]) * energy_j[a:b, None]
+            bins = j.astype(np.int64)[:, None] + self.offsets[None, :]
+            ok = (bins >= 0) & (bins < n_bins)
+            flat = (pulse_local[a:b].astype(np.int64) - p0)[:, None] * n_bins + bins
+            out[p0:p1] += np.bincount(flat[ok], weights=w[ok], minlength=(p1 - p0) * n_bins).reshape(-1, n_bins)
+            a = b
+        return out
+
+
+def windowed_echoes(pulse_local, time_s, energy_j, n_pulses, config: SimulationConfig, method: str,
+                    table: PulseTable | None = None) -> Echoes:
+    """Echoes of n_pulses pulses from their sub-ray returns (pulse_local sorted ascending), each pulse's waveform
+    built over a window of the gate just wide enough for its returns.  Positions are in gate bins.  With a
+    ``table`` (Gaussian pulse) the waveforms come from the tabulated pulse (:class:`PulseTable`)."""
+    gate = config.gate
+    half = pulse_half_support_s(config.laser) / gate.bin_width_s
+    u = (time_s - gate.gate_start_s) / gate.bin_width_s
+    keep = (energy_j > 0) & (u + half >= 0) & (u - half < gate.n_bins)
+    pulse_local, u, energy_j, time_s = pulse_local[keep], u[keep], energy_j[keep], time_s[keep]
+    parts = []
+    if len(u) == 0:
+        return _empty_echoes()
+    u_min = np.full(n_pulses, np.inf)
+    u_max = np.full(n_pulses, -np.inf)
+    np.minimum.at(u_min, pulse_local, u)
+    np.maximum.at(u_max, pulse_local, u)
+    has = np.isfinite(u_min)
+    need = np.zeros(n_pulses)
+    need[has] = u_max[has] - u_min[has] + 2 * half + 4
+    length = np.where(has, 2 ** np.ceil(np.log2(np.maximum(need, 16))), 0).astype(np.int64)
+    length = np.minimum(length, gate.n_bins)
+    start = np.zeros(n_pulses, np.int64)
+    start[has] = np.clip(np.floor(u_min[has] - half - 1).astype(np.int64), 0, gate.n_bins - length[has])
+    for win in np.unique(length[has]):
+        pulses = np.flatnonzero(length == win)
+        sel = np.isin(pulse_local, pulses)
+        local = np.searchsorted(pulses, pulse_local[sel])
+        if table is not None:
+            wf = table.waveforms(local, u[sel] - start[pulses][local], energy_j[sel], len(pulses), int(win))
+        else:
+            shift_s = start[pulses][local] * gate.bin_width_s
+            wgate = dataclasses.replace(gate, n_bins=int(win))
+            wf = accumulate_waveforms(local, time_s[sel] - shift_s, energy_j[sel], len(pulses), config.laser,
+                                      wgate, method)
+        ech = detect_echoes(wf, config.detection)
+        ech.position_bins = ech.position_bins + start[pulses][ech.pixel]
+        ech.pixel = pulses[ech.pixel]
+        parts.append(ech)
+    return _merge_echoes(parts)
+
+
+def _empty_echoes() -> Echoes:
+    z = np.zeros(0)
+    return Echoes(np.zeros(0, np.int64), z, z, np.zeros(0, np.int16), np.zeros(0, np.int16))
+
+
+def _merge_echoes(parts) -> Echoes:
+    if not parts:
+        return _empty_echoes()
+    order = np.argsort(np.concatenate([p.pixel for p in parts]), kind="stable")
+    cat = {f: np.concatenate([getattr(p, f) for p in parts])[order]
+           for f in ("pixel", "position_bins", "amplitude", "echo_index", "n_echoes")}
+    if all(p.snr is not None for p in parts):
+        cat["snr"] = np.concatenate([p.snr for p in parts])[order]
+    merged = Echoes(**cat)
+    if all(getattr(p, "false_alarm", None) is not None for p in parts):
+        merged.false_alarm = np.concatenate([p.false_alarm for p in parts])[order]
+    return merged
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The scan
+# ----------------------------------------------------------------------------------------------------------
+def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
+                  trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None, cancel=None):
+    """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a pipeline.FrameResult whose images
+    are None and whose ``points`` and ``pulses`` carry the products (see module docstring)."""
+    from ..errors import Cancelled
+    from .flash import FrameResult, _noisy_echoes, product_units, run_blocks
+
+    t_wall = time.perf_counter()
+    validate(config)
+    scene = scene.with_overrides(config.materials)
+    scene.check()
+    times = {k: 0.0 for k in ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")}
+    t0 = time.perf_counter()
+    built = tracer is None or not tracer.serves(scene)
+    if built:
+        tracer = SceneTracer(scene)
+    times["build_bvh"] = time.perf_counter() - t0
+    if trajectory is None:
+        trajectory = Trajectory.static(world_from_sensor)
+    n_pulses = n_scan_pulses(config)
+    gate, laser = config.gate, config.laser
+    noisy = config.detector.mode == "noisy"
+    save = config.run.save_waveforms
+    weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)[2]
+    m = len(weight)
+    method = binning_method(laser, gate)
+    table = PulseTable(laser, gate.bin_width_s) if laser.pulse_shape == "gaussian" and method == "exact" else None
+
+    skipped = {}
+    t0 = time.perf_counter()
+    needs_ref = any(s not in turbulence_switches(config)
+                    for s in ("beam_broadening", "scintillation", "beam_wander"))
+    atm = scan_atmosphere(config, _reference_range(tracer, trajectory, config, n_pulses) if needs_ref else None)
+    times["atmosphere"] = time.perf_counter() - t0
+    skipped.update(atm.skipped)
+    if not noisy:
+        skipped["receiver_chain"] = "detector.mode = ideal: echoes from the noise-free waveforms"
+    if not save:
+        skipped["waveform_cube"] = "run.save_waveforms = false: per-pulse waveforms built in windows and discarded"
+    if trajectory.is_static:
+        skipped["motion"] = "static sensor: one pose for every pulse"
+
+    tile = NOISE_TILE_PULSES
+    per_block = max(1, config.run.chunk_rays // m)
+    per_block = max(tile, (per_block // tile) * tile)
+    if save or noisy:  # full-gate waveforms: bound the block's float64 waveform memory (~64 MiB)
+        per_block = max(tile, min(per_block, (64 * 2**20 // (8 * gate.n_bins)) // tile * tile))
+    blocks = [(a, min(a + per_block, n_pulses)) for a in range(0, n_pulses, per_block)]
+    waveforms = np.zeros((n_pulses, gate.n_bins), np.float32) if save else None
+    digital = [] if noisy else None
+    chain_settings = ChainSettings.from_config(config)
+    chain_settings = dataclasses.replace(chain_settings, ifov_x_rad=laser.beam_divergence_rad,
+                                         ifov_y_rad=laser.beam_divergence_rad)
+    pulse_energy = np.zeros(n_pulses)
+    pulse_origin = np.zeros((n_pulses, 3))
+    pulse_axis = np.zeros((n_pulses, 3))
+    pulse_time = np.zeros(n_pulses)
+    pulse_channel = np.zeros(n_pulses, np.int16)
+    pulse_angle = np.zeros(n_pulses)
+
+    def process(block):
+        if cancel is not None and cancel():
+            raise Cancelled()
+        a, b = block
+        n = b - a
+        local = {}
+        t = time.perf_counter()
+        wander = np.zeros((n, 2))
+        scint = np.ones(n)
+        for ta in range(a, b, tile):  # random streams per fixed tile of pulses
+            tb = min(ta + tile, b)
+            w_t, s_t = atm.draw(config, frame, ta // tile, tb - ta)
+            wander[ta - a:tb - a], scint[ta - a:tb - a] = w_t, s_t
+        t_s, channel, angle, origin, axis_world, o_world, d_world = scan_rays(
+            config, trajectory, a, b, wander_rad=wander, width_scale=atm.width_scale)
+        local["rays"] = time.perf_counter() - t
+        t = time.perf_counter()
+        prim, range_m, cos_theta = tracer.intersect(o_world, d_world)
+        local["trace"] = time.perf_counter() - t
+        t = time.perf_counter()
+        hit = prim >= 0
+        pulse_of_ray = np.repeat(np.arange(n), m)
+        frac = np.tile(weight, n)
+        e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials,
+                            scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], frac[hit])
+        p_hit = pulse_of_ray[hit]
+        e *= scint[p_hit]
+        pulse_energy[a:b] = np.bincount(p_hit, weights=e, minlength=n)
+        pulse_origin[a:b], pulse_axis[a:b], pulse_time[a:b] = origin, axis_world, t_s
+        pulse_channel[a:b], pulse_angle[a:b] = channel, angle
+        local["radiometry"] = time.perf_counter() - t
+        t = time.perf_counter()
+        t_rt = round_trip_time_s(range_m[hit])
+        if save or noisy:
+            wf = accumulate_waveforms(p_hit, t_rt, e, n, laser, gate, method)
+            if save:
+                waveforms[a:b] = wf
+            local["waveform"] = time.perf_counter() - t
+            if noisy:
+                t = time.perf_counter()
+                parts, dig = [], []
+                for ta in range(0, n, tile):
+                    tb = min(ta + tile, n)
+                    chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], chain_settings,
+                                                 stage_seed(config.run.seed, frame, "receiver", (a + ta) // tile))
+                    ech = _noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
+                                        noise_sigma=chain.report.get("noise_sigma"))
+                    ech.pixel = ech.pixel + ta
+                    parts.append(ech)
+                    dig.append(chain.report)
+                local["receiver_chain"] = time.perf_counter() - t
+                echoes = _merge_echoes(parts)
+                return echoes, int(hit.sum()), local, dig[0]
+            t = time.perf_counter()
+            echoes = detect_echoes(wf, config.detection)
+        else:
+            echoes = windowed_echoes(p_hit, t_rt, e, n, config, method, table)
+            local["waveform"] = time.perf_counter() - t  # waveform windows and echo detection together
+            t = time.perf_counter()
+        local["echoes"] = time.perf_counter() - t
+        return echoes, int(hit.sum()), local, None
+
+    threads = config.run.threads or os.cpu_count() or 1
+    results = run_blocks(process, blocks, threads, progress, label="pulse block")
+    for (a, _), res in zip(blocks, results):
+        res[0].pixel = res[0].pixel + a
+    n_hits = sum(r[1] for r in results)
+    for r in results:
+        for k, v in r[2].items():
+            times[k] = times.get(k, 0.0) + v
+    t0 = time.perf_counter()
+    echoes = _merge_echoes([r[0] for r in results])
+    p = echoes.pixel
+    time_s = gate.gate_start_s + echoes.position_bins * gate.bin_width_s
+    range_m = 0.5 * SPEED_OF_LIGHT_M_S * time_s
+    pos_world = pulse_origin[p] + pulse_axis[p] * range_m[:, None]
+    points = {"position_world": pos_world,
+              "intensity": echoes.amplitude.astype(np.float32), "range_m": range_m,
+              "echo_index": (echoes.echo_index + 1).astype(np.int16), "n_echoes": echoes.n_echoes.astype(np.int16),
+              "time_s": time_s, "gps_time_s": start_time_s + pulse_time[p], "pulse_index": p.astype(np.int64),
+              "channel": pulse_channel[p], "scan_angle_rad": pulse_angle[p].astype(np.float32),
+              "frame": np.full(len(p), frame, np.int32)}
+    if echoes.snr is not None:
+        points["snr"] = echoes.snr.astype(np.float32)
+    if getattr(echoes, "false_alarm", None) is not None:
+        points["false_alarm"] = echoes.false_alarm.astype(np.uint8)
+    n_echo_per_pulse = np.zeros(n_pulses, np.int16)
+    first = echoes.echo_index == 0
+    n_echo_per_pulse[p[first]] = echoes.n_echoes[first]
+    pulses = {"time_s": pulse_time, "gps_time_s": start_time_s + pulse_time, "origin_world": pulse_origin,
+              "direction_world": pulse_axis.astype(np.float32), "channel": pulse_channel,
+              "scan_angle_rad": pulse_angle.astype(np.float32), "n_echoes": n_echo_per_pulse,
+              "received_energy_j": pulse_energy}
+    times["products"] = time.perf_counter() - t0
+    ran = ["rays", "trace", "radiometry", "waveform", "echoes", "products"] + \
+        [s for s in ("extinction", "beam_broadening", "scintillation", "return_scintillation", "beam_wander",
+                     "receiver_chain", "waveform_cube", "motion") if s not in skipped]
+    if built:
+        ran.insert(0, "build_bvh")
+    else:
+        skipped["build_bvh"] = "the caller's BVH of this scene was reused"
+    stats = {"n_pulses": n_pulses, "subrays_per_pulse": m, "n_rays": n_pulses * m, "n_hits": n_hits,
+             "n_points": int(len(range_m)), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
+             "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
+             "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
+             "scan_duration_s": scan_duration_s(config), "stage_times_s": times,
+             "wall_time_s": time.perf_counter() - t_wall, "received_energy_j": float(pulse_energy.sum()),
+             "stages_run": ran, "stages_skipped": skipped,
+             "notes": {"divergence_fills_fov": "ignored by the scanner: the beam is laser.beam_divergence_rad",
+                       "receiver": "the receiver collects the whole footprint; width/height/fov unused"}}
+    if atm.metadata:
+        stats["atmosphere"] = atm.metadata
+    if noisy:
+        stats["receiver"] = dict(results[0][3])
+        if "false_alarm" in points:
+            n_fa = int(points["false_alarm"].sum())
+            stats["receiver"]["false_alarms"] = {
+                "n_false_alarms": n_fa, "per_pulse": n_fa / n_pulses,
+                "rule": "an echo with no noise-free signal within 2 pulse widths (core.physics.detection.noisy)"}
+    return FrameResult(range_image=None, intensity_image=None, energy_image=None, range_echoes=None,
+                       intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses,
+                       units=product_units("scanner", stats["receiver"]["units"] if noisy else None))
+
+
+def _reference_range(tracer, trajectory, config, n_pulses) -> float:
+    """Median range of (up to 4096 evenly chosen) pulse axes that hit the scene: where turbulence is evaluated."""
+    idx = np.unique(np.linspace(0, n_pulses - 1, min(n_pulses, 4096)).astype(np.int64))
+    t_s, d_sensor, _, _ = pulse_schedule(config, indices=idx)
+    origin, rot = trajectory.poses_at(t_s)
+    prim, range_m, _ = tracer.intersect(origin, np.einsum("nij,nj->ni", rot, d_sensor))
+    hits = range_m[prim >= 0]
+    if len(hits) == 0:
+        raise ConfigError("sensor", "sees nothing", "a scan pattern that hits geometry: no pulse axis hits the "
+                                                    "scene (check the sensor's pose and the scan angles)")
+    return float(np.median(hits))

@@ -1,0 +1,335 @@
+"""Time-of-flight scanner (issue 5): scan patterns, beam sub-rays, multi-echo, motion compensation, records."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from core.errors import ConfigError
+from core.config.settings import SimulationConfig, validate
+from core.geometry.motion import Trajectory
+from core.systems.flash import run_simulation, simulate
+from core.fileio.run_folder import read_ply, run_summary
+from core.systems.scanner import beam_subrays, pulse_schedule, windowed_echoes
+from core.config.derived import n_scan_pulses, scan_duration_s
+from core.geometry.scene import SceneGeometry
+from scenes import C, plate
+
+
+def scanner_config(pattern="raster", **scan):
+    cfg = SimulationConfig(system_type="scanner")
+    cfg.scanner.pattern = pattern
+    for k, v in scan.items():
+        setattr(cfg.scanner, k, v)
+    cfg.laser.beam_divergence_rad = 1e-3
+    cfg.laser.pulse_fwhm_s = 2e-9
+    cfg.gate.gate_start_s = 0.0
+    cfg.gate.bin_width_s = 0.25e-9
+    cfg.gate.n_bins = 2048  # 0 … 76.8 m
+    cfg.run.save_waveforms = False
+    cfg.run.threads = 1
+    return cfg
+
+
+def merge(*scenes):
+    v, t, m, off = [], [], [], 0
+    for s in scenes:
+        v.append(s.vertices_m)
+        t.append(s.triangles + off)
+        m.append(s.material_ids)
+        off += len(s.vertices_m)
+    return SceneGeometry(np.vstack(v), np.vstack(t), np.concatenate(m))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Patterns
+# --------------------------------------------------------------------------------------------------------------
+def test_raster_pattern_lines_times_and_angles():
+    cfg = scanner_config("raster", n_lines=5, scan_rate_hz=100.0, pulse_rate_hz=2000.0, scan_width_rad=0.4,
+                         scan_height_rad=0.2)
+    assert scan_duration_s(cfg) == pytest.approx(0.05)
+    assert n_scan_pulses(cfg) == 100  # 5 lines × 20 pulses
+    t, d, ch, alpha = pulse_schedule(cfg)
+    np.testing.assert_allclose(t, np.arange(100) / 2000.0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-14)
+    beta = np.arcsin(d[:, 1])
+    # first line at the top (+H/2), last at the bottom, 20 pulses each sweeping −W/2 → +W/2 (left to right)
+    np.testing.assert_allclose(beta[:20], 0.1, atol=1e-12)
+    np.testing.assert_allclose(beta[-20:], -0.1, atol=1e-12)
+    np.testing.assert_allclose(alpha[:20], -0.2 + 0.4 * np.arange(20) / 20, atol=1e-12)
+    assert np.all(ch == 0)
+
+
+def test_rotating_head_channels_and_azimuth():
+    cfg = scanner_config("rotating", n_channels=4, scan_rate_hz=10.0, pulse_rate_hz=3600.0,
+                         scan_width_rad=2 * np.pi, scan_height_rad=0.4)
+    assert scan_duration_s(cfg) == pytest.approx(0.1)
+    assert n_scan_pulses(cfg) == 360 * 4
+    t, d, ch, alpha = pulse_schedule(cfg)
+    assert list(ch[:8]) == [0, 1, 2, 3, 0, 1, 2, 3]
+    np.testing.assert_allclose(np.arcsin(d[:4, 1]), np.linspace(0.2, -0.2, 4), atol=1e-12)
+    # the head turns 1° per firing (10 rev/s at 3600 Hz), all channels of a firing share the time
+    az = np.arctan2(d[::4, 0], -d[::4, 2])
+    step = np.diff(np.unwrap(az))
+    np.testing.assert_allclose(step, np.deg2rad(1.0), atol=1e-12)
+    np.testing.assert_allclose(t[::4], np.arange(360) / 3600.0)
+
+
+def test_palmer_cone_and_oscillating_amplitude():
+    cfg = scanner_config("palmer", cone_half_angle_rad=0.3, scan_rate_hz=50.0, pulse_rate_hz=10_000.0)
+    _, d, _, _ = pulse_schedule(cfg)
+    np.testing.assert_allclose(np.arccos(-d[:, 2]), 0.3, atol=1e-12)  # every beam on the cone about −Z
+    assert len(d) == 200
+    cfg = scanner_config("oscillating", scan_width_rad=0.5, scan_rate_hz=25.0, pulse_rate_hz=10_000.0)
+    _, d, _, alpha = pulse_schedule(cfg)
+    assert np.abs(alpha).max() == pytest.approx(0.25, rel=1e-4)
+    np.testing.assert_allclose(d[:, 1], 0.0, atol=1e-15)
+
+
+@pytest.mark.parametrize("rings", [0, 1, 2, 4])
+def test_beam_subrays_carry_equal_shares_of_exact_energy(rings):
+    rho, phi, w = beam_subrays(rings, "gaussian")
+    m = 1 + 3 * rings * (rings + 1)
+    assert len(rho) == len(phi) == len(w) == m
+    assert w.sum() == pytest.approx(1.0, abs=1e-15)
+    # ring k's rays sit where the Gaussian encloses the middle of that ring's cumulative energy share
+    counts = [1] + [6 * k for k in range(1, rings + 1)]
+    cum = np.cumsum(counts) / m
+    start = 0
+    for k, n in enumerate(counts):
+        if k > 0:
+            enclosed = 1 - np.exp(-2 * rho[start] ** 2)
+            assert enclosed == pytest.approx(0.5 * (cum[k - 1] + cum[k]), rel=1e-12)
+        start += n
+    # azimuths of a ring are evenly spread, so the ring's centroid is on the axis
+    x = (rho * np.cos(phi) * w).sum()
+    assert abs(x) < 1e-12
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Validation cases of the issue
+# --------------------------------------------------------------------------------------------------------------
+def test_flat_wall_raster_points_on_the_plane_within_1mm():
+    tilt = np.deg2rad(30.0)
+    scene = plate(40.0, 30.0, tilt_rad=tilt)
+    cfg = scanner_config("raster", n_lines=30, scan_rate_hz=200.0, pulse_rate_hz=8000.0, scan_width_rad=0.5,
+                         scan_height_rad=0.4, beam_subray_rings=2)
+    res = simulate(scene, np.eye(4), cfg)
+    pts = res.points["position_world"]
+    assert len(pts) == n_scan_pulses(cfg) == 1200
+    normal = np.array([0.0, np.sin(tilt), np.cos(tilt)])
+    dist = (pts - np.array([0.0, 0.0, -40.0])) @ normal
+    assert np.abs(dist).max() < 1e-3
+    assert np.all(res.points["n_echoes"] == 1)
+
+
+def test_two_planes_half_covering_the_footprint_give_two_echoes():
+    # a front plate covers x < 0 of the footprint at 30 m (edge 0.1 mm left of the axis, so that no sub-ray
+    # grazes it), a wall 1.5 m behind gets the other half
+    front = plate(30.0, 1.0, offset=(-1.0 - 1e-4, 0.0, 0.0))
+    back = plate(31.5, 5.0)
+    cfg = scanner_config("raster", n_lines=1, scan_rate_hz=1000.0, pulse_rate_hz=1000.0, scan_width_rad=0.0,
+                         scan_height_rad=0.0, beam_subray_rings=4)
+    cfg.laser.beam_divergence_rad = 4e-3  # 12 cm footprint at 30 m
+    res = simulate(merge(front, back), np.eye(4), cfg)
+    p = res.points
+    assert len(p["range_m"]) == 2
+    assert list(p["echo_index"]) == [1, 2] and list(p["n_echoes"]) == [2, 2]
+    np.testing.assert_allclose(p["range_m"], [30.0, 31.5], atol=0.005)
+    # the echo energies split as the sub-rays do, each scaled by 1/R² (physics.md §10): amplitude ratio within 2 %
+    rho, phi, w = beam_subrays(4, "gaussian")
+    x_at_front = 30.0 * np.tan(rho * 2e-3) * np.cos(phi)
+    on_front = x_at_front < -1e-4
+    assert 0 < on_front.sum() < len(w)
+    expected = (w[~on_front].sum() / 31.5 ** 2) / (w[on_front].sum() / 30.0 ** 2)
+    assert p["intensity"][1] / p["intensity"][0] == pytest.approx(expected, rel=0.02)
+
+
+def test_moving_sensor_scanning_a_static_wall_is_motion_compensated():
+    # the sensor flies along +x at 50 m/s while scanning an oscillating line onto a wall 20 m ahead
+    cfg = scanner_config("oscillating", scan_width_rad=0.6, scan_rate_hz=20.0, pulse_rate_hz=20_000.0,
+                         duration_s=0.2, beam_subray_rings=1)
+    times = np.linspace(0.0, 0.2, 21)
+    mats = np.repeat(np.eye(4)[None], len(times), axis=0)
+    mats[:, 0, 3] = 50.0 * times
+    traj = Trajectory(times, mats)
+    scene = plate(20.0, 40.0)
+    res = simulate(scene, np.eye(4), cfg, trajectory=traj)
+    p = res.points
+    pos = p["position_world"]
+    np.testing.assert_allclose(pos[:, 2], -20.0, atol=1e-3)  # on the wall, not smeared in depth
+    # each point is where the pulse's axis, fired from the pose at its own time, meets the wall
+    t_s, d, _, _ = pulse_schedule(cfg, indices=p["pulse_index"])
+    expected = np.column_stack([50.0 * t_s, np.zeros_like(t_s), np.zeros_like(t_s)]) + d * (20.0 / -d[:, 2])[:, None]
+    np.testing.assert_allclose(pos, expected, atol=1e-3)
+    # registered with the start pose instead, the same ranges would be off by up to the 10 m flown
+    static = d * p["range_m"][:, None]
+    assert np.abs(static[:, 0] - pos[:, 0]).max() > 9.0
+    assert "motion" in res.stats["stages_run"]
+
+
+def test_pulses_are_time_stamped_and_misses_recorded(tmp_path):
+    # half of each line looks past the wall's edge: those pulses have no echo but are recorded
+    scene = plate(20.0, 2.0, offset=(-2.0, 0.0, 0.0))  # covers x ∈ [−4, 0]
+    cfg = scanner_config("raster", n_lines=4, scan_rate_hz=100.0, pulse_rate_hz=4000.0, scan_width_rad=0.3,
+                         scan_height_rad=0.05)
+    path, res = run_simulation(scene, np.eye(4), cfg, tmp_path / "scan", start_time_s=1000.0)
+    pulses = np.load(path / "pulses.npz")
+    assert len(pulses["time_s"]) == n_scan_pulses(cfg) == 160
+    np.testing.assert_allclose(pulses["gps_time_s"], 1000.0 + np.arange(160) / 4000.0)
+    x_axis = pulses["direction_world"][:, 0]
+    assert set(pulses["n_echoes"][x_axis > 1e-3]) == {0}
+    assert np.all(pulses["n_echoes"][x_axis < -1e-3] == 1)
+    assert res.stats["pulses_without_echo"] == int((pulses["n_echoes"] == 0).sum()) > 0
+    ply = read_ply(path / "points.ply")
+    np.testing.assert_allclose(ply["gps_time_s"], 1000.0 + ply["pulse_index"] / 4000.0)
+    assert {"echo_index", "n_echoes", "intensity", "gps_time_s", "channel"} <= set(ply)
+    assert not (path / "range.exr").exists()
+    from core.fileio.las import read_las
+    las = read_las(path / "points.las")["points"]  # GPS time, return number and count carried into LAS 1.4
+    np.testing.assert_allclose(np.sort(las["gps_time"]), np.sort(res.points["gps_time_s"]), atol=1e-9)
+    assert set(las["return_number"]) == {1} and set(las["number_of_returns"]) == {1}
+    summary = run_summary(path, res)
+    assert "160 fired" in summary and f"{res.stats['pulses_without_echo']} without an echo" in summary
+
+
+def test_windowed_waveforms_give_the_full_gate_echoes():
+    # vegetation-like: three layers at different depths, partly covering the footprint
+    scene = merge(plate(25.0, 0.5, offset=(0.45, 0.0, 0.0)), plate(27.0, 0.5, offset=(-0.45, 0.0, 0.0)),
+                  plate(35.0, 10.0))
+    cfg = scanner_config("raster", n_lines=6, scan_rate_hz=100.0, pulse_rate_hz=2000.0, scan_width_rad=0.08,
+                         scan_height_rad=0.04, beam_subray_rings=3)
+    cfg.laser.beam_divergence_rad = 0.02
+    a = simulate(scene, np.eye(4), cfg)
+    b = simulate(scene, np.eye(4), dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, save_waveforms=True)))
+    assert a.stats["n_points"] == b.stats["n_points"] > n_scan_pulses(cfg)  # several echoes per pulse
+    np.testing.assert_allclose(a.points["range_m"], b.points["range_m"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.points["intensity"], b.points["intensity"], rtol=1e-6)
+    assert b.waveforms.shape == (n_scan_pulses(cfg), cfg.gate.n_bins)
+    # the saved waveforms hold the received energy of each pulse (pulse fully inside the gate)
+    np.testing.assert_allclose(b.waveforms.sum(axis=1), b.pulses["received_energy_j"], rtol=1e-5)
+
+
+def test_on_axis_pulse_energy_follows_the_radar_equation():
+    cfg = scanner_config("raster", n_lines=1, scan_rate_hz=1000.0, pulse_rate_hz=1000.0, scan_width_rad=0.0,
+                         scan_height_rad=0.0, beam_subray_rings=2)
+    cfg.laser.beam_divergence_rad = 1e-5
+    res = simulate(plate(50.0, 5.0), np.eye(4), cfg)
+    rho, eta, r_a = 0.3, cfg.receiver.system_efficiency, cfg.receiver.aperture_diameter_m / 2
+    expected = cfg.laser.pulse_energy_j * eta * rho * r_a ** 2 / 50.0 ** 2  # Lambertian, physics.md §10
+    assert res.pulses["received_energy_j"][0] == pytest.approx(expected, rel=1e-6)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Atmosphere, noise, determinism
+# --------------------------------------------------------------------------------------------------------------
+def turbulent_scan(seed=0, threads=1, chunk=262_144, divergence_rad=1e-5):
+    cfg = scanner_config("raster", n_lines=40, scan_rate_hz=100.0, pulse_rate_hz=20_000.0, scan_width_rad=0.2,
+                         scan_height_rad=0.2, beam_subray_rings=1)
+    cfg.laser.beam_divergence_rad = divergence_rad
+    cfg.atmosphere.cn2_m_23 = 1e-14
+    cfg.run.seed, cfg.run.threads, cfg.run.chunk_rays = seed, threads, chunk
+    cfg.gate.gate_start_s = 2 * 990 / C
+    return cfg
+
+
+@pytest.mark.parametrize("divergence_rad, model", [(1e-5, "point"), (1e-3, "footprint_gamma")])
+def test_scan_scintillation_statistics(divergence_rad, model):
+    """Per-pulse energy relative to the calm-air energy: unit mean and the variance of the model (8000 pulses:
+    the sample variance of a variance-0.1…0.3 law is within ±8 % at > 4σ)."""
+    scene = plate(1000.0, 300.0)
+    cfg = turbulent_scan(divergence_rad=divergence_rad)
+    a = simulate(scene, np.eye(4), cfg)
+    meta = a.stats["atmosphere"]["turbulence"]
+    scint = meta["scintillation"]
+    if model == "point":  # footprint (1 cm) smaller than a cell: the point statistics of the regime
+        assert scint["model"] in ("lognormal", "gamma_gamma") and scint["footprint_m"] < scint["cell_radius_m"]
+        target = meta["derived"]["scintillation_index"]
+    else:  # footprint (1 m) averages many cells: gamma law of the averaged variance
+        assert scint["model"] == model and scint["footprint_m"] > scint["cell_radius_m"]
+        target = scint["averaged_scintillation_index"]
+        assert target < 0.5 * meta["derived"]["scintillation_index"]
+    # the return path through the aperture multiplies an independent unit-mean factor (aperture averaged)
+    ret = meta["return_scintillation"]["variance"]
+    assert 0 < ret < meta["derived"]["scintillation_index"]
+    total = (1 + target) * (1 + ret) - 1
+    calm = dataclasses.replace(cfg, atmosphere=dataclasses.replace(cfg.atmosphere, cn2_m_23=0.0))
+    ref = simulate(scene, np.eye(4), calm)
+    ratio = a.pulses["received_energy_j"] / ref.pulses["received_energy_j"]
+    assert ratio.mean() == pytest.approx(1.0, abs=0.03)
+    assert ratio.var() == pytest.approx(total, rel=0.08)
+    # the outgoing path alone
+    one_way = simulate(scene, np.eye(4), dataclasses.replace(
+        cfg, atmosphere=dataclasses.replace(cfg.atmosphere, return_scintillation=False)))
+    ratio = one_way.pulses["received_energy_j"] / ref.pulses["received_energy_j"]
+    assert ratio.var() == pytest.approx(target, rel=0.08)
+    assert "return_scintillation" in one_way.stats["stages_skipped"]
+
+
+def test_scan_turbulence_is_deterministic_per_seed():
+    scene = plate(1000.0, 300.0)
+    a = simulate(scene, np.eye(4), turbulent_scan())
+    b = simulate(scene, np.eye(4), turbulent_scan(threads=2, chunk=8192))
+    assert a.stats["n_points"] == 8000
+    np.testing.assert_array_equal(a.points["range_m"], b.points["range_m"])
+    np.testing.assert_array_equal(a.points["intensity"], b.points["intensity"])
+    c = simulate(scene, np.eye(4), turbulent_scan(seed=1))
+    assert not np.array_equal(a.points["intensity"], c.points["intensity"])
+
+
+def test_noisy_scanner_detects_with_snr():
+    cfg = scanner_config("raster", n_lines=4, scan_rate_hz=100.0, pulse_rate_hz=4000.0, scan_width_rad=0.1,
+                         scan_height_rad=0.05)
+    cfg.detector.mode = "noisy"
+    cfg.gate.n_bins = 512  # 30 … 49.2 m
+    cfg.gate.gate_start_s = 2 * 30.0 / C
+    res = simulate(plate(40.0, 10.0), np.eye(4), cfg)
+    first = res.points["echo_index"] == 1
+    # every pulse sees the wall (strong return), the range noise is small
+    assert len(np.unique(res.points["pulse_index"][first])) == n_scan_pulses(cfg)
+    near = np.abs(res.points["range_m"] - 40.0 / np.cos(0.05)) < 0.5
+    assert near.sum() >= n_scan_pulses(cfg)
+    assert np.all(np.isfinite(res.points["snr"])) and res.points["snr"][near].min() > 5
+    assert "receiver_chain" in res.stats["stages_run"]
+    # detections away from the wall's return are the counted false alarms
+    np.testing.assert_array_equal(res.points["false_alarm"].astype(bool), ~near)
+    assert res.stats["receiver"]["false_alarms"]["n_false_alarms"] == int((~near).sum())
+
+
+def test_scanner_settings_are_validated():
+    cfg = scanner_config("raster")
+    cfg.scanner.pulse_rate_hz = 0.0
+    with pytest.raises(ConfigError, match="scanner.pulse_rate_hz"):
+        validate(cfg)
+    cfg = scanner_config("raster", n_lines=10_000, pulse_rate_hz=1e6, scan_rate_hz=10.0)
+    cfg.run.save_waveforms = True
+    with pytest.raises(ConfigError, match="run.save_waveforms"):
+        validate(cfg)
+    with pytest.raises(ConfigError, match="sees nothing"):
+        simulate(plate(20.0, 1.0, offset=(0.0, 100.0, 0.0)), np.eye(4),
+                 dataclasses.replace(scanner_config("raster"),
+                                     atmosphere=dataclasses.replace(SimulationConfig().atmosphere, cn2_m_23=1e-14)))
+
+
+def test_windowed_echoes_of_nothing_is_empty():
+    cfg = scanner_config()
+    e = windowed_echoes(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), 5, cfg, "exact")
+    assert len(e.pixel) == 0
+
+
+def test_pulse_table_matches_the_exact_bin_integrals():
+    from core.config.settings import LaserSettings, RangeGateSettings
+    from core.systems.scanner import PulseTable
+    from core.physics.waveform import accumulate_waveforms
+
+    rng = np.random.default_rng(3)
+    for fwhm_bins in (0.7, 2.0, 6.0):
+        laser = LaserSettings(pulse_fwhm_s=fwhm_bins * 1e-9)
+        gate = RangeGateSettings(gate_start_s=0.0, bin_width_s=1e-9, n_bins=64)
+        pix = np.sort(rng.integers(0, 50, 400))
+        u = rng.uniform(10, 50, 400)
+        e = rng.uniform(0.5, 2.0, 400)
+        exact = accumulate_waveforms(pix, u * 1e-9, e, 50, laser, gate, "exact")
+        table = PulseTable(laser, 1e-9).waveforms(pix, u, e, 50, 64)
+        # interpolation error ≲ 5e-7/σ² of the peak (σ in bins); energy identical
+        assert np.abs(table - exact).max() < 2e-6 * exact.max()
+        np.testing.assert_allclose(table.sum(axis=1), exact.sum(axis=1), rtol=1e-9)
