@@ -30,6 +30,9 @@ Where a Blender property cannot hold the SI value as is, the stored value is sca
   MiB (``max_memory_mib``; a config value that is not a whole number of MiB is rounded);
 * ``run.seed`` is limited to 0 … 2³¹−1 in a .blend (larger seeds: ``--seed`` or a config file).
 
+Scripts set settings in SI through :func:`set_settings` (``{"atmosphere.cn2_m_23": 5e-15}``), never by
+writing an SI value into a scaled property.
+
 Blender stores floats in single precision; :func:`config_from_blender` returns the shortest decimal that
 rounds to the stored float32, so a value typed as 1e-3 comes back as exactly 1e-3.
 """
@@ -42,8 +45,8 @@ from decimal import Decimal
 import bpy
 import numpy as np
 
-from ..core.config.settings import (DEFAULT_BRDF, GROUPS, BRDFSettings, RunSettings, SimulationConfig, field_specs,
-                                    validate)
+from ..core.config.settings import (DEFAULT_BRDF, GROUPS, BRDFSettings, RunSettings, SimulationConfig,
+                                    config_from_dict, config_to_dict, field_specs, validate)
 from ..core.errors import ConfigError
 from .errors import LadarError
 from .materials import LadarBRDFTableRow, extra_brdf_properties, read_table, write_table
@@ -536,6 +539,42 @@ def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
     except Exception:
         cam.lens = saved_lens
         raise
+
+
+def set_settings(scene, sensor_obj, values: dict) -> SimulationConfig:
+    """Set settings by their config path, in SI units: the Python API for scripts.
+
+    Several properties store a scaled value (wavelengths in nm, Cn² and dark currents in units of a power of
+    ten, distances in Blender units, memory in MiB: :class:`FieldMap`), so writing an SI value straight into
+    them is wrong by that scale (``scene.ladar_atmosphere.cn2_m_23 = 5e-15`` stores 5e-29 m^-2/3).  This sets
+    ``{"atmosphere.cn2_m_23": 5e-15, "laser.wavelength_m": 532e-9, ...}`` as the simulator will read them.
+    Paths: ``system_type``, ``<group>.<field>`` (``run.seed`` too; ``receiver.fov_x_rad``/``fov_y_rad`` set
+    the camera lens) and ``materials.<material name>.<field>`` (a material with its ladar BRDF enabled).
+    Everything is validated before anything changes (ConfigError naming the path).  Returns the config now
+    stored."""
+    data = config_to_dict(config_from_blender(scene, sensor_obj))
+    for path, value in values.items():
+        if path == "system_type":
+            data[path] = value
+            continue
+        head, _, rest = path.partition(".")
+        if head == "materials":
+            name, _, field = rest.rpartition(".")
+            if name not in data["materials"]:
+                raise ConfigError(path, value, "materials.<name>.<field> of a material with its ladar BRDF enabled: "
+                                  + (", ".join(data["materials"]) or "none is"))
+            target = data["materials"][name]
+        elif head in GROUPS:
+            field, target = rest, data[head]
+        else:
+            raise ConfigError(path, value, "system_type, <group>.<field> (groups: " + ", ".join(GROUPS)
+                              + ") or materials.<name>.<field>")
+        if field not in target:
+            raise ConfigError(path, value, f"a setting of {head}: " + ", ".join(target))
+        target[field] = value
+    cfg = config_from_dict(data)
+    apply_config_to_blender(cfg, scene, sensor_obj)
+    return cfg
 
 
 def property_group_class(group: str):

@@ -138,7 +138,6 @@ def build_flash_demo(bpy, path: Path) -> None:
     ladar.system_type = "flash"
     ladar.receiver.width_px = ladar.receiver.height_px = 64
     ladar.receiver.subsamples = 4
-    ladar.laser.wavelength_m = 1064.0  # stored in nm
     ladar.laser.pulse_shape = "gaussian"
     ladar.laser.pulse_fwhm_s = 5e-9
     ladar.gate.gate_start_s = 2 * GATE_NEAR_M / SPEED_OF_LIGHT_M_S
@@ -148,6 +147,7 @@ def build_flash_demo(bpy, path: Path) -> None:
     scene.ladar.output_dir = "//../runs/"
     scene.ladar.seed = 1
     scene.ladar.point_radius = 0.04
+    _set_si(scene, cam, {"laser.wavelength_m": 1.064e-6})
 
     path.parent.mkdir(parents=True, exist_ok=True)
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
@@ -189,6 +189,14 @@ def _new_scene(bpy, name, resolution):
     return scene
 
 
+def _set_si(scene, cam, values: dict) -> None:
+    """Settings in SI units through the add-on's Python API (``ladar_addon.properties.set_settings``): several
+    properties store scaled values (nm, ×1e-14 m^-2/3, Blender units), never write SI values into them."""
+    import importlib
+
+    importlib.import_module(f"{blender_env.ADDON_MODULE}.ladar_addon.properties").set_settings(scene, cam, values)
+
+
 def _save(bpy, scene, sensor, path: Path):
     scene.ladar.sensor = sensor
     scene.ladar.output_dir = "//../runs/"
@@ -218,8 +226,6 @@ def build_gated_board(bpy, path: Path) -> None:
     ladar.system_type = "gated"
     ladar.receiver.width_px, ladar.receiver.height_px = 96, 64
     ladar.receiver.subsamples = 3
-    ladar.receiver.aperture_diameter_m = 0.1
-    ladar.laser.wavelength_m = 532.0  # stored in nm
     ladar.laser.pulse_energy_j = 0.02
     ladar.laser.pulse_fwhm_s = 10e-9
     ladar.gated.gate_width_s = 20e-9
@@ -227,9 +233,8 @@ def build_gated_board(bpy, path: Path) -> None:
     ladar.gated.n_slices = 30
     ladar.gated.first_delay_s = 2 * 992.5 / SPEED_OF_LIGHT_M_S - 0.5 * 20e-9
     ladar.gated.range_method = "centroid"
-    atm = scene.ladar_atmosphere
-    atm.visibility_m = 15000.0
-    atm.cn2_m_23 = 5e-15
+    _set_si(scene, cam, {"receiver.aperture_diameter_m": 0.1, "laser.wavelength_m": 532e-9,
+                         "atmosphere.visibility_m": 15000.0, "atmosphere.cn2_m_23": 5e-15})
     _save(bpy, scene, cam, path)
 
 
@@ -313,12 +318,10 @@ def build_forest_scan(bpy, path: Path) -> None:
     cam.location = (0.0, -12.0, 120.0)
     ladar = cam.ladar
     ladar.system_type = "scanner"
-    ladar.laser.wavelength_m = 1064.0
     ladar.laser.pulse_fwhm_s = 3e-9
     ladar.laser.pulse_energy_j = 50e-6
     ladar.laser.beam_divergence_rad = 1e-3
     ladar.laser.divergence_fills_fov = False
-    ladar.receiver.aperture_diameter_m = 0.08
     sc = ladar.scanner
     sc.pattern = "oscillating"
     sc.pulse_rate_hz = 100_000.0
@@ -332,6 +335,7 @@ def build_forest_scan(bpy, path: Path) -> None:
     ladar.gate.n_bins = int(math.ceil(2 * 50.0 / SPEED_OF_LIGHT_M_S / 0.5e-9))
     ladar.detection.max_echoes = 5
     ladar.run.save_waveforms = False
+    _set_si(scene, cam, {"laser.wavelength_m": 1.064e-6, "receiver.aperture_diameter_m": 0.08})
     _save(bpy, scene, cam, path)
 
 
@@ -369,8 +373,6 @@ def build_aircraft_profile(bpy, path: Path) -> None:
     ladar.receiver.width_px = ladar.receiver.height_px = 1
     ladar.receiver.fov_x_rad = ladar.receiver.fov_y_rad = 12e-3
     ladar.receiver.subsamples = 256
-    ladar.receiver.aperture_diameter_m = 0.2
-    ladar.laser.wavelength_m = 1064.0
     ladar.laser.beam_profile = "uniform"
     ladar.laser.pulse_fwhm_s = 1e-9
     ladar.laser.pulse_energy_j = 0.1
@@ -378,6 +380,7 @@ def build_aircraft_profile(bpy, path: Path) -> None:
     ladar.gate.bin_width_s = 0.2e-9
     ladar.gate.n_bins = int(math.ceil(2 * 30.0 / SPEED_OF_LIGHT_M_S / 0.2e-9))
     ladar.detection.max_echoes = 8
+    _set_si(scene, cam, {"laser.wavelength_m": 1.064e-6, "receiver.aperture_diameter_m": 0.2})
     _save(bpy, scene, cam, path)
 
 

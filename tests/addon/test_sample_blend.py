@@ -99,7 +99,9 @@ def test_system_samples_hold_what_their_readme_example_needs(lad, addon, name, s
         delays = cfg.gated.first_delay_s + cfg.gated.delay_step_s * np.arange(cfg.gated.n_slices)
         centres_m = 0.5 * C * (delays + 0.5 * cfg.gated.gate_width_s)
         assert centres_m.min() < 996.0 and centres_m.max() > 1004.0
-        assert scene.ladar_atmosphere.cn2_m_23 > 0
+        # "through turbulence": Cn² 5e-15 m^-2/3 as the builder states (was stored ×1e-14: 5e-29), 15 km visibility
+        assert (cfg.atmosphere.cn2_m_23, cfg.atmosphere.visibility_m) == (5e-15, 15000.0)
+        assert (cfg.laser.wavelength_m, cfg.receiver.aperture_diameter_m) == (532e-9, 0.1)
     elif system == "scanner":  # the platform flies: its pose changes over the scan
         assert geometry.n_triangles > 10_000
         scene.frame_set(1)

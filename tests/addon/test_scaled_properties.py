@@ -1,0 +1,86 @@
+"""Properties whose Blender storage differs from the core's SI value (issue 14): nm, powers of ten, Blender units,
+MiB.  Each is set in SI through the Python API (``properties.set_settings``), simulated, and read back from the
+run's metadata.json exactly."""
+import json
+
+import bpy
+import pytest
+
+from blender_scenes import add_camera, add_plate
+
+C = 299_792_458.0
+SCALE_LENGTH = 0.5  # metres per Blender unit: the distances' stored values differ from SI too
+
+#: Every setting stored scaled → a valid SI value other than its default (exact through float32 storage).
+SCALED = {
+    "laser.wavelength_m": 532e-9,
+    "laser.beam_waist_radius_m": 0.02,
+    "laser.beam_focus_range_m": 150.0,
+    "receiver.aperture_diameter_m": 0.08,
+    "detector.dark_current_bulk_a": 3e-12,
+    "detector.dark_current_surface_a": 2e-9,
+    "run.max_memory_bytes": 512 * 2**20,
+    "atmosphere.visibility_m": 12000.0,
+    "atmosphere.cn2_m_23": 5e-15,
+    "materials.Paint.table_wavelength_m": 905e-9,
+}
+
+
+def _fields(lad):
+    p = lad.properties
+    out = {f.path: f for fs in p.SENSOR_FIELDS.values() for f in fs}
+    out.update({f.path: f for f in p.ATMOSPHERE_FIELDS + p.TOP_FIELDS})
+    out.update({f"materials.Paint.{f.name}": f for f in p.BRDF_FIELDS})
+    out[p.SEED_FIELD.path] = p.SEED_FIELD
+    return out
+
+
+def test_the_scaled_properties_are_these(lad):
+    """A setting that gets a scaled storage later must join SCALED (and so get its round-trip test)."""
+    assert {path for path, f in _fields(lad).items() if f.conversion} == set(SCALED)
+
+
+def _owner(scene, cam, path):
+    head = path.split(".")[0]
+    if head == "atmosphere":
+        return scene.ladar_atmosphere
+    if head == "materials":
+        return bpy.data.materials["Paint"].ladar_brdf
+    return getattr(cam.ladar, head)
+
+
+@pytest.mark.parametrize("path", SCALED)
+def test_si_value_set_through_the_python_api_reaches_the_run(lad, scene, tmp_path, path):
+    scene.unit_settings.system = "METRIC"
+    scene.unit_settings.scale_length = SCALE_LENGTH
+    paint = bpy.data.materials.new("Paint")
+    paint.ladar_brdf.enabled = True
+    cam = add_camera(scene, width_px=4, height_px=4, fov_rad=0.004)
+    add_plate(scene, size=20.0, location=(0.0, 0.0, -200.0), materials=(paint,))  # 100 m away
+    lad.properties.set_settings(scene, cam, {"gate.gate_start_s": 2 * 90.0 / C, "gate.n_bins": 128})
+    value = SCALED[path]
+    cfg = lad.properties.set_settings(scene, cam, {path: value})
+    field = _fields(lad)[path]
+    stored = getattr(_owner(scene, cam, path), field.attr)
+    assert stored != pytest.approx(value, rel=1e-3)  # stored scaled: an SI value written there would be wrong
+    run, _ = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "run", import_results=False, previews=False)
+    settings = json.loads((run / "metadata.json").read_text())["settings"]
+    if path.startswith("materials."):
+        got = settings["materials"]["Paint"][path.rsplit(".", 1)[1]]
+    else:
+        group, name = path.split(".")
+        got = settings[group][name]
+    assert got == value
+    assert lad.properties.config_from_blender(scene, cam) == cfg
+
+
+def test_set_settings_refuses_unknown_paths_and_bad_values_changing_nothing(lad, scene):
+    cam = add_camera(scene)
+    before = lad.properties.config_from_blender(scene, cam)
+    with pytest.raises(lad.config.ConfigError, match="atmosphere.cn2"):
+        lad.properties.set_settings(scene, cam, {"atmosphere.cn2": 5e-15})
+    with pytest.raises(lad.config.ConfigError, match="atmosphere.cn2_m_23"):
+        lad.properties.set_settings(scene, cam, {"laser.wavelength_m": 532e-9, "atmosphere.cn2_m_23": 1.0})
+    with pytest.raises(lad.config.ConfigError, match="materials.Nope.reflectance"):
+        lad.properties.set_settings(scene, cam, {"materials.Nope.reflectance": 0.5})
+    assert lad.properties.config_from_blender(scene, cam) == before
