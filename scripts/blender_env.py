@@ -14,6 +14,7 @@ The add-on is then imported as ``bl_ext.ladar_dev.ladar_simulator`` (its core as
 from __future__ import annotations
 
 import atexit
+import fnmatch
 import os
 import shutil
 import sys
@@ -25,9 +26,49 @@ EXTENSION_ID = "ladar_simulator"
 REPO_MODULE = "ladar_dev"
 ADDON_MODULE = f"bl_ext.{REPO_MODULE}.{EXTENSION_ID}"
 
-#: Top-level entries of the repository that are not part of the installed package.
-NOT_PACKAGED = {".venv", ".git", ".ci", ".pytest_cache", ".hypothesis", "__pycache__", "tests", "bench",
-                "scripts", "runs", "out", "build", "dist", "docs", ".gitignore", "requirements.txt"}
+#: What the installed extension is made of: these entries of the repository (paths or glob patterns relative to
+#: its root), nothing else.  Whatever else a checkout holds — tests, scripts, docs, benchmarks, run folders, a
+#: developer's own folders — stays out of the development install and of the extension zips.
+PACKAGE_PATHS = ("__init__.py", "blender_manifest.toml", "README.md", "core", "ladar_addon", "operators", "panels",
+                 "presets", "sample_blends/*.blend")
+#: Never packaged, at any depth of those folders.
+PACKAGE_IGNORE = ("__pycache__", "*.pyc", ".*", "*.blend1", "*.zip")
+#: Tracked top-level entries that are deliberately not packaged (tests/test_packaging.py checks that every tracked
+#: entry is in PACKAGE_PATHS or here, so a new one is a decision).
+DEVELOPMENT_ONLY = (".ci", ".gitignore", "bench", "docs", "pyproject.toml", "requirements.txt", "scripts", "tests",
+                    "sample_blends/build_samples.py")
+
+
+def _ignored(name: str) -> bool:
+    return any(fnmatch.fnmatch(name, pattern) for pattern in PACKAGE_IGNORE)
+
+
+def package_entries(source: Path = REPO_ROOT) -> list[Path]:
+    """The files and folders :data:`PACKAGE_PATHS` names in ``source`` (patterns expanded), in order.
+
+    Raises FileNotFoundError if one is missing (a broken checkout must not give a broken package)."""
+    source = Path(source)
+    entries = []
+    for pattern in PACKAGE_PATHS:
+        hits = sorted(p for p in source.glob(pattern) if not _ignored(p.name))
+        if not hits:
+            raise FileNotFoundError(f"the extension needs {pattern}, missing from {source}")
+        entries += hits
+    return entries
+
+
+def package_files(source: Path = REPO_ROOT) -> list[Path]:
+    """Every file of the package, relative to ``source`` (folders walked, :data:`PACKAGE_IGNORE` skipped)."""
+    source = Path(source)
+    files = []
+    for entry in package_entries(source):
+        if entry.is_dir():
+            for root, dirs, names in os.walk(entry):
+                dirs[:] = sorted(d for d in dirs if not _ignored(d))
+                files += [Path(root, n).relative_to(source) for n in sorted(names) if not _ignored(n)]
+        else:
+            files.append(entry.relative_to(source))
+    return files
 
 
 def isolate_user_resources(path: str | os.PathLike | None = None) -> Path:
@@ -50,7 +91,7 @@ def isolate_user_resources(path: str | os.PathLike | None = None) -> Path:
 
 
 def link_package(repo_dir: Path, source: Path = REPO_ROOT) -> Path:
-    """Create ``repo_dir/ladar_simulator`` holding symlinks to the package's top-level files and folders.
+    """Create ``repo_dir/ladar_simulator`` holding symlinks to the package's entries (:data:`PACKAGE_PATHS`).
 
     Falls back to copying where symlinks are not available.  Returns the package folder.
     """
@@ -58,15 +99,14 @@ def link_package(repo_dir: Path, source: Path = REPO_ROOT) -> Path:
     if pkg.exists():
         shutil.rmtree(pkg)
     pkg.mkdir(parents=True)
-    for entry in sorted(Path(source).iterdir()):
-        if entry.name in NOT_PACKAGED or entry.name.endswith((".blend1", ".zip")):
-            continue
-        target = pkg / entry.name
+    for entry in package_entries(source):
+        target = pkg / entry.relative_to(source)
+        target.parent.mkdir(parents=True, exist_ok=True)
         try:
             target.symlink_to(entry, target_is_directory=entry.is_dir())
         except OSError:
             if entry.is_dir():
-                shutil.copytree(entry, target, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+                shutil.copytree(entry, target, ignore=shutil.ignore_patterns(*PACKAGE_IGNORE))
             else:
                 shutil.copy2(entry, target)
     return pkg

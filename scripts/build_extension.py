@@ -10,8 +10,9 @@
    numpy is not bundled: Blender ships it (4.2 LTS: 1.24.3), and a second numpy would break Blender's.
    matplotlib is not bundled either: the plots fall back to a NumPy renderer without it (``core.fileio.preview``).
    A package with no wheel for a platform is reported and that platform is not built.
-2. **Stage.** ``build/stage/ladar_simulator/``: the package files (what ``scripts/blender_env.py`` installs for
-   development), the wheels in ``wheels/``, and a copy of ``blender_manifest.toml`` whose ``platforms`` and
+2. **Stage.** ``build/stage/ladar_simulator/``: the package files — exactly the entries
+   ``blender_env.PACKAGE_PATHS`` lists (what ``scripts/blender_env.py`` also installs for development; nothing
+   else the checkout holds) — the wheels in ``wheels/``, and a copy of ``blender_manifest.toml`` whose ``platforms`` and
    ``wheels`` lists are filled.  The repository's own manifest is not modified (it lists no wheels, so a
    development checkout validates and installs without them).
 3. **Build.** Blender's own extension build, ``blender --command extension build --split-platforms``, or, with
@@ -39,7 +40,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from blender_env import EXTENSION_ID, NOT_PACKAGED  # noqa: E402
+from blender_env import EXTENSION_ID, package_files  # noqa: E402
 
 #: Packages bundled as wheels (import name → distribution name); versions come from requirements.txt.
 BUNDLED = ("scipy", "embreex", "OpenEXR")
@@ -97,21 +98,16 @@ def download_wheels(platform: str, versions: dict, wheels_dir: Path, offline: bo
     return found, missing
 
 
-def stage_package(stage_root: Path, wheels: list[Path], platforms: list[str]) -> Path:
-    """Copy the package into ``stage_root/ladar_simulator`` with ``wheels/`` and a filled manifest."""
+def stage_package(stage_root: Path, wheels: list[Path], platforms: list[str], source: Path = REPO) -> Path:
+    """Copy the package (exactly ``blender_env.PACKAGE_PATHS`` of ``source``) into ``stage_root/ladar_simulator``
+    with ``wheels/`` and a filled manifest."""
     pkg = stage_root / EXTENSION_ID
     if pkg.exists():
         shutil.rmtree(pkg)
     pkg.mkdir(parents=True)
-    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.blend1", ".*")
-    for entry in sorted(REPO.iterdir()):
-        if entry.name in NOT_PACKAGED or entry.name.startswith(".") or entry.name in ("wheels", "dist", "build") \
-                or entry.name.endswith((".blend1", ".zip")):
-            continue
-        if entry.is_dir():
-            shutil.copytree(entry, pkg / entry.name, ignore=ignore)
-        else:
-            shutil.copy2(entry, pkg / entry.name)
+    for rel in package_files(source):
+        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(source / rel, pkg / rel)
     (pkg / "wheels").mkdir()
     for w in wheels:
         shutil.copy2(w, pkg / "wheels" / w.name)

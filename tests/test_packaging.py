@@ -98,3 +98,45 @@ def test_unknown_platform_is_an_argument_error():
     with pytest.raises(SystemExit) as err:
         be.main(["--platforms", "linux-arm64", "--offline"])
     assert err.value.code == 2
+
+
+def _tree(root: Path) -> set:
+    return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()}
+
+
+def test_stage_packages_exactly_the_listed_entries(tmp_path):
+    """Issue 14: the zips held every untracked folder of the checkout; now only blender_env.PACKAGE_PATHS."""
+    src = tmp_path / "checkout"
+    wanted = ["__init__.py", "blender_manifest.toml", "README.md", "core/__init__.py", "core/fileio/las.py",
+              "ladar_addon/__init__.py", "operators/__init__.py", "panels/__init__.py",
+              "presets/ladar_simulator/sensor/A.py", "sample_blends/flash_demo.blend"]
+    junk = ["my_scans/scan.npy", "runs/r1/metadata.json", "notes.txt", "wheels/x.whl", "dist/old.zip",
+            ".venv/bin/python", "core/__pycache__/las.cpython-311.pyc", "core/.scratch.py", "tests/test_x.py",
+            "scripts/demo.sh", "docs/a.md", "sample_blends/build_samples.py", "sample_blends/flash_demo.blend1",
+            "pyproject.toml", "requirements.txt", "old_extension.zip"]
+    for rel in wanted + junk:
+        (src / rel).parent.mkdir(parents=True, exist_ok=True)
+        (src / rel).write_text("x")
+    (src / "blender_manifest.toml").write_text((REPO / "blender_manifest.toml").read_text())
+    pkg = be.stage_package(tmp_path / "stage", [], ["linux-x64"], source=src)
+    assert _tree(pkg) == set(wanted)
+    # a checkout missing a needed entry is refused, not packaged incomplete
+    (src / "panels" / "__init__.py").unlink()
+    (src / "panels").rmdir()
+    with pytest.raises(FileNotFoundError, match="panels"):
+        be.stage_package(tmp_path / "stage", [], ["linux-x64"], source=src)
+
+
+def test_every_tracked_entry_is_packaged_or_declared_development_only():
+    import subprocess
+
+    import blender_env
+
+    proc = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip("not a git checkout")
+    tracked = [Path(p) for p in proc.stdout.splitlines()]
+    packaged = set(blender_env.package_files(REPO))
+    for path in tracked:
+        dev = any(path.parts[0] == d or str(path) == d for d in blender_env.DEVELOPMENT_ONLY)
+        assert (path in packaged) != dev, f"{path}: packaged {path in packaged}, development-only {dev}"
