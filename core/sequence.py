@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -21,7 +20,8 @@ from .errors import ConfigError
 from .config.settings import SimulationConfig, config_to_dict, validate
 from .errors import Cancelled
 from .systems.flash import run_metadata, simulate
-from .fileio.run_folder import json_default, check_run_dir, commit_run_dir, software_versions, write_ply, write_run
+from .fileio.run_folder import (json_default, check_run_dir, commit_run_dir, new_temp_dir, software_versions,
+                                write_ply, write_run)
 from .geometry.trace import SceneTracer
 
 
@@ -52,7 +52,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     validate(config)
     out = check_run_dir(out_dir, overwrite).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    tmp = new_temp_dir(out.parent, f".{out.name}.partial-")
     t_wall = time.perf_counter()
     tracer, bvh_builds, all_stats, point_sets, units = None, 0, [], [], {}
     try:

@@ -18,13 +18,13 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import bpy
 
 from ..core.errors import ConfigError
 from ..core.config.settings import SimulationConfig, dump_config_json, dump_config_toml, load_config
+from ..core.fileio.run_folder import new_temp_file
 from .errors import LadarError
 
 COMMAND_ID = "ladar"
@@ -111,7 +111,7 @@ def _sensor(scene, name):
 
 def _write_text_atomically(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = new_temp_file(path.parent, f".{path.name}.")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)

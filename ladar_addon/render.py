@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from ..core.fileio.run_folder import new_temp_file
 from .errors import LadarError
 
 PREVIEW_RESOLUTION = (640, 480)
@@ -68,7 +68,7 @@ def render_preview(objects, path, *, resolution=PREVIEW_RESOLUTION, samples: int
     cam = bpy.data.objects.new("Ladar Preview Camera", cam_data)
     world = bpy.data.worlds.new("Ladar Preview World")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
+    fd, tmp = new_temp_file(path.parent, f".{path.stem}.", ".png")
     os.close(fd)
     try:
         for obj in objects:
@@ -93,7 +93,7 @@ def render_preview(objects, path, *, resolution=PREVIEW_RESOLUTION, samples: int
         scene.view_settings.view_transform = "Standard"  # the ramp's colours as they are (no filmic tone map)
         scene.render.image_settings.file_format = "PNG"
         scene.render.image_settings.color_mode = "RGB"
-        scene.render.filepath = tmp
+        scene.render.filepath = str(tmp)
         scene.render.use_file_extension = False
         bpy.ops.render.render(write_still=True, scene=scene.name)
         if not Path(tmp).is_file() or Path(tmp).stat().st_size == 0:

@@ -42,7 +42,6 @@ import os
 import re
 import shutil
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -56,7 +55,7 @@ from ..core.config.settings import config_to_dict, load_config, validate
 from ..core.geometry.motion import Trajectory
 from ..core.errors import Cancelled
 from ..core.systems.flash import run_simulation
-from ..core.fileio.run_folder import commit_run_dir
+from ..core.fileio.run_folder import commit_run_dir, new_temp_dir
 from .errors import LadarError
 from .export import frame_dependent_objects, geometry_digest, scene_geometry_from_depsgraph
 from .properties import check_sensor, config_from_blender, unit_scale
@@ -542,7 +541,7 @@ class SimulationJob:
             parent = parent.parent
         try:
             self.run_path.parent.mkdir(parents=True, exist_ok=True)
-            staging = Path(tempfile.mkdtemp(prefix=f".{self.run_name}.staging-", dir=self.run_path.parent))
+            staging = new_temp_dir(self.run_path.parent, f".{self.run_name}.staging-")
             work = staging / "run"
             if self.sequence:
                 self._work_sequence(work)

@@ -40,12 +40,12 @@ import datetime as _dt
 import json
 import os
 import struct
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError
+from .run_folder import new_temp_file
 
 LAS_VERSION = (1, 4)
 HEADER_SIZE = 375
@@ -245,7 +245,7 @@ def write_las(path, points: dict, *, coordinates: str = "world", intensity_ref: 
     header = HEADER_STRUCT.pack(*flat)
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".partial")
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(header)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import tempfile
 import zlib
 from pathlib import Path
 
@@ -72,7 +71,9 @@ def write_bytes_atomically(path, data: bytes, *, overwrite: bool = False) -> Pat
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists (previews never replace a file unless asked)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    from .run_folder import new_temp_file
+
+    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)

@@ -8,9 +8,9 @@ from __future__ import annotations
 import json
 import os
 import platform
+import secrets
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -20,6 +20,34 @@ from ..errors import ConfigError
 from ..constants import SPEED_OF_LIGHT_M_S
 
 EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
+
+
+def new_temp_dir(parent, prefix: str) -> Path:
+    """A new empty folder ``parent/<prefix><random>``, made by ``mkdir`` and so with the user's umask (0755 under
+    umask 022).  ``tempfile.mkdtemp`` makes 0700: a run folder renamed from it stays private to its owner."""
+    parent = Path(parent)
+    for _ in range(100):
+        path = parent / f"{prefix}{secrets.token_hex(6)}"
+        try:
+            os.mkdir(path)  # mode 0o777 & ~umask
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"no free temporary folder name {prefix}… in {parent}")
+
+
+def new_temp_file(parent, prefix: str, suffix: str = "") -> tuple[int, Path]:
+    """(open write-only descriptor, path) of a new empty file ``parent/<prefix><random><suffix>`` created with the
+    user's umask (0644 under umask 022; ``tempfile.mkstemp`` makes 0600, which a file renamed into place keeps)."""
+    parent = Path(parent)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        path = parent / f"{prefix}{secrets.token_hex(6)}{suffix}"
+        try:
+            return os.open(path, flags, 0o666), path  # mode 0o666 & ~umask
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary file name {prefix}…{suffix} in {parent}")
 
 
 def check_run_dir(out_dir, overwrite: bool) -> Path:
@@ -110,7 +138,7 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
     """Write a FrameResult's products and ``metadata.json`` atomically into ``out_dir``."""
     out = check_run_dir(out_dir, overwrite).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    tmp = new_temp_dir(out.parent, f".{out.name}.partial-")
     t0 = time.perf_counter()
     units = result.units
     try:
@@ -174,7 +202,7 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
 def commit_run_dir(tmp: Path, out: Path) -> None:
     """Move a completed run folder into place; an existing run (overwrite asked) is swapped out, then removed."""
     if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        old = new_temp_dir(out.parent, f".{out.name}.old-")
         os.rename(out, old / "run")
         os.rename(tmp, out)
         shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,39 @@
+"""Files the add-on writes respect the user's umask (issue 14): the run folder (staged, previews included), an
+exported config and the preview render."""
+import os
+import stat
+
+import bpy
+import pytest
+
+from blender_scenes import add_camera, add_plate
+
+
+@pytest.fixture(params=[0o022, 0o077])
+def umask(request):
+    old = os.umask(request.param)
+    try:
+        yield request.param
+    finally:
+        os.umask(old)
+
+
+def _mode(path):
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def test_run_export_and_render_follow_the_umask(lad, scene, tmp_path, umask):
+    cam = add_camera(scene, width_px=4, height_px=4, fov_rad=0.004)
+    cam.ladar.gate.gate_start_s = 2 * 90 / 299_792_458.0
+    cam.ladar.gate.n_bins = 128
+    add_plate(scene, size=4.0)
+    run, _ = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "run", previews=True)
+    assert (run / "range.png").is_file() and (run / "points.las").is_file()
+    for dirpath, dirs, files in os.walk(run):
+        assert _mode(dirpath) == 0o777 & ~umask, dirpath
+        for name in files:
+            assert _mode(os.path.join(dirpath, name)) == 0o666 & ~umask, name
+    config = lad.cli.export_config(scene, tmp_path / "settings.toml", sensor=cam)
+    assert _mode(config) == 0o666 & ~umask
+    assert bpy.ops.ladar.render_preview(resolution_x=16, resolution_y=12, samples=1) == {"FINISHED"}
+    assert _mode(run / "previews" / "render.png") == 0o666 & ~umask
