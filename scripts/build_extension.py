@@ -11,9 +11,9 @@
    matplotlib is not bundled either: the plots fall back to a NumPy renderer without it (``core.fileio.preview``).
    A package with no wheel for a platform is reported and that platform is not built.
 2. **Stage.** ``build/stage/ladar_simulator/``: the package files — exactly the entries
-   ``blender_env.PACKAGE_PATHS`` lists (what ``scripts/blender_env.py`` also installs for development; nothing
-   else the checkout holds) — the wheels in ``wheels/``, and a copy of ``blender_manifest.toml`` whose ``platforms`` and
-   ``wheels`` lists are filled.  The repository's own manifest is not modified (it lists no wheels, so a
+   ``blender_env.PACKAGE_PATHS`` lists (what ``scripts/blender_env.py`` also installs for development;
+   nothing else the checkout holds) — the wheels in ``wheels/``, and a copy of ``blender_manifest.toml`` whose
+   ``platforms`` and ``wheels`` lists are filled.  The repository's own manifest is not modified (it lists no wheels, so a
    development checkout validates and installs without them).
 3. **Build.** Blender's own extension build, ``blender --command extension build --split-platforms``, or, with
    no Blender binary, the same tool from the ``bpy`` module (``bl_pkg/cli/blender_ext.py build``): one zip per
