@@ -34,6 +34,22 @@ def merge_points(point_sets: list[dict]) -> dict:
     return {k: np.concatenate([p[k] for p in point_sets]) for k in keys}
 
 
+def unify_material_ids(point_sets: list[dict], names_per_frame: list[list]) -> list:
+    """Renumber each frame's ``material_id`` into one list of material names (frames whose scenes list their
+    materials differently share one numbering); returns that list."""
+    names = []
+    for pts, frame_names in zip(point_sets, names_per_frame):
+        index = []
+        for name in frame_names:
+            if name not in names:
+                names.append(name)
+            index.append(names.index(name))
+        if "material_id" in pts and len(frame_names):
+            mid = pts["material_id"]
+            pts["material_id"] = np.where(mid >= 0, np.asarray(index)[np.maximum(mid, 0)], mid).astype(mid.dtype)
+    return names
+
+
 def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConfig, out_dir, *,
                  overwrite: bool = False, trajectory_for_frame=None, start_time_for_frame=None,
                  extra_metadata: dict | None = None, progress=None, cancel=None):
@@ -78,6 +94,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             point_sets.append(result.points)
             units = result.units  # the same settings every frame: the same units
             del result
+        names = unify_material_ids(point_sets, [st.get("material_names", []) for st in all_stats])
         merged = merge_points(point_sets)
         files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
         if merged:
@@ -85,6 +102,12 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             np.savez(tmp / "points_merged.npz", **merged)
             files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
             files["points_merged.npz"] = "the same as NumPy arrays"
+            if len(merged.get("range_m", ())):
+                from .fileio.las import las_run_facts, write_las
+                write_las(tmp / "points_merged.las", merged, **las_run_facts(
+                    {"system_type": config.system_type, "frames": frames, "seed": config.run.seed,
+                     "units": units, "material_names": names}))
+                files["points_merged.las"] = "all frames' points as LAS 1.4 (point source ID = frame)"
         meta = {"format": "ladar-sequence", "format_version": 1, "system_type": config.system_type,
                 "frames": frames, "seed": config.run.seed, "settings": config_to_dict(config),
                 "software": software_versions(), "created_unix_s": time.time(),

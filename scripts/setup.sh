@@ -33,4 +33,11 @@ if ! .venv/bin/python -c 'import bpy' >/dev/null 2>&1; then
   fi
   .venv/bin/python -c 'import bpy' || { echo "setup: 'import bpy' fails; see the error above" >&2; exit 1; }
 fi
+# Test dependency: PROJ's projinfo (Debian's proj-bin, PROJ 9.1 as PDAL and GDAL use it) checks that the LAS
+# files' coordinate system parses (tests/core/test_las_interop.py).
+if ! command -v projinfo >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq proj-bin >/dev/null
+fi
+command -v projinfo >/dev/null 2>&1 || { echo "setup: projinfo (package proj-bin) is missing" >&2; exit 1; }
 echo "setup: .venv ready ($(.venv/bin/python --version))"

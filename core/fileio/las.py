@@ -6,17 +6,30 @@ What a ladar point cloud becomes (point data record format 6, 30 bytes, plus ext
 LAS field                   from the simulator's point arrays (``FrameResult.points``)
 ==========================  ===================================================================================
 X, Y, Z (int32, scaled)     ``position_world`` (m; or ``position_sensor``), X = round((x − offset)/scale)
-Intensity (uint16)          ``intensity`` linearly scaled: round(65535 · I / I_ref), clipped to [0, 65535], with
-                            I_ref = the largest intensity written (or ``intensity_ref``); I_ref is stored in the
-                            LadarSimulator VLR, the unscaled value in the extra dimension ``intensity_raw``
+Intensity (uint16)          ``intensity`` on a fixed scale (the same in every run, so files compare), chosen by
+                            the intensity's unit (``intensity_unit``): energies (``J``, ``J per bin``):
+                            round(65535 · log10(I / 1e-21 J) / 18), i.e. 1e-21 J → 0 … 1e-3 J → 65535
+                            (3641 steps per decade, 0.063 % apart), I ≤ 1e-21 J → 0; receiver outputs
+                            (``counts``, ``electrons``, ``detections``): round(I), clipped to [0, 65535].
+                            The scale is stored in the LadarSimulator VLR, the unscaled value in the extra
+                            dimension ``intensity_raw``
 Return Number (4 bits)      ``echo_index`` (1 = first echo in time); values above 15 are clipped to 15
 Number of Returns (4 bits)  ``n_echoes``, clipped to [return number, 15]
 GPS Time (double)           ``gps_time_s`` (scanner: the pulse's emission time); points without it (flash,
                             gated and profiler frames) all get ``frame_time_s`` (default 0)
 Point Source ID (uint16)    ``frame`` (clipped to 0…65535), else 0
-Classification              0 (created, never classified); scan angle, user data, flags: 0
-extra bytes                 ``intensity_raw`` (float32, the simulator's intensity in the run's unit, named
-                            ``intensity_unit`` in the LadarSimulator VLR: J per bin, J, counts, electrons),
+Scan Angle (int16)          the pulse's scan angle in 0.006° steps (``scan_angle_rad``: the scanner's across-scan
+                            angle, or azimuth for the rotating head and palmer), else the horizontal angle of the
+                            point's line of sight in the sensor frame, atan2(x, −z) of ``position_sensor``
+                            (a flash pixel's column angle); positive towards the sensor's +X (right)
+Classification              ground truth from the scene (``material_id``, core/geometry/groundtruth.py): material k of
+                            the scene → class 64 + k (user-definable classes; the names are in the
+                            LadarSimulator VLR ``classes``), no scene surface near the point → 1 (unclassified),
+                            a receiver false alarm (``false_alarm``) → 7 (noise); 0 (never classified) for points
+                            without ``material_id``
+Classification flags        synthetic (bit 0) on every point (the points are simulated); withheld (bit 2) on
+                            false alarms
+extra bytes                 ``intensity_raw`` (float32, the simulator's intensity in ``intensity_unit``),
                             ``range_m`` (float64) and ``snr`` (float32) where the points have them
 ==========================  ===================================================================================
 
@@ -29,9 +42,11 @@ The header follows the spec's byte layout (:data:`HEADER_FIELDS`): version 1.4, 
 counts 0 (required for formats 6–10), 64-bit point count and points by return (15), bounds of the stored
 (quantized) coordinates.  Global encoding sets bit 4 (WKT; required for formats 6–10) and leaves bit 0 clear
 (GPS week time: the simulator's times are seconds from the run's time origin, not adjusted standard GPS time).
-VLRs: an OGC WKT coordinate system (LASF_Projection 2112: a local engineering frame in metres, the Blender
-world), the extra-bytes descriptors (LASF_Spec 4) and a JSON record (LadarSimulator 1) with the intensity
-scaling.  The file is written to a temporary sibling and renamed into place (never half a file); an existing
+VLRs: an OGC WKT1 coordinate system (LASF_Projection 2112: the Blender world as a local engineering frame in
+metres, :data:`LOCAL_WKT`), the extra-bytes descriptors (LASF_Spec 4) and a JSON record (LadarSimulator 1) with
+the intensity scale, the class names and the run's facts.  The WKT names two axes (X east, Y north; Z is the
+height in the same unit, as with a horizontal CRS): PROJ before 9.4, which PDAL and GDAL use, rejects a
+LOCAL_CS with three axes ("buildCS: unexpected AXIS count for LOCAL_CS"), so the file would not translate.  The file is written to a temporary sibling and renamed into place (never half a file); an existing
 file is replaced only with ``overwrite=True``.
 """
 from __future__ import annotations
@@ -90,9 +105,83 @@ EXTRA_DIMENSIONS = {
     "snr": ("snr", np.float32, "detection SNR"),
 }
 
-#: The Blender world as a WKT1 local (engineering) coordinate system in metres.
+#: The Blender world as a WKT1 local (engineering) coordinate system in metres: two axes (module docstring).
 LOCAL_WKT = ('LOCAL_CS["Ladar Simulator world (Blender world coordinates, metres)",'
-             'LOCAL_DATUM["Blender scene",0],UNIT["metre",1],AXIS["X",EAST],AXIS["Y",NORTH],AXIS["Z",UP]]')
+             'LOCAL_DATUM["Blender scene",0],UNIT["metre",1],AXIS["X",EAST],AXIS["Y",NORTH]]')
+
+#: Fixed intensity scales (module docstring): energies on a log scale, receiver outputs as they are.
+ENERGY_UNITS = ("J", "J per bin")
+COUNT_UNITS = ("counts", "electrons", "detections")
+LOG_INTENSITY_FLOOR_J = 1e-21
+LOG_INTENSITY_DECADES = 18.0
+SCAN_ANGLE_STEP_DEG = 0.006
+#: Classes written (LAS 1.4 Table 17 and the user-definable range 64–255).
+CLASS_UNCLASSIFIED = 1
+CLASS_NOISE = 7
+CLASS_FIRST_MATERIAL = 64
+FLAG_SYNTHETIC = 1 << 0
+FLAG_WITHHELD = 1 << 2
+
+
+def las_intensity(intensity: np.ndarray, unit: str) -> np.ndarray:
+    """The LAS intensity (uint16) of simulator intensities in ``unit`` on the fixed scale of the module
+    docstring."""
+    i = np.asarray(intensity, dtype=np.float64)
+    if unit in ENERGY_UNITS:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            decades = np.log10(np.maximum(i, LOG_INTENSITY_FLOOR_J) / LOG_INTENSITY_FLOOR_J)
+        scaled = INTENSITY_MAX * decades / LOG_INTENSITY_DECADES
+    elif unit in COUNT_UNITS:
+        scaled = i
+    else:
+        raise ConfigError("intensity_unit", unit, "one of " + ", ".join(ENERGY_UNITS + COUNT_UNITS))
+    return np.clip(np.round(scaled), 0, INTENSITY_MAX).astype(np.uint16)
+
+
+def intensity_scale_description(unit: str) -> str:
+    if unit in ENERGY_UNITS:
+        return (f"LAS intensity = round(65535 * log10(I / {LOG_INTENSITY_FLOOR_J:g} J) / {LOG_INTENSITY_DECADES:g}),"
+                f" clipped to [0, 65535] (I in {unit}; {LOG_INTENSITY_FLOOR_J:g} J -> 0, 1e-3 J -> 65535)")
+    return f"LAS intensity = round(I), clipped to [0, 65535] (I in {unit})"
+
+
+def las_scan_angle(points: dict, n: int) -> np.ndarray:
+    """Scan angle (int16, 0.006° steps) of each point (module docstring)."""
+    if "scan_angle_rad" in points and np.asarray(points["scan_angle_rad"]).shape == (n,):
+        angle = np.asarray(points["scan_angle_rad"], dtype=np.float64)
+    elif "position_sensor" in points and np.asarray(points["position_sensor"]).shape == (n, 3):
+        ps = np.asarray(points["position_sensor"], dtype=np.float64)
+        angle = np.arctan2(ps[:, 0], -ps[:, 2])
+    else:
+        return np.zeros(n, np.int16)
+    if not np.all(np.isfinite(angle)):
+        raise ConfigError("points.scan_angle_rad", "non-finite values", "finite angles (rad)")
+    angle = (angle + np.pi) % (2 * np.pi) - np.pi  # (−180°, 180°]
+    return np.clip(np.round(np.degrees(angle) / SCAN_ANGLE_STEP_DEG), -30000, 30000).astype(np.int16)
+
+
+def las_classes(points: dict, n: int, class_names=()) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(classification uint8, flags uint8, {class: meaning}) of the points (module docstring)."""
+    classification = np.zeros(n, np.uint8)
+    flags = np.full(n, FLAG_SYNTHETIC, np.uint8)
+    meanings = {}
+    if "material_id" in points:
+        mid = np.asarray(points["material_id"]).astype(np.int64)
+        if mid.shape != (n,):
+            raise ConfigError("points.material_id", mid.shape, f"one value per point ({n},)")
+        known = (mid >= 0) & (mid < 256 - CLASS_FIRST_MATERIAL)
+        classification[:] = np.where(known, CLASS_FIRST_MATERIAL + mid, CLASS_UNCLASSIFIED)
+        meanings[str(CLASS_UNCLASSIFIED)] = "unclassified: no scene surface near the point"
+        for k, name in enumerate(list(class_names)[: 256 - CLASS_FIRST_MATERIAL]):
+            meanings[str(CLASS_FIRST_MATERIAL + k)] = f"material {name}"
+    if "false_alarm" in points:
+        fa = np.asarray(points["false_alarm"]).astype(bool)
+        if fa.shape != (n,):
+            raise ConfigError("points.false_alarm", fa.shape, f"one value per point ({n},)")
+        classification[fa] = CLASS_NOISE
+        flags[fa] |= FLAG_WITHHELD
+        meanings[str(CLASS_NOISE)] = "noise: a receiver false alarm (no true return near the echo), withheld"
+    return classification, flags, meanings
 
 FINE_SCALE_M = 1e-4
 COARSE_SCALE_M = 1e-3
@@ -136,15 +225,17 @@ def _extra_bytes_descriptor(name: str, dtype, description: str) -> bytes:
     return out
 
 
-def write_las(path, points: dict, *, coordinates: str = "world", intensity_ref: float | None = None,
-              frame_time_s: float = 0.0, overwrite: bool = False, creation_date: _dt.date | None = None,
-              system_identifier: str = "Ladar Simulator (simulated)", software: str | None = None,
-              metadata: dict | None = None) -> Path:
+def write_las(path, points: dict, *, coordinates: str = "world", intensity_unit: str = "J per bin",
+              class_names=(), frame_time_s: float = 0.0, overwrite: bool = False,
+              creation_date: _dt.date | None = None, system_identifier: str = "Ladar Simulator (simulated)",
+              software: str | None = None, metadata: dict | None = None) -> Path:
     """Write ``points`` (the simulator's point arrays) as a LAS 1.4 file, point format 6 (module docstring).
 
-    ``coordinates``: "world" (``position_world``) or "sensor" (``position_sensor``).  ``metadata``: extra JSON
-    stored in the LadarSimulator VLR.  Returns the path.  Raises ConfigError (writing nothing) on bad input or
-    when the file exists and ``overwrite`` is false.
+    ``coordinates``: "world" (``position_world``) or "sensor" (``position_sensor``).  ``intensity_unit``: the
+    unit of ``points["intensity"]`` (picks the fixed LAS intensity scale).  ``class_names``: the scene's
+    material names, index = ``material_id``.  ``metadata``: extra JSON stored in the LadarSimulator VLR.
+    Returns the path.  Raises ConfigError (writing nothing) on bad input or when the file exists and
+    ``overwrite`` is false.
     """
     path = Path(path)
     if path.exists() and not overwrite:
@@ -174,10 +265,9 @@ def write_las(path, points: dict, *, coordinates: str = "world", intensity_ref: 
     intensity = column("intensity", 0.0)
     if not np.all(np.isfinite(intensity)):
         raise ConfigError("points.intensity", "non-finite values", "finite intensities")
-    if intensity_ref is None:
-        intensity_ref = float(intensity.max()) if n and intensity.max() > 0 else 1.0
-    if not (np.isfinite(intensity_ref) and intensity_ref > 0):
-        raise ConfigError("intensity_ref", intensity_ref, "a finite number > 0")
+    las_i = las_intensity(intensity, intensity_unit)
+    scan_angle = las_scan_angle(points, n)
+    classification, flags, classes = las_classes(points, n, class_names)
     return_number = np.clip(column("echo_index", 1, np.int64), 1, 15)
     n_returns = np.clip(column("n_echoes", 1, np.int64), return_number, 15)
     gps_time = column("gps_time_s", frame_time_s)
@@ -193,16 +283,20 @@ def write_las(path, points: dict, *, coordinates: str = "world", intensity_ref: 
                                                           for name, dt, _, _ in extras])
     table = np.zeros(n, dtype=record_dtype)
     table["X"], table["Y"], table["Z"] = ints[:, 0], ints[:, 1], ints[:, 2]
-    table["intensity"] = np.clip(np.round(INTENSITY_MAX * intensity / intensity_ref), 0, INTENSITY_MAX)
+    table["intensity"] = las_i
     table["return_byte"] = (return_number | (n_returns << 4)).astype(np.uint8)
+    table["flags_byte"] = flags
+    table["classification"] = classification
+    table["scan_angle"] = scan_angle
     table["point_source_id"] = np.clip(column("frame", 0, np.int64), 0, 65535)
     table["gps_time"] = gps_time
     for name, _, _, values in extras:
         table[name] = values
 
-    info = {"intensity_reference": intensity_ref,
-            "intensity_scaling": "LAS intensity = round(65535 * intensity / intensity_reference), clipped",
-            "intensity_unit": "simulator intensity (peak energy per bin J, or A/D counts with the noisy receiver)",
+    info = {"intensity_unit": intensity_unit, "intensity_scaling": intensity_scale_description(intensity_unit),
+            "classes": classes, "scan_angle": "0.006 degree steps, positive towards the sensor's +X",
+            "coordinate_frame": "Blender world, metres, Z up" if coordinates == "world"
+            else "sensor frame (x right, y up, z backwards), metres",
             "gps_time": "gps_time_s of each point (scanner pulse emission time), else frame_time_s",
             "frame_time_s": frame_time_s, "coordinates": coordinates, "scale_m": scale,
             "offset_m": offset.tolist(), "point_source_id": "frame number"}
@@ -306,6 +400,8 @@ def read_las(path) -> dict:
     points = {axis: table[axis.upper()] * header[f"{axis}_scale"] + header[f"{axis}_offset"] for axis in "xyz"}
     points.update(intensity=table["intensity"].copy(), return_number=table["return_byte"] & 0x0F,
                   number_of_returns=table["return_byte"] >> 4, classification=table["classification"].copy(),
+                  synthetic=(table["flags_byte"] & FLAG_SYNTHETIC) > 0,
+                  withheld=(table["flags_byte"] & FLAG_WITHHELD) > 0,
                   scan_angle=table["scan_angle"].copy(), point_source_id=table["point_source_id"].copy(),
                   gps_time=table["gps_time"].copy())
     for name, _ in extras:
@@ -331,14 +427,28 @@ def run_points(run_dir) -> tuple[dict, dict]:
     return points, metadata
 
 
+def intensity_unit_of(metadata: dict) -> str:
+    """The unit of a run's point intensities: its metadata's ``units["intensity"]`` (core.pipeline.product_units),
+    J per bin for run folders written before units were recorded."""
+    return (metadata.get("units") or {}).get("intensity") or "J per bin"
+
+
+def las_run_facts(metadata: dict, **more) -> dict:
+    """The keyword arguments of :func:`write_las` that a run's metadata decides: intensity unit, class names and
+    the run's facts for the LadarSimulator VLR."""
+    info = {k: metadata[k] for k in ("system_type", "frame", "frames", "seed", "simulator_version",
+                                     "sensor_pose") if k in metadata}
+    info.update(more)
+    return {"intensity_unit": intensity_unit_of(metadata), "class_names": metadata.get("material_names", ()),
+            "metadata": info}
+
+
 def write_run_las(run_dir, path, *, coordinates: str = "world", overwrite: bool = False, **kwargs) -> Path:
     """Write a run folder's point cloud as LAS 1.4 (:func:`write_las`); points without a ``gps_time_s`` get the
     run's ``start_time_s`` (metadata; 0 if absent).  The run's frame, system type and seed go into the
     LadarSimulator VLR."""
     points, meta = run_points(run_dir)
-    info = {k: meta[k] for k in ("system_type", "frame", "seed", "simulator_version") if k in meta}
-    if meta.get("units", {}).get("intensity"):
-        info["intensity_unit"] = meta["units"]["intensity"]
-    info["run"] = Path(run_dir).name
-    kwargs.setdefault("frame_time_s", float(meta.get("start_time_s", 0.0) or 0.0))
-    return write_las(path, points, coordinates=coordinates, overwrite=overwrite, metadata=info, **kwargs)
+    facts = las_run_facts(meta, run=Path(run_dir).name)
+    facts.update(kwargs)
+    facts.setdefault("frame_time_s", float(meta.get("start_time_s", 0.0) or 0.0))
+    return write_las(path, points, coordinates=coordinates, overwrite=overwrite, **facts)

@@ -158,11 +158,10 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
         files["points.ply"] = "point cloud, world coordinates + per-point attributes"
         files["points.npz"] = "the same point cloud as NumPy arrays"
         if len(result.points.get("range_m", ())):
-            from .las import write_las
-            write_las(tmp / "points.las", result.points, metadata={"system_type": metadata.get("system_type"),
-                                                                    "frame": metadata.get("frame"),
-                                                                    "intensity_unit": units["intensity"]})
-            files["points.las"] = "the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time)"
+            from .las import las_run_facts, write_las
+            write_las(tmp / "points.las", result.points, **las_run_facts(dict(metadata, units=units)))
+            files["points.las"] = ("the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time, "
+                                   "scan angle, classes from the scene's materials, synthetic flag)")
         if result.range_echoes is not None:
             np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
             files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"

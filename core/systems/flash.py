@@ -55,6 +55,7 @@ class FrameResult:
     slices: np.ndarray | None = None    # gated viewing: (n_slices, H, W) float32 energy per slice (J)
     slice_delays_s: np.ndarray | None = None  # gated viewing: gate opening delay of each slice (s)
     units: dict = field(default_factory=dict)  # product → unit (:func:`product_units`): files, previews, metadata
+    tracer: object = field(default=None, repr=False, compare=False)  # the frame's BVH (ground truth), not saved
 
 
 def product_units(system_type: str, receiver_units: str | None = None) -> dict:
@@ -321,7 +322,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                        intensity_echoes=intensity_echoes, points=points,
                        waveforms=None if waveforms is None else waveforms.reshape(h, w, gate.n_bins),
                        digital_waveforms=digital, stats=stats,
-                       units=product_units(config.system_type, receiver_report and receiver_report["units"]))
+                       units=product_units(config.system_type, receiver_report and receiver_report["units"]),
+                       tracer=tracer)
 
 
 def run_blocks(process, blocks, threads: int, progress=None, label: str = "block"):
@@ -424,22 +426,86 @@ def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, 
     kind = config.system_type
     if kind == "scanner":
         from .scanner import simulate_scan
-        return simulate_scan(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
-                             start_time_s=start_time_s, progress=progress, cancel=cancel)
-    if kind == "gated":
+        result = simulate_scan(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                               start_time_s=start_time_s, progress=progress, cancel=cancel)
+    elif kind == "gated":
         from .gated import simulate_gated
-        return simulate_gated(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
-                              cancel=cancel)
-    if kind == "profiler":
+        result = simulate_gated(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
+                                cancel=cancel)
+    elif kind == "profiler":
         validate(config)
         single = dataclasses.replace(config, receiver=dataclasses.replace(config.receiver, width_px=1, height_px=1))
         result = simulate_frame(scene, world_from_sensor, single, frame=frame, tracer=tracer, progress=progress,
                                 cancel=cancel)
         result.stats["notes"] = {"receiver": "range profiler: one detector element over the receiver field of "
                                              "view (receiver.width_px/height_px ignored)"}
-        return result
-    return simulate_frame(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
-                          cancel=cancel)
+    else:
+        result = simulate_frame(scene, world_from_sensor, config, frame=frame, tracer=tracer, progress=progress,
+                                cancel=cancel)
+    label_points(result, scene, world_from_sensor, config)
+    record_pose(result, world_from_sensor, trajectory if kind == "scanner" else None)
+    return result
+
+
+def pose_record(world_from_sensor) -> dict:
+    """A sensor pose as metadata: the 4×4 sensor→world matrix, position (m) and orientation (unit quaternion,
+    scalar first).  The sensor frame is Blender's camera frame: +X right, +Y up, looking along −Z."""
+    from scipy.spatial.transform import Rotation
+
+    m = np.asarray(world_from_sensor, dtype=np.float64)
+    origin, rot = split_pose(m)
+    x, y, z, w = Rotation.from_matrix(rot).as_quat()
+    return {"world_from_sensor": m.tolist(), "position_m": origin.tolist(), "quaternion_wxyz": [w, x, y, z],
+            "frame": "sensor +X right, +Y up, looking along -Z (Blender camera); world = Blender world, metres"}
+
+
+def record_pose(result: FrameResult, world_from_sensor, trajectory=None) -> None:
+    """``stats["sensor_pose"]`` (the frame's pose, :func:`pose_record`) and, for a moving scanner,
+    ``stats["trajectory"]``: the sampled poses it flew (times from the scan's start, positions, quaternions)."""
+    result.stats["sensor_pose"] = pose_record(world_from_sensor)
+    if trajectory is not None and not trajectory.is_static:
+        from scipy.spatial.transform import Rotation
+
+        origins, rots = zip(*(split_pose(m) for m in trajectory.matrices))
+        q = Rotation.from_matrix(np.array(rots)).as_quat()
+        result.stats["trajectory"] = {"times_s": trajectory.times_s.tolist(),
+                                      "position_m": np.array(origins).tolist(),
+                                      "quaternion_wxyz": q[:, [3, 0, 1, 2]].tolist(),
+                                      "note": "sensor poses sampled over the scan, interpolated per pulse "
+                                              "(linear positions, slerp orientations); pulses.npz holds each "
+                                              "pulse's origin and direction"}
+
+
+def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, config: SimulationConfig) -> None:
+    """Ground truth of the frame's points (core.geometry.groundtruth): ``points["material_id"]`` (−1: no surface near)
+    and the scene's material names in ``stats["material_names"]``; a false alarm keeps its label (its flag says
+    it is noise).  The tolerance: c/2 × (2 pulse widths + 4 bins, + the gate width and delay step when gated);
+    the lines of sight spread over half a pixel (the beam's half divergence for the scanner, half the field of
+    view for the profiler)."""
+    from ..geometry.groundtruth import surface_material_ids
+
+    pts = result.points
+    if result.tracer is None or "position_world" not in pts:
+        return
+    if result.pulses is not None and "pulse_index" in pts:
+        origin = np.asarray(result.pulses["origin_world"])[pts["pulse_index"]]
+    else:
+        origin = np.asarray(world_from_sensor, dtype=np.float64)[:3, 3]
+    spread_s = 2.0 * config.laser.pulse_fwhm_s + 4.0 * config.gate.bin_width_s
+    if config.system_type == "gated":
+        spread_s += config.gated.gate_width_s + config.gated.delay_step_s
+    rx = config.receiver
+    if config.system_type == "scanner":  # the beam's footprint half-width
+        spread_rad = 0.5 * config.laser.beam_divergence_rad
+    elif config.system_type == "profiler":  # one element over the whole field of view
+        spread_rad = 0.5 * max(rx.fov_x_rad, rx.fov_y_rad)
+    else:  # half a pixel
+        spread_rad = 0.5 * max(rx.fov_x_rad / rx.width_px, rx.fov_y_rad / rx.height_px)
+    t0 = time.perf_counter()
+    pts["material_id"] = surface_material_ids(result.tracer, scene.material_ids, origin, pts["position_world"],
+                                              0.5 * SPEED_OF_LIGHT_M_S * spread_s, spread_rad)
+    result.stats["material_names"] = list(scene.material_names)
+    result.stats.setdefault("stage_times_s", {})["ground_truth"] = time.perf_counter() - t0
 
 
 def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, out_dir, *, frame: int = 0,

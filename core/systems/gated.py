@@ -303,4 +303,5 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                        range_echoes=range_echoes, intensity_echoes=intensity[:, :, None].copy(), points=points,
                        waveforms=None, digital_waveforms=None, stats=stats,
                        slices=np.ascontiguousarray(stack), slice_delays_s=delays,
-                       units=product_units("gated", receiver_report and receiver_report["units"]))
+                       units=product_units("gated", receiver_report and receiver_report["units"]),
+                       tracer=tracer)

@@ -567,7 +567,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                 "rule": "an echo with no noise-free signal within 2 pulse widths (core.physics.detection.noisy)"}
     return FrameResult(range_image=None, intensity_image=None, energy_image=None, range_echoes=None,
                        intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses,
-                       units=product_units("scanner", stats["receiver"]["units"] if noisy else None))
+                       units=product_units("scanner", stats["receiver"]["units"] if noisy else None),
+                       tracer=tracer)
 
 
 def _reference_range(tracer, trajectory, config, n_pulses) -> float:

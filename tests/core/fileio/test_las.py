@@ -94,10 +94,10 @@ def test_round_trip_with_our_reader_and_range_precision(tmp_path):
     assert np.abs(xyz - pts["position_world"]).max() <= 0.5e-4 * (1 + 1e-9)   # ≤ scale/2 per axis
     range_err = np.abs(np.linalg.norm(xyz - origin, axis=1) - pts["range_m"])
     assert range_err.max() <= math.sqrt(3) * 0.5e-4 < 1e-3                    # range precision ≤ 1 mm
-    # Intensity: round(65535 · I / max I).
-    i_ref = float(pts["intensity"].max())
-    np.testing.assert_array_equal(p["intensity"], np.round(65535 * pts["intensity"].astype(np.float64) / i_ref))
-    assert p["intensity"].max() == 65535
+    # Intensity (J per bin): the fixed log scale round(65535 · log10(I / 1e-21 J) / 18), 0 at or below 1e-21 J.
+    i = pts["intensity"].astype(np.float64)
+    want = np.round(65535 * np.log10(np.maximum(i, 1e-21) / 1e-21) / 18)
+    np.testing.assert_array_equal(p["intensity"], want)
     np.testing.assert_array_equal(p["return_number"], pts["echo_index"])
     np.testing.assert_array_equal(p["number_of_returns"], pts["n_echoes"])
     np.testing.assert_array_equal(p["gps_time"], pts["gps_time_s"])
@@ -105,7 +105,8 @@ def test_round_trip_with_our_reader_and_range_precision(tmp_path):
     np.testing.assert_array_equal(p["intensity_raw"], pts["intensity"])
     np.testing.assert_array_equal(p["range_m"], pts["range_m"])
     info = json.loads(las["vlrs"][-1][3])
-    assert info["intensity_reference"] == pytest.approx(i_ref, rel=1e-7) and info["scale_m"] == 1e-4
+    assert info["intensity_unit"] == "J per bin" and "log10(I / 1e-21 J) / 18" in info["intensity_scaling"]
+    assert info["scale_m"] == 1e-4
 
 
 def test_laspy_reads_the_same_file(tmp_path):
@@ -148,9 +149,9 @@ def test_clipping_defaults_and_sensor_coordinates(tmp_path):
     pts = {"position_world": np.zeros((n, 3)) + [0.0, 0.0, -100.0], "position_sensor": np.zeros((n, 3)),
            "intensity": np.array([1.0, 2.0, 4.0, -1.0]), "echo_index": np.array([1, 2, 20, 16]),
            "n_echoes": np.array([1, 1, 20, 17])}
-    las = read_las(write_las(tmp_path / "c.las", pts, intensity_ref=2.0, frame_time_s=12.5))
+    las = read_las(write_las(tmp_path / "c.las", pts, intensity_unit="counts", frame_time_s=12.5))
     p = las["points"]
-    assert list(p["intensity"]) == [32768, 65535, 65535, 0]            # round(65535·I/2), clipped
+    assert list(p["intensity"]) == [1, 2, 4, 0]                        # counts as they are, clipped at 0
     assert list(p["return_number"]) == [1, 2, 15, 15]                  # at most 15 returns in LAS
     assert list(p["number_of_returns"]) == [1, 2, 15, 15]              # never fewer than the return number
     assert list(p["gps_time"]) == [12.5] * 4                           # no gps_time_s: the frame's time
@@ -188,7 +189,7 @@ def test_no_silent_overwrite_and_atomic_write(tmp_path, monkeypatch):
         write_las(path, pts)
     assert path.read_bytes() == before
     pts["intensity"] = pts["intensity"] * 0.5
-    write_las(path, pts, overwrite=True, intensity_ref=1.0)
+    write_las(path, pts, overwrite=True)
     assert path.read_bytes() != before
     # A failure while writing leaves the old file and no temporary file.
     import core.fileio.las as las_module
@@ -213,7 +214,8 @@ def test_simulated_frame_to_las(tmp_path):
     z = np.asarray(f.z)
     np.testing.assert_allclose(z, res.points["position_world"][:, 2], atol=0.5e-4 * (1 + 1e-9), rtol=0)
     assert np.all(np.abs(np.asarray(f.range_m) - 100.0) < 1e-3 * 100)  # slant ranges within the 0.01 rad FOV
-    assert np.asarray(f.intensity).max() == 65535
+    i = res.points["intensity"].astype(np.float64)
+    np.testing.assert_array_equal(np.asarray(f.intensity), np.round(65535 * np.log10(i / 1e-21) / 18))
 
 
 def test_run_folder_to_las(tmp_path):

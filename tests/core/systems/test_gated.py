@@ -117,9 +117,15 @@ def test_slices_partition_the_energy_and_reuse_one_trace(monkeypatch):
     monkeypatch.setattr(SceneTracer, "intersect", counting)
     cfg = gated_config(range_m=500.0, n_slices=30, step_s=10e-9, width_s=10e-9, pulse_s=3e-9)
     cfg.receiver.subsamples = 3
-    res = simulate(staircase(r0=500.0, depth_step=1.0), np.eye(4), cfg)
+    from core.systems.gated import simulate_gated
+    res = simulate_gated(staircase(r0=500.0, depth_step=1.0), np.eye(4), cfg)  # the sweep alone
     n_rays = 32 * 8 * 9
     assert sum(calls) == n_rays  # one trace for 30 slices
+    # simulate() then labels the points with the scene's materials (core.groundtruth): per point, not per slice
+    calls.clear()
+    res = simulate(staircase(r0=500.0, depth_step=1.0), np.eye(4), cfg)
+    n_points = len(res.points["range_m"])
+    assert n_rays < sum(calls) <= n_rays + 9 * 8 * n_points
     np.testing.assert_allclose(res.slices.sum(axis=0), res.energy_image, rtol=1e-6, atol=0)  # float32 slices
     assert res.stats["n_slices"] == 30 and "waveform" in res.stats["stages_skipped"]
 
