@@ -61,13 +61,41 @@ def check_run_dir(out_dir, overwrite: bool) -> Path:
     return out
 
 
-def write_exr(path, channels: dict):
-    """Write float32 channels {name: (H, W)} as one scanline EXR (ZIP compression)."""
+def write_exr(path, channels: dict, attributes: dict | None = None):
+    """Write float32 channels {name: (H, W)} as one scanline EXR (ZIP compression) with header ``attributes``
+    (str, float, int, (3,) or (4, 4) float arrays; :func:`exr_attributes`)."""
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header.update(attributes or {})
     data = {name: np.ascontiguousarray(arr, dtype=np.float32) for name, arr in channels.items()}
     OpenEXR.File(header, data).write(str(path))
+
+
+def exr_attributes(metadata: dict, product: str, unit: str, **more) -> dict:
+    """EXR header attributes of a run's image: what it shows and its unit (``product``, ``units``), the run's
+    system and frame, and the sensor pose — the standard ``worldToCamera`` (M44f, Imath's row-vector convention:
+    p_camera = p_world · M, i.e. the transpose of the camera-from-world matrix; camera +X right, +Y up, looking
+    along −Z) and ``ladarWorldFromSensor`` (M44d, column vectors, the matrix of metadata.json's ``sensor_pose``)
+    with ``ladarSensorPosition_m`` (V3d).  ``more``: further attributes (the gated slices' gate delay)."""
+    attrs = {"product": product, "units": unit, "ladarSystem": str(metadata.get("system_type", "")),
+             "ladarFrame": int(metadata.get("frame", 0) or 0)}
+    pose = metadata.get("sensor_pose")
+    if pose:
+        m = np.asarray(pose["world_from_sensor"], dtype=np.float64)
+        # contiguous copies: the OpenEXR binding reads an array's buffer in C order whatever its strides
+        attrs["worldToCamera"] = np.ascontiguousarray(np.linalg.inv(m).T, dtype=np.float32)
+        attrs["ladarWorldFromSensor"] = m
+        attrs["ladarSensorPosition_m"] = np.asarray(pose["position_m"], dtype=np.float64)
+    attrs.update(more)
+    return attrs
+
+
+def read_exr_header(path) -> dict:
+    import OpenEXR
+
+    with OpenEXR.File(str(path)) as f:
+        return dict(f.header())
 
 
 def read_exr(path) -> dict:
@@ -144,15 +172,17 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
     try:
         files = {}
         if result.range_image is not None:
-            write_exr(tmp / "range.exr", {"Y": result.range_image})
-            write_exr(tmp / "intensity.exr", {"Y": result.intensity_image})
-            write_exr(tmp / "energy.exr", {"Y": result.energy_image})
             gated = getattr(result, "slices", None) is not None
-            files.update({"range.exr": ("range from the slice stack" if gated else "first-echo range")
-                          + f" ({units['range']}), NaN where none; row 0 = top",
-                          "intensity.exr": ("strongest slice" if gated else "first-echo peak amplitude")
-                          + f" ({units['intensity']})",
-                          "energy.exr": f"energy received per pixel before time binning ({units['energy']})"})
+            what = {"range": "range from the slice stack" if gated else "first-echo range",
+                    "intensity": "strongest slice" if gated else "first-echo peak amplitude",
+                    "energy": "energy received per pixel before time binning"}
+            for product, image in (("range", result.range_image), ("intensity", result.intensity_image),
+                                   ("energy", result.energy_image)):
+                write_exr(tmp / f"{product}.exr", {"Y": image},
+                          exr_attributes(metadata, what[product], units[product]))
+            files.update({"range.exr": f"{what['range']} ({units['range']}), NaN where none; row 0 = top",
+                          "intensity.exr": f"{what['intensity']} ({units['intensity']})",
+                          "energy.exr": f"{what['energy']} ({units['energy']})"})
         write_ply(tmp / "points.ply", result.points)
         np.savez(tmp / "points.npz", **result.points)
         files["points.ply"] = "point cloud, world coordinates + per-point attributes"
@@ -177,8 +207,16 @@ def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Pa
             files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
         if getattr(result, "slices", None) is not None:
             (tmp / "slices").mkdir()
+            gate_s = float(metadata["settings"]["gated"]["gate_width_s"]) if "settings" in metadata else None
             for k, img in enumerate(result.slices):
-                write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img})
+                delay = float(result.slice_delays_s[k])
+                more = {"ladarSlice": k + 1, "ladarGateDelay_s": delay,
+                        "ladarGateRange_m": 0.5 * SPEED_OF_LIGHT_M_S * delay}
+                if gate_s is not None:
+                    more["ladarGateWidth_s"] = gate_s
+                write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img},
+                          exr_attributes(metadata, f"gated slice {k + 1} of {len(result.slices)}",
+                                         f"{units['slices']} per pixel", **more))
             np.save(tmp / "slices.npy", result.slices)
             files["slices/slice_NNNN.exr"] = f"gated slices as an image sequence ({units['slices']} per pixel), 1-based"
             files["slices.npy"] = f"gated slices (n_slices, H, W) float32, {units['slices']} per pixel"

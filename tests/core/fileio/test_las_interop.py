@@ -234,3 +234,38 @@ def test_metadata_records_the_sensor_pose_and_the_scan_trajectory(tmp_path):
     assert traj["times_s"] == pytest.approx(times.tolist())
     np.testing.assert_allclose(np.array(traj["position_m"])[:, 0], 50.0 * times)
     np.testing.assert_allclose(traj["quaternion_wxyz"], [[1, 0, 0, 0]] * 5)
+
+
+def test_exr_headers_carry_unit_pose_and_gate_delay(tmp_path):
+    """OpenEXR's reader sees each image's product and unit, the sensor pose (standard worldToCamera, Imath
+    row-vector convention, and the exact matrix) and, on every gated slice, its gate delay, width and range
+    (before: compression and type only)."""
+    import OpenEXR
+
+    from core.gated import slice_delays_s
+    from core.runio import read_exr_header
+    cfg = SimulationConfig(system_type="gated")
+    cfg.receiver.width_px, cfg.receiver.height_px = 8, 4
+    cfg.receiver.fov_x_rad, cfg.receiver.fov_y_rad = 8e-3, 4e-3
+    cfg.gated.n_slices, cfg.gated.delay_step_s, cfg.gated.gate_width_s = 6, 5e-9, 20e-9
+    cfg.gated.first_delay_s = 2 * 300.0 / C - 15e-9
+    cfg.run.threads = 1
+    m = pose(2.0)
+    path, res = run_simulation(plate(300.0, 20.0, offset=(2.0, 0.0, 0.0)), m, cfg, tmp_path / "g")
+    h = read_exr_header(path / "range.exr")
+    assert h["product"] == "range from the slice stack" and h["units"] == "m"
+    assert h["ladarSystem"] == "gated" and h["ladarFrame"] == 0
+    np.testing.assert_array_equal(h["ladarWorldFromSensor"], m)
+    np.testing.assert_array_equal(h["ladarSensorPosition_m"], [2.0, 0.0, 0.0])
+    p_world = np.array([5.0, 1.0, -300.0, 1.0])
+    np.testing.assert_allclose(p_world @ h["worldToCamera"], [3.0, 1.0, -300.0, 1.0], atol=1e-4)
+    assert read_exr_header(path / "intensity.exr")["units"] == res.units["intensity"] == "J"
+    delays = slice_delays_s(cfg)
+    for k in range(6):
+        hs = read_exr_header(path / "slices" / f"slice_{k + 1:04d}.exr")
+        assert hs["ladarSlice"] == k + 1 and hs["units"] == "J per pixel"
+        assert hs["ladarGateDelay_s"] == pytest.approx(delays[k], rel=1e-7)  # float32 attribute
+        assert hs["ladarGateRange_m"] == pytest.approx(0.5 * C * delays[k], rel=1e-7)
+        assert hs["ladarGateWidth_s"] == pytest.approx(20e-9, rel=1e-7)
+    with OpenEXR.File(str(path / "slices" / "slice_0001.exr")) as f:  # the pixels are unchanged
+        np.testing.assert_array_equal(f.channels()["Y"].pixels, res.slices[0])
