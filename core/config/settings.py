@@ -338,9 +338,13 @@ class BRDFSettings:
     table_wavelength_m: float = setting(1.064e-6, lo=2e-7, hi=1.2e-5, unit="m", subtype="WAVELENGTH",
                                         doc="Wavelength at which the BRDF table was measured")
     #: Measured table (model "table"): incidence angles in degrees, strictly increasing in [0, 90] ...
-    table_angle_deg: list = field(default_factory=list)
+    table_angle_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "doc": "Measured table (model table): incidence angles, strictly increasing in [0, 90], "
+                              "at least 2"})
     #: ... and the monostatic BRDF f_r at each angle (1/sr), finite and ≥ 0.  At least 2 rows.
-    table_brdf_per_sr: list = field(default_factory=list)
+    table_brdf_per_sr: list = field(default_factory=list, metadata={
+        "unit": "1/sr", "doc": "Measured table: the monostatic BRDF f_r at each angle of table_angle_deg, "
+                               "finite and ≥ 0"})
 
 
 #: Table fields of BRDFSettings (lists; not Blender scalar properties: the add-on stores them as a collection).
