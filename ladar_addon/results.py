@@ -586,7 +586,7 @@ def frame_run_folder(run_path, frame: int | None = None) -> Path:
 
 
 def waveform_plot(run_path, *, pixel_x: int | None = None, pixel_y: int | None = None, pulse: int | None = None,
-                  frame: int | None = None, use_matplotlib: bool | None = None) -> tuple[Path, dict]:
+                  frame: int | None = None) -> tuple[Path, dict]:
     """Plot one waveform of a run as a PNG in ``<run>/previews/`` (a new file; an existing plot of the same
     waveform is reused, never replaced).  Returns (png path, what was plotted).
 
@@ -636,7 +636,7 @@ def waveform_plot(run_path, *, pixel_x: int | None = None, pixel_y: int | None =
                  "energy_j": float(values.sum()), "echo_ranges_m": [float(r) for r in echoes_m]})
     out = folder / "previews" / name
     if not out.exists():
-        waveform_png(out, range_m, values, title=title, markers_m=echoes_m, use_matplotlib=use_matplotlib)
+        waveform_png(out, range_m, values, title=title, markers_m=echoes_m)
     return out, what
 
 

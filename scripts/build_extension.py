@@ -7,8 +7,8 @@
 1. **Wheels.** For every platform, ``pip download --only-binary=:all: --no-deps --python-version 3.11
    --implementation cp --abi cp311 --platform <tag>`` of the bundled packages (:data:`BUNDLED`, versions pinned in
    ``requirements.txt``) into ``build/wheels/<platform>/`` (kept as a cache; ``--offline`` uses only the cache).
-   numpy is not bundled: Blender ships it (4.2 LTS: 1.24.3), and a second numpy would break Blender's.
-   matplotlib is not bundled either: the plots fall back to a NumPy renderer without it (``core.fileio.preview``).
+   numpy is not bundled: Blender ships it (4.2 LTS: 1.24.3), and a second numpy would break Blender's; every
+   bundled package accepts numpy 1.24.3 (matplotlib 3.10, contourpy 1.3.2: the newest that do).
    A package with no wheel for a platform is reported and that platform is not built.
 2. **Stage.** ``build/stage/ladar_simulator/``: the package files — exactly the entries
    ``blender_env.PACKAGE_PATHS`` lists (what ``scripts/blender_env.py`` also installs for development;
@@ -42,8 +42,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_env import EXTENSION_ID, package_files  # noqa: E402
 
-#: Packages bundled as wheels (import name → distribution name); versions come from requirements.txt.
-BUNDLED = ("scipy", "embreex", "OpenEXR")
+#: Packages bundled as wheels (distribution names); versions come from requirements.txt.  matplotlib draws the
+#: previews (title, axes, colour bar); the others after it are its dependencies (packaging: Blender lacks it).
+BUNDLED = ("scipy", "embreex", "OpenEXR", "matplotlib", "contourpy", "cycler", "fonttools", "kiwisolver", "pillow",
+           "pyparsing", "python-dateutil", "tzdata", "packaging")
 PYTHON_VERSION = "3.11"
 MACOS_TARGET = "13_0"
 #: Blender platform → pip ``--platform`` tags (pip accepts older macOS versions of a macOS tag by itself).

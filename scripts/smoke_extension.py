@@ -13,7 +13,8 @@ packages (scipy, embreex, OpenEXR): the script checks that first.  It then
    environment);
 4. builds a scene (a camera 100 m from a 10 m plate, 16×16 pixels) and runs ``bpy.ops.ladar.simulate()``;
 5. checks the run folder: every pixel has its echo at 100 m ± 1 cm, the EXR range image (written by the
-   bundled OpenEXR) reads back, and the point cloud is in the .blend.
+   bundled OpenEXR) reads back, the range preview was drawn by the bundled matplotlib with a title, angle axes
+   and a colour bar in metres, and the point cloud is in the .blend.
 
 This proves the bundled wheels work with the Blender (and numpy) of that environment: CI runs it on bpy 4.2 LTS
 with numpy 1.24.3 (``scripts/smoke_bpy.sh``).  Exit status 0 on success; a one-line reason otherwise.
@@ -31,7 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-BUNDLED = ("scipy", "embreex", "OpenEXR")
+#: Import names of the bundled packages (scripts/build_extension.py BUNDLED).
+BUNDLED = ("scipy", "embreex", "OpenEXR", "matplotlib", "contourpy", "cycler", "fontTools", "kiwisolver", "PIL",
+           "pyparsing", "dateutil", "tzdata", "packaging")
 EXTENSION_ID = "ladar_simulator"
 REPO_MODULE = "user_default"
 
@@ -39,6 +42,25 @@ REPO_MODULE = "user_default"
 def fail(message: str) -> None:
     print(f"smoke: FAILED: {message}", flush=True)
     sys.exit(1)
+
+
+def check_preview(png: Path) -> dict:
+    """The run's range preview was drawn by the bundled matplotlib with a title, axes with units and a colour
+    bar: its PNG text chunks (core.fileio.preview.save_figure) name them, and it has the figure's size."""
+    from PIL import Image
+
+    if not png.is_file():
+        fail(f"no preview {png.name} in the run folder")
+    with Image.open(png) as im:
+        text, size = dict(im.text), im.size
+    if text.get("Title") != "Range" or "Matplotlib" not in text.get("Software", ""):
+        fail(f"{png.name} was not drawn by matplotlib with a title: {text}")
+    for label in ("x: horizontal angle (mrad)", "y: vertical angle (mrad)", "y: m"):  # axes, colour bar
+        if label not in text.get("Description", ""):
+            fail(f"{png.name} lacks the label {label!r}: {text.get('Description')!r}")
+    if size[0] != 640:
+        fail(f"{png.name} is {size[0]}×{size[1]} px, not the 640 px wide figure")
+    return {"png": png.name, "size": list(size), "title": text["Title"], "labels": text["Description"]}
 
 
 def main(argv=None) -> int:
@@ -116,12 +138,13 @@ def main(argv=None) -> int:
             image = next(iter(f.channels().values())).pixels
         if image.shape != (16, 16) or np.abs(image - 100.0).max() > 0.01:
             fail(f"range.exr {image.shape}, not 16×16 at 100 m")
+        preview = check_preview(run / "range.png")
         clouds = [o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith(run.name)]
         if not clouds or len(clouds[0].data.vertices) != 256:
             fail(f"the point cloud object of {run.name} is missing or incomplete")
         summary = {"ok": True, "blender": bpy.app.version_string, "python": sys.version.split()[0],
                    "numpy": np.__version__, "zip": args.zip.name, "bundled": origins, "points": int(len(range_m)),
-                   "range_m_mean": float(range_m.mean()), "install_s": round(install_s, 2),
+                   "range_m_mean": float(range_m.mean()), "preview": preview, "install_s": round(install_s, 2),
                    "simulate_s": round(simulate_s, 2)}
         print("smoke: OK " + json.dumps(summary), flush=True)
         if args.json:

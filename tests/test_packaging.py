@@ -15,12 +15,21 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
 import build_extension as be  # noqa: E402
 
+PURE = ["cycler-0.12.1-py3-none-any.whl", "packaging-26.3-py3-none-any.whl", "pyparsing-3.3.3-py3-none-any.whl",
+        "python_dateutil-4.0.0-py3-none-any.whl", "tzdata-2026.6-py2.py3-none-any.whl"]
 WHEELS = {
     "linux-x64": ["scipy-1.15.3-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
                   "embreex-4.4.0.post1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
-                  "openexr-3.5.3-cp311-cp311-manylinux_2_28_x86_64.whl"],
+                  "openexr-3.5.3-cp311-cp311-manylinux_2_28_x86_64.whl",
+                  "matplotlib-3.10.9-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
+                  "contourpy-1.3.2-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                  "fonttools-4.68.0-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
+                  "kiwisolver-1.5.1-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
+                  "pillow-13.0.0-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl"] + PURE,
     "windows-x64": ["scipy-1.15.3-cp311-cp311-win_amd64.whl", "embreex-4.4.0.post1-cp311-cp311-win_amd64.whl",
-                    "openexr-3.5.3-cp311-cp311-win_amd64.whl"],
+                    "openexr-3.5.3-cp311-cp311-win_amd64.whl", "matplotlib-3.10.9-cp311-cp311-win_amd64.whl",
+                    "contourpy-1.3.2-cp311-cp311-win_amd64.whl", "fonttools-4.68.0-cp311-cp311-win_amd64.whl",
+                    "kiwisolver-1.5.1-cp311-cp311-win_amd64.whl", "pillow-13.0.0-cp311-cp311-win_amd64.whl"] + PURE,
 }
 
 
@@ -33,9 +42,13 @@ def _fake_wheels(root: Path, platforms=("linux-x64", "windows-x64")):
 
 
 def test_pins_come_from_requirements():
-    """scipy 1.15.3: the newest that still supports the numpy 1.24.3 of Blender 4.2 LTS (design.md)."""
+    """scipy 1.15.3, matplotlib 3.10.9 and contourpy 1.3.2: the newest that still support the numpy 1.24.3 of
+    Blender 4.2 LTS; matplotlib's dependencies bundled with it (Blender has none of them)."""
     pins = be.pinned_versions()
-    assert pins == {"scipy": "1.15.3", "embreex": "4.4.0.post1", "OpenEXR": "3.5.3"}
+    assert pins == {"scipy": "1.15.3", "embreex": "4.4.0.post1", "OpenEXR": "3.5.3", "matplotlib": "3.10.9",
+                    "contourpy": "1.3.2", "cycler": "0.12.1", "fonttools": "4.68.0", "kiwisolver": "1.5.1",
+                    "pillow": "13.0.0", "pyparsing": "3.3.3", "python-dateutil": "4.0.0", "tzdata": "2026.6",
+                    "packaging": "26.3"}
     text = (REPO / "requirements.txt").read_text()
     assert all(f"{k}=={v}" in text for k, v in pins.items())
 
@@ -69,7 +82,7 @@ def test_offline_build_splits_the_platforms(tmp_path, capsys):
             manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
         assert sorted(n for n in names if n.endswith(".whl")) == sorted(f"wheels/{w}" for w in WHEELS[platform])
         assert manifest["build"]["generated"]["platforms"] == [platform]
-        assert len(manifest["wheels"]) == 6 and manifest["platforms"] == ["linux-x64", "windows-x64"]
+        assert len(manifest["wheels"]) == 2 * 8 + len(PURE) and manifest["platforms"] == ["linux-x64", "windows-x64"]
         for required in ("__init__.py", "core/fileio/las.py", "core/physics/brdf.py", "ladar_addon/materials.py",
                          "presets/ladar_simulator/sensor/Airborne_1064_nm_full_waveform.py",
                          "presets/ladar_simulator/material/Retroreflective_sheeting.py"):

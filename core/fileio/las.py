@@ -428,7 +428,7 @@ def run_points(run_dir) -> tuple[dict, dict]:
 
 
 def intensity_unit_of(metadata: dict) -> str:
-    """The unit of a run's point intensities: its metadata's ``units["intensity"]`` (core.pipeline.product_units),
+    """The unit of a run's point intensities: its metadata's ``units["intensity"]`` (core.systems.flash.product_units),
     J per bin for run folders written before units were recorded."""
     return (metadata.get("units") or {}).get("intensity") or "J per bin"
 

@@ -1,67 +1,41 @@
-"""Preview images of a run: false-colour PNGs of the range/intensity/energy images and gated slices, and
-waveform plots.  Never imports bpy.
+"""Preview images of a run: false-colour PNGs of the range/intensity/energy images and of every gated slice, the
+scanner's point cloud seen from the sensor, and waveform plots with their detected echoes.  Never imports bpy.
 
-Matplotlib (Agg, object API: thread-safe enough for a worker thread) draws the PNGs with a colour bar, title and
-units when it is installed; otherwise a small NumPy renderer writes the same false-colour image (nearest-neighbour
-upscaled, colour bar strip on the right, no text) through the stdlib PNG encoder below, so the extension works
-in a Blender that lacks matplotlib.
+Matplotlib draws them all (Agg, object API without pyplot: safe in a worker thread and leaves the user's
+backend alone); the extension bundles it with its dependencies (scripts/build_extension.py), so every preview
+has a title, axes with units and a colour bar (or a legend) wherever it is made.  Images show the receiver's
+field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at the top).
 
 Every PNG is written atomically (a hidden temporary file in the same folder, then ``os.replace``) and an existing
-file is never replaced unless ``overwrite`` is asked.
+file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks repeat what is drawn (``Title``,
+``Description``: the axes and colour-bar labels), for tools (and tests) that read them.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
 
 from ..constants import SPEED_OF_LIGHT_M_S
 
-#: Colour maps as a few linear-RGB-ish stops (sRGB values of matplotlib's viridis and inferno at 0, ¼, ½, ¾, 1).
-COLORMAP_STOPS = {
-    "viridis": ((0.267, 0.005, 0.329), (0.229, 0.322, 0.546), (0.128, 0.567, 0.551), (0.369, 0.789, 0.383),
-                (0.993, 0.906, 0.144)),
-    "inferno": ((0.001, 0.000, 0.014), (0.341, 0.062, 0.429), (0.735, 0.216, 0.330), (0.978, 0.557, 0.035),
-                (0.988, 0.998, 0.645)),
-}
 #: What each image product shows: (title, colour map, scale starts at zero).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.systems.flash.product_units).
 PRODUCTS = {"range": ("Range", "viridis", False), "intensity": ("Intensity", "inferno", True),
             "energy": ("Received energy", "inferno", True), "slices": ("Gated slice", "inferno", True)}
 NO_DATA_RGB = (0.35, 0.35, 0.35)  # pixels without a value (NaN range): grey
-MIN_PREVIEW_PX = 256              # the NumPy renderer upscales small images to at least this size
-
-
-def have_matplotlib() -> bool:
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:  # pragma: no cover - matplotlib is in requirements.txt
-        return False
-    return True
+#: Gated slices share one logarithmic colour scale over this many decades below the sweep's maximum, so the
+#: faint first and last slices (the gate's edges on the return) still show their data.
+SLICE_DECADES = 4.0
+#: The scanner's preview draws at most this many points (evenly chosen; the title gives the total).
+MAX_SCATTER_POINTS = 200_000
 
 
 # ----------------------------------------------------------------------------------------------------------
-# PNG encoding and atomic writes
+# Atomic writes
 # ----------------------------------------------------------------------------------------------------------
-def encode_png(rgb: np.ndarray) -> bytes:
-    """PNG bytes of an (H, W, 3) or (H, W, 4) uint8 image (8-bit RGB/RGBA, no filtering, zlib level 6)."""
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
-    if rgb.ndim != 3 or rgb.shape[2] not in (3, 4):
-        raise ValueError(f"expected an (H, W, 3|4) uint8 image, got shape {rgb.shape}")
-    h, w, c = rgb.shape
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), rgb.reshape(h, w * c)], axis=1).tobytes()
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    header = struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 6, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
-
-
 def write_bytes_atomically(path, data: bytes, *, overwrite: bool = False) -> Path:
     """Write ``data`` to ``path`` through a hidden temporary file in the same folder (never half a file).
 
@@ -84,17 +58,40 @@ def write_bytes_atomically(path, data: bytes, *, overwrite: bool = False) -> Pat
     return path
 
 
-# ----------------------------------------------------------------------------------------------------------
-# False colour
-# ----------------------------------------------------------------------------------------------------------
-def colormap_rgb(values01: np.ndarray, name: str = "viridis") -> np.ndarray:
-    """RGB floats (..., 3) of ``values01`` (clipped to 0…1) on the piecewise-linear colour map ``name``."""
-    stops = np.asarray(COLORMAP_STOPS[name])
-    pos = np.linspace(0.0, 1.0, len(stops))
-    v = np.clip(np.asarray(values01, dtype=np.float64), 0.0, 1.0)
-    return np.stack([np.interp(v, pos, stops[:, k]) for k in range(3)], axis=-1)
+def save_figure(fig, path, overwrite: bool = False) -> Path:
+    """The figure as a PNG at ``path`` (atomic), its title and axis/colour-bar labels in the text chunks."""
+    labels = []
+    for ax in fig.axes:
+        for what, text in (("x", ax.get_xlabel()), ("y", ax.get_ylabel())):
+            if text:
+                labels.append(f"{what}: {text}")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Title": figure_title(fig), "Description": "; ".join(labels)})
+    return write_bytes_atomically(path, buf.getvalue(), overwrite=overwrite)
 
 
+def figure_title(fig) -> str:
+    return next((ax.get_title() for ax in fig.axes if ax.get_title()), "")
+
+
+def _figure(width_in: float, height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), dpi=100)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _cmap(name):
+    import matplotlib
+
+    return matplotlib.colormaps[name].with_extremes(bad=NO_DATA_RGB)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# False-colour images
+# ----------------------------------------------------------------------------------------------------------
 def value_range(image: np.ndarray, vmin=None, vmax=None, zero_based: bool = False) -> tuple[float, float]:
     """Display range: ``vmin``/``vmax`` where given, else the finite data's minimum (0 when ``zero_based``, for
     energies) and maximum.  A flat image gets a range of width 1e-6 × its value (1 for zero)."""
@@ -107,73 +104,91 @@ def value_range(image: np.ndarray, vmin=None, vmax=None, zero_based: bool = Fals
     return lo, hi
 
 
-def false_colour_rgb(image: np.ndarray, cmap: str = "viridis", vmin=None, vmax=None) -> np.ndarray:
-    """(H, W, 3) uint8 false colour of a 2-D image; non-finite pixels are grey (:data:`NO_DATA_RGB`)."""
+def angle_extent(settings: dict | None, shape) -> tuple[list | None, str, str]:
+    """(imshow extent, x label, y label): the field of view in mrad when the run's settings give it (a run's
+    ``metadata["settings"]``), else pixel indices."""
+    rx = (settings or {}).get("receiver") or {}
+    if "fov_x_rad" in rx and "fov_y_rad" in rx:
+        hx, hy = 500.0 * rx["fov_x_rad"], 500.0 * rx["fov_y_rad"]
+        return [-hx, hx, -hy, hy], "horizontal angle (mrad)", "vertical angle (mrad)"
+    h, w = shape
+    return [-0.5, w - 0.5, h - 0.5, -0.5], "pixel column", "pixel row"
+
+
+def false_colour_figure(image, *, title: str, unit: str, cmap: str = "viridis", vmin=None, vmax=None,
+                        zero_based: bool = False, log: bool = False, settings: dict | None = None):
+    """A matplotlib Figure of a 2-D image (row 0 at the top): title, angle axes (:func:`angle_extent`) and a
+    colour bar labelled with ``unit``.  ``log``: a logarithmic colour scale from ``vmin`` (> 0) to ``vmax``;
+    values at or below zero show in the map's lowest colour."""
+    from matplotlib.colors import LogNorm, Normalize
+
     image = np.asarray(image, dtype=np.float64)
-    lo, hi = value_range(image, vmin, vmax)
-    rgb = colormap_rgb((np.nan_to_num(image, nan=lo) - lo) / (hi - lo), cmap)
-    rgb[~np.isfinite(image)] = NO_DATA_RGB
-    return np.round(rgb * 255.0).astype(np.uint8)
-
-
-def _numpy_figure(image, cmap, vmin, vmax) -> np.ndarray:
-    """The false-colour image upscaled (nearest) to ≥ MIN_PREVIEW_PX on its long side, plus a colour bar."""
-    rgb = false_colour_rgb(image, cmap, vmin, vmax)
-    h, w = rgb.shape[:2]
-    k = max(1, int(np.ceil(MIN_PREVIEW_PX / max(h, w))))
-    big = np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)
-    bh = big.shape[0]
-    bar = np.round(colormap_rgb(np.linspace(1.0, 0.0, bh), cmap) * 255).astype(np.uint8)  # top = maximum
-    bar = np.repeat(bar[:, None, :], max(8, bh // 16), axis=1)
-    gap = np.full((bh, max(4, bh // 32), 3), 255, np.uint8)
-    return np.concatenate([big, gap, bar], axis=1)
-
-
-def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str = "viridis", vmin=None, vmax=None,
-                     zero_based: bool = False, use_matplotlib: bool | None = None, overwrite: bool = False) -> Path:
-    """Write a false-colour PNG of a 2-D image (row 0 at the top) with a colour bar; returns the path.
-
-    The colour scale spans :func:`value_range` (``vmin``, ``vmax``, ``zero_based``)."""
-    image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"expected a 2-D image, got shape {image.shape}")
-    vmin, vmax = value_range(image, vmin, vmax, zero_based)
-    if use_matplotlib is None:
-        use_matplotlib = have_matplotlib()
-    if not use_matplotlib:
-        return write_bytes_atomically(path, encode_png(_numpy_figure(image, cmap, vmin, vmax)), overwrite=overwrite)
-    from matplotlib.figure import Figure
-
-    lo, hi = vmin, vmax
+    extent, xlabel, ylabel = angle_extent(settings, image.shape)
     h, w = image.shape
-    aspect = h / w
-    fig = Figure(figsize=(5.6, max(2.0, min(8.0, 4.4 * aspect + 0.8))), dpi=100)
+    (x0, x1, y0, y1) = extent
+    aspect_img = abs(y1 - y0) / max(abs(x1 - x0), 1e-300)
+    fig = _figure(6.4, max(2.6, min(8.0, 4.6 * aspect_img + 1.2)))
     ax = fig.add_subplot()
-    cm = _mpl_cmap(cmap)
-    shown = ax.imshow(np.ma.masked_invalid(image.astype(np.float64)), cmap=cm, vmin=lo, vmax=hi,
-                      interpolation="nearest", origin="upper")
-    ax.set_xlabel("pixel x")
-    ax.set_ylabel("pixel y")
-    if title:
-        ax.set_title(title)
-    bar = fig.colorbar(shown, ax=ax)
-    if unit:
-        bar.set_label(unit)
-    return _save_figure(fig, path, overwrite)
+    if log:
+        norm = LogNorm(vmin=vmin, vmax=vmax, clip=True)
+        shown = np.where(image > 0, image, vmin)
+    else:
+        lo, hi = value_range(image, vmin, vmax, zero_based)
+        norm = Normalize(vmin=lo, vmax=hi)
+        shown = image
+    im = ax.imshow(np.ma.masked_invalid(shown), cmap=_cmap(cmap), norm=norm, interpolation="nearest",
+                   origin="upper", extent=extent, aspect="auto" if max(h, w) / max(1, min(h, w)) > 8 else "equal")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    bar = fig.colorbar(im, ax=ax)
+    bar.set_label(unit)
+    if not log:
+        bar.formatter.set_useOffset(False)  # 299.98 m, not "+2.9998e2" above the bar
+    return fig
 
 
-def _mpl_cmap(name):
-    import matplotlib
+def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str = "viridis", vmin=None,
+                     vmax=None, zero_based: bool = False, log: bool = False, settings: dict | None = None,
+                     overwrite: bool = False, reuse: dict | None = None) -> Path:
+    """Write :func:`false_colour_figure` as a PNG; returns the path.
 
-    return matplotlib.colormaps[name].with_extremes(bad=NO_DATA_RGB)
+    ``reuse``: a dict kept by the caller across images of one shape and colour scale (a slice sweep): the first
+    call lays the figure out and stores it there, later calls only swap the pixels and the title (fast)."""
+    fig = reuse.get("figure") if reuse is not None else None
+    if fig is None:
+        fig = false_colour_figure(image, title=title, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
+                                  zero_based=zero_based, log=log, settings=settings)
+        if reuse is not None:
+            reuse["figure"] = fig
+    else:
+        image = np.asarray(image, dtype=np.float64)
+        shown = np.where(image > 0, image, vmin) if log else image
+        fig.axes[0].images[0].set_data(np.ma.masked_invalid(shown))
+        fig.axes[0].set_title(title, fontsize=10)
+    return save_figure(fig, path, overwrite)
 
 
-def _save_figure(fig, path, overwrite) -> Path:
-    import io
+def slice_scale(stack: np.ndarray) -> tuple[float, float]:
+    """(vmin, vmax) of the gated slices' shared log colour scale: the sweep's maximum and
+    :data:`SLICE_DECADES` decades below it (or the smallest positive value, if higher)."""
+    positive = stack[np.isfinite(stack) & (stack > 0)]
+    if positive.size == 0:
+        return 1e-30, 1.0
+    vmax = float(positive.max())
+    vmin = max(float(positive.min()), vmax * 10.0 ** -SLICE_DECADES)
+    return (vmin if vmin < vmax else 0.1 * vmax), vmax
 
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    return write_bytes_atomically(path, buf.getvalue(), overwrite=overwrite)
+
+def gate_label(delay_s: float, width_s: float | None) -> str:
+    """'gate 6600.0 ns: 989.3 – 992.3 m': the gate's opening delay and the ranges it spans (c·t/2)."""
+    r0 = 0.5 * SPEED_OF_LIGHT_M_S * delay_s
+    if width_s is None:
+        return f"gate delay {delay_s * 1e9:.1f} ns ({r0:.1f} m)"
+    r1 = 0.5 * SPEED_OF_LIGHT_M_S * (delay_s + width_s)
+    return f"gate delay {delay_s * 1e9:.1f} ns: {r0:.1f} – {r1:.1f} m"
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -185,67 +200,89 @@ def bin_centres_range_m(gate_start_s: float, bin_width_s: float, n_bins: int) ->
     return 0.5 * SPEED_OF_LIGHT_M_S * t
 
 
-def waveform_png(path, range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=(),
-                 use_matplotlib: bool | None = None, overwrite: bool = False, size_px=(640, 360)) -> Path:
-    """A line plot of one waveform against range (``markers_m``: ranges marked by dashed lines, e.g. the
-    detected echoes; matplotlib only); returns the path."""
+def waveform_figure(range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=()):
+    """A line plot of one waveform against range, the detected echoes (``markers_m``) as dashed lines with
+    their ranges in the legend."""
     range_m = np.asarray(range_m, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if range_m.shape != values.shape or values.ndim != 1 or len(values) == 0:
         raise ValueError(f"range_m {range_m.shape} and values {values.shape} must be equal 1-D shapes")
-    if use_matplotlib is None:
-        use_matplotlib = have_matplotlib()
-    if not use_matplotlib:
-        return write_bytes_atomically(path, encode_png(_numpy_plot(values, *size_px)), overwrite=overwrite)
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(size_px[0] / 100, size_px[1] / 100), dpi=100)
+    fig = _figure(6.4, 3.6)
     ax = fig.add_subplot()
-    ax.plot(range_m, values, lw=1.0, color="#1f5fa8")
-    for k, r in enumerate(np.atleast_1d(np.asarray(markers_m, dtype=np.float64))):
-        ax.axvline(r, color="#c0392b", lw=0.8, ls="--", label="detected echo" if k == 0 else None)
-    if len(np.atleast_1d(markers_m)):
-        ax.legend(loc="upper right", fontsize="small")
+    ax.plot(range_m, values, lw=1.0, color="#1f5fa8", label="waveform")
+    markers = np.atleast_1d(np.asarray(markers_m, dtype=np.float64))
+    for k, r in enumerate(markers):
+        ax.axvline(r, color="#c0392b", lw=0.8, ls="--",
+                   label=(f"detected echo{'es' if len(markers) > 1 else ''}: "
+                          + ", ".join(f"{m:.2f}" for m in markers[:6]) + (" …" if len(markers) > 6 else "")
+                          + " m") if k == 0 else None)
+    ax.legend(loc="upper right", fontsize="small")
     ax.set_xlabel("range (m)")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
-    if title:
-        ax.set_title(title)
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    return _save_figure(fig, path, overwrite)
+    return fig
 
 
-def _numpy_plot(values, width, height) -> np.ndarray:
-    """White canvas, the waveform as filled columns from the zero line (no axes, no text)."""
-    img = np.full((height, width, 3), 255, np.uint8)
-    v = np.nan_to_num(values.astype(np.float64))
-    lo, hi = min(0.0, v.min()), max(0.0, v.max())
-    if hi == lo:
-        hi = lo + 1.0
-    cols = np.clip((np.arange(width) * len(v)) // width, 0, len(v) - 1)
-    y = np.round((hi - v[cols]) / (hi - lo) * (height - 1)).astype(int)
-    y0 = int(round(hi / (hi - lo) * (height - 1)))
-    rows = np.arange(height)[:, None]
-    fill = (rows >= np.minimum(y, y0)[None, :]) & (rows <= np.maximum(y, y0)[None, :])
-    img[fill] = (31, 95, 168)
-    img[y0, :] = (0, 0, 0)
-    return img
+def waveform_png(path, range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=(),
+                 overwrite: bool = False) -> Path:
+    """Write :func:`waveform_figure` as a PNG; returns the path."""
+    return save_figure(waveform_figure(range_m, values, title=title, ylabel=ylabel, markers_m=markers_m), path,
+                       overwrite)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Scanner point cloud
+# ----------------------------------------------------------------------------------------------------------
+def scan_figure(points: dict, world_from_sensor, *, title: str = "Scanner points"):
+    """The scanner's points seen from the sensor: x and y in the sensor frame of the scan's start pose (m; for
+    a sensor looking down this is a plan view), coloured by range, first echoes over later ones."""
+    pos = np.asarray(points["position_world"], dtype=np.float64).reshape(-1, 3)
+    rng = np.asarray(points.get("range_m", np.linalg.norm(pos, axis=1)), dtype=np.float64)
+    m = np.asarray(world_from_sensor, dtype=np.float64)
+    rot = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+    local = (pos - m[:3, 3]) @ rot
+    n = len(pos)
+    keep = np.arange(n) if n <= MAX_SCATTER_POINTS else np.linspace(0, n - 1, MAX_SCATTER_POINTS).astype(int)
+    if "echo_index" in points:
+        keep = keep[np.argsort(-np.asarray(points["echo_index"])[keep], kind="stable")]  # first echoes on top
+    fig = _figure(6.4, 5.2)
+    ax = fig.add_subplot()
+    sc = ax.scatter(local[keep, 0], local[keep, 1], c=rng[keep], s=max(0.2, min(6.0, 4e4 / max(len(keep), 1))),
+                    cmap=_cmap("viridis"), linewidths=0, rasterized=True)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("sensor x, right (m)")
+    ax.set_ylabel("sensor y, up (m)")
+    shown = "" if len(keep) == n else f", {len(keep)} drawn"
+    ax.set_title(f"{title}: {n} points{shown}", fontsize=10)
+    ax.grid(alpha=0.3)
+    bar = fig.colorbar(sc, ax=ax)
+    bar.set_label("range (m)")
+    return fig
 
 
 # ----------------------------------------------------------------------------------------------------------
 # A run folder's previews
 # ----------------------------------------------------------------------------------------------------------
-def write_run_previews(run_dir, *, use_matplotlib: bool | None = None, cancel=None) -> list[Path]:
-    """False-colour PNGs beside every image EXR of a run folder (``range.png`` beside ``range.exr``, ...;
-    ``slices/slice_NNNN.png`` on one colour scale shared by all slices, 0 … the sweep's maximum, drawn by the
-    fast NumPy renderer since a sweep has tens of slices) and, for a single-pixel run (range
-    profiler), ``waveform.png`` of its waveform.  Call it on a run folder that is still being assembled; files
-    that exist are left alone.  ``cancel()`` true stops between files.  Returns the written paths."""
+def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
+    """The previews of a run folder, beside its products (files that exist are left alone):
+
+    * ``range.png``, ``intensity.png``, ``energy.png`` beside the EXRs of an image of more than one pixel;
+    * ``slices/slice_NNNN.png`` for gated viewing: each titled with its gate delay and range interval, all on
+      one logarithmic colour scale (:func:`slice_scale`; the colour bar's ticks show it);
+    * ``points.png`` for the scanner (:func:`scan_figure`);
+    * ``waveform.png`` for the range profiler: its one waveform with the detected echoes marked.
+
+    Call it on a run folder that is still being assembled.  ``cancel()`` true stops between files.  Returns the
+    written paths."""
     from .run_folder import read_exr
 
     run_dir = Path(run_dir)
     written = []
-    units = run_units(run_dir)
+    meta = run_metadata(run_dir)
+    units = dict(meta.get("units", {}))
+    settings = meta.get("settings")
 
     def stop():
         return cancel is not None and cancel()
@@ -255,33 +292,61 @@ def write_run_previews(run_dir, *, use_matplotlib: bool | None = None, cancel=No
         png = exr.with_suffix(".png")
         if not exr.is_file() or png.exists() or stop():
             continue
+        image = _first_channel(read_exr(exr))
+        if image.size <= 1:  # the profiler's one pixel: its waveform plot is the preview
+            continue
         title, cmap, zero_based = PRODUCTS[product]
-        written.append(false_colour_png(png, _first_channel(read_exr(exr)), title=title, unit=units.get(product, ""),
-                                        cmap=cmap,
-                                        zero_based=zero_based, use_matplotlib=use_matplotlib))
+        written.append(false_colour_png(png, image, title=title, unit=units.get(product, ""), cmap=cmap,
+                                        zero_based=zero_based, settings=settings))
     slices = sorted((run_dir / "slices").glob("slice_*.exr")) if (run_dir / "slices").is_dir() else []
-    if slices:
-        stack = _slice_stack(run_dir, slices)
-        vmax = float(np.nanmax(stack)) if np.isfinite(stack).any() else 1.0
-        title, cmap, _ = PRODUCTS["slices"]
-        unit = units.get("slices", "")
-        for k, exr in enumerate(slices):
-            png = exr.with_suffix(".png")
-            if png.exists() or stop():
-                continue
-            # the fast renderer (no text) for slices: a sweep has tens of them per frame
-            written.append(false_colour_png(png, stack[k], title=f"{title} {k + 1}/{len(slices)}", unit=unit,
-                                            cmap=cmap, vmin=0.0, vmax=max(vmax, 1e-300), use_matplotlib=False))
+    if slices and not stop():
+        written += _slice_previews(run_dir, slices, meta, units.get("slices", ""), stop)
+    if (run_dir / "pulses.npz").is_file() and (run_dir / "points.npz").is_file() and not stop():
+        png = run_dir / "points.png"
+        if not png.exists():
+            with np.load(run_dir / "points.npz") as npz:
+                points = {k: npz[k] for k in ("position_world", "range_m", "echo_index") if k in npz.files}
+            if len(points.get("position_world", ())):
+                pose = (meta.get("sensor_pose") or {}).get("world_from_sensor", np.eye(4))
+                written.append(save_figure(scan_figure(points, pose), png))
     wf_path = run_dir / "waveforms.npy"
     png = run_dir / "waveform.png"
     if wf_path.is_file() and not png.exists() and not stop():
         cube = np.load(wf_path, mmap_mode="r")
         if cube.ndim == 3 and cube.shape[:2] == (1, 1):
-            gate = _gate_settings(run_dir)
+            gate = settings["gate"]
             rng = bin_centres_range_m(gate["gate_start_s"], gate["bin_width_s"], cube.shape[2])
+            echoes = ()
+            if (run_dir / "points.npz").is_file():
+                with np.load(run_dir / "points.npz") as npz:
+                    echoes = np.sort(npz["range_m"]) if "range_m" in npz.files else ()
             written.append(waveform_png(png, rng, np.asarray(cube[0, 0]), title="Range profile",
                                         ylabel=f"energy ({units.get('waveforms', 'J per bin')})",
-                                        use_matplotlib=use_matplotlib))
+                                        markers_m=echoes))
+    return written
+
+
+def _slice_previews(run_dir, slice_files, meta, unit, stop) -> list[Path]:
+    """One figure redrawn per slice (fast: the colour bar and axes are laid out once)."""
+    stack = _slice_stack(run_dir, slice_files)
+    vmin, vmax = slice_scale(stack)
+    gated = (meta.get("settings") or {}).get("gated") or {}
+    delays = meta.get("slice_delays_s")
+    if delays is None and gated:
+        delays = [gated["first_delay_s"] + k * gated["delay_step_s"] for k in range(len(slice_files))]
+    width = gated.get("gate_width_s")
+    title, cmap, _ = PRODUCTS["slices"]
+    reuse = {}
+    written = []
+    for k, exr in enumerate(slice_files):
+        png = exr.with_suffix(".png")
+        if png.exists() or stop():
+            continue
+        name = f"{title} {k + 1}/{len(slice_files)}"
+        if delays is not None and k < len(delays):
+            name += ", " + gate_label(float(delays[k]), width)
+        written.append(false_colour_png(png, stack[k], title=name, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
+                                        log=True, settings=meta.get("settings"), reuse=reuse))
     return written
 
 
@@ -299,15 +364,15 @@ def _slice_stack(run_dir, slice_files) -> np.ndarray:
     return np.stack([_first_channel(read_exr(p)) for p in slice_files]).astype(np.float64)
 
 
-def _gate_settings(run_dir) -> dict:
-    meta = json.loads((Path(run_dir) / "metadata.json").read_text(encoding="utf-8"))
-    return meta["settings"]["gate"]
+def run_metadata(run_dir) -> dict:
+    """A run folder's ``metadata.json`` (empty if it has none yet)."""
+    path = Path(run_dir) / "metadata.json"
+    if not path.is_file():
+        return {}
+    return json.loads(path.read_text(encoding="utf-8"))
 
 
 def run_units(run_dir) -> dict:
     """The units of a run folder's products (``metadata.json`` → ``units``); empty for a folder without them
     (a run written before units were recorded: its previews carry no unit rather than a wrong one)."""
-    path = Path(run_dir) / "metadata.json"
-    if not path.is_file():
-        return {}
-    return dict(json.loads(path.read_text(encoding="utf-8")).get("units", {}))
+    return dict(run_metadata(run_dir).get("units", {}))

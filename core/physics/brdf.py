@@ -205,13 +205,12 @@ def brdf_from_principled(base_color_rgb, roughness: float, metallic: float = 0.0
 # Plot
 # --------------------------------------------------------------------------------------------------------------
 def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: float | None = None,
-              dpi: int = 100, use_matplotlib: bool | None = None) -> Path:
+              dpi: int = 100) -> Path:
     """Write a 500×340 px PNG plot of f_r(θ) for θ = 0…90° (written atomically, replacing ``path``).
 
-    With matplotlib (Agg canvas, no pyplot): axes, labels, a log f_r axis when all values are positive and span
-    more than a factor 20 (a specular peak and a diffuse floor both show), a table's measured rows as markers.
-    Without matplotlib (a Blender that lacks it): the bare curve drawn by ``core.fileio.preview``'s NumPy renderer
-    (log10 f_r above its minimum in the log case), no axes or text.
+    Matplotlib (Agg canvas, no pyplot; bundled with the extension): axes, labels, a log f_r axis when all
+    values are positive and span more than a factor 20 (a specular peak and a diffuse floor both show), a
+    table's measured rows as markers.
     """
     from ..fileio import preview
 
@@ -219,13 +218,6 @@ def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: 
     f_r = evaluate_brdf(brdf, np.cos(np.radians(theta)))
     positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
     log_axis = bool(positive and f_r.max() / f_r.min() > 20.0)
-    if use_matplotlib is None:
-        use_matplotlib = preview.have_matplotlib()
-    if not use_matplotlib:
-        shown = np.log10(f_r / f_r.min()) if log_axis else f_r
-        width, height = int(round(5.0 * dpi)), int(round(3.4 * dpi))
-        return preview.write_bytes_atomically(path, preview.encode_png(preview._numpy_plot(shown, width, height)),
-                                              overwrite=True)
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: leaves the user's backend alone
     from matplotlib.figure import Figure
 
@@ -254,6 +246,4 @@ def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    return preview.write_bytes_atomically(path, buffer.getvalue(), overwrite=True)
+    return preview.save_figure(fig, path, overwrite=True)

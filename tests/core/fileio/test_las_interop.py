@@ -242,8 +242,8 @@ def test_exr_headers_carry_unit_pose_and_gate_delay(tmp_path):
     (before: compression and type only)."""
     import OpenEXR
 
-    from core.gated import slice_delays_s
-    from core.runio import read_exr_header
+    from core.systems.gated import slice_delays_s
+    from core.fileio.run_folder import read_exr_header
     cfg = SimulationConfig(system_type="gated")
     cfg.receiver.width_px, cfg.receiver.height_px = 8, 4
     cfg.receiver.fov_x_rad, cfg.receiver.fov_y_rad = 8e-3, 4e-3

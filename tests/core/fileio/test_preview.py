@@ -1,138 +1,162 @@
-"""core/fileio/preview.py: PNG encoding, false colour, waveform plots, run-folder previews (pixel values checked)."""
+"""core/fileio/preview.py: every system's preview carries a title, axes with units and a colour bar or legend (issue 14):
+false-colour images on angle axes, gated slices labelled with their gate and on a shared log scale, the
+scanner's points, the profiler's waveform with its echoes; atomic, write-once files."""
 import json
-import struct
-import zlib
 
+import matplotlib
+import matplotlib.image
 import numpy as np
 import pytest
+from PIL import Image
 
+from core.config import SimulationConfig
+from core.constants import SPEED_OF_LIGHT_M_S
 from core.fileio import preview
 from core.fileio.run_folder import write_exr
-from core.constants import SPEED_OF_LIGHT_M_S
+from core.systems.flash import run_simulation
+from scenes import C, config_for, plate
 
 
-def decode_png(data: bytes) -> np.ndarray:
-    """Minimal decoder for the encoder's output (8-bit RGB/RGBA, filter 0 on every row)."""
-    assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    pos, idat, w = 8, b"", None
-    while pos < len(data):
-        n = struct.unpack(">I", data[pos:pos + 4])[0]
-        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
-        crc = struct.unpack(">I", data[pos + 8 + n:pos + 12 + n])[0]
-        assert crc == zlib.crc32(kind + body) & 0xFFFFFFFF
-        if kind == b"IHDR":
-            w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
-            c = {2: 3, 6: 4}[ctype]
-        elif kind == b"IDAT":
-            idat += body
-        pos += 12 + n
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * c)
-    assert np.all(raw[:, 0] == 0)
-    return raw[:, 1:].reshape(h, w, c)
+def png_text(path) -> dict:
+    with Image.open(path) as im:
+        return dict(im.text)
 
 
-def test_png_round_trip():
-    rng = np.random.default_rng(1)
-    for c in (3, 4):
-        img = rng.integers(0, 256, (5, 7, c), dtype=np.uint8)
-        np.testing.assert_array_equal(decode_png(preview.encode_png(img)), img)
-    with pytest.raises(ValueError):
-        preview.encode_png(np.zeros((4, 4), np.uint8))
+def colour_present(px, rgb, tol=6) -> bool:
+    """Some pixel of a PNG (floats 0…1) has the colour ``rgb`` (floats 0…1) within ``tol`` of 255."""
+    flat = (px[:, :, :3] * 255).reshape(-1, 3)
+    return bool(np.min(np.abs(flat - np.asarray(rgb[:3]) * 255).max(axis=1)) < tol)
 
 
-def test_false_colour_values():
-    stops = np.round(np.asarray(preview.COLORMAP_STOPS["viridis"]) * 255)
-    img = np.array([[10.0, 30.0], [20.0, np.nan]])
-    rgb = preview.false_colour_rgb(img)  # range 10 … 30: 10 → first stop, 20 → middle, 30 → last
-    np.testing.assert_array_equal(rgb[0, 0], stops[0])
-    np.testing.assert_array_equal(rgb[1, 0], stops[2])
-    np.testing.assert_array_equal(rgb[0, 1], stops[4])
-    np.testing.assert_array_equal(rgb[1, 1], np.round(np.array(preview.NO_DATA_RGB) * 255))
-    # a quarter of the way between stops 0 and 1 (value 12.5 on 10…30 is 1/8 of the scale)
-    q = preview.false_colour_rgb(np.array([[12.5, 10.0, 30.0]]))[0, 0]
-    np.testing.assert_allclose(q, 0.5 * (stops[0] + stops[1]), atol=0.51)
+def test_false_colour_figure_has_title_angle_axes_and_colour_bar(tmp_path):
+    settings = {"receiver": {"fov_x_rad": 0.02, "fov_y_rad": 0.01}}
+    fig = preview.false_colour_figure(np.linspace(100, 120, 12).reshape(3, 4), title="Range", unit="m",
+                                      settings=settings)
+    image_ax, bar_ax = fig.axes
+    assert image_ax.get_title() == "Range"
+    assert image_ax.get_xlabel() == "horizontal angle (mrad)" and image_ax.get_ylabel() == "vertical angle (mrad)"
+    assert bar_ax.get_ylabel() == "m"
+    assert image_ax.images[0].get_extent() == [-10.0, 10.0, -5.0, 5.0]  # ± half the field of view, mrad
+    path = preview.false_colour_png(tmp_path / "r.png", np.linspace(100, 120, 12).reshape(3, 4), title="Range",
+                                    unit="m", settings=settings)
+    px = matplotlib.image.imread(path)
+    assert px.shape[1] == 640
+    viridis = matplotlib.colormaps["viridis"]
+    assert colour_present(px, viridis(0.0)) and colour_present(px, viridis(1.0))  # the scale's two ends
+    text = png_text(path)
+    assert text["Title"] == "Range" and "x: horizontal angle (mrad)" in text["Description"]
+    assert "y: m" in text["Description"]  # the colour bar's label
+    with pytest.raises(FileExistsError):
+        preview.false_colour_png(path, np.ones((2, 2)))
+    assert [p.name for p in tmp_path.iterdir()] == ["r.png"]  # no temporary files left behind
+
+
+def test_value_range():
     assert preview.value_range(np.array([3.0, 5.0]), zero_based=True) == (0.0, 5.0)
     assert preview.value_range(np.array([4.0, 4.0])) == (4.0, pytest.approx(4.0 + 4e-6))
     assert preview.value_range(np.full(3, np.nan)) == (0.0, 1.0)
 
 
-def test_numpy_false_colour_png(tmp_path):
-    img = np.array([[0.0, 1.0], [0.5, 0.25]])
-    path = preview.false_colour_png(tmp_path / "a.png", img, cmap="inferno", use_matplotlib=False)
-    px = decode_png(path.read_bytes())
-    assert px.shape[0] == 256 and px.shape[1] > 256  # upscaled ×128, then a gap and the colour bar
-    stops = np.round(np.asarray(preview.COLORMAP_STOPS["inferno"]) * 255)
-    np.testing.assert_array_equal(px[0, 0], stops[0])        # pixel (0, 0) = 0 → bottom of the map
-    np.testing.assert_array_equal(px[0, 255], stops[4])      # pixel (0, 1) = 1 → top
-    np.testing.assert_array_equal(px[200, 50], stops[2])     # pixel (1, 0) = 0.5
-    np.testing.assert_array_equal(px[0, -1], stops[4])       # colour bar: maximum at the top
-    np.testing.assert_array_equal(px[-1, -1], stops[0])
-    with pytest.raises(FileExistsError):
-        preview.false_colour_png(tmp_path / "a.png", img, use_matplotlib=False)
-    assert [p.name for p in tmp_path.iterdir()] == ["a.png"]  # no temporary files left behind
-
-
-def test_matplotlib_false_colour_png(tmp_path):
-    import matplotlib.image
-
-    path = preview.false_colour_png(tmp_path / "r.png", np.linspace(100, 120, 12).reshape(3, 4), title="Range",
-                                    unit="m", use_matplotlib=True)
-    px = matplotlib.image.imread(path)
-    assert px.shape[1] == 560 and px.shape[0] >= 200  # 5.6 in × 100 dpi
-    # the image holds the map's two ends (the darkest viridis purple and the yellow)
-    rgb = (px[:, :, :3] * 255).reshape(-1, 3)
-    for stop in (preview.COLORMAP_STOPS["viridis"][0], preview.COLORMAP_STOPS["viridis"][4]):
-        assert np.min(np.abs(rgb - np.array(stop) * 255).max(axis=1)) < 4
-
-
-def test_waveform_plots(tmp_path):
+def test_waveform_plot_marks_the_detected_echoes(tmp_path):
     rng_m = preview.bin_centres_range_m(1e-6, 1e-9, 200)
     assert rng_m[0] == pytest.approx(0.5 * SPEED_OF_LIGHT_M_S * (1e-6 + 0.5e-9), rel=1e-12)
     assert rng_m[1] - rng_m[0] == pytest.approx(0.5 * SPEED_OF_LIGHT_M_S * 1e-9, rel=1e-9)
-    values = np.zeros(200)
-    values[100:] = 2.0  # a step: the right half of the plot is filled to the top
-    values[:100] = 1.0  # the left half to half height
-    px = decode_png(preview.waveform_png(tmp_path / "w.png", rng_m, values, use_matplotlib=False,
-                                         size_px=(200, 101)).read_bytes())
-    filled = np.all(px == (31, 95, 168), axis=2)
-    heights = filled.sum(axis=0)
-    assert np.all(heights[:100] == 50) and np.all(heights[100:] == 100)  # zero line is row 100 (black)
-    assert np.all(px[100] == 0)
-    import matplotlib.image
-    mpl = matplotlib.image.imread(preview.waveform_png(tmp_path / "m.png", rng_m, values, use_matplotlib=True))
-    assert mpl.shape[:2] == (360, 640)
+    values = np.exp(-0.5 * ((np.arange(200) - 80) / 3.0) ** 2)
+    fig = preview.waveform_figure(rng_m, values, title="Range profile", markers_m=[rng_m[80], rng_m[150]])
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "range (m)" and ax.get_ylabel() == "energy per bin (J)"
+    dashed = [ln for ln in ax.get_lines() if ln.get_linestyle() == "--"]
+    assert [ln.get_xdata()[0] for ln in dashed] == [rng_m[80], rng_m[150]]
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend[1] == f"detected echoes: {rng_m[80]:.2f}, {rng_m[150]:.2f} m"
+    px = matplotlib.image.imread(preview.waveform_png(tmp_path / "m.png", rng_m, values, markers_m=[rng_m[80]]))
+    assert px.shape[:2] == (360, 640)
     with pytest.raises(ValueError):
-        preview.waveform_png(tmp_path / "x.png", rng_m[:3], values, use_matplotlib=False)
+        preview.waveform_png(tmp_path / "x.png", rng_m[:3], values)
 
 
-@pytest.mark.parametrize("use_mpl", [False, True])
-def test_run_previews(tmp_path, use_mpl):
+def _gated_run(tmp_path):
+    cfg = SimulationConfig(system_type="gated")
+    cfg.receiver.width_px, cfg.receiver.height_px = 16, 8
+    cfg.receiver.fov_x_rad, cfg.receiver.fov_y_rad = 8e-3, 4e-3
+    cfg.laser.pulse_fwhm_s = 3e-9
+    g = cfg.gated
+    g.n_slices, g.delay_step_s, g.gate_width_s, g.shutter_edge_s = 5, 4e-9, 10e-9, 2e-9
+    g.first_delay_s = 2 * 300.0 / C - 14e-9  # slice maxima 0.002, 0.50, 1, 0.93, 0.077 of the peak
+    cfg.run.threads = 1
+    path, res = run_simulation(plate(300.0, 20.0), np.eye(4), cfg, tmp_path / "gated")
+    return path, res, cfg
+
+
+def test_gated_slices_are_labelled_and_their_faint_edges_show(tmp_path):
+    """Each slice's title names its gate delay and range interval; one log colour scale over the sweep, so the
+    first and last slices, holding 0.002 and 0.077 of the peak, are drawn in visible colours — before, a linear scale
+    shared with the peak slice drew them black."""
+    path, res, cfg = _gated_run(tmp_path)
+    written = preview.write_run_previews(path)
+    names = sorted(p.relative_to(path).as_posix() for p in written)
+    assert names == ["energy.png", "intensity.png", "range.png"] + [f"slices/slice_{k:04d}.png" for k in range(1, 6)]
+    peak = res.slices.max()
+    vmin, vmax = preview.slice_scale(res.slices.astype(np.float64))
+    positive = res.slices[res.slices > 0]
+    assert vmax == pytest.approx(peak, rel=1e-6, abs=0)
+    assert vmin == pytest.approx(max(positive.min(), peak * 1e-4), rel=1e-6, abs=0)  # here 3.5e-4 × the peak
+    inferno = matplotlib.colormaps["inferno"]
+    for k in (1, 5):
+        d = cfg.gated.first_delay_s + (k - 1) * cfg.gated.delay_step_s
+        text = png_text(path / "slices" / f"slice_{k:04d}.png")
+        r0, r1 = 0.5 * C * d, 0.5 * C * (d + cfg.gated.gate_width_s)
+        assert text["Title"] == f"Gated slice {k}/5, gate delay {d * 1e9:.1f} ns: {r0:.1f} – {r1:.1f} m"
+        brightest = float(res.slices[k - 1].max())
+        assert 0 < brightest < 0.1 * peak  # a faint edge slice that holds data
+        level = np.log10(brightest / vmin) / np.log10(vmax / vmin)
+        assert level > 0.2 and level > 3 * brightest / peak  # the former linear scale: 0.002 and 0.077
+        px = matplotlib.image.imread(path / "slices" / f"slice_{k:04d}.png")
+        assert colour_present(px, inferno(level), tol=8)
+    assert preview.write_run_previews(path) == []  # nothing twice
+    assert not [p for p in path.rglob(".*")]  # no temporary files
+
+
+def test_scanner_run_gets_a_points_preview(tmp_path):
+    cfg = SimulationConfig(system_type="scanner")
+    cfg.scanner.pattern, cfg.scanner.n_lines = "raster", 10
+    cfg.scanner.scan_rate_hz, cfg.scanner.pulse_rate_hz = 100.0, 4000.0
+    cfg.scanner.scan_width_rad, cfg.scanner.scan_height_rad = 0.4, 0.2
+    cfg.laser.beam_divergence_rad = 1e-3
+    cfg.gate.gate_start_s, cfg.gate.bin_width_s, cfg.gate.n_bins = 0.0, 0.25e-9, 2048
+    cfg.run.threads = 1
+    path, res = run_simulation(plate(40.0, 30.0), np.eye(4), cfg, tmp_path / "scan")
+    assert preview.write_run_previews(path) == [path / "points.png"]
+    text = png_text(path / "points.png")
+    n = len(res.points["range_m"])
+    assert text["Title"] == f"Scanner points: {n} points"
+    assert "x: sensor x, right (m)" in text["Description"] and "y: range (m)" in text["Description"]
+    fig = preview.scan_figure(res.points, np.eye(4))
+    offsets = fig.axes[0].collections[0].get_offsets()
+    np.testing.assert_allclose(np.sort(offsets[:, 0]), np.sort(res.points["position_world"][:, 0]))
+
+
+def test_profiler_preview_is_its_waveform_with_the_echoes_not_a_1x1_image(tmp_path):
+    cfg = config_for(100.0, pixels=1, fov_rad=0.01)
+    cfg.system_type = "profiler"
+    cfg.run.save_waveforms = True
+    front = plate(100.0, 0.5, offset=(-0.5, 0.0, 0.0))
+    path, res = run_simulation(front, np.eye(4), cfg, tmp_path / "prof")
+    written = preview.write_run_previews(path)
+    assert written == [path / "waveform.png"]  # before: range/intensity/energy PNGs of 1×1 pixel
+    text = png_text(path / "waveform.png")
+    assert text["Title"] == "Range profile" and "x: range (m)" in text["Description"]
+    assert len(res.points["range_m"]) >= 1
+
+
+def test_run_previews_leave_existing_files_and_stop_when_cancelled(tmp_path):
     run = tmp_path / "run"
-    (run / "slices").mkdir(parents=True)
+    run.mkdir()
     write_exr(run / "range.exr", {"Y": np.array([[100.0, np.nan], [101.0, 102.0]], np.float32)})
     write_exr(run / "intensity.exr", {"Y": np.ones((2, 2), np.float32)})
-    slices = np.array([np.full((2, 2), 4.0), np.full((2, 2), 2.0), np.zeros((2, 2))], np.float32)
-    for k, s in enumerate(slices):
-        write_exr(run / "slices" / f"slice_{k + 1:04d}.exr", {"Y": s})
-    np.save(run / "slices.npy", slices)
-    np.save(run / "waveforms.npy", np.arange(50, dtype=np.float32).reshape(1, 1, 50))
-    (run / "metadata.json").write_text(json.dumps({"settings": {"gate": {"gate_start_s": 0.0,
-                                                                          "bin_width_s": 1e-9}}}))
-    (run / "intensity.png").write_bytes(b"mine")  # an existing file is left alone
-    written = preview.write_run_previews(run, use_matplotlib=use_mpl)
-    assert sorted(p.relative_to(run).as_posix() for p in written) == [
-        "range.png", "slices/slice_0001.png", "slices/slice_0002.png", "slices/slice_0003.png", "waveform.png"]
+    (run / "metadata.json").write_text(json.dumps({"units": {"range": "m", "intensity": "J per bin"}}))
+    (run / "intensity.png").write_bytes(b"mine")
+    assert preview.write_run_previews(run, cancel=lambda: True) == []
+    assert preview.write_run_previews(run) == [run / "range.png"]
     assert (run / "intensity.png").read_bytes() == b"mine"
-    # slices: the NumPy renderer, one colour scale for all: 4 J → top, 2 J → middle, 0 J → bottom
-    stops = np.round(np.asarray(preview.COLORMAP_STOPS["inferno"]) * 255)
-    for k, stop in ((1, stops[4]), (2, stops[2]), (3, stops[0])):
-        px = decode_png((run / "slices" / f"slice_{k:04d}.png").read_bytes())
-        np.testing.assert_array_equal(px[0, 0], stop)
-    assert preview.write_run_previews(run, use_matplotlib=use_mpl) == []  # nothing twice
-    assert not [p for p in run.rglob(".*")]  # no temporary files
-
-
-def test_run_previews_stop_when_cancelled(tmp_path):
-    write_exr(tmp_path / "range.exr", {"Y": np.ones((2, 2), np.float32)})
-    assert preview.write_run_previews(tmp_path, use_matplotlib=False, cancel=lambda: True) == []
-    assert not (tmp_path / "range.png").exists()
+    assert png_text(run / "range.png")["Title"] == "Range"

@@ -211,13 +211,12 @@ def test_principled_mapping_metal_ior_level_and_clamps():
     BRDFSettings(model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08, diffuse_m=1.0),
     BRDFSettings(model="lambertian", reflectance=0.3),
 ])
-@pytest.mark.parametrize("use_matplotlib", [True, False])
-def test_plot_writes_a_png_and_nothing_else(tmp_path, brdf, use_matplotlib):
-    """A 500×340 PNG with or without matplotlib (NumPy fallback), replacing an older plot, no temporary file."""
+def test_plot_writes_a_png_and_nothing_else(tmp_path, brdf):
+    """A 500×340 PNG, replacing an older plot, no temporary file."""
     out = tmp_path / "plots" / "brdf.png"
     out.parent.mkdir()
     out.write_bytes(b"old")
-    assert plot_brdf(brdf, out, title="Paint", laser_wavelength_m=1.064e-6, use_matplotlib=use_matplotlib) == out
+    assert plot_brdf(brdf, out, title="Paint", laser_wavelength_m=1.064e-6) == out
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
@@ -225,21 +224,11 @@ def test_plot_writes_a_png_and_nothing_else(tmp_path, brdf, use_matplotlib):
     assert [p.name for p in out.parent.iterdir()] == ["brdf.png"]  # no temporary file left
 
 
-def test_plot_fallback_draws_the_curve(tmp_path):
-    """Without matplotlib the curve is drawn by core.fileio.preview's renderer: the filled height of each column
-    follows f_r (a table falling linearly from 1 at 0° to 0.5 at 90°: first and last columns 2:1)."""
-    import zlib
+def test_plot_has_a_title_and_labelled_axes(tmp_path):
+    """The plot (matplotlib, bundled with the extension) names what it shows; its PNG text chunks repeat it."""
+    from PIL import Image
     brdf = BRDFSettings(model="table", table_angle_deg=[0.0, 90.0], table_brdf_per_sr=[1.0, 0.5])
-    data = plot_brdf(brdf, tmp_path / "b.png", use_matplotlib=False).read_bytes()
-    pos, idat = 8, b""
-    while pos < len(data):  # PNG chunks: length, type, data, CRC
-        length = int.from_bytes(data[pos:pos + 4], "big")
-        if data[pos + 4:pos + 8] == b"IDAT":
-            idat += data[pos + 8:pos + 8 + length]
-        pos += 12 + length
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(340, -1)
-    assert np.all(raw[:, 0] == 0)  # filter type 0 on every row
-    channels = (raw.shape[1] - 1) // 500
-    img = raw[:, 1:].reshape(340, 500, channels)[..., :3]
-    filled = (img != 255).any(axis=2).sum(axis=0)
-    assert filled[0] / filled[-1] == pytest.approx(2.0, rel=0.02)
+    with Image.open(plot_brdf(brdf, tmp_path / "b.png", title="Paint", laser_wavelength_m=1.064e-6)) as im:
+        text = dict(im.text)
+    assert text["Title"] == "Paint — laser 1064 nm"
+    assert text["Description"] == "x: incidence angle θ (deg); y: monostatic BRDF f_r (1/sr)"
