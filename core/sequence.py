@@ -4,15 +4,13 @@ points are registered in one world coordinate system.
 The run folder holds one ordinary run folder per frame (``frame_0001/`` …), the merged point cloud of all frames
 (``points_merged.ply`` / ``.npz``, world coordinates, with a ``frame`` attribute) and a ``metadata.json`` listing
 the frames.  It is assembled in a hidden sibling folder and renamed into place at the end, so a failed or cancelled
-sequence leaves nothing behind.  When consecutive frames hand over the same SceneGeometry object (static
+sequence leaves nothing behind; the folder's name is claimed when the sequence starts (fileio.staging).  When consecutive frames hand over the same SceneGeometry object (static
 geometry) the ray-tracing acceleration structure is built once and reused.
 """
 from __future__ import annotations
 
 import json
-import shutil
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -20,8 +18,8 @@ from .errors import ConfigError
 from .config.settings import SimulationConfig, config_to_dict, validate
 from .errors import Cancelled
 from .systems.flash import run_metadata, simulate
-from .fileio.run_folder import (json_default, check_run_dir, commit_run_dir, new_temp_dir, software_versions,
-                                write_ply, write_run)
+from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
+from .fileio.staging import claim_run_dir
 from .geometry.trace import SceneTracer
 
 
@@ -66,12 +64,11 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     if len(set(frames)) != len(frames):
         raise ConfigError("frames", frames, "distinct frame numbers")
     validate(config)
-    out = check_run_dir(out_dir, overwrite).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = new_temp_dir(out.parent, f".{out.name}.partial-")
-    t_wall = time.perf_counter()
-    tracer, bvh_builds, all_stats, point_sets, units = None, 0, [], [], {}
-    try:
+    with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
+        tmp = claim.work
+        tmp.mkdir()
+        t_wall = time.perf_counter()
+        tracer, bvh_builds, all_stats, point_sets, units = None, 0, [], [], {}
         for i, frame in enumerate(frames):
             if cancel is not None and cancel():
                 raise Cancelled()
@@ -89,7 +86,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             result = simulate(scene, pose_for_frame(frame), config, frame=frame, tracer=tracer, trajectory=traj,
                               start_time_s=start, progress=frame_progress, cancel=cancel)
             meta = run_metadata(config, result, frame, extra_metadata)
-            write_run(tmp / f"frame_{frame:04d}", result, meta)
+            write_run_files(tmp / f"frame_{frame:04d}", result, meta)
             all_stats.append(result.stats)
             point_sets.append(result.points)
             units = result.units  # the same settings every frame: the same units
@@ -124,8 +121,5 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             json.dump(meta, f, indent=2, default=json_default)
         if cancel is not None and cancel():
             raise Cancelled()
-        commit_run_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        out = claim.commit()
     return out, all_stats

@@ -6,18 +6,20 @@ Commands::
     simulate         [--out RUN_DIR] [--frame N | --frames 1-100[:STEP]] [--seed N] [--config FILE]
                      [--overwrite | --if-exists {stop,replace,new}] [--sensor NAME] [--clouds {run,frame}]
                      [--no-import] [--no-previews]
-    export-config    --out FILE.json|FILE.toml [--sensor NAME]
+    export-config    --out FILE.json|FILE.toml [--sensor NAME] [--overwrite]
     validate-config  FILE [--sensor NAME]
 
 Exit codes: 0 success, 1 user error (one line on stderr, naming the bad setting), 2 command-line usage error,
-130 interrupted (Ctrl-C; nothing of the run is left behind).
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM, e.g. a batch scheduler or ``timeout``), 129 hung up (SIGHUP):
+an interrupted run leaves nothing behind.  Output never costs a run: if the reader of stdout/stderr goes away
+(``… | head -5``), the run carries on silently and is written (core.process).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import sys
+import signal
 from pathlib import Path
 
 import bpy
@@ -25,6 +27,7 @@ import bpy
 from ..core.errors import ConfigError
 from ..core.config.settings import SimulationConfig, dump_config_json, dump_config_toml, load_config
 from ..core.fileio.run_folder import new_temp_file
+from ..core.process import Interrupted, emit, exit_code, interrupts_as_exceptions
 from .errors import LadarError
 
 COMMAND_ID = "ladar"
@@ -33,7 +36,7 @@ COMMAND_ID = "ladar"
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 _EPILOG = """exit codes: 0 success, 1 user error (one line on stderr naming the bad setting), 2 usage error,
-130 interrupted (nothing of the run is left behind)"""
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP): nothing of the run is left behind"""
 
 _SIMULATE_EPILOG = """examples:
   blender -b scene.blend -c ladar simulate --out runs/r1 --seed 7
@@ -44,6 +47,9 @@ One frame writes a run folder (range/intensity/energy EXR + PNG previews, points
 --frames writes a sequence folder: frame_NNNN/ run folders, points_merged.ply/.npz (world coordinates),
 images/<product>_NNNN.exr image sequences and metadata.json.  Static geometry is exported once and its BVH
 reused for every frame.  A run is assembled in a hidden folder and renamed into place when complete.
+--overwrite replaces only a previous run of this simulator (a folder with its metadata.json); any other existing
+folder is refused.  Two runs never write the same folder at once: the second one refuses, or with --if-exists
+new takes the next free name.
 
 """ + _EPILOG
 
@@ -72,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="JSON or TOML settings that override the .blend's (versioned schema; for sweeps)")
     exists = sim.add_mutually_exclusive_group()
     exists.add_argument("--overwrite", action="store_true",
-                        help="replace an existing run folder (same as --if-exists replace)")
+                        help="replace an existing run folder, if it is a previous run of this simulator (same as "
+                             "--if-exists replace)")
     exists.add_argument("--if-exists", choices=("stop", "replace", "new"), default=None,
                         help="when the run folder exists: stop with an error (default), replace it, or use the "
                              "next free name (<name>_2, ...)")
@@ -89,6 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog=_EPILOG)
     exp.add_argument("--out", required=True, metavar="FILE", help="output file ending in .json or .toml")
     exp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
+    exp.add_argument("--overwrite", action="store_true", help="replace FILE if it exists (default: refuse)")
 
     val = sub.add_parser("validate-config", help="check a JSON or TOML config file against the settings schema",
                          epilog=_EPILOG)
@@ -109,28 +117,46 @@ def _sensor(scene, name):
     return obj
 
 
-def _write_text_atomically(path: Path, text: str) -> None:
+def _write_text_atomically(path: Path, text: str, overwrite: bool = False) -> None:
+    """Write ``path`` complete or not at all; an existing file is replaced only with ``overwrite`` (else
+    ConfigError, even if the file appears while writing: the new file is linked into place, never over one)."""
+    if not overwrite and (path.exists() or path.is_symlink()):
+        raise ConfigError("out", str(path), "a file that does not exist yet (or --overwrite to replace it)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = new_temp_file(path.parent, f".{path.name}.")
+    fd, tmp = new_temp_file(path.parent, f".{path.name[:100]}.", ".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)  # atomic, and fails if the name exists
+            except FileExistsError:
+                raise ConfigError("out", str(path), "a file that does not exist yet (it was created meanwhile; "
+                                                    "--overwrite to replace it)") from None
+            except OSError:  # no hard links on this file system: rename after the check above
+                os.replace(tmp, path)
+    finally:
         Path(tmp).unlink(missing_ok=True)
-        raise
 
 
-def export_config(scene, path, sensor=None) -> Path:
-    """Write the scene's settings (``config_from_blender``) to ``path`` (.json or .toml)."""
+def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:
+    """Write the scene's settings (``config_from_blender``) to ``path`` (.json or .toml).  An existing file is
+    replaced only with ``overwrite``."""
     from .properties import config_from_blender
 
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".json", ".toml"):
         raise ConfigError("out", str(path), "a file name ending in .json or .toml")
+    if path.is_dir():
+        raise ConfigError("out", str(path), "a file name (a folder of that name exists)")
+    if not overwrite and (path.exists() or path.is_symlink()):
+        raise ConfigError("out", str(path), "a file that does not exist yet (or --overwrite to replace it)")
     cfg = config_from_blender(scene, sensor if sensor is not None else _sensor(scene, None))
-    _write_text_atomically(path, dump_config_json(cfg) + "\n" if suffix == ".json" else dump_config_toml(cfg))
+    _write_text_atomically(path, dump_config_json(cfg) + "\n" if suffix == ".json" else dump_config_toml(cfg),
+                           overwrite=overwrite)
     return path
 
 
@@ -147,20 +173,20 @@ def _cmd_simulate(scene, args) -> int:
                         previews=not args.no_previews, progress=progress_printer())
     job.run()
     if frames is None:
-        print(run_summary(job.run_path, job.result), flush=True)
+        emit(run_summary(job.run_path, job.result))
     else:
         n_points = sum(s.get("n_points", 0) for s in job.frame_stats)
         meta = json.loads((job.run_path / "metadata.json").read_text(encoding="utf-8"))
-        print(f"run      {job.run_path}\n"
-              f"frames   {len(frames)} ({frames[0]} … {frames[-1]}), {n_points} points, "
-              f"{meta.get('bvh_builds')} BVH build(s), {job.source.exports} geometry export(s)\n"
-              f"time     {job.t_end - job.t_start:.2f} s", flush=True)
+        emit(f"run      {job.run_path}\n"
+             f"frames   {len(frames)} ({frames[0]} … {frames[-1]}), {n_points} points, "
+             f"{meta.get('bvh_builds')} BVH build(s), {job.source.exports} geometry export(s)\n"
+             f"time     {job.t_end - job.t_start:.2f} s")
     return EXIT_OK
 
 
 def _cmd_export_config(scene, args) -> int:
-    path = export_config(scene, args.out, _sensor(scene, args.sensor))
-    print(f"ladar: wrote {path}", flush=True)
+    path = export_config(scene, args.out, _sensor(scene, args.sensor), overwrite=args.overwrite)
+    emit(f"ladar: wrote {path}")
     return 0
 
 
@@ -171,7 +197,7 @@ def _cmd_validate_config(scene, args) -> int:
     if args.sensor is not None or (scene is not None and (scene.ladar.sensor or scene.camera) is not None):
         base = config_from_blender(scene, _sensor(scene, args.sensor))
     load_config(args.file, base=base if base is not None else SimulationConfig())
-    print(f"ladar: {args.file} is valid", flush=True)
+    emit(f"ladar: {args.file} is valid")
     return 0
 
 
@@ -180,7 +206,10 @@ COMMANDS = {"simulate": _cmd_simulate, "export-config": _cmd_export_config,
 
 
 def cli_handler(argv) -> int:
-    """Entry point of ``blender -c ladar``: returns the exit code (never exits the process)."""
+    """Entry point of ``blender -c ladar``: returns the exit code (never exits the process).
+
+    SIGINT, SIGTERM and SIGHUP end the command like Ctrl-C (core.process): the run's staging folder is removed
+    and the exit code is 128 + the signal."""
     from ..core.errors import Cancelled
 
     parser = build_parser()
@@ -189,18 +218,19 @@ def cli_handler(argv) -> int:
     except SystemExit as exc:  # usage errors (2) and --help (0)
         return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_USAGE)
     scene = bpy.context.scene
-    try:
-        return COMMANDS[args.command](scene, args)
-    except (ConfigError, LadarError) as exc:
-        print(f"ladar: error: {exc}", file=sys.stderr, flush=True)
-        return EXIT_USER_ERROR
-    except OSError as exc:
-        print(f"ladar: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr,
-              flush=True)
-        return EXIT_USER_ERROR
-    except (KeyboardInterrupt, Cancelled):
-        print("ladar: interrupted: nothing of the run was written", file=sys.stderr, flush=True)
-        return EXIT_INTERRUPTED
+    with interrupts_as_exceptions():
+        try:
+            return COMMANDS[args.command](scene, args)
+        except (ConfigError, LadarError) as exc:
+            emit(f"ladar: error: {exc}", err=True)
+            return EXIT_USER_ERROR
+        except OSError as exc:
+            emit(f"ladar: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), err=True)
+            return EXIT_USER_ERROR
+        except (KeyboardInterrupt, Cancelled) as exc:
+            how = f" ({exc.signal_name})" if isinstance(exc, Interrupted) and exc.signum != signal.SIGINT else ""
+            emit(f"ladar: interrupted{how}: nothing of the run was written", err=True)
+            return exit_code(exc) if isinstance(exc, KeyboardInterrupt) else EXIT_INTERRUPTED
 
 
 def register():

@@ -41,7 +41,6 @@ import math
 import os
 import re
 import shutil
-import sys
 import threading
 import time
 from pathlib import Path
@@ -55,7 +54,8 @@ from ..core.config.settings import config_to_dict, load_config, validate
 from ..core.geometry.motion import Trajectory
 from ..core.errors import Cancelled
 from ..core.systems.flash import run_simulation
-from ..core.fileio.run_folder import commit_run_dir, new_temp_dir
+from ..core.fileio.staging import check_run_dir, claim_run_dir, free_run_path
+from ..core.process import emit
 from .errors import LadarError
 from .export import frame_dependent_objects, geometry_digest, scene_geometry_from_depsgraph
 from .properties import check_sensor, config_from_blender, unit_scale
@@ -174,19 +174,18 @@ def progress_printer(prefix="ladar: "):
     def progress(fraction, message=""):
         with state["lock"]:
             if fraction + 1e-9 >= state["next"] or fraction >= 1.0:
-                print(f"{prefix}{100 * fraction:5.1f}% {message} ({time.perf_counter() - state['t0']:.2f} s)",
-                      flush=True)
+                emit(f"{prefix}{100 * fraction:5.1f}% {message} ({time.perf_counter() - state['t0']:.2f} s)")
                 state["next"] = min(1.0, fraction + 0.1)
     return progress
 
 
 def _log(message):
     if bpy.app.background:
-        print(f"ladar: {message}", flush=True)
+        emit(f"ladar: {message}")
 
 
 def print_error(message: str) -> None:
-    print(f"ladar: error: {message}", file=sys.stderr, flush=True)
+    emit(f"ladar: error: {message}", err=True)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -369,13 +368,10 @@ class SimulationJob:
 
         last = self.frames[-1] if self.sequence else None
         run_path = resolve_run_dir(scene, self.sensor, self.frames[0], out_dir, last)
+        self.requested_path = run_path  # "NEW": numbered from this name when the run claims its folder
         if if_exists == "NEW":
-            run_path = self._free_run_path(run_path)
-        if run_path.exists() and not run_path.is_dir():
-            raise ConfigError("out", str(run_path), "a folder path (a file of that name exists)")
-        if run_path.exists() and not self.replace:
-            raise ConfigError("out", str(run_path), "a run folder that does not exist yet (or overwrite it: "
-                                                    "--overwrite, Scene > Ladar > If Exists: Replace or New Name)")
+            run_path = free_run_path(run_path, self._name_taken)
+        check_run_dir(run_path, overwrite=self.replace)  # replaces only a previous run (core.fileio.staging)
         self.run_path = run_path
         self.run_name = run_path.name
         if self.import_results:
@@ -406,15 +402,13 @@ class SimulationJob:
         self._thread = None
         self._worker_done = threading.Event()
         self._worker_error = None
+        self.claim = None           # core.fileio.staging.RunClaim from start() on
 
     # -- set-up helpers ---------------------------------------------------------------------------------------
-    def _free_run_path(self, path: Path) -> Path:
-        frames = self.frames if self.sequence else None
-        for k in range(1, 10_000):
-            cand = path if k == 1 else path.with_name(f"{path.name}_{k}")
-            if not cand.exists() and not (self.import_results and existing_results(cand.name, frames, self.clouds)):
-                return cand
-        raise LadarError(f"no free run name next to {path}")  # pragma: no cover
+    def _name_taken(self, path: Path) -> bool:
+        """A run name whose results are already in the scene (with "NEW", the next name is taken)."""
+        return self.import_results and bool(existing_results(path.name, self.frames if self.sequence else None,
+                                                             self.clouds))
 
     def _extra_metadata(self, first: FrameInputs) -> dict:
         blender = {"version": bpy.app.version_string, "file": bpy.data.filepath, "scene": self.scene.name,
@@ -452,16 +446,26 @@ class SimulationJob:
     def start(self, threaded: bool = True) -> None:
         if self.state != "ready":
             raise RuntimeError(f"the job is {self.state}")
+        # claim the folder's name now: a concurrent run of the same name refuses ("NEW": takes the next name)
+        if self.if_exists == "NEW":
+            self.claim = claim_run_dir(self.requested_path, if_exists="new", taken=self._name_taken)
+        else:
+            self.claim = claim_run_dir(self.run_path, if_exists=self.if_exists)
+        self.run_path, self.run_name = self.claim.path, self.claim.path.name
         self.threaded = threaded
         self.state = "running"
         self.t_start = time.perf_counter()
-        _log(f"simulating {self.run_name} ({self.cfg.system_type}, "
-             + (f"frames {self.frames[0]}…{self.frames[-1]} ({len(self.frames)})" if self.sequence
-                else f"frame {self.frames[0]}") + f", seed {self.cfg.run.seed}) into {self.run_path}")
-        if threaded:
-            self._thread = threading.Thread(target=self._worker_main, name="ladar-simulate", daemon=True)
-            self._thread.start()
-        else:
+        try:
+            _log(f"simulating {self.run_name} ({self.cfg.system_type}, "
+                 + (f"frames {self.frames[0]}…{self.frames[-1]} ({len(self.frames)})" if self.sequence
+                    else f"frame {self.frames[0]}") + f", seed {self.cfg.run.seed}) into {self.run_path}")
+            if threaded:
+                self._thread = threading.Thread(target=self._worker_main, name="ladar-simulate", daemon=True)
+                self._thread.start()
+        except BaseException:
+            self.claim.release()
+            raise
+        if not threaded:
             self._worker_main()
             self._finish()
 
@@ -533,38 +537,22 @@ class SimulationJob:
         return inputs
 
     def _worker_main(self):
-        staging = None
-        created = []  # folders this run creates above the run folder (removed again if it fails)
-        parent = self.run_path.parent
-        while not parent.exists():
-            created.append(parent)
-            parent = parent.parent
         try:
-            self.run_path.parent.mkdir(parents=True, exist_ok=True)
-            staging = new_temp_dir(self.run_path.parent, f".{self.run_name}.staging-")
-            work = staging / "run"
+            work = self.claim.work
             if self.sequence:
                 self._work_sequence(work)
             else:
                 self._work_frame(work)
             if self._cancel.is_set():
                 raise Cancelled()
-            if self.run_path.exists() and not self.replace:  # appeared while the run was going
-                raise ConfigError("out", str(self.run_path), "a run folder that does not exist yet (it was "
-                                                             "created by someone else during the run)")
-            commit_run_dir(work, self.run_path)
+            self.claim.commit()
         except BaseException as exc:
             self._worker_error = exc
         finally:
-            if staging is not None:
-                shutil.rmtree(staging, ignore_errors=True)
-            if self._worker_error is not None:
-                for folder in created:  # deepest first; only if still empty
-                    try:
-                        folder.rmdir()
-                    except OSError:
-                        break
-            self._worker_done.set()
+            try:
+                self.claim.release()  # the staging folder (and the folders the claim created, if not committed)
+            finally:
+                self._worker_done.set()
 
     def _work_frame(self, work: Path):
         inputs = self._frame_inputs(self.frames[0])

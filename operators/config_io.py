@@ -20,7 +20,8 @@ class LADAR_OT_export_config(bpy.types.Operator, ExportHelper):
 
     def execute(self, context):
         try:
-            path = export_config(context.scene, self.filepath, active_sensor(context.scene))
+            # the file browser shows an existing file in red and the user confirms it: replace it
+            path = export_config(context.scene, self.filepath, active_sensor(context.scene), overwrite=True)
         except (ConfigError, LadarError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

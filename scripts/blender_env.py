@@ -22,6 +22,11 @@ import tempfile
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+if str(REPO_ROOT) not in sys.path:
+    sys.path.append(str(REPO_ROOT))
+import core.fileio.locks as locks  # noqa: E402  (standard library only: safe before `import bpy`)
+
+TEMP_PREFIX = "ladar_blender_"
 EXTENSION_ID = "ladar_simulator"
 REPO_MODULE = "ladar_dev"
 ADDON_MODULE = f"bl_ext.{REPO_MODULE}.{EXTENSION_ID}"
@@ -74,20 +79,40 @@ def package_files(source: Path = REPO_ROOT) -> list[Path]:
 def isolate_user_resources(path: str | os.PathLike | None = None) -> Path:
     """Set ``BLENDER_USER_RESOURCES`` to ``path`` (default: a new temporary folder, removed when the process
     exits — after bpy's own exit handlers, which are registered later and so run first).  Call before
-    ``import bpy``."""
+    ``import bpy``.
+
+    The temporary folder also holds Blender's session temporary folder (``TMPDIR`` points inside it), and it is
+    held by this process (core.fileio.locks): if the process is killed (SIGKILL), the next call removes it."""
     if "bpy" in sys.modules:
         current = os.environ.get("BLENDER_USER_RESOURCES")
-        if current and Path(current).name.startswith("ladar_blender_"):
+        if current and Path(current).name.startswith(TEMP_PREFIX):
             return Path(current)
         raise RuntimeError("bpy is already imported: BLENDER_USER_RESOURCES must be set before `import bpy`")
     if path is None:
-        root = Path(tempfile.mkdtemp(prefix="ladar_blender_"))
+        root = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX))
         atexit.register(shutil.rmtree, root, ignore_errors=True)
+        lock = locks.lock_new_folder(root, purpose="temporary Blender user folder")
+        atexit.register(lock.release)  # runs before the removal (atexit: last registered, first run)
+        remove_abandoned_user_resources(root.parent)
+        session_tmp = root / "tmp"  # Blender's session temporary folder goes inside (removed with it)
+        session_tmp.mkdir()
+        for var in ("TMPDIR", "TEMP", "TMP") if os.name == "nt" else ("TMPDIR",):
+            os.environ[var] = str(session_tmp)
     else:
         root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
     os.environ["BLENDER_USER_RESOURCES"] = str(root)
     return root
+
+
+def remove_abandoned_user_resources(folder) -> list[Path]:
+    """Remove the temporary Blender user folders in ``folder`` whose process is gone (killed before it could
+    remove its own); folders of running processes, and folders without an owner file, are left alone."""
+    removed = []
+    for entry in Path(folder).glob(TEMP_PREFIX + "*"):
+        if entry.is_dir() and (entry / locks.OWNER_FILE).is_file() and locks.remove_if_abandoned(entry):
+            removed.append(entry)
+    return removed
 
 
 def link_package(repo_dir: Path, source: Path = REPO_ROOT) -> Path:

@@ -12,7 +12,9 @@ It does what ``blender -b scene.blend -c ladar ...`` does: with ``BLENDER_USER_R
 temporary folder (set before ``import bpy``), it installs this repository as an extension in a local extension
 repository, enables it as ``bl_ext.ladar_dev.ladar_simulator``, opens the .blend file and calls the command
 handler the extension registers.  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
-130 interrupted (Ctrl-C: nothing of the run is left behind).
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM: batch schedulers, ``timeout``), 129 hung up (SIGHUP).  An
+interrupted run leaves nothing behind: its staging folder and the temporary Blender user folder are removed
+(after a SIGKILL, which cannot be caught, the next run removes them).
 """
 from __future__ import annotations
 
@@ -20,7 +22,11 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_env  # noqa: E402
+try:
+    import blender_env  # noqa: E402  (puts the repository on sys.path: core.process is standard library only)
+    import core.process as process  # noqa: E402
+except KeyboardInterrupt:  # Ctrl-C within the first milliseconds: nothing started yet
+    sys.exit(130)
 
 USAGE = ("usage: ladar_run.py SCENE.blend {simulate,export-config,validate-config} [options]\n"
          "       (ladar_run.py -h: this script; ladar_run.py SCENE.blend simulate -h: the command's options)")
@@ -29,23 +35,27 @@ USAGE = ("usage: ladar_run.py SCENE.blend {simulate,export-config,validate-confi
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
-        print(__doc__ if argv else USAGE, file=sys.stdout if argv else sys.stderr)
+        process.emit(__doc__ if argv else USAGE, err=not argv)
         return 0 if argv else 2
     blend, command = Path(argv[0]), argv[1:]
     if blend.suffix.lower() != ".blend" or not blend.is_file():
-        print(f"ladar: error: {blend} is not an existing .blend file", file=sys.stderr)
+        process.emit(f"ladar: error: {blend} is not an existing .blend file", err=True)
         return 1
 
-    try:
-        blender_env.isolate_user_resources()  # a temporary folder, removed at exit
-        import bpy
+    with process.interrupts_as_exceptions():
+        try:
+            with process.deferred():  # starting Blender is not cut in two: a signal meanwhile ends it right after
+                blender_env.isolate_user_resources()  # a temporary folder, removed at exit
+                import bpy
 
-        addon = blender_env.install_extension()
-        bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
-        return addon.ladar_addon.cli.cli_handler(command)
-    except KeyboardInterrupt:
-        print("ladar: interrupted", file=sys.stderr)
-        return 130
+                addon = blender_env.install_extension()
+                bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
+            return addon.ladar_addon.cli.cli_handler(command)
+        except KeyboardInterrupt as exc:  # while Blender was starting (the command reports its own)
+            how = getattr(exc, "signal_name", "SIGINT")
+            process.emit("ladar: interrupted" + (f" ({how})" if how != "SIGINT" else "") + ": nothing was written",
+                         err=True)
+            return process.exit_code(exc)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """The run folder: every product of a run written atomically next to a metadata record.
 
 A run is assembled in a hidden sibling folder and renamed into place only when every file is complete, so a
-failed or cancelled run leaves nothing behind, and an existing run is never replaced unless asked.
+failed or cancelled run leaves nothing behind, and an existing run is never replaced unless asked (and then only a
+previous run of this tool): the run folder rules are fileio.staging's.
 """
 from __future__ import annotations
 
@@ -9,15 +10,14 @@ import json
 import os
 import platform
 import secrets
-import shutil
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..constants import SPEED_OF_LIGHT_M_S
+from .staging import claim_run_dir
 
 EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
 
@@ -48,17 +48,6 @@ def new_temp_file(parent, prefix: str, suffix: str = "") -> tuple[int, Path]:
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary file name {prefix}…{suffix} in {parent}")
-
-
-def check_run_dir(out_dir, overwrite: bool) -> Path:
-    """Raise ConfigError (writing nothing) if the run folder exists and overwrite is off."""
-    out = Path(out_dir)
-    if out.exists() and not overwrite:
-        raise ConfigError("out", str(out), "a run folder that does not exist yet (or set overwrite to replace "
-                                           "the existing run)")
-    if out.exists() and not out.is_dir():
-        raise ConfigError("out", str(out), "a folder path (a file of that name exists)")
-    return out
 
 
 def write_exr(path, channels: dict, attributes: dict | None = None):
@@ -163,88 +152,81 @@ def software_versions() -> dict:
 
 
 def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Path:
-    """Write a FrameResult's products and ``metadata.json`` atomically into ``out_dir``."""
-    out = check_run_dir(out_dir, overwrite).resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = new_temp_dir(out.parent, f".{out.name}.partial-")
+    """Write a FrameResult's products and ``metadata.json`` atomically into run folder ``out_dir``.
+
+    ``overwrite`` replaces a previous run of this tool in ``out_dir`` (nothing else: fileio.staging)."""
+    with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
+        write_run_files(claim.work, result, metadata)
+        return claim.commit()
+
+
+def write_run_files(folder, result, metadata: dict) -> Path:
+    """Write a FrameResult's products and ``metadata.json`` into the new folder ``folder`` (a claim's work
+    folder: nothing else sees it until it is committed)."""
+    tmp = Path(folder)
+    tmp.mkdir()
     t0 = time.perf_counter()
     units = result.units
-    try:
-        files = {}
-        if result.range_image is not None:
-            gated = getattr(result, "slices", None) is not None
-            what = {"range": "range from the slice stack" if gated else "first-echo range",
-                    "intensity": "strongest slice" if gated else "first-echo peak amplitude",
-                    "energy": "energy received per pixel before time binning"}
-            for product, image in (("range", result.range_image), ("intensity", result.intensity_image),
-                                   ("energy", result.energy_image)):
-                write_exr(tmp / f"{product}.exr", {"Y": image},
-                          exr_attributes(metadata, what[product], units[product]))
-            files.update({"range.exr": f"{what['range']} ({units['range']}), NaN where none; row 0 = top",
-                          "intensity.exr": f"{what['intensity']} ({units['intensity']})",
-                          "energy.exr": f"{what['energy']} ({units['energy']})"})
-        write_ply(tmp / "points.ply", result.points)
-        np.savez(tmp / "points.npz", **result.points)
-        files["points.ply"] = "point cloud, world coordinates + per-point attributes"
-        files["points.npz"] = "the same point cloud as NumPy arrays"
-        if len(result.points.get("range_m", ())):
-            from .las import las_run_facts, write_las
-            write_las(tmp / "points.las", result.points, **las_run_facts(dict(metadata, units=units)))
-            files["points.las"] = ("the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time, "
-                                   "scan angle, classes from the scene's materials, synthetic flag)")
-        if result.range_echoes is not None:
-            np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
-            files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
-        if getattr(result, "digital_waveforms", None) is not None:
-            np.save(tmp / "counts.npy", result.digital_waveforms)
-            files["counts.npy"] = f"receiver output per pixel and bin ({units['counts']})"
-        if result.waveforms is not None:
-            np.save(tmp / "waveforms.npy", result.waveforms)
-            files["waveforms.npy"] = ("waveforms (n_pulses, n_bins)" if result.waveforms.ndim == 2
-                                      else "waveform cube (H, W, n_bins)") + f" float32, {units['waveforms']}"
-        if getattr(result, "pulses", None) is not None:
-            np.savez(tmp / "pulses.npz", **result.pulses)
-            files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
-        if getattr(result, "slices", None) is not None:
-            (tmp / "slices").mkdir()
-            gate_s = float(metadata["settings"]["gated"]["gate_width_s"]) if "settings" in metadata else None
-            for k, img in enumerate(result.slices):
-                delay = float(result.slice_delays_s[k])
-                more = {"ladarSlice": k + 1, "ladarGateDelay_s": delay,
-                        "ladarGateRange_m": 0.5 * SPEED_OF_LIGHT_M_S * delay}
-                if gate_s is not None:
-                    more["ladarGateWidth_s"] = gate_s
-                write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img},
-                          exr_attributes(metadata, f"gated slice {k + 1} of {len(result.slices)}",
-                                         f"{units['slices']} per pixel", **more))
-            np.save(tmp / "slices.npy", result.slices)
-            files["slices/slice_NNNN.exr"] = f"gated slices as an image sequence ({units['slices']} per pixel), 1-based"
-            files["slices.npy"] = f"gated slices (n_slices, H, W) float32, {units['slices']} per pixel"
-        if metadata.get("system_type") == "profiler" and result.waveforms is not None:
-            _write_profile_csv(tmp / "profile.csv", result.waveforms.reshape(-1), metadata)
-            files["profile.csv"] = "the range profile: time_s, range_m, energy_j per bin"
-        meta = dict(metadata)
-        meta["units"] = dict(units)
-        meta["files"] = files
-        meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
-        with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
-            json.dump(meta, f, indent=2, default=json_default)
-        commit_run_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
-
-
-def commit_run_dir(tmp: Path, out: Path) -> None:
-    """Move a completed run folder into place; an existing run (overwrite asked) is swapped out, then removed."""
-    if out.exists():
-        old = new_temp_dir(out.parent, f".{out.name}.old-")
-        os.rename(out, old / "run")
-        os.rename(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, out)
+    files = {}
+    if result.range_image is not None:
+        gated = getattr(result, "slices", None) is not None
+        what = {"range": "range from the slice stack" if gated else "first-echo range",
+                "intensity": "strongest slice" if gated else "first-echo peak amplitude",
+                "energy": "energy received per pixel before time binning"}
+        for product, image in (("range", result.range_image), ("intensity", result.intensity_image),
+                               ("energy", result.energy_image)):
+            write_exr(tmp / f"{product}.exr", {"Y": image},
+                      exr_attributes(metadata, what[product], units[product]))
+        files.update({"range.exr": f"{what['range']} ({units['range']}), NaN where none; row 0 = top",
+                      "intensity.exr": f"{what['intensity']} ({units['intensity']})",
+                      "energy.exr": f"{what['energy']} ({units['energy']})"})
+    write_ply(tmp / "points.ply", result.points)
+    np.savez(tmp / "points.npz", **result.points)
+    files["points.ply"] = "point cloud, world coordinates + per-point attributes"
+    files["points.npz"] = "the same point cloud as NumPy arrays"
+    if len(result.points.get("range_m", ())):
+        from .las import las_run_facts, write_las
+        write_las(tmp / "points.las", result.points, **las_run_facts(dict(metadata, units=units)))
+        files["points.las"] = ("the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time, "
+                               "scan angle, classes from the scene's materials, synthetic flag)")
+    if result.range_echoes is not None:
+        np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
+        files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
+    if getattr(result, "digital_waveforms", None) is not None:
+        np.save(tmp / "counts.npy", result.digital_waveforms)
+        files["counts.npy"] = f"receiver output per pixel and bin ({units['counts']})"
+    if result.waveforms is not None:
+        np.save(tmp / "waveforms.npy", result.waveforms)
+        files["waveforms.npy"] = ("waveforms (n_pulses, n_bins)" if result.waveforms.ndim == 2
+                                  else "waveform cube (H, W, n_bins)") + f" float32, {units['waveforms']}"
+    if getattr(result, "pulses", None) is not None:
+        np.savez(tmp / "pulses.npz", **result.pulses)
+        files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
+    if getattr(result, "slices", None) is not None:
+        (tmp / "slices").mkdir()
+        gate_s = float(metadata["settings"]["gated"]["gate_width_s"]) if "settings" in metadata else None
+        for k, img in enumerate(result.slices):
+            delay = float(result.slice_delays_s[k])
+            more = {"ladarSlice": k + 1, "ladarGateDelay_s": delay,
+                    "ladarGateRange_m": 0.5 * SPEED_OF_LIGHT_M_S * delay}
+            if gate_s is not None:
+                more["ladarGateWidth_s"] = gate_s
+            write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img},
+                      exr_attributes(metadata, f"gated slice {k + 1} of {len(result.slices)}",
+                                     f"{units['slices']} per pixel", **more))
+        np.save(tmp / "slices.npy", result.slices)
+        files["slices/slice_NNNN.exr"] = f"gated slices as an image sequence ({units['slices']} per pixel), 1-based"
+        files["slices.npy"] = f"gated slices (n_slices, H, W) float32, {units['slices']} per pixel"
+    if metadata.get("system_type") == "profiler" and result.waveforms is not None:
+        _write_profile_csv(tmp / "profile.csv", result.waveforms.reshape(-1), metadata)
+        files["profile.csv"] = "the range profile: time_s, range_m, energy_j per bin"
+    meta = dict(metadata)
+    meta["units"] = dict(units)
+    meta["files"] = files
+    meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
+    with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+        json.dump(meta, f, indent=2, default=json_default)
+    return tmp
 
 
 def _write_profile_csv(path, waveform, metadata):

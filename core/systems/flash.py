@@ -28,7 +28,8 @@ from ..physics.propagation import (blur_cube_and_image, effective_extinction_per
                                    stage_seed, turbulence_switches)
 from ..physics.radiometry import received_energy
 from ..geometry.rays import Detector, tan_to_unit_direction
-from ..fileio.run_folder import check_run_dir, software_versions, write_run
+from ..fileio.run_folder import software_versions, write_run_files
+from ..fileio.staging import claim_run_dir
 from ..geometry.culling import frustum_triangles
 from ..engine.memory import BLOCK_WAVEFORM_BYTES, check_flash_memory
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
@@ -514,13 +515,14 @@ def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     """Simulate a frame of any system type and write its run folder.  Returns (run_path, FrameResult).
 
     Nothing is written if the settings or the scene are invalid, if the folder exists and ``overwrite`` is
-    false, or if the run is cancelled.
+    false (with ``overwrite``: if it is not a previous run of this tool), if another run is writing it, or if the
+    run is cancelled.  The folder's name is claimed before the simulation starts (fileio.staging).
     """
-    check_run_dir(out_dir, overwrite)
-    result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
-                      start_time_s=start_time_s, progress=progress, cancel=cancel)
-    if cancel is not None and cancel():
-        raise Cancelled()
-    meta = run_metadata(config, result, frame, extra_metadata)
-    path = write_run(out_dir, result, meta, overwrite=overwrite)
+    with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
+        result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                          start_time_s=start_time_s, progress=progress, cancel=cancel)
+        if cancel is not None and cancel():
+            raise Cancelled()
+        write_run_files(claim.work, result, run_metadata(config, result, frame, extra_metadata))
+        path = claim.commit()
     return path, result

@@ -40,7 +40,7 @@ def lad(addon):
                        ("results", "ladar_addon.results"), ("simulate", "ladar_addon.simulate"),
                        ("cli", "ladar_addon.cli"), ("sensor", "ladar_addon.sensor"),
                        ("errors", "ladar_addon.errors"), ("config", "core.config"), ("scene", "core.geometry.scene"),
-                       ("flash", "core.systems.flash")]:
+                       ("flash", "core.systems.flash"), ("staging", "core.fileio.staging")]:
         setattr(ns, short, importlib.import_module(f"{name}.{mod}"))
     return ns
 

@@ -1,0 +1,300 @@
+"""Run folders: claimed before the run, built hidden, renamed into place; never anything else replaced.
+
+The one implementation of the staged run folder (used by ``fileio.run_folder.write_run``,
+``systems.flash.run_simulation``, ``sequence.run_sequence``, the add-on's job and the command line).  Rules:
+
+* **Claim first.**  A run claims its folder's name when it starts, by creating the hidden staging folder
+  ``.<name>.<hash>.ladar-staging`` beside it (``mkdir`` is atomic).  Inside is an owner file, locked by the
+  running process for as long as the claim lives (``flock``; released by the kernel when the process ends,
+  even by SIGKILL) and recording pid, host and start time.  A second run for the same name finds the claim held
+  and refuses (``if_exists="stop"``/``"replace"``) or takes the next free name (``"new"``: ``<name>_2`` …).
+* **Replace only a run.**  With ``replace`` an existing folder is replaced only when it is recognisably a run of
+  this tool (its ``metadata.json`` has a ``format`` starting with ``ladar-``), not a mount point, and neither
+  the current folder nor one containing it.  Anything else is refused, naming it, before any work.
+* **Build hidden, rename into place.**  The products go into ``<staging>/run``; :meth:`RunClaim.commit` moves
+  the previous run (if any) into the staging folder, renames the new one into place and removes the old one.
+  A failed, cancelled or interrupted run removes its staging folder and leaves nothing.
+* **Clean what dead runs left.**  Every claim first removes the staging folders beside it whose owner is gone
+  (lock free; without a lock, same host and that pid no longer running) — and only those.  If a run died
+  between its two renames, the previous run it was replacing is put back.
+* **Names fit.**  The staging name is short whatever the run name (a prefix and a hash), so a run name up to
+  the file system's limit (255 bytes) works.
+"""
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+
+from ..errors import ConfigError
+from ..process import deferred
+from .locks import OWNER_FILE, FolderLock, lock_new_folder, remove_if_abandoned
+
+STAGING_SUFFIX = ".ladar-staging"
+#: Longest file name (bytes) where the file system does not say.
+DEFAULT_NAME_MAX = 255
+
+# ------------------------------------------------------------------------------------------------------------
+# Run folders
+# ------------------------------------------------------------------------------------------------------------
+def _name_max(folder: Path) -> int:
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return DEFAULT_NAME_MAX
+
+
+def staging_path(out: Path) -> Path:
+    """The hidden staging folder of run folder ``out``: ``.<prefix>.<hash>.ladar-staging`` (≤ 140 bytes)."""
+    name = out.name
+    prefix = os.fsencode(name)[:100].decode("utf-8", "ignore") if os.name != "nt" else name[:100]
+    digest = hashlib.sha256(os.fsencode(name)).hexdigest()[:16]
+    return out.with_name(f".{prefix}.{digest}{STAGING_SUFFIX}")
+
+
+def is_run_folder(path) -> bool:
+    """A folder this tool wrote: a ``metadata.json`` whose ``format`` starts with ``ladar-``."""
+    path = Path(path)
+    meta = path / "metadata.json"
+    try:
+        if not path.is_dir() or not meta.is_file() or meta.stat().st_size > 64 * 2**20:
+            return False
+        data = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+        return False
+    return isinstance(data, dict) and isinstance(data.get("format"), str) and data["format"].startswith("ladar-")
+
+
+def _refuse(out: Path, allowed: str):
+    raise ConfigError("out", str(out), allowed)
+
+
+def _checked_name(out_dir) -> Path:
+    """The absolute path, if its name fits the file system (else ConfigError)."""
+    out = Path(os.path.abspath(Path(out_dir).expanduser()))
+    if not out.name:
+        _refuse(out, "a run folder path with a name (not a file system root)")
+    parent = out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    limit = _name_max(parent)
+    if len(os.fsencode(out.name)) > limit:
+        _refuse(out, f"a folder name of at most {limit} bytes (this one has {len(os.fsencode(out.name))})")
+    return out
+
+
+def _numbered(base: Path):
+    """``base``, ``<base>_2``, ``<base>_3`` … (each checked to fit the file system)."""
+    for k in range(1, 10_000):
+        yield _checked_name(base if k == 1 else base.with_name(f"{base.name}_{k}"))
+    _refuse(base, "a folder name with a free numbered variant (<name>_2 … <name>_9999 are all taken)")
+
+
+def free_run_path(out_dir, taken=None) -> Path:
+    """The first of ``out_dir``, ``<out_dir>_2`` … that does not exist (and that ``taken(path)`` does not
+    declare taken).  Only a claim (:func:`claim_run_dir` with ``if_exists="new"``) makes it this run's."""
+    for cand in _numbered(_checked_name(out_dir)):
+        if not (cand.exists() or cand.is_symlink() or (taken is not None and taken(cand))):
+            return cand
+
+
+def check_run_dir(out_dir, overwrite: bool) -> Path:
+    """Refuse (ConfigError, nothing written) a run folder that may not be written: its name is too long, it
+    exists and ``overwrite`` is off, or it exists and is not a run of this tool that may be replaced (see
+    :func:`check_replaceable`).  Returns the absolute path."""
+    out = _checked_name(out_dir)
+    if out.exists() or out.is_symlink():
+        if not out.is_dir():
+            _refuse(out, "a folder path (a file of that name exists)")
+        if not overwrite:
+            _refuse(out, "a run folder that does not exist yet (or overwrite it: --overwrite, "
+                         "Scene > Ladar > If Exists: Replace or New Name)")
+        check_replaceable(out)
+    return out
+
+
+def check_replaceable(out: Path) -> None:
+    """Refuse replacing ``out`` unless it is a previous run of this tool that can be swapped out."""
+    out = Path(out)
+    real = Path(os.path.realpath(out))
+    try:
+        cwd = Path(os.path.realpath(os.getcwd()))
+    except OSError:  # pragma: no cover - the current folder was removed
+        cwd = None
+    if cwd is not None and (real == cwd or real in cwd.parents):
+        _refuse(out, "a run folder to replace, not the current folder or one containing it (choose a new "
+                     "folder name)")
+    if os.path.ismount(real):
+        _refuse(out, "a run folder to replace, not a mount point (write the run into a folder inside it)")
+    if not is_run_folder(out):
+        _refuse(out, "an existing folder is replaced only if it is a previous run of this simulator (its "
+                     "metadata.json); this one is not: choose another folder or remove it yourself")
+
+
+def _restore_previous(staging: Path, record: dict) -> None:
+    """A run died between its two renames: put the run it was replacing back in place."""
+    old, name = staging / "old", record.get("run")
+    if not name or not old.is_dir():
+        return
+    out = staging.with_name(name)
+    if not out.exists():
+        os.rename(old, out)
+
+
+def remove_abandoned_staging(parent) -> list[Path]:
+    """Remove the staging folders in ``parent`` left by runs whose process is gone (see module doc)."""
+    removed = []
+    try:
+        entries = [e for e in os.scandir(parent) if e.name.endswith(STAGING_SUFFIX) and e.is_dir()]
+    except OSError:
+        return removed
+    for entry in entries:
+        if remove_if_abandoned(entry.path, restore=_restore_previous):
+            removed.append(Path(entry.path))
+    return removed
+
+
+class RunClaim:
+    """This process's right to write run folder :attr:`path`: build the run in :attr:`work` (it does not exist
+    yet: create it, or let ``write_run`` create it), then :meth:`commit`; :meth:`release` always (or use
+    ``with``)."""
+
+    def __init__(self, path: Path, staging: Path, lock: FolderLock, replace: bool, created: list[Path]):
+        self.path, self.staging, self.replace = path, staging, replace
+        self.work = staging / "run"
+        self._lock, self._created, self.committed = lock, created, False
+
+    def commit(self) -> Path:
+        """Rename :attr:`work` into place.  An existing folder is replaced only if this claim may replace it and
+        it (still) is a run of this tool; otherwise ConfigError and the work stays in staging."""
+        out, old = self.path, self.staging / "old"
+        if not self.work.is_dir():
+            raise FileNotFoundError(errno.ENOENT, "the run was not built", str(self.work))
+        with deferred():
+            if out.exists() or out.is_symlink():
+                if not self.replace:
+                    _refuse(out, "a run folder that does not exist yet (it was created by someone else during "
+                                 "the run)")
+                check_replaceable(out)
+                os.rename(out, old)
+                try:
+                    os.rename(self.work, out)
+                except BaseException:
+                    os.rename(old, out)
+                    raise
+            else:
+                try:
+                    os.rename(self.work, out)
+                except OSError as exc:
+                    if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+                        _refuse(out, "a run folder that does not exist yet (it was created by someone else "
+                                     "during the run)")
+                    raise
+            self.committed = True
+        shutil.rmtree(old, ignore_errors=True)
+        return out
+
+    def release(self) -> None:
+        """Remove the staging folder (and, if nothing was committed, the empty folders the claim created)."""
+        if self._lock is None:
+            return
+        with deferred():
+            self._lock.release()
+            self._lock = None
+            shutil.rmtree(self.staging, ignore_errors=True)
+            if not self.committed:
+                for folder in self._created:  # deepest first; only while empty
+                    try:
+                        folder.rmdir()
+                    except OSError:
+                        break
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
+
+
+def _busy(out: Path, staging: Path) -> str:
+    try:
+        record = json.loads((staging / OWNER_FILE).read_text(encoding="utf-8"))
+        who = f" (pid {record.get('pid')} on {record.get('host')}, started " \
+              f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(record.get('started_unix_s', 0)))})"
+    except (OSError, ValueError, TypeError, UnicodeDecodeError, OverflowError):
+        who = ""
+    return f"a run folder no other run is writing: another run is writing this one{who}"
+
+
+def _try_claim(out: Path, replace: bool, created: list[Path]) -> RunClaim | None:
+    """Create the staging folder of ``out``; None if another live run holds it."""
+    staging = staging_path(out)
+    for _ in range(3):
+        with deferred():
+            try:
+                os.mkdir(staging)
+            except FileExistsError:
+                pass
+            else:
+                try:
+                    lock = lock_new_folder(staging, run=out.name, path=str(out))
+                except BaseException:
+                    shutil.rmtree(staging, ignore_errors=True)
+                    raise
+                return RunClaim(out, staging, lock, replace, created)
+        if not remove_if_abandoned(staging, restore=_restore_previous):
+            return None
+    return None  # pragma: no cover - lost three races for an abandoned claim
+
+
+def claim_run_dir(out_dir, *, if_exists: str = "stop", taken=None) -> RunClaim:
+    """Claim run folder ``out_dir`` for this process (see module doc).
+
+    ``if_exists``: "stop" refuses an existing folder, "replace" replaces a previous run of this tool (nothing
+    else), "new" takes the next free name (``<name>_2`` …; ``taken(path)`` may declare more names taken).
+    Raises ConfigError (field ``out``) naming the folder; nothing is left behind then."""
+    mode = str(if_exists).lower()
+    if mode not in ("stop", "replace", "new"):
+        raise ConfigError("if_exists", if_exists, "one of stop, replace, new")
+    base = check_run_dir(out_dir, overwrite=mode == "replace") if mode != "new" else _checked_name(out_dir)
+    created = []
+    parent = base.parent
+    while not parent.exists():
+        created.append(parent)
+        parent = parent.parent
+    base.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        remove_abandoned_staging(base.parent)
+        if mode != "new":
+            claim = _try_claim(base, mode == "replace", created)
+            if claim is None:
+                _refuse(base, _busy(base, staging_path(base)))
+            if base.exists() or base.is_symlink():  # re-checked under the claim
+                try:
+                    check_run_dir(base, overwrite=mode == "replace")
+                except BaseException:
+                    claim.release()
+                    raise
+            return claim
+        for cand in _numbered(base):
+            if cand.exists() or cand.is_symlink() or (taken is not None and taken(cand)):
+                continue
+            claim = _try_claim(cand, False, created)
+            if claim is None:
+                continue
+            if cand.exists() or cand.is_symlink():  # appeared before the claim
+                claim.release()
+                continue
+            return claim
+    except BaseException:
+        for folder in created:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise

@@ -1,0 +1,126 @@
+"""Fault injection (issue 15): ``scripts/ladar_run.py`` in a subprocess is sent SIGTERM, SIGHUP, SIGINT or
+SIGKILL at several points of a run — while Blender starts, when the run starts, while tracing, while writing —
+and afterwards nothing of it is left: no hidden staging folder beside the run folder, no temporary Blender user
+folder (nor Blender's own session folder) in the temporary directory.  SIGKILL cannot be caught: the next run
+recognises what the killed one left and removes it.  A re-run then succeeds.
+
+Each case runs in its own temporary directory (``TMPDIR``) so that the check sees only its own leftovers.
+"""
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+BLEND = REPO / "sample_blends" / "flash_demo.blend"
+
+#: Signal once a stdout line contains this (the run's phase).
+PHASES = {"start": "ladar: simulating", "tracing": "% block 1/", "writing": "PNG previews"}
+
+
+class Case:
+    def __init__(self, root: Path, name: str):
+        self.dir = root / name
+        self.work = self.dir / "work"      # the current folder; run folders go here
+        self.tmp = self.dir / "tmp"        # TMPDIR of the subprocess
+        self.work.mkdir(parents=True)
+        self.tmp.mkdir()
+        # more rays make tracing take a few seconds (256×256 pixels, 16 rays each)
+        self.slow = self.dir / "slow.toml"
+        self.slow.write_text("[receiver]\nwidth_px = 256\nheight_px = 256\nsubsamples = 4\n")
+
+    def launch(self, *args):
+        env = dict(os.environ, TMPDIR=str(self.tmp))
+        return subprocess.Popen([sys.executable, "-u", str(REPO / "scripts" / "ladar_run.py"), str(BLEND),
+                                 "simulate", "--no-import", *args], cwd=self.work, env=env, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    def run_and_signal(self, sig, phase=None, delay_s=None, slow=False, out="r"):
+        args = ["--out", out] + (["--config", str(self.slow)] if slow else [])
+        p = self.launch(*args)
+        seen = threading.Event()
+        lines = []
+
+        def pump():
+            for line in p.stdout:
+                lines.append(line)
+                if phase is not None and PHASES[phase] in line:
+                    seen.set()
+            seen.set()
+
+        reader = threading.Thread(target=pump, daemon=True)
+        reader.start()
+        if phase is not None:
+            assert seen.wait(240), f"no {phase!r} line"
+            assert p.poll() is None, f"the run ended before {phase}: {''.join(lines)}"
+        else:
+            time.sleep(delay_s)
+        p.send_signal(sig)
+        err = p.stderr.read()
+        p.wait(240)
+        reader.join(10)
+        return p.returncode, "".join(lines), err
+
+    def staging(self):
+        return sorted(p.name for p in self.work.iterdir() if p.name.startswith("."))
+
+    def temporaries(self):
+        return sorted(p.name for p in self.tmp.iterdir())
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    path = tmp_path_factory.mktemp("faults")
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def _assert_clean_interruption(case, code, err, sig):
+    assert "Traceback" not in err, err
+    assert code == 128 + sig, (code, err)
+    assert err.strip().splitlines()[-1].startswith("ladar: interrupted"), err
+    assert case.staging() == [], "staging folder left behind"
+    assert case.temporaries() == [], "temporary Blender folder left behind"
+    run = case.work / "r"
+    # nothing of the run — or, when the signal came after the run was moved into place, the complete run
+    assert not run.exists() or (run / "metadata.json").is_file()
+
+
+def test_signals_at_every_point_of_a_run_leave_nothing_and_a_rerun_succeeds(root):
+    """SIGTERM (batch schedulers, ``timeout``) at the start, while tracing and while writing, SIGHUP while
+    writing: handled like Ctrl-C.  Then SIGKILL while tracing and while writing: the leftovers are there, and the
+    next run removes them.  All in one folder and one TMPDIR, so every case also sees the earlier ones' leftovers."""
+    case = Case(root, "signals")
+    for sig, phase, slow in ((signal.SIGTERM, "start", False), (signal.SIGTERM, "tracing", True),
+                             (signal.SIGTERM, "writing", False), (signal.SIGHUP, "writing", False)):
+        code, _, err = case.run_and_signal(sig, phase=phase, slow=slow)
+        _assert_clean_interruption(case, code, err, sig)
+        shutil.rmtree(case.work / "r", ignore_errors=True)  # (a run the signal came too late for)
+    for phase, slow, out in (("tracing", True, "r"), ("writing", False, "k")):
+        code, _, _ = case.run_and_signal(signal.SIGKILL, phase=phase, slow=slow, out=out)
+        assert code == -signal.SIGKILL
+        # SIGKILL: nothing could clean up; the run killed before (if any) had its leftovers removed by this one
+        left = case.staging()
+        assert len(left) == 1 and left[0].startswith(f".{out}.") and left[0].endswith(".ladar-staging"), left
+        assert len(case.temporaries()) == 1 and case.temporaries()[0].startswith("ladar_blender_")
+    again = case.launch("--out", "r")  # the same name as a killed run: its stale claim is removed and taken
+    out, err = again.communicate(timeout=240)
+    assert again.returncode == 0, err
+    assert (case.work / "r" / "metadata.json").is_file()
+    assert case.staging() == [], "the next run did not remove what the killed runs left"
+    assert case.temporaries() == [], "the next run did not remove the killed runs' temporary Blender folders"
+
+
+@pytest.mark.parametrize("delay_s", [0.1, 0.25])
+def test_ctrl_c_while_blender_starts_is_handled(root, delay_s):
+    case = Case(root, f"early-{delay_s}")
+    code, _, err = case.run_and_signal(signal.SIGINT, delay_s=delay_s)
+    assert "Traceback" not in err and code == 130, (code, err)
+    assert case.staging() == [] and case.temporaries() == []
+    assert not (case.work / "r").exists()

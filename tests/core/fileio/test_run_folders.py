@@ -1,0 +1,271 @@
+"""Run folders never destroy a user's files (core/fileio/staging.py, core/fileio/locks.py, core/process.py):
+
+* ``overwrite`` replaces only a previous run of this tool (its metadata.json), never another folder, the current
+  folder, a folder containing it or a mount point;
+* a run claims its folder's name before it starts: a second run of the same name refuses, or (``new``) takes
+  the next name;
+* a staging folder left by a dead run (SIGKILL) is removed by the next run — and only such folders;
+* run names up to the file system's 255-byte limit work (the staging name is short whatever the run name);
+* signals end a command like Ctrl-C, never in the middle of a rename; output survives a closed pipe.
+"""
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import core.process as process
+from core.errors import ConfigError
+from core.fileio.locks import OWNER_FILE
+from core.fileio.staging import claim_run_dir, is_run_folder, staging_path
+from core.sequence import run_sequence
+from core.systems.flash import run_simulation
+from scenes import config_for, plate
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _run(out, **kw):
+    return run_simulation(plate(100.0, 10.0), np.eye(4), config_for(100.0, pixels=4), out, **kw)
+
+
+def _names(folder):
+    return sorted(p.name for p in Path(folder).iterdir())
+
+
+# ------------------------------------------------------------------------------------------------------------
+# overwrite replaces only a run
+# ------------------------------------------------------------------------------------------------------------
+def test_overwrite_refuses_a_folder_that_is_not_a_run(tmp_path):
+    folder = tmp_path / "d"
+    folder.mkdir()
+    (folder / "thesis.txt").write_text("data")
+    with pytest.raises(ConfigError) as info:
+        _run(folder, overwrite=True)
+    assert info.value.field == "out" and str(folder) in str(info.value)
+    assert "previous run" in str(info.value)
+    assert (folder / "thesis.txt").read_text() == "data"
+    assert _names(tmp_path) == ["d"] and _names(folder) == ["thesis.txt"]  # nothing hidden left either
+
+
+@pytest.mark.parametrize("metadata", ['{"format": "something-else"}', "not json", '["ladar-run"]', ""])
+def test_a_metadata_file_that_is_not_ours_does_not_make_a_run(tmp_path, metadata):
+    folder = tmp_path / "d"
+    folder.mkdir()
+    (folder / "metadata.json").write_text(metadata)
+    assert not is_run_folder(folder)
+    with pytest.raises(ConfigError, match="previous run"):
+        _run(folder, overwrite=True)
+    assert (folder / "metadata.json").read_text() == metadata
+
+
+def test_overwrite_replaces_a_previous_run_and_a_sequence(tmp_path):
+    path, _ = _run(tmp_path / "r")
+    (path / "extra.txt").write_text("a product of the old run")
+    assert is_run_folder(path)
+    _run(tmp_path / "r", overwrite=True)
+    assert "extra.txt" not in _names(path) and is_run_folder(path)
+    cfg = config_for(100.0, pixels=4)
+    seq, _ = run_sequence([1, 2], lambda f: plate(100.0, 10.0), lambda f: np.eye(4), cfg, tmp_path / "s")
+    assert json.loads((seq / "metadata.json").read_text())["format"] == "ladar-sequence" and is_run_folder(seq)
+    run_sequence([1], lambda f: plate(100.0, 10.0), lambda f: np.eye(4), cfg, tmp_path / "s", overwrite=True)
+    assert json.loads((seq / "metadata.json").read_text())["frames"] == [1]
+    assert _names(tmp_path) == ["r", "s"]
+
+
+def test_overwrite_never_replaces_the_current_folder_or_one_containing_it(tmp_path, monkeypatch):
+    path, _ = _run(tmp_path / "r")
+    inner = path / "notes"
+    inner.mkdir()
+    for cwd, out in ((path, "."), (inner, "..")):
+        monkeypatch.chdir(cwd)
+        with pytest.raises(ConfigError, match="current folder"):
+            _run(out, overwrite=True)
+    assert is_run_folder(path) and (path / "notes").is_dir()
+    # and a current folder with the user's files is not a run: refused too
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("data")
+    with pytest.raises(ConfigError):
+        _run(".", overwrite=True)
+    assert (tmp_path / "notes.txt").read_text() == "data"
+
+
+def test_overwrite_refuses_a_mount_point_and_leaves_nothing(tmp_path, monkeypatch):
+    path, _ = _run(tmp_path / "m")
+    real_ismount = os.path.ismount
+    monkeypatch.setattr(os.path, "ismount", lambda p: os.path.realpath(p) == str(path) or real_ismount(p))
+    with pytest.raises(ConfigError, match="mount point"):
+        _run(path, overwrite=True)
+    assert _names(tmp_path) == ["m"]  # no empty ".old-…" folder, no staging
+
+
+def test_a_run_replaced_by_someone_else_meanwhile_is_not_overwritten(tmp_path):
+    """The folder is checked again when the new run is moved into place."""
+    _run(tmp_path / "r")
+    claim = claim_run_dir(tmp_path / "r", if_exists="replace")
+    with claim:
+        claim.work.mkdir()
+        (claim.work / "metadata.json").write_text('{"format": "ladar-run"}')
+        for f in (tmp_path / "r").iterdir():  # the user replaced the run by their own files during the run
+            f.unlink()
+        (tmp_path / "r" / "thesis.txt").write_text("data")
+        with pytest.raises(ConfigError, match="previous run"):
+            claim.commit()
+    assert _names(tmp_path / "r") == ["thesis.txt"] and _names(tmp_path) == ["r"]
+
+
+# ------------------------------------------------------------------------------------------------------------
+# names are claimed before the run
+# ------------------------------------------------------------------------------------------------------------
+def test_a_claimed_name_is_refused_or_skipped(tmp_path):
+    _run(tmp_path / "r")
+    with claim_run_dir(tmp_path / "r", if_exists="replace") as held:
+        with pytest.raises(ConfigError, match="another run is writing") as info:
+            _run(tmp_path / "r", overwrite=True)
+        assert f"pid {os.getpid()}" in str(info.value)
+        with claim_run_dir(tmp_path / "r", if_exists="new") as second:
+            assert second.path == tmp_path / "r_2"
+            with claim_run_dir(tmp_path / "r", if_exists="new") as third:
+                assert third.path == tmp_path / "r_3"
+        assert held.path == tmp_path / "r"
+    assert _names(tmp_path) == ["r"]
+    with claim_run_dir(tmp_path / "r", if_exists="new") as again:  # the free name after the releases
+        assert again.path == tmp_path / "r_2"
+
+
+_HOLDER = textwrap.dedent("""
+    import os, sys
+    sys.path.insert(0, sys.argv[1])
+    from core.fileio.staging import claim_run_dir
+    claim = claim_run_dir(sys.argv[2], if_exists=sys.argv[3])
+    if sys.argv[4] == "mid-commit":  # die between the two renames of a replacement
+        os.rename(claim.path, claim.staging / "old")
+        os._exit(0)
+    print("claimed", flush=True)
+    sys.stdin.readline()
+""")
+
+
+def _holder(out, mode="stop", stage="hold"):
+    p = subprocess.Popen([sys.executable, "-c", _HOLDER, str(REPO), str(out), mode, stage], stdin=subprocess.PIPE,
+                         stdout=subprocess.PIPE, text=True)
+    if stage == "hold":
+        assert p.stdout.readline().strip() == "claimed"
+    else:
+        p.wait(60)
+    return p
+
+
+def test_another_process_holding_the_name_is_refused_and_its_leftovers_removed_once_it_is_killed(tmp_path):
+    _run(tmp_path / "r")
+    before = (tmp_path / "r" / "metadata.json").read_bytes()
+    holder = _holder(tmp_path / "r", "replace")
+    try:
+        with pytest.raises(ConfigError, match=f"another run is writing this one \\(pid {holder.pid} "):
+            _run(tmp_path / "r", overwrite=True)
+        assert staging_path(tmp_path / "r").is_dir()
+        with claim_run_dir(tmp_path / "other") as claim:  # a live run's staging is left alone
+            assert claim.path.name == "other"
+        assert staging_path(tmp_path / "r").is_dir()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert staging_path(tmp_path / "r").is_dir()  # SIGKILL: nothing could clean up
+    path, _ = _run(tmp_path / "x")  # the next run, even for another name, removes it
+    assert _names(tmp_path) == ["r", "x"]
+    assert (tmp_path / "r" / "metadata.json").read_bytes() == before
+
+
+def test_a_run_killed_between_its_two_renames_gets_the_previous_run_back(tmp_path):
+    _run(tmp_path / "r")
+    before = (tmp_path / "r" / "metadata.json").read_bytes()
+    _holder(tmp_path / "r", "replace", "mid-commit")
+    assert not (tmp_path / "r").exists() and (staging_path(tmp_path / "r") / "old" / "metadata.json").is_file()
+    _run(tmp_path / "y")
+    assert _names(tmp_path) == ["r", "y"]
+    assert (tmp_path / "r" / "metadata.json").read_bytes() == before
+
+
+def test_only_abandoned_staging_folders_of_this_tool_are_removed(tmp_path, monkeypatch):
+    foreign = tmp_path / ".mine.ladar-staging"  # not ours: no owner file of this tool
+    foreign.mkdir()
+    (foreign / OWNER_FILE).write_text('{"tool": "someone-else"}')
+    young = tmp_path / ".young.0123456789abcdef.ladar-staging"  # a claim being created this instant
+    young.mkdir()
+    legacy = tmp_path / ".r.partial-abc123"  # left by an older version: cannot tell, kept
+    legacy.mkdir()
+    _run(tmp_path / "r")
+    assert _names(tmp_path) == sorted([foreign.name, young.name, legacy.name, "r"])
+    monkeypatch.setattr("core.fileio.locks.OWNERLESS_GRACE_S", 0.0)  # an owner-less claim this old: its creator died
+    time.sleep(0.01)
+    _run(tmp_path / "s")
+    assert _names(tmp_path) == sorted([foreign.name, legacy.name, "r", "s"])
+
+
+# ------------------------------------------------------------------------------------------------------------
+# names up to the file system's limit
+# ------------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["r" * 240, "r" * 250, "r" * 255, "é" * 127 + "r"])
+def test_a_legal_long_run_name_works(tmp_path, name):
+    assert len(os.fsencode(name)) <= 255
+    path, _ = _run(tmp_path / name)
+    assert path.name == name and is_run_folder(path)
+    assert len(os.fsencode(staging_path(path).name)) < 150
+    _run(tmp_path / name, overwrite=True)
+    assert _names(tmp_path) == [name]
+
+
+def test_a_name_over_the_limit_is_a_clean_error(tmp_path):
+    with pytest.raises(ConfigError, match="at most 255 bytes"):
+        _run(tmp_path / ("r" * 256))
+    with claim_run_dir(tmp_path / ("r" * 254), if_exists="new") as claim:
+        assert claim.path.name == "r" * 254
+        with pytest.raises(ConfigError, match="at most 255 bytes"):  # <name>_2 would not fit
+            claim_run_dir(tmp_path / ("r" * 254), if_exists="new")
+    assert _names(tmp_path) == []
+
+
+# ------------------------------------------------------------------------------------------------------------
+# signals and output
+# ------------------------------------------------------------------------------------------------------------
+def test_a_signal_inside_a_deferred_block_waits_for_its_end():
+    with process.interrupts_as_exceptions():
+        done = []
+        with pytest.raises(process.Interrupted) as info:
+            with process.deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)
+                done.append(True)  # not cut in two
+        assert done == [True] and info.value.exit_code == 143 and info.value.signal_name == "SIGTERM"
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # handlers restored
+
+
+def test_sighup_raises_like_ctrl_c_and_cleanup_is_not_interrupted_again():
+    with process.interrupts_as_exceptions():
+        with pytest.raises(KeyboardInterrupt) as info:
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(1)
+        assert process.exit_code(info.value) == 129
+        os.kill(os.getpid(), signal.SIGHUP)  # during the clean-up: ignored
+        time.sleep(0.05)
+
+
+def test_emit_survives_a_reader_that_went_away():
+    read, write = os.pipe()
+    os.close(read)
+    stream = io.TextIOWrapper(os.fdopen(write, "wb"), encoding="utf-8")
+    old = signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    try:
+        assert process.emit("progress", stream=stream) is False
+        assert process.emit("more progress", stream=stream) is False
+        stream.close()  # the interpreter's final flush does not fail either
+    finally:
+        signal.signal(signal.SIGPIPE, old)
+
