@@ -171,6 +171,7 @@ def _cmd_simulate(scene, args) -> int:
                         config_path=args.config, if_exists=if_exists, sensor=sensor,
                         import_results=not args.no_import, clouds=args.clouds.upper() if args.clouds else None,
                         previews=not args.no_previews, progress=progress_printer())
+    args.job = job  # an interruption after the run was moved into place says so
     job.run()
     if frames is None:
         emit(run_summary(job.run_path, job.result))
@@ -229,7 +230,11 @@ def cli_handler(argv) -> int:
             return EXIT_USER_ERROR
         except (KeyboardInterrupt, Cancelled) as exc:
             how = f" ({exc.signal_name})" if isinstance(exc, Interrupted) and exc.signum != signal.SIGINT else ""
-            emit(f"ladar: interrupted{how}: nothing of the run was written", err=True)
+            job = getattr(args, "job", None)
+            if job is not None and job.claim is not None and job.claim.committed:
+                emit(f"ladar: interrupted{how} after the run was written to {job.run_path}", err=True)
+            else:
+                emit(f"ladar: interrupted{how}: nothing of the run was written", err=True)
             return exit_code(exc) if isinstance(exc, KeyboardInterrupt) else EXIT_INTERRUPTED
 
 

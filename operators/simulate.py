@@ -77,10 +77,10 @@ cloud and images.  ESC cancels"""
             return self.execute(context)
         try:
             job = self._job(context)
+            job.start(threaded=True)  # claims the run folder's name: another run may hold it
         except _USER_ERRORS as exc:
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
-        job.start(threaded=True)
         set_current_job(job)
         self._job_ref = job
         wm = context.window_manager

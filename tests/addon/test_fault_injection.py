@@ -89,7 +89,10 @@ def _assert_clean_interruption(case, code, err, sig):
     assert case.temporaries() == [], "temporary Blender folder left behind"
     run = case.work / "r"
     # nothing of the run — or, when the signal came after the run was moved into place, the complete run
-    assert not run.exists() or (run / "metadata.json").is_file()
+    if run.exists():
+        assert (run / "metadata.json").is_file() and "after the run was written to" in err, err
+    else:
+        assert "nothing of the run was written" in err, err
 
 
 def test_signals_at_every_point_of_a_run_leave_nothing_and_a_rerun_succeeds(root):

@@ -269,3 +269,42 @@ def test_emit_survives_a_reader_that_went_away():
     finally:
         signal.signal(signal.SIGPIPE, old)
 
+
+
+_ON_A_MOUNT = textwrap.dedent("""
+    import shutil, sys
+    sys.path.insert(0, sys.argv[1]); sys.path.insert(0, sys.argv[1] + "/tests/core")
+    from pathlib import Path
+    import numpy as np
+    from core.errors import ConfigError
+    from core.systems.flash import run_simulation
+    from scenes import config_for, plate
+    parent, mount = Path(sys.argv[2]), Path(sys.argv[3])
+    print("MOUNTED", flush=True)
+    run, _ = run_simulation(plate(100.0, 10.0), np.eye(4), config_for(100.0, pixels=4), parent / "r")
+    for f in run.iterdir():  # the mount holds a previous run
+        shutil.copy2(f, mount / f.name)
+    try:
+        run_simulation(plate(100.0, 10.0), np.eye(4), config_for(100.0, pixels=4), mount, overwrite=True)
+        print("REPLACED")
+    except ConfigError as exc:
+        print("REFUSED", exc)
+    except Exception as exc:
+        print("FAILED", type(exc).__name__, exc)
+""")
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="Linux mount namespaces")
+def test_overwrite_onto_a_real_mount_point_is_refused_and_leaves_nothing(tmp_path):
+    """In a private mount namespace (``unshare``), where allowed: a tmpfs mounted on the run folder."""
+    mount = tmp_path / "m"
+    mount.mkdir()
+    cmd = (f"mount -t tmpfs tmpfs {mount} && exec {sys.executable} -c '{_ON_A_MOUNT}' {REPO} {tmp_path} {mount}")
+    try:
+        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=120)
+    except FileNotFoundError:
+        pytest.skip("no unshare(1)")
+    if "MOUNTED" not in done.stdout:
+        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    assert "REFUSED" in done.stdout and "mount point" in done.stdout, done.stdout + done.stderr
+    assert _names(tmp_path) == ["m", "r"]  # no ".old-…" folder, no staging
