@@ -213,6 +213,14 @@ def recolor(objects, color_by: str) -> tuple[int, list[str]]:
     return done, missing
 
 
+def point_radius(obj) -> float | None:
+    """The display radius (Blender units) of a result point cloud (None without the point modifier)."""
+    mod = obj.modifiers.get("Ladar Points")
+    if mod is None or mod.node_group is None:
+        return None
+    return float(mod[_socket_identifier(mod.node_group, "Point Radius")])
+
+
 def set_point_radius(objects, radius: float) -> int:
     """Set the display radius (Blender units) of result point clouds; returns how many were changed."""
     n = 0
@@ -425,6 +433,7 @@ def create_point_cloud(name: str, points, scene, *, unit_scale: float = 1.0, rep
         for key, offset in offsets.items():
             obj[f"{key.removesuffix('_s')}_offset_s" if key.endswith("_s") else f"{key}_offset"] = offset
         obj[RESULT_TAG] = str(run_path) if run_path is not None else name
+        obj["ladar_unit_scale"] = float(unit_scale)  # metres per Blender unit of the positions
         if units and units.get("intensity"):
             obj["ladar_unit_intensity"] = units["intensity"]
         (collection or _results_collection(scene)).objects.link(obj)

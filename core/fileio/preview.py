@@ -74,7 +74,8 @@ def figure_title(fig) -> str:
     return next((ax.get_title() for ax in fig.axes if ax.get_title()), "")
 
 
-def _figure(width_in: float, height_in: float):
+def new_figure(width_in: float, height_in: float):
+    """A matplotlib Figure on an Agg canvas (no pyplot), 100 dpi."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -129,7 +130,7 @@ def false_colour_figure(image, *, title: str, unit: str, cmap: str = "viridis", 
     h, w = image.shape
     (x0, x1, y0, y1) = extent
     aspect_img = abs(y1 - y0) / max(abs(x1 - x0), 1e-300)
-    fig = _figure(6.4, max(2.6, min(8.0, 4.6 * aspect_img + 1.2)))
+    fig = new_figure(6.4, max(2.6, min(8.0, 4.6 * aspect_img + 1.2)))
     ax = fig.add_subplot()
     if log:
         norm = LogNorm(vmin=vmin, vmax=vmax, clip=True)
@@ -207,7 +208,7 @@ def waveform_figure(range_m, values, *, title: str = "", ylabel: str = "energy p
     values = np.asarray(values, dtype=np.float64)
     if range_m.shape != values.shape or values.ndim != 1 or len(values) == 0:
         raise ValueError(f"range_m {range_m.shape} and values {values.shape} must be equal 1-D shapes")
-    fig = _figure(6.4, 3.6)
+    fig = new_figure(6.4, 3.6)
     ax = fig.add_subplot()
     ax.plot(range_m, values, lw=1.0, color="#1f5fa8", label="waveform")
     markers = np.atleast_1d(np.asarray(markers_m, dtype=np.float64))
@@ -247,7 +248,7 @@ def scan_figure(points: dict, world_from_sensor, *, title: str = "Scanner points
     keep = np.arange(n) if n <= MAX_SCATTER_POINTS else np.linspace(0, n - 1, MAX_SCATTER_POINTS).astype(int)
     if "echo_index" in points:
         keep = keep[np.argsort(-np.asarray(points["echo_index"])[keep], kind="stable")]  # first echoes on top
-    fig = _figure(6.4, 5.2)
+    fig = new_figure(6.4, 5.2)
     ax = fig.add_subplot()
     sc = ax.scatter(local[keep, 0], local[keep, 1], c=rng[keep], s=max(0.2, min(6.0, 4e4 / max(len(keep), 1))),
                     cmap=_cmap("viridis"), linewidths=0, rasterized=True)

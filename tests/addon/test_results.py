@@ -119,7 +119,35 @@ def test_waveform_view_of_a_flash_pixel(lad, scene, tmp_path):
         lad.results.waveform_plot(run, pixel_x=0, pixel_y=8)
 
 
-def test_preview_render(lad, scene, tmp_path):
+def _capture_raw_renders(lad, monkeypatch, tmp_path):
+    """Keep a copy of each raw Cycles render (before the legend is laid around it)."""
+    import shutil
+    render = lad.package.ladar_addon.render
+    original = render.compose
+    raws = []
+
+    def keep(raw, out, **kw):
+        raws.append(shutil.copy(raw, tmp_path / f"raw_{len(raws)}.png"))
+        return original(raw, out, **kw)
+    monkeypatch.setattr(render, "compose", keep)
+    return raws
+
+
+def _raw_pixels(path):
+    img = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        w, h = img.size
+        return np.array(img.pixels[:]).reshape(h, w, 4)
+    finally:
+        bpy.data.images.remove(img)
+
+
+def test_preview_render_from_the_sensor_with_a_legend(lad, scene, tmp_path, monkeypatch):
+    """Issue 14: a flash run is rendered from the sensor's own pose and field of view with points as large as
+    their pixels, so the plates fill the picture (before: a framing camera, the points on 0.15 % of a flash
+    demo render); the PNG carries a title, angle axes and the colour-ramp legend with its unit, on a dark
+    background whatever Blender's default world (5.0: grey)."""
+    raws = _capture_raw_renders(lad, monkeypatch, tmp_path)
     _staircase_run(lad, scene, tmp_path)
     scene.ladar.point_radius = 0.02
     objects_before = set(bpy.data.objects.keys())
@@ -127,16 +155,37 @@ def test_preview_render(lad, scene, tmp_path):
     assert bpy.ops.ladar.render_preview(resolution_x=96, resolution_y=72, samples=4) == {"FINISHED"}
     out = tmp_path / "stairs" / "previews" / "render.png"
     img = bpy.data.images["stairs.render"]
-    assert tuple(img.size) == (96, 72) and img.filepath == str(out)
-    px = np.array(img.pixels[:]).reshape(72, 96, 4)
-    # the coloured points are in the picture, on the dark grey background (the corners)
-    background = px[0, 0, :3]
-    assert background.max() < 0.25 and np.ptp(background) < 0.02
-    points = np.abs(px[:, :, :3] - background).max(axis=2) > 0.1
-    assert 0.005 * points.size < points.sum() < 0.5 * points.size
+    assert img.filepath == str(out) and img.size[0] == 740  # the composed figure (7.4 in at 100 dpi)
+    raw = _raw_pixels(raws[0])
+    assert raw.shape[:2] == (96, 96)  # the receiver's square field of view sets the aspect
+    assert (raw[:, :, 3] > 0.5).mean() > 0.95  # the two plates fill the sensor's view
+    from PIL import Image
+    with Image.open(out) as im:
+        text = dict(im.text)
+        corner = np.array(im.convert("RGB"))[2, 2]
+    assert text["Title"] == "stairs (sensor view): 64 points, coloured by Intensity (J per bin)"
+    assert text["Description"] == ("x: horizontal angle (mrad); y: vertical angle (mrad); "
+                                   "y: Intensity (J per bin)")
+    np.testing.assert_array_equal(corner, [16, 16, 20])  # the dark background
+    assert bpy.data.objects["stairs"].modifiers["Ladar Points"] is not None
+    assert lad.results.point_radius(bpy.data.objects["stairs"]) == pytest.approx(0.02)  # restored
     assert set(bpy.data.objects.keys()) == objects_before and set(bpy.data.scenes.keys()) == scenes_before
     assert bpy.ops.ladar.render_preview(resolution_x=32, resolution_y=24, samples=1) == {"FINISHED"}
     assert (tmp_path / "stairs" / "previews" / "render_2.png").is_file()  # the first render is kept
+
+
+def test_preview_render_frames_clouds_of_several_runs(lad, scene, tmp_path, monkeypatch):
+    raws = _capture_raw_renders(lad, monkeypatch, tmp_path)
+    _staircase_run(lad, scene, tmp_path)
+    lad.simulate.simulate_scene(scene, out_dir=tmp_path / "again")
+    for name in ("stairs", "again"):
+        bpy.data.objects[name].select_set(True)
+    with bpy.context.temp_override(selected_objects=[bpy.data.objects["stairs"], bpy.data.objects["again"]]):
+        assert bpy.ops.ladar.render_preview(resolution_x=96, resolution_y=72, samples=2) == {"FINISHED"}
+    raw = _raw_pixels(raws[0])
+    assert raw.shape[:2] == (72, 96)
+    covered = (raw[:, :, 3] > 0.5).mean()
+    assert 0.002 < covered < 0.9 and raw[0, 0, 3] == 0.0  # 64 spots of ~2.4 px, twice; transparent film around
     cam = np.asarray(lad.package.ladar_addon.render.framing_camera(np.array([[0, 0, 0], [2, 0, 0]]), 4 / 3)[0])
     assert np.linalg.norm(cam[:3, 3] - [1, 0, 0]) == pytest.approx(1.1 * 1.0 / np.sin(np.radians(20)), rel=1e-6)
 
