@@ -301,7 +301,15 @@ class GatedSettings:
                                     "around its maximum, 3-point interpolated peak, or the two-gate ratio of "
                                     "the strongest pair of adjacent slices (physics.md §9)")
     min_signal_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
-                                  doc="Pixels whose strongest slice is below this give no range")
+                                  doc="Ideal receiver: pixels whose strongest slice is below this energy give no "
+                                      "range")
+    min_peak_fraction: float = setting(0.01, lo=0.0, hi=1.0, subtype="FACTOR",
+                                       doc="Pixels whose strongest slice is below this fraction of the frame's "
+                                           "strongest slice give no range (turbulence-blur tails, stray light; "
+                                           "0: off)")
+    k_sigma: float = setting(5.0, lo=0.0, hi=100.0,
+                             doc="Noisy receiver: pixels whose strongest slice is below k_sigma × the noise σ "
+                                 "of a slice give no range (0: off)")
 
 
 @dataclass
@@ -472,6 +480,10 @@ def _check_cross_field(cfg: SimulationConfig) -> None:
                           f"run.max_memory_bytes)")
 
 
+#: range_method peak: the largest slice step per (pulse FWHM + shutter edge).
+PEAK_MAX_STEP_PER_EDGE = 2.0
+
+
 def _check_gated(cfg: SimulationConfig) -> None:
     g = cfg.gated
     if g.range_method == "two_gate":
@@ -488,6 +500,20 @@ def _check_gated(cfg: SimulationConfig) -> None:
             raise ConfigError("laser.pulse_fwhm_s", cfg.laser.pulse_fwhm_s,
                               f"at most gated.gate_width_s = {g.gate_width_s:g} s for the two-gate ratio method "
                               f"(the pulse must fit in one gate)")
+    if g.range_method == "peak":
+        # the fit places the profile from the slices on its edges (pulse + shutter edge wide): a sweep stepping
+        # over them, or over whole gates, cannot locate it to a fraction of the step (tests/core/systems/
+        # test_gated_peak.py: ≤ 0.08 × the step over the accepted grid, ≤ 0.2 required)
+        edge = cfg.laser.pulse_fwhm_s + g.shutter_edge_s
+        if g.delay_step_s > PEAK_MAX_STEP_PER_EDGE * edge * (1 + 1e-9):
+            raise ConfigError("gated.delay_step_s", g.delay_step_s,
+                              f"at most {PEAK_MAX_STEP_PER_EDGE:g} × (laser.pulse_fwhm_s + gated.shutter_edge_s) = "
+                              f"{PEAK_MAX_STEP_PER_EDGE * edge:g} s for range_method peak (smaller steps, a longer "
+                              f"pulse or shutter edge, or range_method centroid)")
+        if g.delay_step_s > g.gate_width_s * (1 + 1e-9):
+            raise ConfigError("gated.delay_step_s", g.delay_step_s,
+                              f"at most gated.gate_width_s = {g.gate_width_s:g} s for range_method peak (a step "
+                              f"longer than the gate leaves ranges no slice sees)")
     stack = cfg.receiver.width_px * cfg.receiver.height_px * g.n_slices * 4
     if stack > cfg.run.max_memory_bytes:
         raise ConfigError("gated.n_slices", g.n_slices,

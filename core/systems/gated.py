@@ -22,7 +22,9 @@ Range from the slice stack, per pixel (profile I_k = S_k against the delay d_k; 
 at t when d_k + W/2 = t):
 
 * ``centroid``  t = Σ I_k (d_k + W/2) / Σ I_k over the slices within the profile's support around the maximum;
-* ``peak``      3-point parabolic interpolation of the maximum, t = d_k* + δ·step + W/2;
+* ``peak``      the position of the profile's peak, fitted: least squares of A·g(t − d_k) over the slices around
+  the maximum (g the slice response below, known), started at the centre of the half-maximum run of slices —
+  a flat-topped profile (gate ≫ step) has no single maximum slice to interpolate;
 * ``two_gate``  adjacent gates (step = W), the strongest adjacent pair E1, E2: r = E2/(E1 + E2); the pulse
   centre is at t = d_1 + W − P⁻¹(1 − r) (rectangular pulse of width τ: t0 = T − τ + rτ for its start).
   Exact while the pulse straddles the boundary between the two gates; a pulse shorter than the gate that falls
@@ -90,35 +92,53 @@ def pulse_cdf_inverse(laser, q):
     return (q - 0.5) * laser.pulse_fwhm_s
 
 
-def range_from_slices(slices, delays_s, config: SimulationConfig):
-    """Per-pixel range (m, NaN where no signal) and peak slice value from a stack (n_slices, H, W)."""
+def detection_threshold(peak, config: SimulationConfig, noise_sigma: float | None = None):
+    """The level a pixel's strongest slice must reach to give a range (the gated detection rule, docs/systems.md):
+
+        max(gated.min_peak_fraction × the frame's strongest slice, gated.min_signal_j (ideal receiver),
+            gated.k_sigma × σ (noisy receiver: σ the noise of a slice without signal, in its output units))
+
+    ``peak``: every pixel's strongest slice (the frame's maximum is taken over them)."""
+    g = config.gated
+    frame_peak = float(np.max(peak)) if np.size(peak) else 0.0
+    level = g.min_peak_fraction * frame_peak
+    if noise_sigma is None:
+        level = max(level, g.min_signal_j)
+    else:
+        level = max(level, g.k_sigma * float(noise_sigma))
+    return level
+
+
+def range_from_slices(slices, delays_s, config: SimulationConfig, noise_sigma: float | None = None):
+    """Per-pixel range (m, NaN where no detection) and peak slice value from a stack (n_slices, H, W).
+
+    A pixel gives a range when its strongest slice is > 0 and reaches :func:`detection_threshold` (``noise_sigma``:
+    the noisy receiver's σ per slice in the stack's units, the stack holding the signal above the noise mean)."""
     g, laser = config.gated, config.laser
     n, h, w = slices.shape
     prof = slices.reshape(n, -1).astype(np.float64)
     k = np.argmax(prof, axis=0)
     cols = np.arange(prof.shape[1])
     peak = prof[k, cols]
-    valid = (peak > 0) & (peak >= g.min_signal_j)
+    valid = (peak > 0) & (peak >= detection_threshold(peak, config, noise_sigma))
     t = np.full(prof.shape[1], np.nan)
     step, width = g.delay_step_s, g.gate_width_s
     if g.range_method == "centroid":
-        # the profile of one surface spans the gate, the pulse and the shutter edges
+        # the profile of one surface spans the gate, the pulse and the shutter edges: sum over the slices within
+        # ±reach of the maximum, from running sums (no (2·reach + 1) × pixels array: reach may be huge)
         half = 0.5 * width + pulse_half_support_s(laser) + g.shutter_edge_s
-        reach = int(np.ceil(half / step)) + 1
-        idx = k[None, :] + np.arange(-reach, reach + 1)[:, None]
-        inside = (idx >= 0) & (idx < n)
-        vals = np.where(inside, prof[np.clip(idx, 0, n - 1), cols[None, :]], 0.0)
-        centre_t = delays_s[np.clip(idx, 0, n - 1)] + 0.5 * width
-        total = vals.sum(axis=0)
+        reach = min(int(np.ceil(half / step)) + 1, n)
+        lo, hi = np.maximum(k - reach, 0), np.minimum(k + reach, n - 1) + 1
+        rel = (delays_s - delays_s[0])[:, None]
+        c0 = np.zeros((n + 1, prof.shape[1]))
+        np.cumsum(prof, axis=0, out=c0[1:])
+        total = c0[hi, cols] - c0[lo, cols]
+        np.cumsum(prof * rel, axis=0, out=c0[1:])
+        moment = c0[hi, cols] - c0[lo, cols]
         with np.errstate(invalid="ignore", divide="ignore"):
-            t = np.where(valid, (vals * centre_t).sum(axis=0) / total, np.nan)
+            t = np.where(valid, delays_s[0] + moment / total + 0.5 * width, np.nan)
     elif g.range_method == "peak":
-        ym = np.where(k > 0, prof[np.maximum(k - 1, 0), cols], 0.0)
-        yp = np.where(k < n - 1, prof[np.minimum(k + 1, n - 1), cols], 0.0)
-        denom = ym - 2 * peak + yp
-        with np.errstate(invalid="ignore", divide="ignore"):
-            delta = np.where(denom < 0, 0.5 * (ym - yp) / np.where(denom < 0, denom, -1.0), 0.0)
-        t = np.where(valid, delays_s[k] + np.clip(delta, -0.5, 0.5) * step + 0.5 * width, np.nan)
+        t[valid] = _fit_slice_response(prof[:, valid], k[valid], delays_s, config)
     else:  # two_gate: strongest adjacent pair
         if n < 2:
             raise ConfigError("gated.n_slices", n, "at least 2 slices for the two-gate ratio method")
@@ -130,6 +150,84 @@ def range_from_slices(slices, delays_s, config: SimulationConfig):
         t = np.where(valid, delays_s[j] + width - pulse_cdf_inverse(laser, 1.0 - r), np.nan)
     range_m = 0.5 * SPEED_OF_LIGHT_M_S * t
     return range_m.reshape(h, w), peak.reshape(h, w)
+
+
+#: Gauss–Newton iterations of the ``peak`` fit (it stops earlier once the steps are below 1e-6 of a slice step).
+PEAK_FIT_ITERATIONS = 12
+#: Candidates on each side of the ``peak`` fit's start (spacing ≤ a quarter of the profile's edge when it allows).
+PEAK_FIT_GRID = 16
+
+
+def _fit_slice_response(prof, k, delays_s, config: SimulationConfig):
+    """Return time t (s) per pixel: the least-squares fit of A·g(t − d_k) to the profile I_k (g the slice response
+    :func:`gate_response`, A fitted for each t).  ``prof`` (n_slices, P) with every pixel's maximum at ``k``.
+
+    Start: the centre of the half-maximum run of slices around the maximum (+ W/2) — the plateau's centre, within
+    about half a slice step for a flat-topped profile; then the best of candidates around it spaced at most a
+    quarter of the profile's edge (pulse FWHM + shutter edge) apart where :data:`PEAK_FIT_GRID` allows; then
+    Gauss–Newton on t over the slices that can see a return near it (steps at most one candidate spacing, each
+    the best of the full and halved step).  It uses the slices on the profile's edges: g is known, so a sample
+    on an edge places it exactly; a profile without a sample on an edge keeps the plateau's centre."""
+    g, laser = config.gated, config.laser
+    n, npix = prof.shape
+    if npix == 0:
+        return np.zeros(0)
+    step, width, edge = g.delay_step_s, g.gate_width_s, g.shutter_edge_s
+    cols = np.arange(npix)
+    peak = prof[k, cols]
+    idx = np.arange(n)[:, None]
+    below = prof < 0.5 * peak
+    last_on = np.where(below & (idx > k), idx, n).min(axis=0) - 1
+    first_on = np.where(below & (idx < k), idx, -1).max(axis=0) + 1
+    t = 0.5 * (delays_s[first_on] + delays_s[last_on]) + 0.5 * width
+    support = pulse_half_support_s(laser) + 0.5 * edge
+    half = int(np.ceil((width + 2 * support) / step)) + 2
+    length = min(n, 2 * half + 1)
+    start = np.clip(k - half, 0, n - length)
+    win = start[None, :] + np.arange(length)[:, None]          # (L, P) slice indices
+    y = prof[win, cols[None, :]]
+    d = delays_s[win]
+
+    def fit(tt):
+        resp = gate_response(laser, width, edge, tt[None, :] - d)
+        norm = (resp * resp).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            amp = np.where(norm > 0, (y * resp).sum(axis=0) / norm, 0.0)
+        return ((y - amp * resp) ** 2).sum(axis=0), amp, resp
+
+    # a grid of candidates around the start, finer than the profile's edges (a start whose model samples all
+    # fall on the flat parts has no gradient), then Gauss–Newton from the best
+    ramp = laser.pulse_fwhm_s + edge
+    n_side = int(min(PEAK_FIT_GRID, np.ceil(4.0 * (0.5 * step + ramp) / ramp)))
+    spacing = (0.5 * step + ramp) / n_side
+    best, _, _ = fit(t)
+    best_t = t
+    for j in range(-n_side, n_side + 1):
+        if j:
+            trial = t + j * spacing
+            c = fit(trial)[0]
+            better = c < best
+            best, best_t = np.where(better, c, best), np.where(better, trial, best_t)
+    t = best_t
+    h = 1e-3 * min(step, ramp)
+    for _ in range(PEAK_FIT_ITERATIONS):
+        cost, amp, resp = fit(t)
+        slope = (gate_response(laser, width, edge, (t + h)[None, :] - d)
+                 - gate_response(laser, width, edge, (t - h)[None, :] - d)) / (2 * h)
+        jac = amp * slope                                       # −∂r/∂t, r = y − A g(t − d)
+        info = (jac * jac).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            delta = np.where(info > 0, (jac * (y - amp * resp)).sum(axis=0) / info, 0.0)
+        delta = np.clip(np.nan_to_num(delta), -spacing, spacing)
+        if not np.any(np.abs(delta) > 1e-6 * step):
+            break
+        best, best_t = cost, t
+        for trial in (t + delta, t + 0.5 * delta):
+            c = fit(trial)[0]
+            better = c < best
+            best, best_t = np.where(better, c, best), np.where(better, trial, best_t)
+        t = best_t
+    return t
 
 
 def two_gate_range_m(e1, e2, gate_width_s, pulse_width_s, first_delay_s=0.0, pulse_shape="rectangular"):
@@ -267,11 +365,17 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         skipped["receiver_chain"] = "detector.mode = ideal: noise-free slice energies"
     t0 = time.perf_counter()
     stack = np.moveaxis(np.asarray(data, dtype=np.float32), 2, 0)  # (slices, H, W)
-    if config.detector.mode == "noisy" and config.detector.enable_adc and config.detector.detector_type != "geiger":
+    noise_sigma = None
+    if receiver_report is not None and receiver_report.get("noise_sigma") is not None:
+        # ranges from the signal above the mean output of a slice without signal (A/D pedestal, dark, background)
+        profile = stack - np.float32(receiver_report["noise_mean"])
+        noise_sigma = float(receiver_report["noise_sigma"])
+    elif config.detector.mode == "noisy" and config.detector.enable_adc and \
+            config.detector.detector_type != "geiger":
         profile = stack - np.float32(config.detector.adc_offset_counts)  # ranges from counts above the pedestal
     else:
         profile = stack
-    range_image, peak_image = range_from_slices(np.maximum(profile, 0.0), delays, config)
+    range_image, peak_image = range_from_slices(np.maximum(profile, 0.0), delays, config, noise_sigma)
     range_image = range_image.astype(np.float32)
     pix = np.flatnonzero(np.isfinite(range_image.reshape(-1)))
     rng_m = range_image.reshape(-1)[pix].astype(np.float64)
@@ -283,12 +387,17 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     if not built:
         skipped["build_bvh"] = "the caller's BVH of this scene was reused"
     ran = [s for s in ("build_bvh", "rays", "trace", "radiometry", "gating", "extinction", "beam_broadening",
-                       "scintillation", "beam_wander", "turbulence_blur", "receiver_chain", "products")
+                       "scintillation", "return_scintillation", "beam_wander", "turbulence_blur", "receiver_chain",
+                       "products")
            if s not in skipped]
     stats = {"n_rays": det.n_pixels * s2, "n_hits": n_hits, "n_points": int(len(pix)),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "n_slices": n_sl,
              "slice_delays_s": delays, "ray_traces": 1, "threads": max(1, min(threads, len(blocks))),
              "range_method": g.range_method, "stage_times_s": stage_times,
+             "detection": {"threshold": detection_threshold(peak_image, config, noise_sigma),
+                           "noise_sigma": noise_sigma, "pixels_detected": int(len(pix)),
+                           "rule": "strongest slice ≥ max(min_peak_fraction × the frame's strongest slice, "
+                                   + ("k_sigma × noise σ" if noise_sigma is not None else "min_signal_j") + ")"},
              "wall_time_s": time.perf_counter() - t_wall, "received_energy_j": float(energy_image.sum()),
              "stages_run": ran, "stages_skipped": skipped}
     if atm.metadata:
