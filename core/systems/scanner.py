@@ -11,7 +11,9 @@ d = (cos β sin α, sin β, −cos β cos α)), pulse k fired at t_k = k / PRF:
 The beam footprint is sampled by rings of sub-rays of equal energy: ring k > 0 holds 6k rays and the rings'
 boundaries enclose the cumulative energy fractions (1 + 3k(k+1))/N of the beam; each ray sits at the angle that
 halves its ring's energy, so the N sub-rays carry exactly the pulse energy (Gaussian: enclosed fraction
-1 − exp(−2ρ²/θ²) with θ the 1/e² half-angle; uniform: ρ²/θ²).
+1 − exp(−2ρ²/θ²) with θ the 1/e² half-angle; uniform: ρ²/θ²).  Each ring is turned by its own azimuth
+offset (:func:`ring_offsets_rad`): no line through the beam centre carries rays of two rings, none of the axes
+carries a ray.
 
 Each pulse is fired from, and its echoes registered with, the sensor pose at its own time stamp (core/geometry/motion.py),
 so a scan from a moving platform lands in world coordinates; the ~µs flight time is neglected in the pose.
@@ -24,6 +26,7 @@ gate is used where it must be (noisy receiver: noise and false alarms everywhere
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import time
 
@@ -115,12 +118,45 @@ def beam_subrays(n_rings: int, profile: str = "gaussian"):
         rho = np.sqrt(-0.5 * np.log1p(-mid))
     else:
         rho = np.sqrt(mid)
+    offsets = ring_offsets_rad(n_rings)
     rho_all, phi_all = [], []
     for k, n in enumerate(counts):
         j = np.arange(n)
         rho_all.append(np.full(n, rho[k]))
-        phi_all.append(2 * np.pi * (j + 0.5 * (k % 2)) / n)
+        phi_all.append(offsets[k] + 2 * np.pi * j / n)
     return np.concatenate(rho_all), np.concatenate(phi_all), np.full(m, 1.0 / m)
+
+
+#: Directions (rad, modulo π) no ring ray should sit on: the beam frame's axes and diagonals, along which scene
+#: edges (walls, kerbs, building corners) most often cross a beam.
+_RING_AVOID_RAD = (0.0, 0.25 * np.pi, 0.5 * np.pi, 0.75 * np.pi)
+
+
+@functools.lru_cache(maxsize=None)
+def _ring_offset_table(n_rings: int) -> tuple:
+    offsets, lines = [0.0], np.array(_RING_AVOID_RAD)
+    for k in range(1, n_rings + 1):
+        period = np.pi / (3 * k)  # ring k's 6k rays lie on 3k lines through the centre, π/(3k) apart
+        cand = (np.arange(256) + 0.5) / 256 * period
+        mine = (cand[:, None] + period * np.arange(3 * k)[None, :]) % np.pi
+        gap = np.abs((mine[:, :, None] - lines[None, None, :] + 0.5 * np.pi) % np.pi - 0.5 * np.pi).min(axis=(1, 2))
+        best = float(cand[np.argmax(gap)])
+        offsets.append(best)
+        lines = np.concatenate([lines, (best + period * np.arange(3 * k)) % np.pi])
+    return tuple(offsets)
+
+
+def ring_offsets_rad(n_rings: int) -> np.ndarray:
+    """Azimuth of the first ray of each ring (ring 0: the centre ray, 0).
+
+    A ring of 6k evenly spaced rays puts pairs of opposite rays on 3k lines through the beam centre; with every
+    ring starting at the same azimuth those lines coincide, and an edge along one of them (the old layout: the
+    beam's x and y axes) finds two rays of every ring on it (217 rays: 117 on one closed side, 0.540 of the
+    energy instead of ≈ 0.5).  Each ring is turned by its own offset, chosen ring by ring (deterministically) to
+    keep its lines as far as possible from the earlier rings' lines and from the axes and diagonals: no line
+    through the centre carries rays of two rings, so a half-plane through the centre holds half of the ring
+    rays, and no ray sits on the axes.  A ring's offset does not depend on the number of rings."""
+    return np.asarray(_ring_offset_table(max(16, n_rings))[: n_rings + 1])
 
 
 def _perpendicular_axes(d):
