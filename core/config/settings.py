@@ -298,8 +298,8 @@ class GatedSettings:
                                     doc="Linear rise and fall time of the shutter (0: rectangular gate)")
     range_method: str = setting("centroid", choices=("centroid", "peak", "two_gate"),
                                 doc="Range from the slice stack: centroid of the intensity-vs-delay profile "
-                                    "around its maximum, 3-point interpolated peak, or the two-gate ratio of "
-                                    "the strongest pair of adjacent slices (physics.md §9)")
+                                    "around its maximum, its peak fitted with the known slice response, or the "
+                                    "two-gate ratio of the strongest pair of adjacent slices (physics.md §9)")
     min_signal_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
                                   doc="Ideal receiver: pixels whose strongest slice is below this energy give no "
                                       "range")
