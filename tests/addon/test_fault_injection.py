@@ -100,7 +100,7 @@ def test_signals_at_every_point_of_a_run_leave_nothing_and_a_rerun_succeeds(root
     writing: handled like Ctrl-C.  Then SIGKILL while tracing and while writing: the leftovers are there, and the
     next run removes them.  All in one folder and one TMPDIR, so every case also sees the earlier ones' leftovers."""
     case = Case(root, "signals")
-    for sig, phase, slow in ((signal.SIGTERM, "start", False), (signal.SIGTERM, "tracing", True),
+    for sig, phase, slow in ((signal.SIGTERM, "start", True), (signal.SIGTERM, "tracing", True),
                              (signal.SIGTERM, "writing", False), (signal.SIGHUP, "writing", False)):
         code, _, err = case.run_and_signal(sig, phase=phase, slow=slow)
         _assert_clean_interruption(case, code, err, sig)
