@@ -503,7 +503,7 @@ def _check_gated(cfg: SimulationConfig) -> None:
     if g.range_method == "peak":
         # the fit places the profile from the slices on its edges (pulse + shutter edge wide): a sweep stepping
         # over them, or over whole gates, cannot locate it to a fraction of the step (tests/core/systems/
-        # test_gated_peak.py: ≤ 0.08 × the step over the accepted grid, ≤ 0.2 required)
+        # test_gated.py: ≤ 0.09 × the step RMS over the accepted grid, ≤ 0.2 required)
         edge = cfg.laser.pulse_fwhm_s + g.shutter_edge_s
         if g.delay_step_s > PEAK_MAX_STEP_PER_EDGE * edge * (1 + 1e-9):
             raise ConfigError("gated.delay_step_s", g.delay_step_s,

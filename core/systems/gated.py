@@ -188,7 +188,7 @@ def _fit_slice_response(prof, k, delays_s, config: SimulationConfig):
     y = prof[win, cols[None, :]]
     d = delays_s[win]
 
-    def fit(tt):
+    def fit(tt, y=y, d=d):
         resp = gate_response(laser, width, edge, tt[None, :] - d)
         norm = (resp * resp).sum(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -210,23 +210,26 @@ def _fit_slice_response(prof, k, delays_s, config: SimulationConfig):
             best, best_t = np.where(better, c, best), np.where(better, trial, best_t)
     t = best_t
     h = 1e-3 * min(step, ramp)
+    active = np.arange(npix)  # pixels still moving
     for _ in range(PEAK_FIT_ITERATIONS):
-        cost, amp, resp = fit(t)
-        slope = (gate_response(laser, width, edge, (t + h)[None, :] - d)
-                 - gate_response(laser, width, edge, (t - h)[None, :] - d)) / (2 * h)
+        ya, da, ta = y[:, active], d[:, active], t[active]
+        cost, amp, resp = fit(ta, ya, da)
+        slope = (gate_response(laser, width, edge, (ta + h)[None, :] - da)
+                 - gate_response(laser, width, edge, (ta - h)[None, :] - da)) / (2 * h)
         jac = amp * slope                                       # −∂r/∂t, r = y − A g(t − d)
         info = (jac * jac).sum(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            delta = np.where(info > 0, (jac * (y - amp * resp)).sum(axis=0) / info, 0.0)
+            delta = np.where(info > 0, (jac * (ya - amp * resp)).sum(axis=0) / info, 0.0)
         delta = np.clip(np.nan_to_num(delta), -spacing, spacing)
-        if not np.any(np.abs(delta) > 1e-6 * step):
-            break
-        best, best_t = cost, t
-        for trial in (t + delta, t + 0.5 * delta):
-            c = fit(trial)[0]
+        best, best_t = cost, ta
+        for trial in (ta + delta, ta + 0.5 * delta):
+            c = fit(trial, ya, da)[0]
             better = c < best
             best, best_t = np.where(better, c, best), np.where(better, trial, best_t)
-        t = best_t
+        t[active] = best_t
+        active = active[(np.abs(best_t - ta) > 1e-6 * step)]
+        if not len(active):
+            break
     return t
 
 
