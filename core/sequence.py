@@ -111,6 +111,8 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                 "bvh_builds": bvh_builds,
                 "n_points": int(sum(len(p.get("range_m", ())) for p in point_sets)),
                 "frame_wall_time_s": [s["wall_time_s"] for s in all_stats],
+                "sensor_poses": {str(f): st["sensor_pose"]["world_from_sensor"]
+                                 for f, st in zip(frames, all_stats) if "sensor_pose" in st},
                 "wall_time_s": time.perf_counter() - t_wall, "units": dict(units), "files": files}
         if bvh_builds < len(frames):
             meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "

@@ -209,7 +209,9 @@ def test_sequence_writes_a_merged_las_beside_the_merged_ply(tmp_path):
     assert sorted(set(np.asarray(f.point_source_id).tolist())) == [1, 2, 3]
     np.testing.assert_allclose(np.asarray(f.z), -50.0, atol=2e-3)
     assert np.all(np.asarray(f.classification) == 64)
-    assert "points_merged.las" in json.loads((path / "metadata.json").read_text())["files"]
+    meta = json.loads((path / "metadata.json").read_text())
+    assert "points_merged.las" in meta["files"]
+    assert [meta["sensor_poses"][str(f)][0][3] for f in (1, 2, 3)] == [2.0, 4.0, 6.0]  # each frame's pose
 
 
 def test_metadata_records_the_sensor_pose_and_the_scan_trajectory(tmp_path):
