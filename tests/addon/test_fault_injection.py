@@ -24,6 +24,10 @@ BLEND = REPO / "sample_blends" / "flash_demo.blend"
 PHASES = {"start": "ladar: simulating", "tracing": "% block 1/", "writing": "PNG previews"}
 
 
+def _terminal_signals():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Case:
     def __init__(self, root: Path, name: str):
         self.dir = root / name
@@ -37,9 +41,11 @@ class Case:
 
     def launch(self, *args):
         env = dict(os.environ, TMPDIR=str(self.tmp))
+        # Ctrl-C as in a terminal: a background job of a non-interactive shell (a CI runner) inherits SIGINT
+        # ignored, and a process started so keeps ignoring it until the run installs its handlers
         return subprocess.Popen([sys.executable, "-u", str(REPO / "scripts" / "ladar_run.py"), str(BLEND),
                                  "simulate", "--no-import", *args], cwd=self.work, env=env, text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_terminal_signals)
 
     def run_and_signal(self, sig, phase=None, delay_s=None, slow=False, out="r"):
         args = ["--out", out] + (["--config", str(self.slow)] if slow else [])
