@@ -31,7 +31,8 @@ from core.systems.gated import simulate_gated  # noqa: E402
 from core.geometry.motion import Trajectory  # noqa: E402
 from core.fileio.run_folder import software_versions  # noqa: E402
 from core.config.derived import n_scan_pulses  # noqa: E402
-from core.systems.scanner import scan_rays, simulate_scan  # noqa: E402
+from core.systems.scan_patterns import scan_rays  # noqa: E402
+from core.systems.scanner import simulate_scan  # noqa: E402
 from core.geometry.scene import SceneGeometry  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402
 

@@ -18,7 +18,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from core.config.settings import BRDFSettings, config_from_dict  # noqa: E402
+from core.config.settings import BRDFSettings  # noqa: E402
+from core.config.files import config_from_dict
 from core.geometry.scene import SceneGeometry  # noqa: E402
 
 CACHE = ROOT / "bench" / "results" / "cache"
@@ -37,7 +38,7 @@ bpy.ops.wm.open_mainfile(filepath={blend!r}, load_ui=False)
 scene = bpy.context.scene
 sensor = lad.simulate.active_sensor(scene)
 cfg, _ = lad.simulate.build_config(scene, sensor)
-scale = lad.properties.unit_scale(scene)
+scale = lad.blend_config.unit_scale(scene)
 geo = lad.export.scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(), unit_scale=scale,
                                                exclude={{sensor.name}})
 pose = np.array(sensor.matrix_world, dtype=np.float64)

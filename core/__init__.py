@@ -12,20 +12,24 @@ import importlib
 import importlib.abc
 import importlib.util
 import sys
+import types
 import warnings
 
 from .version import __version__
 
-#: old module (relative to this package) -> its new home
+#: old module (relative to this package) -> its new home, or the homes of its parts when it was split
 MOVED_MODULES = {
     "scene": "geometry.scene", "trace": "geometry.trace", "culling": "geometry.culling",
     "motion": "geometry.motion", "rays": "geometry.rays",
-    "propagation": "physics.propagation", "laser": "physics.laser", "brdf": "physics.brdf",
+    "propagation": ("physics.propagation", "engine.atmosphere_stage", "engine.rng"),
+    "laser": "physics.laser", "brdf": ("physics.brdf", "fileio.preview"),
     "radiometry": "physics.radiometry", "waveform": "physics.waveform", "sampling": "physics.sampling",
     "echoes": "physics.detection.peaks", "echoes_noisy": "physics.detection.noisy",
     "receiver": "physics.receiver", "speckle": "physics.receiver.speckle",
     "memory": "engine.memory",
-    "pipeline": "systems.flash", "scanner": "systems.scanner", "gated": "systems.gated",
+    "pipeline": ("systems.flash", "run", "engine.result", "engine.products", "engine.blocks", "errors"),
+    "scanner": ("systems.scanner", "systems.scan_patterns", "config.derived"),
+    "gated": "systems.gated",
     "runio": "fileio.run_folder", "las": "fileio.las", "preview": "fileio.preview",
 }
 
@@ -46,15 +50,33 @@ class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def create_module(self, spec):
         old = spec.name.rpartition(".")[2]
-        new = f"{self.package}.{MOVED_MODULES[old]}"
-        warnings.warn(f"{spec.name} has moved to {new}: import it from there", DeprecationWarning, stacklevel=2)
-        module = importlib.import_module(new)
-        self._specs[spec.name] = module.__spec__
+        homes = MOVED_MODULES[old]
+        if isinstance(homes, str):  # moved whole: the very same module object
+            new = f"{self.package}.{homes}"
+            warnings.warn(f"{spec.name} has moved to {new}: import it from there", DeprecationWarning, stacklevel=2)
+            module = importlib.import_module(new)
+            self._specs[spec.name] = module.__spec__
+            return module
+        # split: a namespace that finds each name in the module that now holds it (and says which)
+        parts = [f"{self.package}.{h}" for h in homes]
+        warnings.warn(f"{spec.name} was split into {', '.join(parts)}: import from those", DeprecationWarning,
+                      stacklevel=2)
+        module = types.ModuleType(spec.name, f"Old path of {', '.join(parts)} (deprecated).")
+
+        def __getattr__(name, _parts=parts, _old=spec.name):
+            for part in _parts:
+                mod = importlib.import_module(part)
+                if hasattr(mod, name) and not name.startswith("__"):
+                    return getattr(mod, name)
+            raise AttributeError(f"module {_old!r} has no attribute {name!r}")
+
+        module.__getattr__ = __getattr__
         return module
 
     def exec_module(self, module):
-        # the import system has just set the alias spec on the module: it keeps its own
-        module.__spec__ = self._specs.pop(module.__spec__.name)
+        # a moved module: the import system has just set the alias spec on it; it keeps its own
+        if module.__spec__.name in self._specs:
+            module.__spec__ = self._specs.pop(module.__spec__.name)
 
 
 # one finder per copy of the package (the add-on installs its own copy as bl_ext.<repo>.ladar_simulator.core);

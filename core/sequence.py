@@ -15,9 +15,10 @@ import time
 import numpy as np
 
 from .errors import ConfigError
-from .config.settings import SimulationConfig, config_to_dict, validate
+from .config.settings import SimulationConfig, validate
+from .config.files import config_to_dict
 from .errors import Cancelled
-from .systems.flash import run_metadata, simulate
+from .run import run_metadata, simulate
 from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
 from .geometry.trace import SceneTracer

@@ -1,7 +1,10 @@
 """Blender side of the ladar simulator: properties, scene export, results import, simulate, CLI.
 
 Everything here is a plain function usable from scripts; ``operators/`` and ``panels/`` are thin wrappers.
-Modules: ``properties`` (PropertyGroups generated from ``core.config`` and the Blender ↔ core mapping),
-``sensor`` (receiver field of view from the camera), ``export`` (depsgraph → ``core.geometry.scene.SceneGeometry``),
-``results`` (point cloud + images into Blender), ``simulate`` (the whole run), ``cli`` (``blender -c ladar``).
+Modules, bottom to top: ``names`` (shared names, no imports) and ``fields`` (the core setting ↔ Blender property
+mapping, no bpy); ``sensor`` (receiver field of view from the camera); ``properties`` (the PropertyGroups
+generated from the field maps); ``blend_config`` (Blender ↔ SimulationConfig); ``materials`` (BRDF tables,
+Principled mapping, plots); ``export`` (depsgraph → ``core.geometry.scene.SceneGeometry``); ``results`` (point
+cloud + images into Blender); ``simulate`` (the whole run); ``presets``; ``cli`` (``blender -c ladar``).
+``operators/`` and ``panels/`` import these, never the reverse.
 """

@@ -25,8 +25,9 @@ from pathlib import Path
 import bpy
 
 from ..core.errors import ConfigError
-from ..core.config.settings import SimulationConfig, dump_config_json, dump_config_toml, load_config
-from ..core.fileio.run_folder import new_temp_file
+from ..core.config.settings import SimulationConfig
+from ..core.config.files import dump_config_json, dump_config_toml, load_config
+from ..core.fileio.staging import new_temp_file
 from ..core.process import Interrupted, emit, exit_code, interrupts_as_exceptions
 from .errors import LadarError
 
@@ -144,7 +145,7 @@ def _write_text_atomically(path: Path, text: str, overwrite: bool = False) -> No
 def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:
     """Write the scene's settings (``config_from_blender``) to ``path`` (.json or .toml).  An existing file is
     replaced only with ``overwrite``."""
-    from .properties import config_from_blender
+    from .blend_config import config_from_blender
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -192,7 +193,7 @@ def _cmd_export_config(scene, args) -> int:
 
 
 def _cmd_validate_config(scene, args) -> int:
-    from .properties import config_from_blender
+    from .blend_config import config_from_blender
 
     base = None
     if args.sensor is not None or (scene is not None and (scene.ladar.sensor or scene.camera) is not None):

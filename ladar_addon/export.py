@@ -30,10 +30,10 @@ import bpy
 import numpy as np
 
 from ..core.geometry.scene import SceneGeometry, merge_meshes
-from .properties import brdf_from_material, material_key
+from .blend_config import brdf_from_material, material_key
+from .names import RESULT_TAG
 
 #: Custom property that marks result point clouds (never exported as geometry).
-RESULT_TAG = "ladar_run"
 
 _EMPTY = (np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0, np.int32))
 
@@ -174,7 +174,7 @@ SELF_CONTAINED_MODIFIERS = {"SUBSURF", "MIRROR", "ARRAY", "BEVEL", "SOLIDIFY", "
                             "MULTIRES", "DISPLACE", "CAST", "SIMPLE_DEFORM", "BOOLEAN"}
 
 
-def _animated(id_block) -> bool:
+def animated(id_block) -> bool:
     anim = getattr(id_block, "animation_data", None) if id_block is not None else None
     return anim is not None and (anim.action is not None or len(anim.drivers) > 0 or len(anim.nla_tracks) > 0)
 
@@ -192,13 +192,13 @@ def _modifier_may_change(mod) -> bool:
 
 def _object_time_reasons(obj) -> list[str]:
     reasons = []
-    if _animated(obj):
+    if animated(obj):
         reasons.append("animated")
     data = obj.data
-    if _animated(data):
+    if animated(data):
         reasons.append("animated data")
     keys = getattr(data, "shape_keys", None)
-    if _animated(keys):
+    if animated(keys):
         reasons.append("animated shape keys")
     if len(obj.constraints):
         reasons.append("constraints")
@@ -209,7 +209,7 @@ def _object_time_reasons(obj) -> list[str]:
     if any(_modifier_may_change(m) for m in obj.modifiers):
         reasons.append("time-dependent modifier")
     for slot in obj.material_slots:
-        if slot.material is not None and _animated(slot.material):
+        if slot.material is not None and animated(slot.material):
             reasons.append("animated material")
             break
     return reasons
@@ -242,7 +242,7 @@ def frame_dependent_objects(scene, depsgraph=None, exclude=()) -> dict:
                 if reasons:
                     found[chain.name] = reasons
             chain = chain.parent
-    if _animated(scene) or _animated(scene.world):
+    if animated(scene) or animated(scene.world):
         found["<scene>"] = ["animated scene or world (drivers may move anything)"]
     if scene.rigidbody_world is not None:
         found["<scene>"] = found.get("<scene>", []) + ["rigid body world"]

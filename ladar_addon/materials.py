@@ -17,72 +17,18 @@ storing (two angles closer than float32 resolution are caught).
 """
 from __future__ import annotations
 
-import os
 import tempfile
 from pathlib import Path
 
 import bpy
-import numpy as np
 
 from ..core.config.settings import BRDFSettings, check_brdf_table
 from ..core.errors import ConfigError
-
-
-class LadarBRDFTableRow(bpy.types.PropertyGroup):
-    """One row of a measured monostatic BRDF table"""
-
-    angle_deg: bpy.props.FloatProperty(
-        name="Angle (deg)", min=0.0, max=90.0, precision=3,
-        description="Incidence angle θ between the surface normal and the (monostatic) laser direction, in "
-                    "degrees")
-    brdf_per_sr: bpy.props.FloatProperty(
-        name="BRDF (1/sr)", min=0.0, precision=6,
-        description="Measured monostatic BRDF f_r at this angle [1/sr]")
-
-
-#: Extra properties of ``LadarBRDFSettings`` besides the generated scalar settings.
-def extra_brdf_properties() -> dict:
-    return {
-        "table": bpy.props.CollectionProperty(
-            type=LadarBRDFTableRow, name="BRDF Table",
-            description="Measured monostatic BRDF table (model 'table'): incidence angle (deg) vs f_r (1/sr)"),
-        "table_source": bpy.props.StringProperty(
-            name="Table Source", default="",
-            description="File the measured BRDF table was imported from (the table itself is stored in the "
-                        ".blend)"),
-        "origin": bpy.props.StringProperty(
-            name="Origin", default="",
-            description="Where these BRDF values came from (a preset, the Principled BSDF mapping, ...)"),
-        "plot": bpy.props.PointerProperty(
-            type=bpy.types.Image, name="BRDF Plot",
-            description="Plot of this material's BRDF vs incidence angle (packed into the .blend)"),
-    }
-
-
-def _shortest_float32(value: float) -> float:
-    return float(str(np.float32(value)))
-
-
-def read_table(props) -> dict:
-    """The stored table as core lists: ``{"table_angle_deg": [...], "table_brdf_per_sr": [...]}``."""
-    return {"table_angle_deg": [_shortest_float32(r.angle_deg) for r in props.table],
-            "table_brdf_per_sr": [_shortest_float32(r.brdf_per_sr) for r in props.table]}
-
-
-def write_table(props, angle_deg, brdf_per_sr) -> None:
-    """Replace the stored table (lengths must match; validate first)."""
-    if len(angle_deg) != len(brdf_per_sr):
-        raise ConfigError("table_brdf_per_sr", f"{len(brdf_per_sr)} values",
-                          f"one BRDF value per angle ({len(angle_deg)} angles)")
-    props.table.clear()
-    for angle, value in zip(angle_deg, brdf_per_sr):
-        row = props.table.add()
-        row.angle_deg = float(angle)
-        row.brdf_per_sr = float(value)
+from .blend_config import brdf_from_material, config_from_blender, read_table, table_float, write_table
+from .fields import BRDF_FIELDS
 
 
 def _wavelength_field():
-    from .properties import BRDF_FIELDS
     return next(f for f in BRDF_FIELDS if f.name == "table_wavelength_m")
 
 
@@ -91,7 +37,6 @@ def import_brdf_table(material, path, wavelength_m: float | None = None) -> BRDF
     model "table", ladar BRDF enabled.  The wavelength is the one the file states, else ``wavelength_m``
     (ConfigError if neither).  Nothing changes on a bad file.  Returns the material's new BRDF settings."""
     from ..core.physics.brdf import load_brdf_table
-    from .properties import brdf_from_material
 
     angles, values, file_wavelength_m = load_brdf_table(path)
     wavelength = file_wavelength_m if file_wavelength_m is not None else wavelength_m
@@ -104,7 +49,7 @@ def import_brdf_table(material, path, wavelength_m: float | None = None) -> BRDF
     if not lo <= wavelength <= hi:
         raise ConfigError(f"{name}: wavelength_m", wavelength, f"a wavelength in [{lo:g}, {hi:g}] m")
     # The float32 round trip must keep a valid table (angles closer than float32 resolution collapse).
-    check_brdf_table([_shortest_float32(a) for a in angles], [_shortest_float32(v) for v in values],
+    check_brdf_table([table_float(a) for a in angles], [table_float(v) for v in values],
                      f"{name}: ")
     props = material.ladar_brdf
     write_table(props, angles, values)
@@ -164,7 +109,6 @@ def initialise_from_principled(material) -> tuple[BRDFSettings, dict]:
     """Set ``material``'s ladar BRDF to the starting Steinvall BRDF mapped from its Principled BSDF
     (``core.physics.brdf.brdf_from_principled``; the table, if any, is kept but unused).  Returns (BRDF, inputs)."""
     from ..core.physics.brdf import brdf_from_principled
-    from .properties import BRDF_FIELDS, brdf_from_material
 
     inputs = principled_inputs(material)
     brdf = brdf_from_principled(inputs["base_color"], inputs["roughness"], inputs["metallic"], inputs["ior"],
@@ -183,7 +127,6 @@ def initialise_from_principled(material) -> tuple[BRDFSettings, dict]:
 # ------------------------------------------------------------------------------------------------------------
 def material_brdf_settings(material) -> BRDFSettings:
     """The BRDF as set on the material's panel (whether or not it is enabled)."""
-    from .properties import BRDF_FIELDS
 
     props = material.ladar_brdf
     return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS}, **read_table(props))
@@ -192,7 +135,6 @@ def material_brdf_settings(material) -> BRDFSettings:
 def scene_laser_wavelength_m(scene) -> float | None:
     """The laser wavelength of the scene's ladar sensor (Scene > Ladar > Sensor, else the scene camera), or None
     when there is none or its settings cannot be read."""
-    from .properties import config_from_blender
 
     obj = (scene.ladar.sensor or scene.camera) if scene is not None else None
     if obj is None or obj.type != "CAMERA":
@@ -208,10 +150,10 @@ def plot_image_name(material) -> str:
 
 
 def plot_material_brdf(material, laser_wavelength_m: float | None = None):
-    """Plot the material's BRDF vs incidence angle (``core.physics.brdf.plot_brdf``: matplotlib, else a bare NumPy curve)
+    """Plot the material's BRDF vs incidence angle (``core.fileio.preview.plot_brdf``: matplotlib, else a bare NumPy curve)
     into a packed Blender image (replacing the material's previous plot).  Returns the image.  A table that
     does not validate raises ConfigError and leaves the previous plot in place."""
-    from ..core.physics.brdf import plot_brdf
+    from ..core.fileio.preview import plot_brdf
     from ..core.config.settings import validate
 
     brdf = material_brdf_settings(material)
@@ -258,5 +200,3 @@ def table_summary_lines(props, laser_wavelength_m: float | None = None, max_rows
     lines.append("Linear in θ between rows; last value held up to 90°")
     return lines
 
-
-CLASSES = (LadarBRDFTableRow,)

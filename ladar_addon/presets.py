@@ -19,7 +19,7 @@ import os
 import bpy
 from bl_operators.presets import AddPresetBase
 
-from .properties import ATMOSPHERE_FIELDS, BRDF_FIELDS, SENSOR_FIELDS
+from .fields import ATMOSPHERE_FIELDS, BRDF_FIELDS, SENSOR_FIELDS, SYSTEM_TYPE_FIELD
 
 #: The extension root (holds ``presets/``).
 EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -101,9 +101,10 @@ def sensor_preset_config(settings: dict, scene, obj):
     vertical field of view following from the square pixels) applied."""
     import math
 
-    from ..core.config.settings import GROUPS, config_from_dict, config_to_dict
+    from ..core.config.settings import GROUPS
+    from ..core.config.files import config_from_dict, config_to_dict
     from ..core.errors import ConfigError
-    from .properties import config_from_blender
+    from .blend_config import config_from_blender
 
     unknown = [k for k in settings if k != "system_type" and k not in GROUPS]
     if unknown:
@@ -122,7 +123,7 @@ def apply_sensor_preset(settings: dict, context=None):
     """Apply a whole-sensor preset given in SI units (shipped preset files call this).  Only the settings named
     change; everything is validated before anything changes.  Returns the sensor object."""
     from .errors import LadarError
-    from .properties import SYSTEM_TYPE_FIELD, check_sensor, unit_scale
+    from .blend_config import check_sensor, unit_scale
     from .sensor import set_camera_receiver_fov
 
     context = context or bpy.context
@@ -156,7 +157,7 @@ def apply_material_preset(settings: dict, origin: str, context=None):
     ``table_angle_deg``/``table_brdf_per_sr`` lists) to the context's material, enabled, with ``origin`` shown
     in the panel.  Validated before anything changes.  A preset without a table keeps the material's table."""
     from ..core.config.settings import BRDFSettings, validate
-    from .materials import read_table, write_table
+    from .blend_config import read_table, write_table
 
     material = getattr(context or bpy.context, "material", None)
     if material is None:

@@ -38,40 +38,11 @@ rounds to the stored float32, so a value typed as 1e-3 comes back as exactly 1e-
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-from decimal import Decimal
-
 import bpy
-import numpy as np
 
-from ..core.config.settings import (DEFAULT_BRDF, GROUPS, BRDFSettings, RunSettings, SimulationConfig,
-                                    config_from_dict, config_to_dict, field_specs, validate)
-from ..core.errors import ConfigError
-from .errors import LadarError
-from .materials import LadarBRDFTableRow, extra_brdf_properties, read_table, write_table
-from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
-
-INT32_MAX = 2**31 - 1
-MIB = 2**20
-
-_CORE_GROUPS = {g: type(getattr(SimulationConfig(), g)) for g in GROUPS}
-#: Settings groups stored on the scene (``Scene.ladar_<group>``); every other core group is a sensor setting.
-SCENE_GROUPS = {"atmosphere": _CORE_GROUPS["atmosphere"]}
-#: Settings groups stored on the sensor object (``Object.ladar.<group>``): laser, receiver, gate, detection, run
-#: and any group the core adds later.
-SENSOR_GROUPS = {g: cls for g, cls in _CORE_GROUPS.items() if g not in SCENE_GROUPS}
-#: Settings not stored as sensor properties (derived from the camera, or kept on the scene).
-NOT_ON_SENSOR = {("receiver", "fov_x_rad"), ("receiver", "fov_y_rad"), ("run", "seed")}
-#: Receiver size of a new sensor (the core default may differ).
-SENSOR_DEFAULT_OVERRIDES = {("receiver", "width_px"): 64, ("receiver", "height_px"): 64}
-
-#: Name suffixes that spell a field's unit (stripped from the label; the unit shows through the subtype or
-#: in parentheses).  Keyed by the unit, so "specular_a" (no unit) keeps its "A".
-_UNIT_SUFFIXES = {"m": "_m", "s": "_s", "J": "_j", "rad": "_rad", "px": "_px", "B": "_bytes", "1/m": "_per_m",
-                  "1/s": "_per_s", "A": "_a", "e-": "_e", "m^-2/3": "_m_23"}
-_ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF", "Cn2": "Cn²", "Apd": "APD", "Adc": "ADC",
-             "Dof": "DOF"}
+from ..core.config.settings import BRDFSettings
+from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, INT32_MAX, MIB, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS,
+                     SENSOR_GROUPS, TOP_FIELDS, FieldMap, label)
 
 
 def _number_subtypes() -> set:
@@ -82,141 +53,50 @@ def _number_subtypes() -> set:
 _SUBTYPES = _number_subtypes()
 
 
-def _label(name: str, unit: str = "") -> str:
-    suffix = _UNIT_SUFFIXES.get(unit)
-    if suffix and name.endswith(suffix) and len(name) > len(suffix):
-        name = name[: -len(suffix)]
-    words = [w.capitalize() for w in name.split("_")]
-    return " ".join(_ACRONYMS.get(w, w) for w in words)
+def _subtype(f: FieldMap) -> str:
+    return f.subtype if f.subtype in _SUBTYPES else "NONE"
 
 
-def _shortest_float32(value: float) -> str:
-    """The shortest decimal string that rounds to the same float32 as ``value``."""
-    return str(np.float32(value))
-
-
-@dataclass(frozen=True)
-class FieldMap:
-    """How one core setting maps onto one Blender property."""
-
-    group: str | None      # core group ("laser", ...), None for top-level settings, "brdf" for BRDFSettings
-    name: str              # core field name
-    attr: str              # Blender property name
-    kind: str              # "float", "int", "bool" or "enum"
-    default: object        # core default (SI)
-    meta: dict
-    conversion: str = ""   # "", "nm", "pow10", "distance" or "mib"
-    exponent: int = 0      # "nm": −9; "pow10": Blender stores the value in units of 10^exponent
-
-    @property
-    def path(self) -> str:
-        return self.name if self.group in (None, "brdf") else f"{self.group}.{self.name}"
-
-    @property
-    def subtype(self) -> str:
-        wanted = self.meta.get("subtype") or "NONE"
-        return wanted if wanted in _SUBTYPES else "NONE"
-
-    def unit_text(self) -> str:
-        if self.conversion == "nm":
-            return "nm"
-        if self.conversion == "pow10":
-            unit = self.meta.get("unit") or ""
-            return f"×1e{self.exponent} {unit}".rstrip()
-        if self.conversion == "mib":
-            return "MiB"
-        if self.conversion == "distance":
-            return "Blender units = m / unit scale"
-        return self.meta.get("unit") or ""
-
-    # -- conversions ------------------------------------------------------------------------------------------
-    def to_blender(self, value, unit_scale: float = 1.0):
-        if self.kind == "float":
-            value = float(value)
-            if self.conversion in ("nm", "pow10"):
-                return float(Decimal(repr(value)).scaleb(-self.exponent))
-            if self.conversion == "distance":
-                return value / unit_scale
-            return value
-        if self.kind == "int" and self.conversion == "mib":
-            return max(1, int(round(value / MIB)))
-        if self.kind == "int":
-            hi = self.meta.get("hi")
-            if value > INT32_MAX:
-                raise ConfigError(self.path, value, f"at most {INT32_MAX} when stored in a .blend"
-                                  + (f" (the simulator accepts up to {hi} from a config file)" if hi else ""))
-            return int(value)
-        return value
-
-    def to_core(self, value, unit_scale: float = 1.0):
-        if self.kind == "float":
-            text = _shortest_float32(value)
-            if self.conversion in ("nm", "pow10"):
-                return float(Decimal(text).scaleb(self.exponent))
-            if self.conversion == "distance":
-                return float(text) * unit_scale
-            v, lo, hi = float(text), self.meta.get("lo"), self.meta.get("hi")
-            # A bound float32 cannot hold (2π) is stored rounded outwards: it reads back as the bound itself.
-            if hi is not None and v > hi and np.float32(hi) == np.float32(value):
-                return float(hi)
-            if lo is not None and v < lo and np.float32(lo) == np.float32(value):
-                return float(lo)
-            return v
-        if self.kind == "int" and self.conversion == "mib":
-            return int(value) * MIB
-        if self.kind == "int":
-            return int(value)
-        if self.kind == "bool":
-            return bool(value)
-        return str(value)
-
-    # -- the Blender property ---------------------------------------------------------------------------------
-    def description(self) -> str:
-        doc = self.meta.get("doc", "")
-        unit = self.unit_text()
-        text = doc + (f" [{unit}]" if unit else "")
-        path = f"materials.<name>.{self.name}" if self.group == "brdf" else self.path
-        return f"{text}. Config: {path}"
-
-    def property(self):
-        name = _label(self.name, self.meta.get("unit") or "")
-        # Show the unit in the label where Blender shows none (no unit subtype, or a scaled storage unit).
-        if self.conversion in ("mib", "pow10") or (self.subtype == "NONE" and self.kind in ("float", "int")
-                                                   and (self.meta.get("unit") or self.conversion == "nm")):
-            name += f" ({self.unit_text()})"
-        desc = self.description()
-        lo, hi = self.meta.get("lo"), self.meta.get("hi")
-        if self.kind == "enum":
-            items = [(c, c.replace("_", " ").title(), f"{self.meta.get('doc', '')}: {c}")
-                     for c in self.meta["choices"]]
-            return bpy.props.EnumProperty(name=name, description=desc, items=items, default=self.default)
-        if self.kind == "bool":
-            return bpy.props.BoolProperty(name=name, description=desc, default=bool(self.default))
-        if self.kind == "int":
-            if self.conversion == "mib":
-                lo = None if lo is None else max(1, lo // MIB)
-                hi = None if hi is None else hi // MIB
-            kwargs = {"min": max(lo, -INT32_MAX - 1) if lo is not None else -INT32_MAX - 1,
-                      "max": min(hi, INT32_MAX) if hi is not None else INT32_MAX}
-            subtype = self.subtype if self.subtype in ("NONE", "PIXEL", "UNSIGNED", "PERCENTAGE", "FACTOR",
-                                                       "ANGLE", "TIME", "DISTANCE") else "NONE"
-            return bpy.props.IntProperty(name=name, description=desc, subtype=subtype,
-                                         default=self.to_blender(self.default), **kwargs)
-        kwargs = {}
-        if self.conversion == "distance":
-            kwargs = distance_limits_bu(lo, hi)
-        else:
-            if lo is not None:
-                kwargs["min"] = self.to_blender(lo)
-            if hi is not None:
-                kwargs["max"] = self.to_blender(hi)
-        default = self.to_blender(self.default)
-        hi_b = kwargs.get("max")
-        magnitude = abs(default) if default else (abs(hi_b) if hi_b is not None else 1.0)
-        # Small SI values (J, 1/m, ...) have no unit display in Blender: show six decimals for them.
-        precision = 6 if self.subtype == "NONE" and magnitude <= 1.0 else 3
-        return bpy.props.FloatProperty(name=name, description=desc, subtype=self.subtype, default=default,
-                                       precision=precision, **kwargs)
+def blender_property(f: FieldMap):
+    """The bpy property that stores the setting ``f`` (its range, default, unit label and description)."""
+    name = label(f.name, f.meta.get("unit") or "")
+    # Show the unit in the label where Blender shows none (no unit subtype, or a scaled storage unit).
+    if f.conversion in ("mib", "pow10") or (_subtype(f) == "NONE" and f.kind in ("float", "int")
+                                               and (f.meta.get("unit") or f.conversion == "nm")):
+        name += f" ({f.unit_text()})"
+    desc = f.description()
+    lo, hi = f.meta.get("lo"), f.meta.get("hi")
+    if f.kind == "enum":
+        items = [(c, c.replace("_", " ").title(), f"{f.meta.get('doc', '')}: {c}")
+                 for c in f.meta["choices"]]
+        return bpy.props.EnumProperty(name=name, description=desc, items=items, default=f.default)
+    if f.kind == "bool":
+        return bpy.props.BoolProperty(name=name, description=desc, default=bool(f.default))
+    if f.kind == "int":
+        if f.conversion == "mib":
+            lo = None if lo is None else max(1, lo // MIB)
+            hi = None if hi is None else hi // MIB
+        kwargs = {"min": max(lo, -INT32_MAX - 1) if lo is not None else -INT32_MAX - 1,
+                  "max": min(hi, INT32_MAX) if hi is not None else INT32_MAX}
+        subtype = _subtype(f) if _subtype(f) in ("NONE", "PIXEL", "UNSIGNED", "PERCENTAGE", "FACTOR",
+                                                   "ANGLE", "TIME", "DISTANCE") else "NONE"
+        return bpy.props.IntProperty(name=name, description=desc, subtype=subtype,
+                                     default=f.to_blender(f.default), **kwargs)
+    kwargs = {}
+    if f.conversion == "distance":
+        kwargs = distance_limits_bu(lo, hi)
+    else:
+        if lo is not None:
+            kwargs["min"] = f.to_blender(lo)
+        if hi is not None:
+            kwargs["max"] = f.to_blender(hi)
+    default = f.to_blender(f.default)
+    hi_b = kwargs.get("max")
+    magnitude = abs(default) if default else (abs(hi_b) if hi_b is not None else 1.0)
+    # Small SI values (J, 1/m, ...) have no unit display in Blender: show six decimals for them.
+    precision = 6 if _subtype(f) == "NONE" and magnitude <= 1.0 else 3
+    return bpy.props.FloatProperty(name=name, description=desc, subtype=_subtype(f), default=default,
+                                   precision=precision, **kwargs)
 
 
 #: Metres per Blender unit that Blender allows (``UnitSettings.scale_length`` hard range).
@@ -243,48 +123,35 @@ def distance_limits_bu(lo_m, hi_m) -> dict:
     return limits
 
 
-def _field_map(group, name, default, meta) -> FieldMap:
-    if meta.get("choices"):
-        kind = "enum"
-    elif isinstance(default, bool):
-        kind = "bool"
-    elif isinstance(default, int):
-        kind = "int"
-    elif isinstance(default, float):
-        kind = "float"
-    else:  # pragma: no cover - the core declares only these
-        raise TypeError(f"setting {group}.{name} has an unsupported type {type(default).__name__}")
-    default = SENSOR_DEFAULT_OVERRIDES.get((group, name), default)
-    conversion, attr, exponent = "", name, 0
-    hi = meta.get("hi")
-    if kind == "float" and meta.get("subtype") == "WAVELENGTH":
-        conversion, exponent = "nm", -9
-    elif kind == "float" and (meta.get("subtype") or "NONE") == "NONE" and hi is not None and 0 < hi < 1e-3:
-        # Values far below what a six-decimal field shows (Cn² ~ 1e-14): store them in units of 10^exponent,
-        # so the largest allowed value shows as 1000.
-        conversion, exponent = "pow10", int(math.floor(math.log10(hi))) - 3
-    elif kind == "float" and (meta.get("subtype") or "NONE") == "NONE" and 0 < abs(default) < 1e-4:
-        # A tiny default (dark current ~ 1e-12 A): the default shows as 1 in units of 10^exponent.
-        conversion, exponent = "pow10", int(math.floor(math.log10(abs(default))))
-    elif kind == "float" and meta.get("subtype") == "DISTANCE":
-        conversion = "distance"
-    elif kind == "int" and meta.get("unit") == "B" and (meta.get("hi") or 0) > INT32_MAX:
-        conversion, attr = "mib", name.removesuffix("_bytes") + "_mib"
-    return FieldMap(group, name, attr, kind, default, meta, conversion, exponent)
+class LadarBRDFTableRow(bpy.types.PropertyGroup):
+    """One row of a measured monostatic BRDF table"""
+
+    angle_deg: bpy.props.FloatProperty(
+        name="Angle (deg)", min=0.0, max=90.0, precision=3,
+        description="Incidence angle θ between the surface normal and the (monostatic) laser direction, in "
+                    "degrees")
+    brdf_per_sr: bpy.props.FloatProperty(
+        name="BRDF (1/sr)", min=0.0, precision=6,
+        description="Measured monostatic BRDF f_r at this angle [1/sr]")
 
 
-def group_field_maps(group: str, cls, skip=()) -> list[FieldMap]:
-    return [_field_map(group, n, d, m) for n, d, m in field_specs(cls) if (group, n) not in skip]
-
-
-#: Field maps of every Blender-stored setting, by group.
-SENSOR_FIELDS = {g: group_field_maps(g, cls, NOT_ON_SENSOR) for g, cls in SENSOR_GROUPS.items()}
-#: Top-level plain settings (``system_type``), stored on ``Object.ladar``.
-TOP_FIELDS = group_field_maps(None, SimulationConfig)
-SYSTEM_TYPE_FIELD = next(f for f in TOP_FIELDS if f.name == "system_type")
-ATMOSPHERE_FIELDS = group_field_maps("atmosphere", SCENE_GROUPS["atmosphere"])
-BRDF_FIELDS = group_field_maps("brdf", BRDFSettings)
-SEED_FIELD = next(_field_map("run", n, d, m) for n, d, m in field_specs(RunSettings) if n == "seed")
+#: Extra properties of ``LadarBRDFSettings`` besides the generated scalar settings.
+def extra_brdf_properties() -> dict:
+    return {
+        "table": bpy.props.CollectionProperty(
+            type=LadarBRDFTableRow, name="BRDF Table",
+            description="Measured monostatic BRDF table (model 'table'): incidence angle (deg) vs f_r (1/sr)"),
+        "table_source": bpy.props.StringProperty(
+            name="Table Source", default="",
+            description="File the measured BRDF table was imported from (the table itself is stored in the "
+                        ".blend)"),
+        "origin": bpy.props.StringProperty(
+            name="Origin", default="",
+            description="Where these BRDF values came from (a preset, the Principled BSDF mapping, ...)"),
+        "plot": bpy.props.PointerProperty(
+            type=bpy.types.Image, name="BRDF Plot",
+            description="Plot of this material's BRDF vs incidence angle (packed into the .blend)"),
+    }
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -292,7 +159,7 @@ SEED_FIELD = next(_field_map("run", n, d, m) for n, d, m in field_specs(RunSetti
 # ------------------------------------------------------------------------------------------------------------
 def _make_group(class_name: str, fields: list[FieldMap], doc: str, extra: dict | None = None):
     annotations = dict(extra or {})
-    annotations.update({f.attr: f.property() for f in fields})
+    annotations.update({f.attr: blender_property(f) for f in fields})
     return type(class_name, (bpy.types.PropertyGroup,), {"__annotations__": annotations, "__doc__": doc,
                                                          "__module__": __name__})
 
@@ -319,7 +186,7 @@ LadarBRDFSettings = _make_group(
                     "Lambertian, 30 %)"), **extra_brdf_properties()})
 
 def _sensor_annotations():
-    ann = {f.attr: f.property() for f in TOP_FIELDS}
+    ann = {f.attr: blender_property(f) for f in TOP_FIELDS}
     for group, cls in _GROUP_CLASSES.items():
         ann[group] = bpy.props.PointerProperty(type=cls, name=group.replace("_", " ").title())
     return ann
@@ -358,7 +225,7 @@ class LadarSceneSettings(bpy.types.PropertyGroup):
     output_dir: bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="//ladar_runs", options=_BLEND_RELATIVE_PATH,
         description="Folder that receives one run folder per simulated frame (// = next to the .blend file)")
-    seed: SEED_FIELD.property()
+    seed: blender_property(SEED_FIELD)
     if_exists: bpy.props.EnumProperty(
         name="If Exists", default="STOP", items=[
             ("STOP", "Stop", "Refuse to run when the run folder or result objects of that name exist"),
@@ -427,156 +294,6 @@ def unregister():
         bpy.utils.unregister_class(cls)
 
 
-# ------------------------------------------------------------------------------------------------------------
-# Blender <-> core
-# ------------------------------------------------------------------------------------------------------------
-def unit_scale(scene) -> float:
-    """Metres per Blender unit (``scale_length``; 1 when the scene uses no unit system)."""
-    us = scene.unit_settings
-    return 1.0 if us.system == "NONE" else float(us.scale_length)
-
-
-def material_key(material) -> str:
-    """The name under which a material's BRDF appears in ``SimulationConfig.materials`` and the scene."""
-    return material.name_full
-
-
-def brdf_from_material(material) -> BRDFSettings:
-    """The material's ladar BRDF, or the core default when it has none enabled (or ``material`` is None)."""
-    if material is None:
-        return DEFAULT_BRDF
-    props = material.ladar_brdf
-    if not props.enabled:
-        return DEFAULT_BRDF
-    return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS}, **read_table(props))
-
-
-def _read_group(props, fields, unit_scale_m):
-    return {f.name: f.to_core(getattr(props, f.attr), unit_scale_m) for f in fields}
-
-
-def _write_group(props, fields, settings, unit_scale_m):
-    for f in fields:
-        setattr(props, f.attr, f.to_blender(getattr(settings, f.name), unit_scale_m))
-
-
-def check_sensor(sensor_obj) -> None:
-    if sensor_obj is None:
-        raise LadarError("no ladar sensor: set Scene > Ladar > Sensor or the scene camera to a camera object")
-    if sensor_obj.type != "CAMERA":
-        raise LadarError(f"the ladar sensor {sensor_obj.name!r} is a {sensor_obj.type.lower()} object, "
-                         f"not a camera")
-
-
-def config_from_blender(scene, sensor_obj) -> SimulationConfig:
-    """The core settings stored in ``scene`` and on ``sensor_obj`` (a camera object).  Not validated.
-
-    The receiver field of view comes from the camera (:func:`ladar_addon.sensor.camera_receiver_fov_rad`);
-    ``materials`` lists the BRDF of every material with ladar BRDF settings enabled.
-    """
-    check_sensor(sensor_obj)
-    scale = unit_scale(scene)
-    sensor = sensor_obj.ladar
-    groups = {g: _read_group(getattr(sensor, g), SENSOR_FIELDS[g], scale) for g in SENSOR_GROUPS}
-    groups["run"]["seed"] = SEED_FIELD.to_core(scene.ladar.seed)
-    rx = groups["receiver"]
-    rx["fov_x_rad"], rx["fov_y_rad"] = camera_receiver_fov_rad(sensor_obj.data, rx["width_px"], rx["height_px"])
-    kwargs = {g: cls(**groups[g]) for g, cls in SENSOR_GROUPS.items()}
-    kwargs["atmosphere"] = SCENE_GROUPS["atmosphere"](**_read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS,
-                                                                    scale))
-    kwargs.update({f.name: f.to_core(getattr(sensor, f.attr)) for f in TOP_FIELDS})
-    kwargs["materials"] = {material_key(m): brdf_from_material(m) for m in bpy.data.materials
-                           if m.ladar_brdf.enabled}
-    return SimulationConfig(**kwargs)
-
-
-def find_material(key: str):
-    for m in bpy.data.materials:
-        if material_key(m) == key:
-            return m
-    return None
-
-
-def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
-    """Store ``cfg`` in ``scene`` and on ``sensor_obj``: the inverse of :func:`config_from_blender`.
-
-    The config is validated first (nothing changes if it is invalid).  The camera lens is set so that the
-    camera gives ``cfg.receiver``'s field of view.  ``cfg.materials`` must name materials of the .blend; they
-    get their ladar BRDF enabled and set, every other material's ladar BRDF is disabled.
-    """
-    check_sensor(sensor_obj)
-    validate(cfg)
-    rx = cfg.receiver
-    scale = unit_scale(scene)
-    missing = [name for name in cfg.materials if find_material(name) is None]
-    if missing:
-        raise ConfigError(f"materials.{missing[0]}", missing[0], "the name of a material in the .blend file: "
-                          + ", ".join(material_key(m) for m in bpy.data.materials))
-    # Check everything that can fail before changing anything.
-    SEED_FIELD.to_blender(cfg.run.seed)
-    for group in SENSOR_GROUPS:
-        for f in SENSOR_FIELDS[group]:
-            f.to_blender(getattr(getattr(cfg, group), f.name), scale)
-    cam = sensor_obj.data
-    saved_lens = cam.lens
-    set_camera_receiver_fov(cam, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)
-    try:
-        sensor = sensor_obj.ladar
-        for f in TOP_FIELDS:
-            setattr(sensor, f.attr, f.to_blender(getattr(cfg, f.name), scale))
-        for group in SENSOR_GROUPS:
-            _write_group(getattr(sensor, group), SENSOR_FIELDS[group], getattr(cfg, group), scale)
-        scene.ladar.seed = SEED_FIELD.to_blender(cfg.run.seed)
-        _write_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, cfg.atmosphere, scale)
-        for m in bpy.data.materials:
-            brdf = cfg.materials.get(material_key(m))
-            if brdf is None:
-                m.ladar_brdf.enabled = False
-            else:
-                _write_group(m.ladar_brdf, BRDF_FIELDS, brdf, 1.0)
-                write_table(m.ladar_brdf, brdf.table_angle_deg, brdf.table_brdf_per_sr)
-                m.ladar_brdf.enabled = True
-    except Exception:
-        cam.lens = saved_lens
-        raise
-
-
-def set_settings(scene, sensor_obj, values: dict) -> SimulationConfig:
-    """Set settings by their config path, in SI units: the Python API for scripts.
-
-    Several properties store a scaled value (wavelengths in nm, Cn² and dark currents in units of a power of
-    ten, distances in Blender units, memory in MiB: :class:`FieldMap`), so writing an SI value straight into
-    them is wrong by that scale (``scene.ladar_atmosphere.cn2_m_23 = 5e-15`` stores 5e-29 m^-2/3).  This sets
-    ``{"atmosphere.cn2_m_23": 5e-15, "laser.wavelength_m": 532e-9, ...}`` as the simulator will read them.
-    Paths: ``system_type``, ``<group>.<field>`` (``run.seed`` too; ``receiver.fov_x_rad``/``fov_y_rad`` set
-    the camera lens) and ``materials.<material name>.<field>`` (a material with its ladar BRDF enabled).
-    Everything is validated before anything changes (ConfigError naming the path).  Returns the config now
-    stored."""
-    data = config_to_dict(config_from_blender(scene, sensor_obj))
-    for path, value in values.items():
-        if path == "system_type":
-            data[path] = value
-            continue
-        head, _, rest = path.partition(".")
-        if head == "materials":
-            name, _, field = rest.rpartition(".")
-            if name not in data["materials"]:
-                raise ConfigError(path, value, "materials.<name>.<field> of a material with its ladar BRDF enabled: "
-                                  + (", ".join(data["materials"]) or "none is"))
-            target = data["materials"][name]
-        elif head in GROUPS:
-            field, target = rest, data[head]
-        else:
-            raise ConfigError(path, value, "system_type, <group>.<field> (groups: " + ", ".join(GROUPS)
-                              + ") or materials.<name>.<field>")
-        if field not in target:
-            raise ConfigError(path, value, f"a setting of {head}: " + ", ".join(target))
-        target[field] = value
-    cfg = config_from_dict(data)
-    apply_config_to_blender(cfg, scene, sensor_obj)
-    return cfg
-
-
 def property_group_class(group: str):
     """The PropertyGroup class holding a core settings group ("laser", ..., "atmosphere", "brdf")."""
     if group == "atmosphere":
@@ -591,12 +308,20 @@ def sensor_field_maps(group: str) -> list[FieldMap]:
     return SENSOR_FIELDS[group]
 
 
-def all_core_paths() -> set:
-    """Dotted paths of every core setting that has a home in Blender (for the 1:1 test)."""
-    paths = {f.path for f in TOP_FIELDS} | {SEED_FIELD.path, "receiver.fov_x_rad", "receiver.fov_y_rad"}
-    for fields in SENSOR_FIELDS.values():
-        paths |= {f.path for f in fields}
-    paths |= {f.path for f in ATMOSPHERE_FIELDS}
-    return paths
+#: Names that lived here before the Blender <-> core conversion and the field maps got their own modules.
+_MOVED = {"blend_config": ("unit_scale", "material_key", "brdf_from_material", "check_sensor", "config_from_blender",
+                           "find_material", "apply_config_to_blender", "set_settings"),
+          "fields": ("SENSOR_GROUPS", "SCENE_GROUPS", "SYSTEM_TYPE_FIELD", "SEED_FIELD", "all_core_paths")}
 
 
+def __getattr__(name):
+    """The old path of a moved name keeps working for now, with a DeprecationWarning naming the new one."""
+    import importlib
+    import warnings
+
+    for module, names in _MOVED.items():
+        if name in names:
+            warnings.warn(f"ladar_addon.properties.{name} has moved to ladar_addon.{module}.{name}",
+                          DeprecationWarning, stacklevel=2)
+            return getattr(importlib.import_module(f"{__package__}.{module}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -28,7 +28,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from ..core.fileio.run_folder import new_temp_file
+from ..core.fileio.staging import new_temp_file
 from .errors import LadarError
 from .export import RESULT_TAG
 

@@ -32,7 +32,7 @@ import bpy
 import numpy as np
 
 from .errors import LadarError
-from .export import RESULT_TAG
+from .names import RESULT_TAG
 
 RESULTS_COLLECTION = "Ladar Results"
 NODE_GROUP_NAME = "Ladar Point Cloud"

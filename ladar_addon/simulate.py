@@ -16,7 +16,7 @@ inputs through a request that :meth:`~SimulationJob.step` serves.
 Run folders (``out_dir`` is the folder itself):
 
 * one frame: ``<Scene.ladar.output_dir>/<sensor>_f<frame:04d>`` by default — the products of
-  ``core.systems.flash.run_simulation`` plus a false-colour PNG beside each EXR (``core.fileio.preview``);
+  ``core.run.run_simulation`` plus a false-colour PNG beside each EXR (``core.fileio.preview``);
 * a frame range: ``<output_dir>/<sensor>_f<first>-<last>`` — ``core.sequence``'s ``frame_NNNN/`` run folders,
   ``points_merged.ply``/``.npz`` and ``metadata.json``, plus PNG previews in every frame folder and
   ``images/range_NNNN.exr`` … (hard links to the frames' images, numbered by scene frame) so that each product
@@ -50,15 +50,16 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.version import __version__ as core_version
-from ..core.config.settings import config_to_dict, load_config, validate
+from ..core.config.settings import validate
+from ..core.config.files import config_to_dict, load_config
 from ..core.geometry.motion import Trajectory
 from ..core.errors import Cancelled
-from ..core.systems.flash import run_simulation
+from ..core.run import run_simulation
 from ..core.fileio.staging import check_run_dir, claim_run_dir, free_run_path
 from ..core.process import emit
 from .errors import LadarError
 from .export import frame_dependent_objects, geometry_digest, scene_geometry_from_depsgraph
-from .properties import check_sensor, config_from_blender, unit_scale
+from .blend_config import check_sensor, config_from_blender, unit_scale
 from .results import check_result_names, existing_results, import_run
 from .sensor import camera_receiver_fov_rad
 
@@ -198,14 +199,14 @@ def scene_time_s(scene, frame: float) -> float:
 
 def sensor_may_move(scene, sensor) -> bool:
     """True when the sensor's world matrix may change with time (animation, drivers, constraints, parents)."""
-    from .export import _animated
+    from .export import animated
 
     obj = sensor
     while obj is not None:
-        if _animated(obj) or len(obj.constraints) or obj.rigid_body is not None:
+        if animated(obj) or len(obj.constraints) or obj.rigid_body is not None:
             return True
         obj = obj.parent
-    return _animated(scene)
+    return animated(scene)
 
 
 def _world_matrix_m(obj, scale_m: float) -> np.ndarray:

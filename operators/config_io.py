@@ -5,7 +5,7 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper
 from ..core.errors import ConfigError
 from ..ladar_addon.cli import export_config
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.properties import apply_config_to_blender
+from ..ladar_addon.blend_config import apply_config_to_blender
 from ..ladar_addon.simulate import active_sensor, build_config
 
 

@@ -6,7 +6,7 @@ from bpy_extras.io_utils import ExportHelper
 
 from ..core.errors import ConfigError
 from ..core.fileio.las import write_run_las
-from ..ladar_addon.export import RESULT_TAG
+from ..ladar_addon.names import RESULT_TAG
 
 
 def _run_of(obj):

@@ -6,8 +6,8 @@ from bpy_extras.io_utils import ImportHelper
 
 from ..core.errors import ConfigError
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.export import RESULT_TAG
-from ..ladar_addon.properties import unit_scale
+from ..ladar_addon.names import RESULT_TAG
+from ..ladar_addon.blend_config import unit_scale
 from ..ladar_addon.render import PREVIEW_RESOLUTION, PREVIEW_SAMPLES, render_preview
 from ..ladar_addon.results import import_run, read_run_info, result_objects, show_waveform
 

@@ -45,13 +45,13 @@ def active_sensor(scene):
 
 
 def reference_range_m(scene):
-    from ..ladar_addon.properties import unit_scale
+    from ..ladar_addon.blend_config import unit_scale
     return scene.ladar.reference_range_m * unit_scale(scene)
 
 
 def sensor_config(scene, obj):
     """The core config of ``obj`` (a camera) or None when it cannot be read."""
-    from ..ladar_addon.properties import config_from_blender
+    from ..ladar_addon.blend_config import config_from_blender
     try:
         return config_from_blender(scene, obj)
     except Exception:  # noqa: BLE001 - draw must never fail
@@ -60,7 +60,8 @@ def sensor_config(scene, obj):
 
 def atmosphere_settings(scene):
     from ..core.config.settings import AtmosphereSettings
-    from ..ladar_addon.properties import ATMOSPHERE_FIELDS, unit_scale
+    from ..ladar_addon.blend_config import unit_scale
+    from ..ladar_addon.fields import ATMOSPHERE_FIELDS
     scale = unit_scale(scene)
     props = scene.ladar_atmosphere
     return AtmosphereSettings(**{f.name: f.to_core(getattr(props, f.attr), scale) for f in ATMOSPHERE_FIELDS})

@@ -2,7 +2,7 @@
 values, material presets and a plot of the BRDF vs incidence angle."""
 import bpy
 
-from ..ladar_addon.properties import BRDF_FIELDS
+from ..ladar_addon.fields import BRDF_FIELDS
 
 #: Settings drawn for each model (the table's rows are drawn as a read-only list).
 _MODEL_FIELDS = {"lambertian": {"reflectance"}, "steinvall": {"specular_a", "slope_s", "diffuse_b", "diffuse_m"},

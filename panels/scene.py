@@ -3,7 +3,7 @@ import bpy
 
 from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_atmosphere_presets, draw_preset_header
-from ..ladar_addon.properties import ATMOSPHERE_FIELDS
+from ..ladar_addon.fields import ATMOSPHERE_FIELDS
 from .common import (active_sensor, atmosphere_settings, draw_fields, draw_lines, reference_range_m,
                      sensor_config, simulate_button, simulate_options)
 
@@ -79,7 +79,7 @@ class LADAR_PT_scene_output(_ScenePanel, bpy.types.Panel):
 
 def draw_results(layout, scene, obj=None):
     """Colouring, legend and point size of the result point clouds; waveform view and preview render."""
-    from ..ladar_addon.export import RESULT_TAG
+    from ..ladar_addon.names import RESULT_TAG
     from ..ladar_addon.results import COLOR_BY, legend_ramp_node, result_objects
 
     props = scene.ladar

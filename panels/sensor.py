@@ -11,7 +11,7 @@ import bpy
 from ..core.constants import SPEED_OF_LIGHT_M_S
 from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_detector_presets, LADAR_MT_sensor_presets, draw_preset_header
-from ..ladar_addon.properties import SENSOR_FIELDS, TOP_FIELDS
+from ..ladar_addon.fields import SENSOR_FIELDS, TOP_FIELDS
 from ..ladar_addon.sensor import camera_receiver_fov_rad, field_used, group_used
 from .common import (atmosphere_settings, draw_lines, reference_range_m, sensor_config, simulate_button,
                      simulate_options)

@@ -190,11 +190,11 @@ def _new_scene(bpy, name, resolution):
 
 
 def _set_si(scene, cam, values: dict) -> None:
-    """Settings in SI units through the add-on's Python API (``ladar_addon.properties.set_settings``): several
+    """Settings in SI units through the add-on's Python API (``ladar_addon.blend_config.set_settings``): several
     properties store scaled values (nm, ×1e-14 m^-2/3, Blender units), never write SI values into them."""
     import importlib
 
-    importlib.import_module(f"{blender_env.ADDON_MODULE}.ladar_addon.properties").set_settings(scene, cam, values)
+    importlib.import_module(f"{blender_env.ADDON_MODULE}.ladar_addon.blend_config").set_settings(scene, cam, values)
 
 
 def _save(bpy, scene, sensor, path: Path):

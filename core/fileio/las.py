@@ -60,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from .run_folder import new_temp_file
+from .staging import new_temp_file
 
 LAS_VERSION = (1, 4)
 HEADER_SIZE = 375
@@ -428,7 +428,7 @@ def run_points(run_dir) -> tuple[dict, dict]:
 
 
 def intensity_unit_of(metadata: dict) -> str:
-    """The unit of a run's point intensities: its metadata's ``units["intensity"]`` (core.systems.flash.product_units),
+    """The unit of a run's point intensities: its metadata's ``units["intensity"]`` (core.engine.result.product_units),
     J per bin for run folders written before units were recorded."""
     return (metadata.get("units") or {}).get("intensity") or "J per bin"
 

@@ -1,5 +1,6 @@
-"""Preview images of a run: false-colour PNGs of the range/intensity/energy images and of every gated slice, the
-scanner's point cloud seen from the sensor, and waveform plots with their detected echoes.  Never imports bpy.
+"""Every picture the simulator draws (the one home of plotting; physics modules never write files): false-colour
+PNGs of a run's range/intensity/energy images and of every gated slice, the scanner's point cloud seen from the
+sensor, waveform plots with their detected echoes, and BRDF plots.  Never imports bpy.
 
 Matplotlib draws them all (Agg, object API without pyplot: safe in a worker thread and leaves the user's
 backend alone); the extension bundles it with its dependencies (scripts/build_extension.py), so every preview
@@ -19,10 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..physics.brdf import evaluate_brdf
 
 #: What each image product shows: (title, colour map, scale starts at zero).  Units come from the run's
-#: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.systems.flash.product_units).
+#: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
 PRODUCTS = {"range": ("Range", "viridis", False), "intensity": ("Intensity", "inferno", True),
             "energy": ("Received energy", "inferno", True), "slices": ("Gated slice", "inferno", True)}
 NO_DATA_RGB = (0.35, 0.35, 0.35)  # pixels without a value (NaN range): grey
@@ -45,7 +48,7 @@ def write_bytes_atomically(path, data: bytes, *, overwrite: bool = False) -> Pat
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists (previews never replace a file unless asked)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    from .run_folder import new_temp_file
+    from .staging import new_temp_file
 
     fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
     try:
@@ -377,3 +380,49 @@ def run_units(run_dir) -> dict:
     """The units of a run folder's products (``metadata.json`` → ``units``); empty for a folder without them
     (a run written before units were recorded: its previews carry no unit rather than a wrong one)."""
     return dict(run_metadata(run_dir).get("units", {}))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# BRDF plot (paper §3.3): f_r(θ) of a material's ladar BRDF
+# --------------------------------------------------------------------------------------------------------------
+def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: float | None = None,
+              dpi: int = 100) -> Path:
+    """Write a 500×340 px PNG plot of f_r(θ) for θ = 0…90° (written atomically, replacing ``path``).
+
+    Matplotlib (Agg canvas, no pyplot; bundled with the extension): axes, labels, a log f_r axis when all
+    values are positive and span more than a factor 20 (a specular peak and a diffuse floor both show), a
+    table's measured rows as markers.
+    """
+    theta = np.linspace(0.0, 90.0, 361)
+    f_r = evaluate_brdf(brdf, np.cos(np.radians(theta)))
+    positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
+    log_axis = bool(positive and f_r.max() / f_r.min() > 20.0)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: leaves the user's backend alone
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.0, 3.4), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    label = {"lambertian": f"Lambertian, ρ = {brdf.reflectance:.3g}",
+             "steinvall": f"Steinvall A={brdf.specular_a:.3g}, s={brdf.slope_s:.3g}, B={brdf.diffuse_b:.3g}, "
+                          f"m={brdf.diffuse_m:.3g}",
+             "table": f"table at {brdf.table_wavelength_m * 1e9:.0f} nm (linear in θ)"}[brdf.model]
+    ax.plot(theta, f_r, color="#1f5fa8", label=label)
+    if brdf.model == "table":
+        ax.plot(brdf.table_angle_deg, brdf.table_brdf_per_sr, "o", color="#c2410c", markersize=4,
+                label="measured")
+    if log_axis:
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(bottom=0.0)
+    ax.set_xlim(0.0, 90.0)
+    ax.set_xlabel("incidence angle θ (deg)")
+    ax.set_ylabel("monostatic BRDF f_r (1/sr)")
+    text = title or "Ladar BRDF"
+    if laser_wavelength_m:
+        text += f" — laser {laser_wavelength_m * 1e9:.0f} nm"
+    ax.set_title(text, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    return save_figure(fig, path, overwrite=True)

@@ -7,9 +7,7 @@ previous run of this tool): the run folder rules are fileio.staging's.
 from __future__ import annotations
 
 import json
-import os
 import platform
-import secrets
 import sys
 import time
 from pathlib import Path
@@ -20,34 +18,6 @@ from ..constants import SPEED_OF_LIGHT_M_S
 from .staging import claim_run_dir
 
 EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
-
-
-def new_temp_dir(parent, prefix: str) -> Path:
-    """A new empty folder ``parent/<prefix><random>``, made by ``mkdir`` and so with the user's umask (0755 under
-    umask 022).  ``tempfile.mkdtemp`` makes 0700: a run folder renamed from it stays private to its owner."""
-    parent = Path(parent)
-    for _ in range(100):
-        path = parent / f"{prefix}{secrets.token_hex(6)}"
-        try:
-            os.mkdir(path)  # mode 0o777 & ~umask
-        except FileExistsError:
-            continue
-        return path
-    raise FileExistsError(f"no free temporary folder name {prefix}… in {parent}")
-
-
-def new_temp_file(parent, prefix: str, suffix: str = "") -> tuple[int, Path]:
-    """(open write-only descriptor, path) of a new empty file ``parent/<prefix><random><suffix>`` created with the
-    user's umask (0644 under umask 022; ``tempfile.mkstemp`` makes 0600, which a file renamed into place keeps)."""
-    parent = Path(parent)
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    for _ in range(100):
-        path = parent / f"{prefix}{secrets.token_hex(6)}{suffix}"
-        try:
-            return os.open(path, flags, 0o666), path  # mode 0o666 & ~umask
-        except FileExistsError:
-            continue
-    raise FileExistsError(f"no free temporary file name {prefix}…{suffix} in {parent}")
 
 
 def write_exr(path, channels: dict, attributes: dict | None = None):

@@ -1,7 +1,7 @@
 """Run folders: claimed before the run, built hidden, renamed into place; never anything else replaced.
 
 The one implementation of the staged run folder (used by ``fileio.run_folder.write_run``,
-``systems.flash.run_simulation``, ``sequence.run_sequence``, the add-on's job and the command line).  Rules:
+``core.run.run_simulation``, ``sequence.run_sequence``, the add-on's job and the command line).  Rules:
 
 * **Claim first.**  A run claims its folder's name when it starts, by creating the hidden staging folder
   ``.<name>.<hash>.ladar-staging`` beside it (``mkdir`` is atomic).  Inside is an owner file, locked by the
@@ -26,6 +26,7 @@ import errno
 import hashlib
 import json
 import os
+import secrets
 import shutil
 import time
 from pathlib import Path
@@ -37,6 +38,37 @@ from .locks import OWNER_FILE, FolderLock, lock_new_folder, remove_if_abandoned
 STAGING_SUFFIX = ".ladar-staging"
 #: Longest file name (bytes) where the file system does not say.
 DEFAULT_NAME_MAX = 255
+
+# ------------------------------------------------------------------------------------------------------------
+# Temporary files and folders (made with the user's umask, renamed into place when complete)
+# ------------------------------------------------------------------------------------------------------------
+def new_temp_dir(parent, prefix: str) -> Path:
+    """A new empty folder ``parent/<prefix><random>``, made by ``mkdir`` and so with the user's umask (0755 under
+    umask 022).  ``tempfile.mkdtemp`` makes 0700: a run folder renamed from it stays private to its owner."""
+    parent = Path(parent)
+    for _ in range(100):
+        path = parent / f"{prefix}{secrets.token_hex(6)}"
+        try:
+            os.mkdir(path)  # mode 0o777 & ~umask
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"no free temporary folder name {prefix}… in {parent}")
+
+
+def new_temp_file(parent, prefix: str, suffix: str = "") -> tuple[int, Path]:
+    """(open write-only descriptor, path) of a new empty file ``parent/<prefix><random><suffix>`` created with the
+    user's umask (0644 under umask 022; ``tempfile.mkstemp`` makes 0600, which a file renamed into place keeps)."""
+    parent = Path(parent)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        path = parent / f"{prefix}{secrets.token_hex(6)}{suffix}"
+        try:
+            return os.open(path, flags, 0o666), path  # mode 0o666 & ~umask
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary file name {prefix}…{suffix} in {parent}")
+
 
 # ------------------------------------------------------------------------------------------------------------
 # Run folders

@@ -18,7 +18,6 @@ table exactly at its angles, and adds no overshoot near a narrow specular peak (
 """
 from __future__ import annotations
 
-import io
 import math
 import re
 from pathlib import Path
@@ -199,51 +198,3 @@ def brdf_from_principled(base_color_rgb, roughness: float, metallic: float = 0.0
     slope = max(roughness * roughness, PRINCIPLED_MIN_SLOPE)
     return BRDFSettings(model="steinvall", specular_a=rho_facet / (4.0 * math.pi * slope * slope), slope_s=slope,
                         diffuse_b=rho_diffuse / math.pi, diffuse_m=0.0)
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Plot
-# --------------------------------------------------------------------------------------------------------------
-def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: float | None = None,
-              dpi: int = 100) -> Path:
-    """Write a 500×340 px PNG plot of f_r(θ) for θ = 0…90° (written atomically, replacing ``path``).
-
-    Matplotlib (Agg canvas, no pyplot; bundled with the extension): axes, labels, a log f_r axis when all
-    values are positive and span more than a factor 20 (a specular peak and a diffuse floor both show), a
-    table's measured rows as markers.
-    """
-    from ..fileio import preview
-
-    theta = np.linspace(0.0, 90.0, 361)
-    f_r = evaluate_brdf(brdf, np.cos(np.radians(theta)))
-    positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
-    log_axis = bool(positive and f_r.max() / f_r.min() > 20.0)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: leaves the user's backend alone
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(5.0, 3.4), dpi=dpi)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    label = {"lambertian": f"Lambertian, ρ = {brdf.reflectance:.3g}",
-             "steinvall": f"Steinvall A={brdf.specular_a:.3g}, s={brdf.slope_s:.3g}, B={brdf.diffuse_b:.3g}, "
-                          f"m={brdf.diffuse_m:.3g}",
-             "table": f"table at {brdf.table_wavelength_m * 1e9:.0f} nm (linear in θ)"}[brdf.model]
-    ax.plot(theta, f_r, color="#1f5fa8", label=label)
-    if brdf.model == "table":
-        ax.plot(brdf.table_angle_deg, brdf.table_brdf_per_sr, "o", color="#c2410c", markersize=4,
-                label="measured")
-    if log_axis:
-        ax.set_yscale("log")
-    else:
-        ax.set_ylim(bottom=0.0)
-    ax.set_xlim(0.0, 90.0)
-    ax.set_xlabel("incidence angle θ (deg)")
-    ax.set_ylabel("monostatic BRDF f_r (1/sr)")
-    text = title or "Ladar BRDF"
-    if laser_wavelength_m:
-        text += f" — laser {laser_wavelength_m * 1e9:.0f} nm"
-    ax.set_title(text, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
-    return preview.save_figure(fig, path, overwrite=True)

@@ -33,25 +33,28 @@ at t when d_k + W/2 = t):
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 
 import numpy as np
 from scipy.special import ndtri
 
-from ..errors import ConfigError
-from ..config.settings import SimulationConfig, validate
-from ..physics.laser import FWHM_TO_SIGMA, cell_energy_fractions, pulse_cdf, pulse_half_support_s
-from ..physics.propagation import blur_cube_and_image, prepare_frame_atmosphere, stage_seed, turbulence_switches
-from ..physics.radiometry import received_energy
-from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
-from ..geometry.trace import SceneTracer
+from ..config.settings import LaserSettings, SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
+from ..engine.blocks import item_blocks, run_blocks, worker_threads
+from ..engine.frame import StageLog, open_frame
+from ..engine.products import points_along_rays, reference_range_m
+from ..engine.result import FrameResult, product_units
+from ..engine.rng import stage_seed
+from ..errors import ConfigError
+from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
+from ..physics.laser import FWHM_TO_SIGMA, cell_energy_fractions, pulse_cdf, pulse_half_support_s
+from ..physics.radiometry import received_energy
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import round_trip_time_s
 
 #: Largest number of (ray, slice) gate evaluations at once (bounds memory, ~64 MB of float64 each).
-_MAX_TERMS = 4_000_000
+MAX_GATE_TERMS = 4_000_000
 
 
 def pulse_cdf_integral(laser, x_s):
@@ -235,31 +238,21 @@ def _fit_slice_response(prof, k, delays_s, config: SimulationConfig):
 
 def two_gate_range_m(e1, e2, gate_width_s, pulse_width_s, first_delay_s=0.0, pulse_shape="rectangular"):
     """Two-gate ratio range (physics.md §9) for adjacent gates [d, d+T], [d+T, d+2T]."""
-    from ..config.settings import LaserSettings
     laser = LaserSettings(pulse_shape=pulse_shape, pulse_fwhm_s=pulse_width_s)
     r = e2 / (e1 + e2)
     return 0.5 * SPEED_OF_LIGHT_M_S * (first_delay_s + gate_width_s - pulse_cdf_inverse(laser, 1.0 - r))
 
 
 def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
-                   progress=None, cancel=None):
-    """Simulate one gated-viewing sweep (all slices of one frame).  Returns a pipeline.FrameResult with
-    ``slices`` (n_slices, H, W), the range image from the slices, points and metadata."""
-    from ..errors import Cancelled
-    from .flash import FrameResult, _points, _reference_range, product_units, run_blocks
-    from ..geometry.motion import split_pose
-
-    t_wall = time.perf_counter()
-    validate(config)
-    scene = scene.with_overrides(config.materials)
-    scene.check()
-    origin, rot = split_pose(world_from_sensor)
-    times = {k: 0.0 for k in ("build_bvh", "rays", "trace", "radiometry", "gating", "products")}
-    t0 = time.perf_counter()
-    built = tracer is None or not tracer.serves(scene)
-    if built:
-        tracer = SceneTracer(scene)
-    times["build_bvh"] = time.perf_counter() - t0
+                   trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None) -> FrameResult:
+    """Simulate one gated-viewing sweep (all slices of one frame).  Returns a FrameResult with ``slices``
+    (n_slices, H, W), the range image from the slices, points and metadata.  The systems' common signature
+    (core.run.SYSTEMS): the sweep is fired from one pose, ``world_from_sensor`` (``trajectory`` and
+    ``start_time_s`` are not used)."""
+    log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "gating", "products"))
+    fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer)
+    scene, tracer, origin, rot = fr.scene, fr.tracer, fr.origin, fr.rot
+    times = log.times
     det = Detector.from_settings(config.receiver)
     g, laser = config.gated, config.laser
     delays = slice_delays_s(config)
@@ -269,7 +262,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     t0 = time.perf_counter()
     switches = turbulence_switches(config)
     needs_ref = any(s not in switches for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
-    r_ref = _reference_range(tracer, det, origin, rot) if needs_ref else None
+    r_ref = reference_range_m(tracer, det, origin, rot) if needs_ref else None
     per_slice_random = any(s not in switches for s in ("scintillation", "beam_wander"))
     atm_slices = [prepare_frame_atmosphere(config, det, r_ref, frame, pulse=k if per_slice_random else None)
                   for k in (range(n_sl) if per_slice_random else [0])]
@@ -279,14 +272,12 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
 
     s2 = det.rays_per_pixel
     per_block = max(1, config.run.chunk_rays // s2)
-    blocks = [(a, min(a + per_block, det.n_pixels)) for a in range(0, det.n_pixels, per_block)]
+    blocks = item_blocks(det.n_pixels, per_block)
     slices = np.zeros((n_sl, det.n_pixels))
     energy = np.zeros((len(atm_slices), det.n_pixels))
     support = pulse_half_support_s(laser) + 0.5 * g.shutter_edge_s
 
     def process(block):
-        if cancel is not None and cancel():
-            raise Cancelled()
         a, b = block
         local = {}
         t = time.perf_counter()
@@ -319,7 +310,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         out = np.zeros((n_sl, b - a))
         e_mat = np.stack(per_slice, axis=0) if len(per_slice) > 1 else None  # (n_slices, rays)
         if span > 0:
-            step_rays = max(1, _MAX_TERMS // span)
+            step_rays = max(1, MAX_GATE_TERMS // span)
             for c in range(0, len(t_rt), step_rays):
                 sl = slice(c, c + step_rays)
                 kk = lo[sl, None] + np.arange(span)[None, :]
@@ -337,12 +328,11 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         local["gating"] = time.perf_counter() - t
         return int(hit.sum()), local
 
-    threads = config.run.threads or os.cpu_count() or 1
-    results = run_blocks(process, blocks, threads, progress)
+    threads = worker_threads(config.run.threads)
+    results = run_blocks(process, blocks, threads, progress, cancel=cancel)
     n_hits = sum(r[0] for r in results)
     for _, local in results:
-        for k, v in local.items():
-            times[k] += v
+        log.add_times(local)
     if n_hits == 0:
         raise ConfigError("sensor", "sees nothing",
                           f"a field of view containing geometry: all {det.n_pixels * s2} rays missed the "
@@ -350,7 +340,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     h, w = det.height_px, det.width_px
     cube = np.ascontiguousarray(slices.T.reshape(h, w, n_sl))  # (H, W, slices)
     energy_image = energy.mean(axis=0).reshape(h, w)
-    skipped = dict(atm.skipped)
+    skipped = log.skipped
+    skipped.update(atm.skipped)
     stage_times = times
     if atm.blur_r0_m is not None:
         t0 = time.perf_counter()
@@ -384,11 +375,10 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     rng_m = range_image.reshape(-1)[pix].astype(np.float64)
     amp = peak_image.reshape(-1)[pix]
     zeros = np.zeros(len(pix), np.int16)
-    points = _points(det, origin, rot, pix, rng_m, amp, zeros, zeros + 1, 2 * rng_m / SPEED_OF_LIGHT_M_S, frame)
+    points = points_along_rays(det, origin, rot, pix, rng_m, amp, zeros, zeros + 1, 2 * rng_m / SPEED_OF_LIGHT_M_S,
+                               frame)
     stage_times["products"] = time.perf_counter() - t0
     skipped["waveform"] = "gated viewing: the gate response is evaluated in closed form per ray, no time bins"
-    if not built:
-        skipped["build_bvh"] = "the caller's BVH of this scene was reused"
     ran = [s for s in ("build_bvh", "rays", "trace", "radiometry", "gating", "extinction", "beam_broadening",
                        "scintillation", "return_scintillation", "beam_wander", "turbulence_blur", "receiver_chain",
                        "products")
@@ -401,7 +391,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                            "noise_sigma": noise_sigma, "pixels_detected": int(len(pix)),
                            "rule": "strongest slice ≥ max(min_peak_fraction × the frame's strongest slice, "
                                    + ("k_sigma × noise σ" if noise_sigma is not None else "min_signal_j") + ")"},
-             "wall_time_s": time.perf_counter() - t_wall, "received_energy_j": float(energy_image.sum()),
+             "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(energy_image.sum()),
              "stages_run": ran, "stages_skipped": skipped}
     if atm.metadata:
         stats["atmosphere"] = atm.metadata

@@ -1,19 +1,6 @@
 """Time-of-flight laser scanner (paper §2.1): pulses steered by a scan pattern, each with its own waveform.
 
-Scan patterns (angles in the sensor frame: −Z forward, +Y up, +X right; α to +X, β to +Y,
-d = (cos β sin α, sin β, −cos β cos α)), pulse k fired at t_k = k / PRF:
-
-* raster       unidirectional lines, line period 1/scan_rate, α sweeps −W/2 → +W/2, lines from β = +H/2 down;
-* oscillating  a sinusoidal across-track mirror α = (W/2) sin(2π f t), β = 0 (along-track from motion);
-* rotating     a head spinning about +Y, α = −W/2 + 2π f t, n_channels fired together at β ∈ [+H/2, −H/2];
-* palmer       a conical scan: the beam at the cone half angle c around −Z, azimuth φ = 2π f t.
-
-The beam footprint is sampled by rings of sub-rays of equal energy: ring k > 0 holds 6k rays and the rings'
-boundaries enclose the cumulative energy fractions (1 + 3k(k+1))/N of the beam; each ray sits at the angle that
-halves its ring's energy, so the N sub-rays carry exactly the pulse energy (Gaussian: enclosed fraction
-1 − exp(−2ρ²/θ²) with θ the 1/e² half-angle; uniform: ρ²/θ²).  Each ring is turned by its own azimuth
-offset (:func:`ring_offsets_rad`): no line through the beam centre carries rays of two rings, none of the axes
-carries a ray.
+Scan patterns, beam sub-rays and the rays of a block of pulses: :mod:`.scan_patterns`.
 
 Each pulse is fired from, and its echoes registered with, the sensor pose at its own time stamp (core/geometry/motion.py),
 so a scan from a moving platform lands in world coordinates; the ~µs flight time is neglected in the pose.
@@ -26,188 +13,33 @@ gate is used where it must be (noisy receiver: noise and false alarms everywhere
 from __future__ import annotations
 
 import dataclasses
-import functools
-import os
 import time
 
 import numpy as np
 
 from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_turbulence, gaussian_beam_parameters,
                           long_term_beam_radius, short_term_beam_radius)
+from ..config.derived import n_scan_pulses, scan_duration_s
+from ..config.settings import SimulationConfig
+from ..constants import SPEED_OF_LIGHT_M_S
+from ..engine.atmosphere_stage import turbulence_switches
+from ..engine.blocks import item_blocks, run_blocks, worker_threads
+from ..engine.frame import StageLog, open_frame
+from ..engine.products import noisy_echoes
+from ..engine.result import FrameResult, product_units
+from ..engine.rng import stage_rng, stage_seed
 from ..errors import ConfigError
-from ..config.derived import n_pulse_times, n_scan_pulses, scan_duration_s
-from ..config.settings import SimulationConfig, validate
+from ..geometry.motion import Trajectory
 from ..physics.detection.peaks import Echoes, detect_echoes
 from ..physics.laser import pulse_cdf, pulse_half_support_s
-from ..geometry.motion import Trajectory
-from ..physics.propagation import (box_average_variance_factor, effective_extinction_per_m,
-                                   return_scintillation_variance, stage_rng, stage_seed, turbulence_switches)
+from ..physics.propagation import box_average_variance_factor, effective_extinction_per_m, return_scintillation_variance
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
-from ..geometry.trace import SceneTracer
-from ..constants import SPEED_OF_LIGHT_M_S
 from ..physics.waveform import accumulate_waveforms, binning_method, round_trip_time_s
+from .scan_patterns import beam_subrays, pulse_schedule, scan_rays
 
 #: Pulses per random-number tile (noisy receiver): streams are per tile, so results do not depend on blocks.
 NOISE_TILE_PULSES = 4096
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Scan pattern
-# ----------------------------------------------------------------------------------------------------------
-def direction_from_angles(alpha, beta):
-    """Unit vectors (n, 3) in the sensor frame for horizontal angle α (to +X) and vertical angle β (to +Y)."""
-    cb = np.cos(beta)
-    return np.stack([cb * np.sin(alpha), np.sin(beta) * np.ones_like(alpha), -cb * np.cos(alpha)], axis=-1)
-
-
-def pulse_schedule(config: SimulationConfig, start: int = 0, stop: int | None = None, indices=None):
-    """Pulses [start, stop) (or the given pulse ``indices``) of the scan: (time_s (n,) float64, direction (n, 3)
-    sensor frame, channel (n,) int16, scan_angle_rad (n,) float64 — the across-scan angle α, or the azimuth for
-    the rotating head and palmer).
-
-    Pulses are numbered in time order; the rotating head's channels fired at one time are consecutive.
-    """
-    s = config.scanner
-    n_ch = s.n_channels if s.pattern == "rotating" else 1
-    total = n_pulse_times(config) * n_ch
-    stop = total if stop is None else min(stop, total)
-    idx = np.arange(start, stop, dtype=np.int64) if indices is None else np.asarray(indices, dtype=np.int64)
-    k, channel = idx // n_ch, idx % n_ch
-    t = k / s.pulse_rate_hz
-    if s.pattern == "raster":
-        line_period = 1.0 / s.scan_rate_hz
-        line = np.floor(t / line_period + 1e-9)
-        u = t / line_period - line
-        alpha = -0.5 * s.scan_width_rad + s.scan_width_rad * u
-        step = s.scan_height_rad / max(s.n_lines - 1, 1)
-        beta = 0.5 * s.scan_height_rad - step * np.minimum(line, s.n_lines - 1) if s.n_lines > 1 else 0.0 * t
-        d = direction_from_angles(alpha, beta)
-        angle = alpha
-    elif s.pattern == "oscillating":
-        alpha = 0.5 * s.scan_width_rad * np.sin(2 * np.pi * s.scan_rate_hz * t)
-        d = direction_from_angles(alpha, np.zeros_like(alpha))
-        angle = alpha
-    elif s.pattern == "rotating":
-        alpha = -0.5 * s.scan_width_rad + 2 * np.pi * s.scan_rate_hz * t
-        elevations = (np.linspace(0.5 * s.scan_height_rad, -0.5 * s.scan_height_rad, n_ch) if n_ch > 1
-                      else np.zeros(1))
-        d = direction_from_angles(alpha, elevations[channel])
-        angle = np.mod(alpha + np.pi, 2 * np.pi) - np.pi
-    else:  # palmer
-        phi = 2 * np.pi * s.scan_rate_hz * t
-        c = s.cone_half_angle_rad
-        d = np.stack([np.sin(c) * np.cos(phi), np.sin(c) * np.sin(phi), -np.cos(c) * np.ones_like(phi)], axis=-1)
-        angle = np.mod(phi + np.pi, 2 * np.pi) - np.pi
-    return t, d, channel.astype(np.int16), angle
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Beam sub-rays
-# ----------------------------------------------------------------------------------------------------------
-def beam_subrays(n_rings: int, profile: str = "gaussian"):
-    """Equal-energy sub-rays of a beam: (ρ/θ (m,), azimuth φ (m,), energy fraction (m,)) with
-    m = 1 + 3R(R+1) and θ the 1/e² half-angle (Gaussian) or the edge half-angle (uniform)."""
-    counts = np.array([1] + [6 * k for k in range(1, n_rings + 1)])
-    m = int(counts.sum())
-    cum = np.cumsum(counts) / m             # energy enclosed by each ring's outer boundary
-    inner = np.concatenate([[0.0], cum[:-1]])
-    mid = 0.5 * (inner + cum)               # each ray at the angle that halves its ring's energy
-    mid[0] = 0.0                            # the centre ray sits on the axis
-    if profile == "gaussian":
-        rho = np.sqrt(-0.5 * np.log1p(-mid))
-    else:
-        rho = np.sqrt(mid)
-    offsets = ring_offsets_rad(n_rings)
-    rho_all, phi_all = [], []
-    for k, n in enumerate(counts):
-        j = np.arange(n)
-        rho_all.append(np.full(n, rho[k]))
-        phi_all.append(offsets[k] + 2 * np.pi * j / n)
-    return np.concatenate(rho_all), np.concatenate(phi_all), np.full(m, 1.0 / m)
-
-
-#: Directions (rad, modulo π) no ring ray should sit on: the beam frame's axes and diagonals, along which scene
-#: edges (walls, kerbs, building corners) most often cross a beam.
-_RING_AVOID_RAD = (0.0, 0.25 * np.pi, 0.5 * np.pi, 0.75 * np.pi)
-
-
-@functools.lru_cache(maxsize=None)
-def _ring_offset_table(n_rings: int) -> tuple:
-    offsets, lines = [0.0], np.array(_RING_AVOID_RAD)
-    for k in range(1, n_rings + 1):
-        period = np.pi / (3 * k)  # ring k's 6k rays lie on 3k lines through the centre, π/(3k) apart
-        cand = (np.arange(256) + 0.5) / 256 * period
-        mine = (cand[:, None] + period * np.arange(3 * k)[None, :]) % np.pi
-        gap = np.abs((mine[:, :, None] - lines[None, None, :] + 0.5 * np.pi) % np.pi - 0.5 * np.pi).min(axis=(1, 2))
-        best = float(cand[np.argmax(gap)])
-        offsets.append(best)
-        lines = np.concatenate([lines, (best + period * np.arange(3 * k)) % np.pi])
-    return tuple(offsets)
-
-
-def ring_offsets_rad(n_rings: int) -> np.ndarray:
-    """Azimuth of the first ray of each ring (ring 0: the centre ray, 0).
-
-    A ring of 6k evenly spaced rays puts pairs of opposite rays on 3k lines through the beam centre; with every
-    ring starting at the same azimuth those lines coincide, and an edge along one of them (the old layout: the
-    beam's x and y axes) finds two rays of every ring on it (217 rays: 117 on one closed side, 0.540 of the
-    energy instead of ≈ 0.5).  Each ring is turned by its own offset, chosen ring by ring (deterministically) to
-    keep its lines as far as possible from the earlier rings' lines and from the axes and diagonals: no line
-    through the centre carries rays of two rings, so a half-plane through the centre holds half of the ring
-    rays, and no ray sits on the axes.  A ring's offset does not depend on the number of rings."""
-    return np.asarray(_ring_offset_table(max(16, n_rings))[: n_rings + 1])
-
-
-def _perpendicular_axes(d):
-    """Unit vectors u (≈ +X) and v (≈ +Y) perpendicular to unit directions d (n, 3)."""
-    up = np.zeros_like(d)
-    up[:, 1] = 1.0
-    u = np.cross(d, up)
-    norm = np.linalg.norm(u, axis=1)
-    along_y = norm < 1e-9
-    u[along_y] = (1.0, 0.0, 0.0)
-    norm[along_y] = 1.0
-    u /= norm[:, None]
-    v = np.cross(u, d)
-    return u, v
-
-
-def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
-              width_scale: float = 1.0):
-    """The sub-rays of pulses [start, stop): (time_s, channel, scan_angle, origin (n, 3), nominal axis (n, 3)
-    in world coordinates, ray origins (n·m, 3), ray directions (n·m, 3)), sub-rays of a pulse consecutive.
-
-    ``wander_rad`` (n, 2) displaces each beam's centre (beam wander, turbulence), ``width_scale`` widens the
-    beam (turbulent broadening); the nominal axis is what the sensor believes it fired along."""
-    laser = config.laser
-    t_s, d_sensor, channel, angle = pulse_schedule(config, start, stop)
-    n = len(t_s)
-    origin, rot = trajectory.poses_at(t_s)
-    if trajectory.rotation_is_constant:
-        rot = trajectory.rotation0
-        axis_world = d_sensor @ rot.T
-    else:
-        axis_world = np.einsum("nij,nj->ni", rot, d_sensor)
-    rho_unit, phi, weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)
-    m = len(weight)
-    centre = d_sensor
-    if wander_rad is not None and np.any(wander_rad):
-        u, v = _perpendicular_axes(d_sensor)
-        centre = d_sensor + wander_rad[:, :1] * u + wander_rad[:, 1:] * v
-        centre /= np.linalg.norm(centre, axis=1, keepdims=True)
-    if m > 1:
-        uc, vc = _perpendicular_axes(centre)
-        rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
-        off = np.cos(phi)[None, :, None] * uc[:, None, :] + np.sin(phi)[None, :, None] * vc[:, None, :]
-        d_sub = np.cos(rho)[None, :, None] * centre[:, None, :] + np.sin(rho)[None, :, None] * off
-    else:
-        d_sub = centre[:, None, :]
-    if rot.ndim == 2:
-        d_world = d_sub.reshape(-1, 3) @ rot.T
-    else:
-        d_world = np.einsum("nij,nmj->nmi", rot, d_sub).reshape(-1, 3)
-    return t_s, channel, angle, origin, axis_world, np.repeat(origin, m, axis=0), d_world
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -423,22 +255,14 @@ def _merge_echoes(parts) -> Echoes:
 # The scan
 # ----------------------------------------------------------------------------------------------------------
 def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
-                  trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None, cancel=None):
-    """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a pipeline.FrameResult whose images
-    are None and whose ``points`` and ``pulses`` carry the products (see module docstring)."""
-    from ..errors import Cancelled
-    from .flash import FrameResult, _noisy_echoes, product_units, run_blocks
-
-    t_wall = time.perf_counter()
-    validate(config)
-    scene = scene.with_overrides(config.materials)
-    scene.check()
-    times = {k: 0.0 for k in ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")}
-    t0 = time.perf_counter()
-    built = tracer is None or not tracer.serves(scene)
-    if built:
-        tracer = SceneTracer(scene)
-    times["build_bvh"] = time.perf_counter() - t0
+                  trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None,
+                  cancel=None) -> FrameResult:
+    """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a FrameResult whose images are None
+    and whose ``points`` and ``pulses`` carry the products (see module docstring).  The sensor moves along
+    ``trajectory`` (poses sampled in time) or stays at ``world_from_sensor``."""
+    log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products"))
+    fr = open_frame(scene, world_from_sensor if trajectory is None else None, config, log, tracer=tracer)
+    scene, tracer, times = fr.scene, fr.tracer, log.times
     if trajectory is None:
         trajectory = Trajectory.static(world_from_sensor)
     n_pulses = n_scan_pulses(config)
@@ -450,7 +274,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     method = binning_method(laser, gate)
     table = PulseTable(laser, gate.bin_width_s) if laser.pulse_shape == "gaussian" and method == "exact" else None
 
-    skipped = {}
+    skipped = log.skipped
     t0 = time.perf_counter()
     needs_ref = any(s not in turbulence_switches(config)
                     for s in ("beam_broadening", "scintillation", "beam_wander"))
@@ -469,7 +293,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     per_block = max(tile, (per_block // tile) * tile)
     if save or noisy:  # full-gate waveforms: bound the block's float64 waveform memory (~64 MiB)
         per_block = max(tile, min(per_block, (64 * 2**20 // (8 * gate.n_bins)) // tile * tile))
-    blocks = [(a, min(a + per_block, n_pulses)) for a in range(0, n_pulses, per_block)]
+    blocks = item_blocks(n_pulses, per_block)
     waveforms = np.zeros((n_pulses, gate.n_bins), np.float32) if save else None
     digital = [] if noisy else None
     chain_settings = ChainSettings.from_config(config)
@@ -483,8 +307,6 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     pulse_angle = np.zeros(n_pulses)
 
     def process(block):
-        if cancel is not None and cancel():
-            raise Cancelled()
         a, b = block
         n = b - a
         local = {}
@@ -527,7 +349,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                     tb = min(ta + tile, n)
                     chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], chain_settings,
                                                  stage_seed(config.run.seed, frame, "receiver", (a + ta) // tile))
-                    ech = _noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
+                    ech = noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
                                         noise_sigma=chain.report.get("noise_sigma"))
                     ech.pixel = ech.pixel + ta
                     parts.append(ech)
@@ -544,14 +366,13 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         local["echoes"] = time.perf_counter() - t
         return echoes, int(hit.sum()), local, None
 
-    threads = config.run.threads or os.cpu_count() or 1
-    results = run_blocks(process, blocks, threads, progress, label="pulse block")
+    threads = worker_threads(config.run.threads)
+    results = run_blocks(process, blocks, threads, progress, label="pulse block", cancel=cancel)
     for (a, _), res in zip(blocks, results):
         res[0].pixel = res[0].pixel + a
     n_hits = sum(r[1] for r in results)
     for r in results:
-        for k, v in r[2].items():
-            times[k] = times.get(k, 0.0) + v
+        log.add_times(r[2])
     t0 = time.perf_counter()
     echoes = _merge_echoes([r[0] for r in results])
     p = echoes.pixel
@@ -579,16 +400,14 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     ran = ["rays", "trace", "radiometry", "waveform", "echoes", "products"] + \
         [s for s in ("extinction", "beam_broadening", "scintillation", "return_scintillation", "beam_wander",
                      "receiver_chain", "waveform_cube", "motion") if s not in skipped]
-    if built:
+    if fr.built:
         ran.insert(0, "build_bvh")
-    else:
-        skipped["build_bvh"] = "the caller's BVH of this scene was reused"
     stats = {"n_pulses": n_pulses, "subrays_per_pulse": m, "n_rays": n_pulses * m, "n_hits": n_hits,
              "n_points": int(len(range_m)), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
              "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
              "scan_duration_s": scan_duration_s(config), "stage_times_s": times,
-             "wall_time_s": time.perf_counter() - t_wall, "received_energy_j": float(pulse_energy.sum()),
+             "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(pulse_energy.sum()),
              "stages_run": ran, "stages_skipped": skipped,
              "notes": {"divergence_fills_fov": "ignored by the scanner: the beam is laser.beam_divergence_rad",
                        "receiver": "the receiver collects the whole footprint; width/height/fov unused"}}

@@ -36,7 +36,8 @@ def lad(addon):
     """The installed add-on's modules: lad.properties, lad.export, ..., lad.config (its core.config)."""
     name = addon.__name__
     ns = types.SimpleNamespace(package=addon)
-    for short, mod in [("properties", "ladar_addon.properties"), ("export", "ladar_addon.export"),
+    for short, mod in [("properties", "ladar_addon.properties"), ("blend_config", "ladar_addon.blend_config"),
+                       ("fields", "ladar_addon.fields"), ("export", "ladar_addon.export"),
                        ("results", "ladar_addon.results"), ("simulate", "ladar_addon.simulate"),
                        ("cli", "ladar_addon.cli"), ("sensor", "ladar_addon.sensor"),
                        ("errors", "ladar_addon.errors"), ("config", "core.config"), ("scene", "core.geometry.scene"),

@@ -89,7 +89,7 @@ def test_export_config_round_trips(lad, plate_scene, tmp_path, capsys, suffix):
     assert code == 0, err
     loaded = lad.config.load_config(path)
     assert lad.config.config_to_dict(loaded) == \
-        lad.config.config_to_dict(lad.properties.config_from_blender(plate_scene, cam))
+        lad.config.config_to_dict(lad.blend_config.config_from_blender(plate_scene, cam))
     assert loaded.laser.pulse_energy_j == 0.003
     code, _, err = _run(lad, capsys, "validate-config", str(path))
     assert code == 0, err

@@ -34,26 +34,26 @@ def test_distance_ranges_cover_every_unit_scale(lad):
 ])
 def test_extreme_values_survive_odd_unit_scales(lad, scene, path, value_m, scale_length):
     cam = add_camera(scene)
-    cfg = lad.properties.config_from_blender(scene, cam)  # valid settings, read at 1 m per unit
+    cfg = lad.blend_config.config_from_blender(scene, cam)  # valid settings, read at 1 m per unit
     scene.unit_settings.system = "METRIC"
     scene.unit_settings.scale_length = scale_length
     group, name = path.split(".")
     setattr(getattr(cfg, group), name, value_m)
-    lad.properties.apply_config_to_blender(cfg, scene, cam)
+    lad.blend_config.apply_config_to_blender(cfg, scene, cam)
     stored = getattr(getattr(cam.ladar, group), name)
     assert stored == pytest.approx(value_m / scale_length, rel=1e-6)  # in Blender units, not clipped
-    back = lad.properties.config_from_blender(scene, cam)
+    back = lad.blend_config.config_from_blender(scene, cam)
     assert getattr(getattr(back, group), name) == pytest.approx(value_m, rel=1e-6)
 
 
 def test_out_of_range_distance_is_reported_in_metres(lad, scene):
     cam = add_camera(scene)
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     scene.unit_settings.system = "METRIC"
     scene.unit_settings.scale_length = 0.001
-    lad.properties.apply_config_to_blender(cfg, scene, cam)  # every distance re-expressed in millimetres
+    lad.blend_config.apply_config_to_blender(cfg, scene, cam)  # every distance re-expressed in millimetres
     cam.ladar.receiver.aperture_diameter_m = 20_000.0  # 20 m: above the core's 10 m, not clipped in Blender
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     assert cfg.receiver.aperture_diameter_m == pytest.approx(20.0)
     with pytest.raises(lad.config.ConfigError, match=r"receiver\.aperture_diameter_m = 20\.0.*10\] m"):
         lad.config.validate(cfg)

@@ -42,7 +42,7 @@ def test_matches_blenders_camera_frame(lad, scene, fit, size):
     assert math.tan(fx / 2) == pytest.approx(half_x, rel=1e-5)
     assert math.tan(fy / 2) == pytest.approx(half_y, rel=1e-5)
     # config_from_blender uses the same derivation
-    cfg = lad.properties.config_from_blender(scene, obj)
+    cfg = lad.blend_config.config_from_blender(scene, obj)
     assert (cfg.receiver.fov_x_rad, cfg.receiver.fov_y_rad) == (fx, fy)
 
 

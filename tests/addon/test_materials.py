@@ -52,7 +52,7 @@ def test_import_table_stores_rows_and_enables(lad, scene, tmp_path):
     props = mat.ladar_brdf
     assert props.enabled and props.model == "table" and props.table_source == "paint.csv"
     assert [r.angle_deg for r in props.table] == pytest.approx(ANGLES)
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     # float32 storage, read back as the shortest decimal: exactly the file's numbers.
     assert brdf.table_angle_deg == ANGLES and brdf.table_brdf_per_sr == VALUES
     assert brdf.table_wavelength_m == pytest.approx(1.55e-6, rel=1e-9)
@@ -61,7 +61,7 @@ def test_import_table_stores_rows_and_enables(lad, scene, tmp_path):
     path = tmp_path / "plain.txt"
     path.write_text("0 0.2\n90 0.1\n")
     assert _op("brdf_table_import", mat, filepath=str(path), wavelength=905.0) == {"FINISHED"}
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     assert brdf.table_wavelength_m == pytest.approx(9.05e-7, rel=1e-6) and brdf.table_angle_deg == [0.0, 90.0]
 
 
@@ -80,7 +80,7 @@ def test_bad_table_is_rejected_and_changes_nothing(lad, scene, tmp_path, text, m
     with pytest.raises(RuntimeError, match=message.replace("[", r"\[").replace("]", r"\]")
                        .replace("(", r"\(").replace(")", r"\)")):
         _op("brdf_table_import", mat, filepath=str(bad))
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     assert brdf.table_angle_deg == ANGLES and mat.ladar_brdf.table_source == "paint.csv"
 
 
@@ -88,7 +88,7 @@ def test_table_round_trip_through_the_blend_file(lad, scene, tmp_path):
     mat = _table_material(tmp_path)
     add_plate(scene, materials=[mat])  # a used material (orphan data is not saved)
     assert _op("brdf_plot", mat) == {"FINISHED"}
-    before = lad.properties.brdf_from_material(mat)
+    before = lad.blend_config.brdf_from_material(mat)
     blend = tmp_path / "table.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     (tmp_path / "paint.csv").unlink()  # the .blend must not need the source file
@@ -96,7 +96,7 @@ def test_table_round_trip_through_the_blend_file(lad, scene, tmp_path):
     assert "Paint" not in bpy.data.materials
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     mat = bpy.data.materials["Paint"]
-    after = lad.properties.brdf_from_material(mat)
+    after = lad.blend_config.brdf_from_material(mat)
     assert after == before
     assert after.table_angle_deg == ANGLES and after.table_brdf_per_sr == VALUES
     image = mat.ladar_brdf.plot
@@ -106,13 +106,13 @@ def test_table_round_trip_through_the_blend_file(lad, scene, tmp_path):
 def test_table_through_config_apply_and_read(lad, scene, tmp_path):
     cam = add_camera(scene)
     mat = bpy.data.materials.new("Board")
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     cfg.materials = {"Board": lad.config.BRDFSettings(model="table", table_wavelength_m=1.064e-6,
                                                       table_angle_deg=[0.0, 30.0, 90.0],
                                                       table_brdf_per_sr=[0.5, 0.25, 0.0])}
-    lad.properties.apply_config_to_blender(cfg, scene, cam)
+    lad.blend_config.apply_config_to_blender(cfg, scene, cam)
     assert mat.ladar_brdf.enabled and len(mat.ladar_brdf.table) == 3
-    back = lad.properties.config_from_blender(scene, cam)
+    back = lad.blend_config.config_from_blender(scene, cam)
     assert back.materials == cfg.materials
     # TOML config file → Blender → TOML: the table survives.
     text = lad.config.dump_config_toml(back)
@@ -120,8 +120,8 @@ def test_table_through_config_apply_and_read(lad, scene, tmp_path):
     cfg.materials["Board"] = lad.config.BRDFSettings(model="table", table_angle_deg=[0.0, 10.0],
                                                      table_brdf_per_sr=[0.5, -1.0])
     with pytest.raises(lad.config.ConfigError, match=r"materials.Board.table_brdf_per_sr\[1\]"):
-        lad.properties.apply_config_to_blender(cfg, scene, cam)
-    assert lad.properties.brdf_from_material(mat).table_brdf_per_sr == [0.5, 0.25, 0.0]  # unchanged
+        lad.blend_config.apply_config_to_blender(cfg, scene, cam)
+    assert lad.blend_config.brdf_from_material(mat).table_brdf_per_sr == [0.5, 0.25, 0.0]  # unchanged
 
 
 def test_table_material_simulates_like_its_lambertian_equal(lad, scene, tmp_path):
@@ -153,7 +153,7 @@ def test_principled_starting_values(lad, scene):
     if "Specular IOR Level" in node.inputs:
         node.inputs["Specular IOR Level"].default_value = 0.5
     assert _op("brdf_from_principled", mat) == {"FINISHED"}
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     assert brdf.model == "steinvall" and brdf.diffuse_m == 0.0
     assert brdf.specular_a == pytest.approx(0.050930, rel=1e-4)
     assert brdf.slope_s == pytest.approx(0.25, rel=1e-6)

@@ -158,7 +158,7 @@ def test_every_panel_draws_for_every_system_type(lad, scene, tmp_path, system_ty
         if group:
             assert cls.poll(ctx) == (group in shown or group not in shown | hidden), (group, system_type)
             if cls.poll(ctx):
-                fields = lad.properties.SENSOR_FIELDS[group]
+                fields = lad.fields.SENSOR_FIELDS[group]
                 drawn = _props(_draw(cls, ctx)) & {f.attr for f in fields}
                 want = {f.attr for f in fields
                         if sensor.field_used(system_type, group, f.name, cam.ladar.scanner.pattern)}

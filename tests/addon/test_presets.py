@@ -56,25 +56,25 @@ def test_atmosphere_presets(lad, scene, unit_scale):
         scene.unit_settings.scale_length = unit_scale
     for name, expected in ATMOSPHERE.items():
         _run("LADAR_MT_atmosphere_presets", PRESETS / "atmosphere" / f"{name}.py")
-        atm = lad.properties.config_from_blender(scene, cam).atmosphere
+        atm = lad.blend_config.config_from_blender(scene, cam).atmosphere
         for key, value in expected.items():
             assert getattr(atm, key) == (value if isinstance(value, str) else pytest.approx(value, rel=1e-6)), name
         if "cn2_m_23" in expected:
             assert atm.beam_broadening and atm.scintillation and atm.beam_wander and atm.turbulence_blur != "none"
     # Visibility and turbulence presets leave each other's fields alone.
-    atm = lad.properties.config_from_blender(scene, cam).atmosphere
+    atm = lad.blend_config.config_from_blender(scene, cam).atmosphere
     assert atm.visibility_m == pytest.approx(500.0) and atm.cn2_m_23 == pytest.approx(1e-13)
     _run("LADAR_MT_atmosphere_presets", PRESETS / "atmosphere" / "Haze_(5_km).py")
-    atm = lad.properties.config_from_blender(scene, cam).atmosphere
+    atm = lad.blend_config.config_from_blender(scene, cam).atmosphere
     assert atm.visibility_m == pytest.approx(5000.0) and atm.cn2_m_23 == pytest.approx(1e-13)
-    lad.config.validate(lad.properties.config_from_blender(scene, cam))
+    lad.config.validate(lad.blend_config.config_from_blender(scene, cam))
 
 
 def test_detector_presets(lad, scene):
     cam = add_camera(scene)
     for name, expected in DETECTOR.items():
         _run("LADAR_MT_detector_presets", PRESETS / "detector" / f"{name}.py")
-        cfg = lad.properties.config_from_blender(scene, cam)
+        cfg = lad.blend_config.config_from_blender(scene, cam)
         lad.config.validate(cfg)
         assert cfg.detector.mode == "noisy"
         for key, value in expected.items():
@@ -100,7 +100,7 @@ def test_user_preset_round_trip(lad, scene):
         assert cam.ladar.detector.apd_gain == pytest.approx(15.0)
         _run("LADAR_MT_detector_presets", det_path)
         _run("LADAR_MT_atmosphere_presets", atm_path)
-        cfg = lad.properties.config_from_blender(scene, cam)
+        cfg = lad.blend_config.config_from_blender(scene, cam)
         assert cfg.detector.apd_gain == pytest.approx(42.0)
         assert cfg.detector.dark_current_bulk_a == pytest.approx(3e-12)
         assert cfg.atmosphere.cn2_m_23 == pytest.approx(2.5e-14)
@@ -150,7 +150,7 @@ def test_panels_draw_presets_and_figures(lad, scene):
     ctx = types.SimpleNamespace(object=cam, camera=cam.data, scene=scene, material=None)
     scene.ladar_atmosphere.cn2_m_23 = 1.0
     scene.ladar_atmosphere.visibility_m = 5000.0
-    for system_type in lad.properties.SYSTEM_TYPE_FIELD.meta["choices"]:
+    for system_type in lad.fields.SYSTEM_TYPE_FIELD.meta["choices"]:
         cam.ladar.system_type = system_type
         for det_type in ("pin", "apd", "geiger"):
             cam.ladar.detector.detector_type = det_type

@@ -60,7 +60,7 @@ def test_every_sensor_preset_applies_and_round_trips(lad, scene, path, unit_scal
     cam.ladar.run.chunk_rays = 5000  # not a sensor setting: the preset leaves it alone
     expected = _preset_values(path)
     _execute("LADAR_MT_sensor_presets", path, object=cam)
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     lad.config.validate(cfg)
     assert cfg.system_type == expected["system_type"]
     for group, values in expected.items():
@@ -83,7 +83,7 @@ def test_sensor_presets_replace_each_other_and_fail_cleanly(lad, scene):
                                                                "Spinning_905_nm_automotive_16_channels"))
     _execute("LADAR_MT_sensor_presets", flash, object=cam)
     _execute("LADAR_MT_sensor_presets", spin, object=cam)
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     assert cfg.system_type == "scanner" and cfg.scanner.n_channels == 16
     assert cfg.laser.wavelength_m == pytest.approx(9.05e-7) and cfg.receiver.width_px == 128  # kept from flash
     # An invalid value changes nothing; an unknown group is named.
@@ -92,7 +92,7 @@ def test_sensor_presets_replace_each_other_and_fail_cleanly(lad, scene):
             presets.apply_sensor_preset({"system_type": "flash", "laser": {"pulse_energy_j": -1.0}})
         with pytest.raises(lad.config.ConfigError, match="preset.lasers"):
             presets.apply_sensor_preset({"lasers": {}})
-    assert lad.properties.config_from_blender(scene, cam).system_type == "scanner"
+    assert lad.blend_config.config_from_blender(scene, cam).system_type == "scanner"
     bpy.data.objects.remove(cam)
     scene.camera = None
     with pytest.raises(lad.errors.LadarError, match="no camera"):
@@ -105,7 +105,7 @@ def test_every_material_preset_applies_and_round_trips(lad, scene, path):
     expected = _preset_values(path)
     _execute("LADAR_MT_material_presets", path, material=mat)
     assert mat.ladar_brdf.enabled and mat.ladar_brdf.origin.startswith("Preset ")
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     lad.config.validate(brdf)
     for name, value in expected.items():
         if isinstance(value, list):
@@ -125,16 +125,16 @@ def test_material_preset_worked_values(lad, scene):
     brdf_mod = import_module(f"{lad.package.__name__}.core.physics.brdf")
     mat = bpy.data.materials.new("M")
     _execute("LADAR_MT_material_presets", PRESETS / "material" / "Paint_glossy.py", material=mat)
-    f = brdf_mod.evaluate_brdf(lad.properties.brdf_from_material(mat), [1.0, math.cos(math.radians(30))])
+    f = brdf_mod.evaluate_brdf(lad.blend_config.brdf_from_material(mat), [1.0, math.cos(math.radians(30))])
     assert f == pytest.approx([0.1300, 0.06931], rel=5e-4)
     _execute("LADAR_MT_material_presets", PRESETS / "material" / "Retroreflective_sheeting.py", material=mat)
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     f = brdf_mod.evaluate_brdf(brdf, [1.0, math.cos(math.radians(30)), math.cos(math.radians(25))])
     assert f == pytest.approx([70.0, 30.0 / math.cos(math.radians(30)) ** 2, 50.5], rel=1e-6)  # 25°: (61+40)/2
     assert brdf.table_wavelength_m == pytest.approx(5.55e-7)
     # A Lambertian preset after a table keeps the (now unused) table.
     _execute("LADAR_MT_material_presets", PRESETS / "material" / "Concrete_(NIR).py", material=mat)
-    brdf = lad.properties.brdf_from_material(mat)
+    brdf = lad.blend_config.brdf_from_material(mat)
     assert brdf.model == "lambertian" and brdf.reflectance == pytest.approx(0.35) and len(brdf.table_angle_deg) == 10
     # Bad values and a missing material are errors that change nothing.
     presets = lad.package.ladar_addon.presets
@@ -142,7 +142,7 @@ def test_material_preset_worked_values(lad, scene):
         presets.apply_material_preset({"model": "table", "table_angle_deg": [0.0, 9.0],
                                        "table_brdf_per_sr": [1.0, -1.0]}, "bad", context=types.SimpleNamespace(
                                            material=mat))
-    assert lad.properties.brdf_from_material(mat).model == "lambertian"
+    assert lad.blend_config.brdf_from_material(mat).model == "lambertian"
     with pytest.raises(lad.errors.LadarError, match="no material"):
         presets.apply_material_preset({"model": "lambertian"}, "x", context=types.SimpleNamespace(material=None))
 
@@ -161,18 +161,18 @@ def test_user_sensor_and_material_presets_round_trip(lad, scene, tmp_path):
     material_path = bpy.utils.preset_find("My_Sign", "ladar_simulator/material")
     assert sensor_path and material_path
     try:
-        want_cfg = lad.properties.config_from_blender(scene, cam)
-        want_brdf = lad.properties.brdf_from_material(mat)
+        want_cfg = lad.blend_config.config_from_blender(scene, cam)
+        want_brdf = lad.blend_config.brdf_from_material(mat)
         other = add_camera(scene, name="Other", set_scene_camera=False)
         other_mat = bpy.data.materials.new("Other")
         _execute("LADAR_MT_sensor_presets", sensor_path, object=other)
         _execute("LADAR_MT_material_presets", material_path, material=other_mat)
-        got = lad.properties.config_from_blender(scene, other)
+        got = lad.blend_config.config_from_blender(scene, other)
         for group in ("laser", "receiver", "gate", "scanner", "gated", "detection", "detector"):
             assert getattr(got, group) == getattr(want_cfg, group), group
         assert got.system_type == "scanner" and got.scanner.scan_rate_hz == pytest.approx(37.0)
-        assert lad.properties.brdf_from_material(other_mat) == want_brdf
-        assert lad.properties.brdf_from_material(other_mat).table_brdf_per_sr[3] == 41.5
+        assert lad.blend_config.brdf_from_material(other_mat) == want_brdf
+        assert lad.blend_config.brdf_from_material(other_mat).table_brdf_per_sr[3] == 41.5
     finally:
         for p in (sensor_path, material_path):
             Path(p).unlink(missing_ok=True)

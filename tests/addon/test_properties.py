@@ -16,7 +16,7 @@ def _core_paths(config):
 
 
 def test_every_core_setting_has_one_home_in_blender(lad):
-    assert lad.properties.all_core_paths() == _core_paths(lad.config)
+    assert lad.fields.all_core_paths() == _core_paths(lad.config)
     brdf_attrs = set(lad.properties.LadarBRDFSettings.bl_rna.properties.keys()) - {"rna_type", "name"}
     # The measured table's lists (core.config.BRDF_TABLE_FIELDS) live in the "table" rows (ladar_addon.materials).
     assert brdf_attrs == {n for n, _, _ in lad.config.field_specs(lad.config.BRDFSettings)} | {
@@ -66,7 +66,7 @@ def test_property_definitions_follow_the_core_metadata(lad):
 
 def test_new_sensor_has_core_defaults_except_64x64(lad, scene):
     cam = add_camera(scene, width_px=64, height_px=64)
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     expected = lad.config.config_to_dict(lad.config.SimulationConfig())
     got = lad.config.config_to_dict(cfg)
     for d in (expected, got):
@@ -98,7 +98,7 @@ def _non_default_config(lad):
                                            diffuse_b=0.08, diffuse_m=1.0),
                    "Grey10": c.BRDFSettings(reflectance=0.1)})
     # settings stored in powers of ten (tiny values such as Cn²) get a non-default value too
-    for f in lad.properties.ATMOSPHERE_FIELDS + [f for fs in lad.properties.SENSOR_FIELDS.values() for f in fs]:
+    for f in lad.fields.ATMOSPHERE_FIELDS + [f for fs in lad.fields.SENSOR_FIELDS.values() for f in fs]:
         if f.conversion == "pow10":
             setattr(getattr(cfg, f.group), f.name, float(f"{(f.default or f.meta['hi'] / 400) * 2.5:.3g}"))
     # any other fields the core grows keep their defaults
@@ -117,8 +117,8 @@ def _set_up(scene):
 def test_core_to_blender_to_core(lad, scene):
     cfg = _non_default_config(lad)
     cam = _set_up(scene)
-    lad.properties.apply_config_to_blender(cfg, scene, cam)
-    back = lad.properties.config_from_blender(scene, cam)
+    lad.blend_config.apply_config_to_blender(cfg, scene, cam)
+    back = lad.blend_config.config_from_blender(scene, cam)
     want, got = lad.config.config_to_dict(cfg), lad.config.config_to_dict(back)
     for key in ("fov_x_rad", "fov_y_rad"):  # through the camera lens (float32): 1e-6 relative
         assert got["receiver"].pop(key) == pytest.approx(want["receiver"].pop(key), rel=1e-6)
@@ -138,14 +138,14 @@ def test_blender_to_core_to_blender(lad, scene):
     cam.ladar.receiver.aperture_diameter_m = 0.2
     scene.ladar.seed = 42
     scene.ladar_atmosphere.extinction_per_m = 3e-4
-    cfg1 = lad.properties.config_from_blender(scene, cam)
+    cfg1 = lad.blend_config.config_from_blender(scene, cam)
 
     bpy.ops.wm.read_homefile(use_empty=True)
     scene2 = bpy.context.scene
     cam2 = add_camera(scene2, width_px=64, height_px=64)
     bpy.data.materials.new("Board")
-    lad.properties.apply_config_to_blender(cfg1, scene2, cam2)
-    cfg2 = lad.properties.config_from_blender(scene2, cam2)
+    lad.blend_config.apply_config_to_blender(cfg1, scene2, cam2)
+    cfg2 = lad.blend_config.config_from_blender(scene2, cam2)
     d1, d2 = lad.config.config_to_dict(cfg1), lad.config.config_to_dict(cfg2)
     for key in ("fov_x_rad", "fov_y_rad"):
         assert d2["receiver"].pop(key) == pytest.approx(d1["receiver"].pop(key), rel=1e-6)
@@ -159,41 +159,41 @@ def test_unit_scale_applies_to_distances(lad, scene):
     scene.unit_settings.system = "METRIC"
     scene.unit_settings.scale_length = 0.01  # 1 Blender unit = 1 cm
     cam.ladar.receiver.aperture_diameter_m = 5.0  # 5 BU = 5 cm
-    assert lad.properties.config_from_blender(scene, cam).receiver.aperture_diameter_m == pytest.approx(0.05)
+    assert lad.blend_config.config_from_blender(scene, cam).receiver.aperture_diameter_m == pytest.approx(0.05)
 
 
 def test_apply_refuses_bad_configs_and_changes_nothing(lad, scene):
     cam = _set_up(scene)
-    before = lad.config.config_to_dict(lad.properties.config_from_blender(scene, cam))
+    before = lad.config.config_to_dict(lad.blend_config.config_from_blender(scene, cam))
     bad = _non_default_config(lad)
     bad.laser.pulse_energy_j = -1.0
     with pytest.raises(lad.config.ConfigError) as err:
-        lad.properties.apply_config_to_blender(bad, scene, cam)
+        lad.blend_config.apply_config_to_blender(bad, scene, cam)
     assert err.value.field == "laser.pulse_energy_j"
     big_seed = _non_default_config(lad)
     big_seed.run.seed = 2**40
     with pytest.raises(lad.config.ConfigError) as err:
-        lad.properties.apply_config_to_blender(big_seed, scene, cam)
+        lad.blend_config.apply_config_to_blender(big_seed, scene, cam)
     assert err.value.field == "run.seed"
     unknown = _non_default_config(lad)
     unknown.materials["Nope"] = lad.config.BRDFSettings()
     with pytest.raises(lad.config.ConfigError, match="Nope"):
-        lad.properties.apply_config_to_blender(unknown, scene, cam)
-    assert lad.config.config_to_dict(lad.properties.config_from_blender(scene, cam)) == before
+        lad.blend_config.apply_config_to_blender(unknown, scene, cam)
+    assert lad.config.config_to_dict(lad.blend_config.config_from_blender(scene, cam)) == before
 
 
 def test_config_from_blender_needs_a_camera(lad, scene):
     empty = bpy.data.objects.new("Empty", None)
     with pytest.raises(lad.errors.LadarError, match="not a camera"):
-        lad.properties.config_from_blender(scene, empty)
+        lad.blend_config.config_from_blender(scene, empty)
     with pytest.raises(lad.errors.LadarError, match="no ladar sensor"):
-        lad.properties.config_from_blender(scene, None)
+        lad.blend_config.config_from_blender(scene, None)
 
 
 def test_brdf_of_materials(lad, scene):
     plain = bpy.data.materials.new("Plain")
-    assert lad.properties.brdf_from_material(plain) == lad.config.DEFAULT_BRDF
-    assert lad.properties.brdf_from_material(None) == lad.config.DEFAULT_BRDF
+    assert lad.blend_config.brdf_from_material(plain) == lad.config.DEFAULT_BRDF
+    assert lad.blend_config.brdf_from_material(None) == lad.config.DEFAULT_BRDF
     paint = brdf_material("Paint", model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08)
-    brdf = lad.properties.brdf_from_material(paint)
+    brdf = lad.blend_config.brdf_from_material(paint)
     assert dataclasses.astuple(brdf) == ("steinvall", 0.3, 0.05, 0.2, 0.08, 1.0, 1.064e-6, [], [])

@@ -28,7 +28,7 @@ def test_installed_as_an_extension(addon):
     assert blender_env.ADDON_MODULE in _enabled_modules()
     # the add-on's core is the package-relative one, never the top-level `core`
     assert "bl_ext.ladar_dev.ladar_simulator.core.config" in sys.modules
-    assert (addon.ladar_addon.properties.SimulationConfig.__module__
+    assert (addon.ladar_addon.blend_config.SimulationConfig.__module__
             == "bl_ext.ladar_dev.ladar_simulator.core.config.settings")
     repo = next(r for r in bpy.context.preferences.extensions.repos if r.module == blender_env.REPO_MODULE)
     assert (blender_env.Path(repo.directory) / "ladar_simulator" / "blender_manifest.toml").is_file()
@@ -82,8 +82,10 @@ def test_old_core_paths_resolve_inside_the_installed_package(addon):
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        old = importlib.import_module(f"{addon.__name__}.core.pipeline")
-    assert old is importlib.import_module(f"{addon.__name__}.core.systems.flash")
-    assert old.__spec__.name == f"{addon.__name__}.core.systems.flash"
-    assert any(issubclass(w.category, DeprecationWarning) and f"{addon.__name__}.core.systems.flash" in str(w.message)
-               for w in caught)
+        old = importlib.import_module(f"{addon.__name__}.core.runio")
+        split = importlib.import_module(f"{addon.__name__}.core.pipeline")
+    new = f"{addon.__name__}.core.fileio.run_folder"
+    assert old is importlib.import_module(new)
+    assert old.__spec__.name == new
+    assert split.run_simulation is importlib.import_module(f"{addon.__name__}.core.run").run_simulation
+    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)

@@ -22,7 +22,7 @@ def _snapshot(lad, scene):
     """Everything that matters of a built sample: settings, objects, geometry."""
     cam = scene.ladar.sensor
     geometry = lad.export.scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get())
-    return (lad.config.config_to_dict(lad.properties.config_from_blender(scene, cam)),
+    return (lad.config.config_to_dict(lad.blend_config.config_from_blender(scene, cam)),
             sorted((o.name, o.type, tuple(round(x, 6) for x in o.location)) for o in bpy.data.objects),
             geometry.vertices_m.round(6).tolist(), geometry.triangles.tolist(), geometry.material_ids.tolist(),
             geometry.material_names)
@@ -32,7 +32,7 @@ def test_sample_contents(lad, addon):
     scene = _open(SAMPLE)
     cam = scene.ladar.sensor
     assert cam is not None and cam.type == "CAMERA" and scene.camera == cam
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     rx, laser, gate = cfg.receiver, cfg.laser, cfg.gate
     assert (rx.width_px, rx.height_px, rx.subsamples) == (64, 64, 4)
     assert math.degrees(rx.fov_x_rad) == pytest.approx(2.0, rel=1e-5)
@@ -90,7 +90,7 @@ def test_builder_is_deterministic(lad, addon, tmp_path):
 def test_system_samples_hold_what_their_readme_example_needs(lad, addon, name, system):
     scene = _open(REPO / "sample_blends" / f"{name}.blend")
     cam = scene.ladar.sensor
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     assert cfg.system_type == system
     geometry = lad.export.scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get())
     sensor_pos = np.array(cam.matrix_world.translation)

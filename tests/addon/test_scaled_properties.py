@@ -57,9 +57,9 @@ def test_si_value_set_through_the_python_api_reaches_the_run(lad, scene, tmp_pat
     paint.ladar_brdf.enabled = True
     cam = add_camera(scene, width_px=4, height_px=4, fov_rad=0.004)
     add_plate(scene, size=20.0, location=(0.0, 0.0, -200.0), materials=(paint,))  # 100 m away
-    lad.properties.set_settings(scene, cam, {"gate.gate_start_s": 2 * 90.0 / C, "gate.n_bins": 128})
+    lad.blend_config.set_settings(scene, cam, {"gate.gate_start_s": 2 * 90.0 / C, "gate.n_bins": 128})
     value = SCALED[path]
-    cfg = lad.properties.set_settings(scene, cam, {path: value})
+    cfg = lad.blend_config.set_settings(scene, cam, {path: value})
     field = _fields(lad)[path]
     stored = getattr(_owner(scene, cam, path), field.attr)
     assert stored != pytest.approx(value, rel=1e-3)  # stored scaled: an SI value written there would be wrong
@@ -71,16 +71,16 @@ def test_si_value_set_through_the_python_api_reaches_the_run(lad, scene, tmp_pat
         group, name = path.split(".")
         got = settings[group][name]
     assert got == value
-    assert lad.properties.config_from_blender(scene, cam) == cfg
+    assert lad.blend_config.config_from_blender(scene, cam) == cfg
 
 
 def test_set_settings_refuses_unknown_paths_and_bad_values_changing_nothing(lad, scene):
     cam = add_camera(scene)
-    before = lad.properties.config_from_blender(scene, cam)
+    before = lad.blend_config.config_from_blender(scene, cam)
     with pytest.raises(lad.config.ConfigError, match="atmosphere.cn2"):
-        lad.properties.set_settings(scene, cam, {"atmosphere.cn2": 5e-15})
+        lad.blend_config.set_settings(scene, cam, {"atmosphere.cn2": 5e-15})
     with pytest.raises(lad.config.ConfigError, match="atmosphere.cn2_m_23"):
-        lad.properties.set_settings(scene, cam, {"laser.wavelength_m": 532e-9, "atmosphere.cn2_m_23": 1.0})
+        lad.blend_config.set_settings(scene, cam, {"laser.wavelength_m": 532e-9, "atmosphere.cn2_m_23": 1.0})
     with pytest.raises(lad.config.ConfigError, match="materials.Nope.reflectance"):
-        lad.properties.set_settings(scene, cam, {"materials.Nope.reflectance": 0.5})
-    assert lad.properties.config_from_blender(scene, cam) == before
+        lad.blend_config.set_settings(scene, cam, {"materials.Nope.reflectance": 0.5})
+    assert lad.blend_config.config_from_blender(scene, cam) == before

@@ -7,10 +7,11 @@ import pytest
 
 from core.systems import flash as pipeline
 from core.errors import ConfigError
-from core.config.settings import (SimulationConfig, config_from_dict, config_to_dict, dump_config_json,
-                                  dump_config_toml, load_config, validate)
+from core.config.settings import SimulationConfig, validate
+from core.config.files import config_from_dict, config_to_dict, dump_config_json, dump_config_toml, load_config
 from core.errors import Cancelled
-from core.systems.flash import run_simulation, simulate_frame
+from core.run import run_simulation
+from core.systems.flash import simulate_frame
 from core.fileio.run_folder import read_exr, read_ply
 from core.geometry.scene import SceneGeometry
 from scenes import config_for, plate

@@ -6,12 +6,14 @@ import dataclasses
 import numpy as np
 import pytest
 
+from core.engine import frame as frame_engine
 from core.systems import flash as pipeline
 from core.config.settings import BRDFSettings
 from core.errors import ConfigError
 from core.geometry.culling import frustum_triangles
 from core.engine.memory import estimate_flash_memory
-from core.systems.flash import run_simulation, simulate_frame
+from core.run import run_simulation
+from core.systems.flash import simulate_frame
 from core.geometry.scene import SceneGeometry, merge_meshes
 from core.geometry.trace import SceneTracer
 from scenes import config_for, plate
@@ -86,12 +88,12 @@ def test_static_geometry_is_not_rebuilt(monkeypatch):
     cfg = config_for(100.0, pixels=4)
     tracer = SceneTracer(scene)
     built = []
-    real = pipeline.SceneTracer
+    real = frame_engine.SceneTracer
 
     def counting(*args, **kwargs):
         built.append(args)
         return real(*args, **kwargs)
-    monkeypatch.setattr(pipeline, "SceneTracer", counting)
+    monkeypatch.setattr(frame_engine, "SceneTracer", counting)  # the frame engine builds every BVH
     first = simulate_frame(scene, np.eye(4), cfg, tracer=tracer, frame=1)
     cfg.materials = {"plate": BRDFSettings(reflectance=0.6)}
     second = simulate_frame(scene, np.eye(4), cfg, tracer=tracer, frame=2)

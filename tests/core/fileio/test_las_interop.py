@@ -18,7 +18,7 @@ from core.geometry.groundtruth import surface_material_ids
 from core.geometry.motion import Trajectory
 from core.geometry.scene import SceneGeometry
 from core.geometry.trace import SceneTracer
-from core.systems.flash import run_simulation, simulate
+from core.run import run_simulation, simulate
 from scenes import C, config_for, plate
 
 

@@ -8,9 +8,9 @@ import pytest
 
 from core.fileio.las import write_run_las
 from core.fileio.preview import write_run_previews
-from core.fileio.run_folder import new_temp_dir, new_temp_file
+from core.fileio.staging import new_temp_dir, new_temp_file
 from core.sequence import run_sequence
-from core.systems.flash import run_simulation
+from core.run import run_simulation
 from scenes import config_for, plate
 
 

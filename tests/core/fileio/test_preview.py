@@ -13,7 +13,7 @@ from core.config import SimulationConfig
 from core.constants import SPEED_OF_LIGHT_M_S
 from core.fileio import preview
 from core.fileio.run_folder import write_exr
-from core.systems.flash import run_simulation
+from core.run import run_simulation
 from scenes import C, config_for, plate
 
 

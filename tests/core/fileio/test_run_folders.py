@@ -26,7 +26,7 @@ from core.errors import ConfigError
 from core.fileio.locks import OWNER_FILE
 from core.fileio.staging import claim_run_dir, is_run_folder, staging_path
 from core.sequence import run_sequence
-from core.systems.flash import run_simulation
+from core.run import run_simulation
 from scenes import config_for, plate
 
 REPO = Path(__file__).resolve().parents[3]

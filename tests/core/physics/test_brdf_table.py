@@ -6,11 +6,12 @@ import tomllib
 import numpy as np
 import pytest
 
+from core.fileio.preview import plot_brdf
 from core.physics.brdf import (brdf_from_principled, directional_hemispherical_reflectance, evaluate_brdf,
                                evaluate_materials, lambertian_equivalent_reflectance, load_brdf_table,
-                               parse_brdf_table, plot_brdf, table_brdf)
-from core.config.settings import (BRDFSettings, SimulationConfig, config_from_dict, dump_config_json,
-                                  dump_config_toml, load_config, validate)
+                               parse_brdf_table, table_brdf)
+from core.config.settings import BRDFSettings, SimulationConfig, validate
+from core.config.files import config_from_dict, dump_config_json, dump_config_toml, load_config
 from core.errors import ConfigError
 from core.physics.radiometry import received_energy
 from core.config.settings import LaserSettings, ReceiverSettings

@@ -8,7 +8,7 @@ from core.errors import ConfigError
 from core.config.settings import LaserSettings, SimulationConfig, validate
 from core.systems.gated import gate_response, pulse_cdf_integral, slice_delays_s, two_gate_range_m
 from core.physics.laser import pulse_cdf
-from core.systems.flash import run_simulation, simulate
+from core.run import run_simulation, simulate
 from core.fileio.run_folder import read_exr, run_summary
 from core.geometry.scene import SceneGeometry
 from core.geometry.trace import SceneTracer

@@ -8,7 +8,8 @@ import pytest
 from core.config.settings import SimulationConfig
 from core.fileio import preview
 from core.fileio.las import read_las
-from core.systems.flash import product_units, run_simulation
+from core.engine.result import product_units
+from core.run import run_simulation
 from scenes import C, config_for, plate
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from core.config.settings import SimulationConfig
 from core.physics.laser import pulse_cdf
-from core.systems.flash import run_simulation, simulate
+from core.run import run_simulation, simulate
 from core.geometry.scene import SceneGeometry
 from scenes import C, plate
 

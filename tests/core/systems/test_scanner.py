@@ -7,9 +7,10 @@ import pytest
 from core.errors import ConfigError
 from core.config.settings import SimulationConfig, validate
 from core.geometry.motion import Trajectory
-from core.systems.flash import run_simulation, simulate
+from core.run import run_simulation, simulate
 from core.fileio.run_folder import read_ply, run_summary
-from core.systems.scanner import beam_subrays, pulse_schedule, windowed_echoes
+from core.systems.scan_patterns import beam_subrays, pulse_schedule
+from core.systems.scanner import windowed_echoes
 from core.config.derived import n_scan_pulses, scan_duration_s
 from core.geometry.scene import SceneGeometry
 from scenes import C, plate

@@ -6,7 +6,7 @@ from core.atmosphere import (beam_wander_offsets, beam_wander_variance, derived_
                              extinction_from_visibility, gaussian_beam_parameters, long_term_beam_radius,
                              short_term_beam_radius, turbulence_blur)
 from core.systems.flash import simulate_frame
-from core.physics.propagation import stage_rng
+from core.engine.rng import stage_rng
 from core.geometry.rays import Detector
 from scenes import config_for, plate
 

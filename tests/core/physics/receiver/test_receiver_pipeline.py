@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from core.config.settings import DetectorSettings
-from core.systems.flash import run_simulation, simulate_frame
+from core.run import run_simulation
+from core.systems.flash import simulate_frame
 from core.physics.detection.noisy import photon_limited_range_std
 from core.physics.receiver.conversions import mcintyre_excess_noise, photons_per_joule
 from scenes import config_for, plate

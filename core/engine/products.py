@@ -1,0 +1,143 @@
+"""Products every system shares: points along the pixels' centre rays, the reference range of a frame, echoes
+detected on the receiver's digital waveforms, and what every frame records after its system has run: the sensor
+pose (and a moving scanner's trajectory) and the ground truth of its points."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..config.settings import SimulationConfig
+from ..constants import SPEED_OF_LIGHT_M_S
+from ..errors import ConfigError
+from ..geometry.groundtruth import surface_material_ids
+from ..geometry.motion import split_pose
+from ..geometry.rays import tan_to_unit_direction
+from ..geometry.scene import SceneGeometry
+from ..physics.detection.noisy import (FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms, detect_echoes_noisy,
+                                       gaussian_pulse_kernel)
+from ..physics.detection.peaks import Echoes
+from ..physics.receiver.conversions import photons_per_joule
+from .result import FrameResult
+
+
+def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None) -> Echoes:
+    """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
+    core/physics/detection/noisy.py), in the per-echo layout of :class:`Echoes`, with the detection SNR.
+
+    With ``truth`` (the noise-free waveforms the chain saw, (pixels, bins) J) every echo is classified as a
+    true return or a false alarm (core.physics.detection.noisy.classify_false_alarms): the returned Echoes carries a
+    per-echo bool ``false_alarm`` attribute and ``info`` (a dict) receives the counts, rates and the Gaussian
+    expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report)."""
+    d, g = config.detection, config.gate
+    h, w, n_bins = digital.shape
+    pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
+        if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
+    found = detect_echoes_noisy(digital.reshape(h * w, n_bins).astype(np.float32), g.bin_width_s, g.gate_start_s,
+                                threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
+                                k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
+                                interpolation=d.interpolation)
+    pix, slot = np.nonzero(found.detected)
+    echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
+                    amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
+                    n_echoes=found.n_echoes[pix].astype(np.int16), snr=found.snr[pix, slot])
+    if truth is not None:
+        det = config.detector
+        primaries_per_j = float(photons_per_joule(config.laser.wavelength_m)) * det.quantum_efficiency
+        fa, summary = classify_false_alarms(
+            found, np.asarray(truth).reshape(h * w, n_bins), config.laser.pulse_fwhm_s / g.bin_width_s,
+            noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
+            abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j)
+        echoes.false_alarm = fa[pix, slot]
+        summary["threshold_mode"] = d.noisy_threshold_mode
+        summary["n_pixels"] = h * w
+        summary["n_bins"] = n_bins
+        if info is not None:
+            info.update(summary)
+    return echoes
+
+
+def reference_range_m(tracer, det, origin, rot) -> float:
+    """Median range of the pixel-centre rays that hit the scene: where the turbulence is evaluated."""
+    pix = np.arange(det.n_pixels)
+    xt, yt = det.pixel_center_tan(pix % det.width_px, pix // det.width_px)
+    prim, range_m, _ = tracer.intersect(origin, tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float))
+                                        @ rot.T)
+    hits = range_m[prim >= 0]
+    if len(hits) == 0:
+        raise ConfigError("sensor", "sees nothing", "a field of view containing geometry: no pixel-centre ray "
+                                                    "hits the scene (check the sensor's pose and field of view)")
+    return float(np.median(hits))
+
+
+def points_along_rays(det, origin, rot, pixel, range_m, amp, echo_index, n_echoes, time_s, frame):
+    """Point cloud: each echo placed along its pixel's centre ray (sensor and world coordinates)."""
+    px, py = pixel % det.width_px, pixel // det.width_px
+    xt, yt = det.pixel_center_tan(px, py)
+    d_sensor = tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float))
+    pos_sensor = d_sensor * range_m[:, None]
+    pos_world = origin + pos_sensor @ rot.T
+    return {"position_world": pos_world, "position_sensor": pos_sensor,
+            "intensity": amp.astype(np.float32), "range_m": range_m.astype(np.float64),
+            "echo_index": (echo_index + 1).astype(np.int16), "n_echoes": n_echoes.astype(np.int16),
+            "pixel_x": px.astype(np.int32), "pixel_y": py.astype(np.int32), "time_s": time_s,
+            "frame": np.full(len(range_m), frame, np.int32)}
+
+
+def pose_record(world_from_sensor) -> dict:
+    """A sensor pose as metadata: the 4×4 sensor→world matrix, position (m) and orientation (unit quaternion,
+    scalar first).  The sensor frame is Blender's camera frame: +X right, +Y up, looking along −Z."""
+    from scipy.spatial.transform import Rotation
+
+    m = np.asarray(world_from_sensor, dtype=np.float64)
+    origin, rot = split_pose(m)
+    x, y, z, w = Rotation.from_matrix(rot).as_quat()
+    return {"world_from_sensor": m.tolist(), "position_m": origin.tolist(), "quaternion_wxyz": [w, x, y, z],
+            "frame": "sensor +X right, +Y up, looking along -Z (Blender camera); world = Blender world, metres"}
+
+
+def record_pose(result: FrameResult, world_from_sensor, trajectory=None) -> None:
+    """``stats["sensor_pose"]`` (the frame's pose, :func:`pose_record`) and, for a moving scanner,
+    ``stats["trajectory"]``: the sampled poses it flew (times from the scan's start, positions, quaternions)."""
+    result.stats["sensor_pose"] = pose_record(world_from_sensor)
+    if trajectory is not None and not trajectory.is_static:
+        from scipy.spatial.transform import Rotation
+
+        origins, rots = zip(*(split_pose(m) for m in trajectory.matrices))
+        q = Rotation.from_matrix(np.array(rots)).as_quat()
+        result.stats["trajectory"] = {"times_s": trajectory.times_s.tolist(),
+                                      "position_m": np.array(origins).tolist(),
+                                      "quaternion_wxyz": q[:, [3, 0, 1, 2]].tolist(),
+                                      "note": "sensor poses sampled over the scan, interpolated per pulse "
+                                              "(linear positions, slerp orientations); pulses.npz holds each "
+                                              "pulse's origin and direction"}
+
+
+def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, config: SimulationConfig) -> None:
+    """Ground truth of the frame's points (core.geometry.groundtruth): ``points["material_id"]`` (−1: no surface near)
+    and the scene's material names in ``stats["material_names"]``; a false alarm keeps its label (its flag says
+    it is noise).  The tolerance: c/2 × (2 pulse widths + 4 bins, + the gate width and delay step when gated);
+    the lines of sight spread over half a pixel (the beam's half divergence for the scanner, half the field of
+    view for the profiler)."""
+    pts = result.points
+    if result.tracer is None or "position_world" not in pts:
+        return
+    if result.pulses is not None and "pulse_index" in pts:
+        origin = np.asarray(result.pulses["origin_world"])[pts["pulse_index"]]
+    else:
+        origin = np.asarray(world_from_sensor, dtype=np.float64)[:3, 3]
+    spread_s = 2.0 * config.laser.pulse_fwhm_s + 4.0 * config.gate.bin_width_s
+    if config.system_type == "gated":
+        spread_s += config.gated.gate_width_s + config.gated.delay_step_s
+    rx = config.receiver
+    if config.system_type == "scanner":  # the beam's footprint half-width
+        spread_rad = 0.5 * config.laser.beam_divergence_rad
+    elif config.system_type == "profiler":  # one element over the whole field of view
+        spread_rad = 0.5 * max(rx.fov_x_rad, rx.fov_y_rad)
+    else:  # half a pixel
+        spread_rad = 0.5 * max(rx.fov_x_rad / rx.width_px, rx.fov_y_rad / rx.height_px)
+    t0 = time.perf_counter()
+    pts["material_id"] = surface_material_ids(result.tracer, scene.material_ids, origin, pts["position_world"],
+                                              0.5 * SPEED_OF_LIGHT_M_S * spread_s, spread_rad)
+    result.stats["material_names"] = list(scene.material_names)
+    result.stats.setdefault("stage_times_s", {})["ground_truth"] = time.perf_counter() - t0

@@ -1,0 +1,82 @@
+"""Running a frame: the table of sensor systems, and a frame into its run folder.
+
+    run_simulation = claim the run folder → SYSTEMS[config.system_type](...) → ground truth, pose → metadata
+                     → the run's files, staged, then renamed into place (fileio.staging)
+
+Every system is one function with the same signature (paper §2)::
+
+    system(scene, world_from_sensor, config, *, frame=0, tracer=None, trajectory=None, start_time_s=0.0,
+           progress=None, cancel=None) -> FrameResult
+
+A new system is a module in ``core/systems/`` exposing such a function, and one row in :data:`SYSTEMS` (plus
+its name in ``config.settings.SYSTEM_TYPES``).
+"""
+from __future__ import annotations
+
+import time
+
+from .config.settings import SimulationConfig, validate
+from .config.files import config_to_dict
+from .engine.result import FrameResult
+from .errors import Cancelled, ConfigError
+from .engine.products import label_points, record_pose
+from .fileio.run_folder import software_versions, write_run_files
+from .fileio.staging import claim_run_dir
+from .geometry.scene import SceneGeometry
+from .systems.flash import simulate_frame, simulate_profiler
+from .systems.gated import simulate_gated
+from .systems.scanner import simulate_scan
+from .version import __version__
+
+#: system type → the function that simulates one frame of it
+SYSTEMS = {
+    "flash": simulate_frame,        # 3D flash ladar (§2.3)
+    "profiler": simulate_profiler,  # range profiler (§5.3): the flash model with one detector element
+    "scanner": simulate_scan,       # time-of-flight scanner (§2.1), the sensor moving along ``trajectory``
+    "gated": simulate_gated,        # burst illumination / gated viewing (§2.2)
+}
+
+
+def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
+             trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None) -> FrameResult:
+    """Simulate one frame of the sensor system ``config.system_type`` (:data:`SYSTEMS`)."""
+    system = SYSTEMS.get(config.system_type)
+    if system is None:
+        validate(config)  # names the setting and the allowed system types
+        raise ConfigError("system_type", config.system_type, f"one of {', '.join(SYSTEMS)}")
+    result = system(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                    start_time_s=start_time_s, progress=progress, cancel=cancel)
+    label_points(result, scene, world_from_sensor, config)
+    record_pose(result, world_from_sensor, trajectory if config.system_type == "scanner" else None)
+    return result
+
+
+def run_metadata(config: SimulationConfig, result: FrameResult, frame: int, extra: dict | None = None) -> dict:
+    """The run's ``metadata.json`` record (settings, seed, versions, the frame's stats and stage log)."""
+    meta = {"format": "ladar-run", "format_version": 1, "simulator_version": __version__,
+            "system_type": config.system_type, "frame": frame, "seed": config.run.seed,
+            "settings": config_to_dict(config), "software": software_versions(),
+            "created_unix_s": time.time()}
+    meta.update(result.stats)
+    if extra:
+        meta.update(extra)
+    return meta
+
+
+def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, out_dir, *, frame: int = 0,
+                   overwrite: bool = False, extra_metadata: dict | None = None, tracer=None, progress=None,
+                   cancel=None, trajectory=None, start_time_s: float = 0.0):
+    """Simulate a frame of any system type and write its run folder.  Returns (run_path, FrameResult).
+
+    Nothing is written if the settings or the scene are invalid, if the folder exists and ``overwrite`` is
+    false (with ``overwrite``: if it is not a previous run of this tool), if another run is writing it, or if the
+    run is cancelled.  The folder's name is claimed before the simulation starts (fileio.staging).
+    """
+    with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
+        result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                          start_time_s=start_time_s, progress=progress, cancel=cancel)
+        if cancel is not None and cancel():
+            raise Cancelled()
+        write_run_files(claim.work, result, run_metadata(config, result, frame, extra_metadata))
+        path = claim.commit()
+    return path, result

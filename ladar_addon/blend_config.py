@@ -1,0 +1,184 @@
+"""Blender ↔ core settings: a SimulationConfig read from a scene, its sensor camera and its materials, and
+written back (the inverse), through the field maps of :mod:`.fields`.  The PropertyGroups themselves are in
+:mod:`.properties`."""
+from __future__ import annotations
+
+import bpy
+
+from ..core.config.settings import DEFAULT_BRDF, GROUPS, BRDFSettings, SimulationConfig, validate
+from ..core.config.files import config_from_dict, config_to_dict
+from ..core.errors import ConfigError
+from .errors import LadarError
+from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS, SENSOR_GROUPS,
+                     TOP_FIELDS, shortest_float32)
+from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
+
+
+def table_float(value: float) -> float:
+    """A BRDF table value as stored (float32) read back as the shortest decimal that rounds to it."""
+    return float(shortest_float32(value))
+
+
+def read_table(props) -> dict:
+    """The stored table as core lists: ``{"table_angle_deg": [...], "table_brdf_per_sr": [...]}``."""
+    return {"table_angle_deg": [table_float(r.angle_deg) for r in props.table],
+            "table_brdf_per_sr": [table_float(r.brdf_per_sr) for r in props.table]}
+
+
+def write_table(props, angle_deg, brdf_per_sr) -> None:
+    """Replace the stored table (lengths must match; validate first)."""
+    if len(angle_deg) != len(brdf_per_sr):
+        raise ConfigError("table_brdf_per_sr", f"{len(brdf_per_sr)} values",
+                          f"one BRDF value per angle ({len(angle_deg)} angles)")
+    props.table.clear()
+    for angle, value in zip(angle_deg, brdf_per_sr):
+        row = props.table.add()
+        row.angle_deg = float(angle)
+        row.brdf_per_sr = float(value)
+
+
+def unit_scale(scene) -> float:
+    """Metres per Blender unit (``scale_length``; 1 when the scene uses no unit system)."""
+    us = scene.unit_settings
+    return 1.0 if us.system == "NONE" else float(us.scale_length)
+
+
+def material_key(material) -> str:
+    """The name under which a material's BRDF appears in ``SimulationConfig.materials`` and the scene."""
+    return material.name_full
+
+
+def brdf_from_material(material) -> BRDFSettings:
+    """The material's ladar BRDF, or the core default when it has none enabled (or ``material`` is None)."""
+    if material is None:
+        return DEFAULT_BRDF
+    props = material.ladar_brdf
+    if not props.enabled:
+        return DEFAULT_BRDF
+    return BRDFSettings(**{f.name: f.to_core(getattr(props, f.attr)) for f in BRDF_FIELDS}, **read_table(props))
+
+
+def read_group(props, fields, unit_scale_m):
+    return {f.name: f.to_core(getattr(props, f.attr), unit_scale_m) for f in fields}
+
+
+def write_group(props, fields, settings, unit_scale_m):
+    for f in fields:
+        setattr(props, f.attr, f.to_blender(getattr(settings, f.name), unit_scale_m))
+
+
+def check_sensor(sensor_obj) -> None:
+    if sensor_obj is None:
+        raise LadarError("no ladar sensor: set Scene > Ladar > Sensor or the scene camera to a camera object")
+    if sensor_obj.type != "CAMERA":
+        raise LadarError(f"the ladar sensor {sensor_obj.name!r} is a {sensor_obj.type.lower()} object, "
+                         f"not a camera")
+
+
+def config_from_blender(scene, sensor_obj) -> SimulationConfig:
+    """The core settings stored in ``scene`` and on ``sensor_obj`` (a camera object).  Not validated.
+
+    The receiver field of view comes from the camera (:func:`ladar_addon.sensor.camera_receiver_fov_rad`);
+    ``materials`` lists the BRDF of every material with ladar BRDF settings enabled.
+    """
+    check_sensor(sensor_obj)
+    scale = unit_scale(scene)
+    sensor = sensor_obj.ladar
+    groups = {g: read_group(getattr(sensor, g), SENSOR_FIELDS[g], scale) for g in SENSOR_GROUPS}
+    groups["run"]["seed"] = SEED_FIELD.to_core(scene.ladar.seed)
+    rx = groups["receiver"]
+    rx["fov_x_rad"], rx["fov_y_rad"] = camera_receiver_fov_rad(sensor_obj.data, rx["width_px"], rx["height_px"])
+    kwargs = {g: cls(**groups[g]) for g, cls in SENSOR_GROUPS.items()}
+    kwargs["atmosphere"] = SCENE_GROUPS["atmosphere"](**read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS,
+                                                                    scale))
+    kwargs.update({f.name: f.to_core(getattr(sensor, f.attr)) for f in TOP_FIELDS})
+    kwargs["materials"] = {material_key(m): brdf_from_material(m) for m in bpy.data.materials
+                           if m.ladar_brdf.enabled}
+    return SimulationConfig(**kwargs)
+
+
+def find_material(key: str):
+    for m in bpy.data.materials:
+        if material_key(m) == key:
+            return m
+    return None
+
+
+def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
+    """Store ``cfg`` in ``scene`` and on ``sensor_obj``: the inverse of :func:`config_from_blender`.
+
+    The config is validated first (nothing changes if it is invalid).  The camera lens is set so that the
+    camera gives ``cfg.receiver``'s field of view.  ``cfg.materials`` must name materials of the .blend; they
+    get their ladar BRDF enabled and set, every other material's ladar BRDF is disabled.
+    """
+    check_sensor(sensor_obj)
+    validate(cfg)
+    rx = cfg.receiver
+    scale = unit_scale(scene)
+    missing = [name for name in cfg.materials if find_material(name) is None]
+    if missing:
+        raise ConfigError(f"materials.{missing[0]}", missing[0], "the name of a material in the .blend file: "
+                          + ", ".join(material_key(m) for m in bpy.data.materials))
+    # Check everything that can fail before changing anything.
+    SEED_FIELD.to_blender(cfg.run.seed)
+    for group in SENSOR_GROUPS:
+        for f in SENSOR_FIELDS[group]:
+            f.to_blender(getattr(getattr(cfg, group), f.name), scale)
+    cam = sensor_obj.data
+    saved_lens = cam.lens
+    set_camera_receiver_fov(cam, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)
+    try:
+        sensor = sensor_obj.ladar
+        for f in TOP_FIELDS:
+            setattr(sensor, f.attr, f.to_blender(getattr(cfg, f.name), scale))
+        for group in SENSOR_GROUPS:
+            write_group(getattr(sensor, group), SENSOR_FIELDS[group], getattr(cfg, group), scale)
+        scene.ladar.seed = SEED_FIELD.to_blender(cfg.run.seed)
+        write_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, cfg.atmosphere, scale)
+        for m in bpy.data.materials:
+            brdf = cfg.materials.get(material_key(m))
+            if brdf is None:
+                m.ladar_brdf.enabled = False
+            else:
+                write_group(m.ladar_brdf, BRDF_FIELDS, brdf, 1.0)
+                write_table(m.ladar_brdf, brdf.table_angle_deg, brdf.table_brdf_per_sr)
+                m.ladar_brdf.enabled = True
+    except Exception:
+        cam.lens = saved_lens
+        raise
+
+
+def set_settings(scene, sensor_obj, values: dict) -> SimulationConfig:
+    """Set settings by their config path, in SI units: the Python API for scripts.
+
+    Several properties store a scaled value (wavelengths in nm, Cn² and dark currents in units of a power of
+    ten, distances in Blender units, memory in MiB: :class:`FieldMap`), so writing an SI value straight into
+    them is wrong by that scale (``scene.ladar_atmosphere.cn2_m_23 = 5e-15`` stores 5e-29 m^-2/3).  This sets
+    ``{"atmosphere.cn2_m_23": 5e-15, "laser.wavelength_m": 532e-9, ...}`` as the simulator will read them.
+    Paths: ``system_type``, ``<group>.<field>`` (``run.seed`` too; ``receiver.fov_x_rad``/``fov_y_rad`` set
+    the camera lens) and ``materials.<material name>.<field>`` (a material with its ladar BRDF enabled).
+    Everything is validated before anything changes (ConfigError naming the path).  Returns the config now
+    stored."""
+    data = config_to_dict(config_from_blender(scene, sensor_obj))
+    for path, value in values.items():
+        if path == "system_type":
+            data[path] = value
+            continue
+        head, _, rest = path.partition(".")
+        if head == "materials":
+            name, _, field = rest.rpartition(".")
+            if name not in data["materials"]:
+                raise ConfigError(path, value, "materials.<name>.<field> of a material with its ladar BRDF enabled: "
+                                  + (", ".join(data["materials"]) or "none is"))
+            target = data["materials"][name]
+        elif head in GROUPS:
+            field, target = rest, data[head]
+        else:
+            raise ConfigError(path, value, "system_type, <group>.<field> (groups: " + ", ".join(GROUPS)
+                              + ") or materials.<name>.<field>")
+        if field not in target:
+            raise ConfigError(path, value, f"a setting of {head}: " + ", ".join(target))
+        target[field] = value
+    cfg = config_from_dict(data)
+    apply_config_to_blender(cfg, scene, sensor_obj)
+    return cfg
