@@ -5,7 +5,7 @@ long the interface is blocked, how fast a cancel stops.
     .venv/bin/python bench/bench_sequence.py [--triangles 1000000] [--frames 6]
 
 Scene: a quad grid of ~N triangles 100 m below a 64×64-pixel flash sensor (2×2 sub-rays).  Cases, each a
-sequence run (``ladar_addon.simulate.SimulationJob``, previews and import off):
+sequence run (``ladar_addon.job.SimulationJob``, previews and import off):
 
 * static grid: exported once, one BVH for every frame;
 * moving grid (1 mm per frame): exported and its BVH rebuilt every frame.

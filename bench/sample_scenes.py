@@ -36,8 +36,8 @@ addon = blender_env.install_extension()
 lad = addon.ladar_addon
 bpy.ops.wm.open_mainfile(filepath={blend!r}, load_ui=False)
 scene = bpy.context.scene
-sensor = lad.simulate.active_sensor(scene)
-cfg, _ = lad.simulate.build_config(scene, sensor)
+sensor = lad.run_inputs.active_sensor(scene)
+cfg, _ = lad.run_inputs.build_config(scene, sensor)
 scale = lad.blend_config.unit_scale(scene)
 geo = lad.export.scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(), unit_scale=scale,
                                                exclude={{sensor.name}})

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import time
 
-from .config.settings import SimulationConfig, validate
+from .config.settings import SimulationConfig
+from .config.validate import validate
 from .config.files import config_to_dict
 from .engine.result import FrameResult
 from .errors import Cancelled, ConfigError

@@ -15,7 +15,8 @@ import time
 import numpy as np
 
 from .errors import ConfigError
-from .config.settings import SimulationConfig, validate
+from .config.settings import SimulationConfig
+from .config.validate import validate
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import bpy
 
-from ..core.config.settings import DEFAULT_BRDF, GROUPS, BRDFSettings, SimulationConfig, validate
+from ..core.config.settings import DEFAULT_BRDF, GROUPS, BRDFSettings, SimulationConfig
+from ..core.config.validate import validate
 from ..core.config.files import config_from_dict, config_to_dict
 from ..core.errors import ConfigError
 from .errors import LadarError

@@ -108,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _sensor(scene, name):
-    from .simulate import active_sensor
+    from .run_inputs import active_sensor
     if name is None:
         return active_sensor(scene)
     obj = bpy.data.objects.get(name)
@@ -163,7 +163,9 @@ def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:
 
 def _cmd_simulate(scene, args) -> int:
     from ..core.fileio.run_folder import run_summary
-    from .simulate import SimulationJob, parse_frames, progress_printer
+    from .frames import parse_frames
+    from .job import SimulationJob
+    from .run_inputs import progress_printer
 
     sensor = _sensor(scene, args.sensor)
     frames = parse_frames(args.frames) if args.frames is not None else None

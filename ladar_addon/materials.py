@@ -22,7 +22,8 @@ from pathlib import Path
 
 import bpy
 
-from ..core.config.settings import BRDFSettings, check_brdf_table
+from ..core.config.settings import BRDFSettings
+from ..core.config.validate import check_brdf_table
 from ..core.errors import ConfigError
 from .blend_config import brdf_from_material, config_from_blender, read_table, table_float, write_table
 from .fields import BRDF_FIELDS
@@ -154,7 +155,7 @@ def plot_material_brdf(material, laser_wavelength_m: float | None = None):
     into a packed Blender image (replacing the material's previous plot).  Returns the image.  A table that
     does not validate raises ConfigError and leaves the previous plot in place."""
     from ..core.fileio.preview import plot_brdf
-    from ..core.config.settings import validate
+    from ..core.config.validate import validate
 
     brdf = material_brdf_settings(material)
     validate(brdf, f"materials.{material.name}.")

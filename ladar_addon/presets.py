@@ -156,7 +156,8 @@ def apply_material_preset(settings: dict, origin: str, context=None):
     """Apply a material BRDF preset given in SI units (``BRDFSettings`` fields; a table as
     ``table_angle_deg``/``table_brdf_per_sr`` lists) to the context's material, enabled, with ``origin`` shown
     in the panel.  Validated before anything changes.  A preset without a table keeps the material's table."""
-    from ..core.config.settings import BRDFSettings, validate
+    from ..core.config.settings import BRDFSettings
+    from ..core.config.validate import validate
     from .blend_config import read_table, write_table
 
     material = getattr(context or bpy.context, "material", None)

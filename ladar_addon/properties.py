@@ -207,12 +207,12 @@ def _poll_camera(self, obj):
 
 
 def _update_color_by(props, context):
-    from .results import recolor, result_objects
+    from .colors import recolor, result_objects
     recolor(result_objects(context.scene), props.color_by)
 
 
 def _update_point_radius(props, context):
-    from .results import result_objects, set_point_radius
+    from .colors import result_objects, set_point_radius
     set_point_radius(result_objects(context.scene), props.point_radius)
 
 

@@ -98,7 +98,8 @@ def sensor_view(objects) -> dict | None:
 def legend_of(obj) -> dict:
     """The colour legend of a result cloud: label with unit, values at the ramp's ends, the ramp's colours as
     rendered (linear RGB → sRGB, the Standard view transform)."""
-    from .results import RAMP, legend_ramp_node
+    from .colors import RAMP
+    from .results import legend_ramp_node
 
     node = legend_ramp_node()
     stops = [(e.position, tuple(e.color)[:3]) for e in node.color_ramp.elements] if node is not None else list(RAMP)
@@ -154,7 +155,7 @@ def render_preview(objects, path, *, resolution=PREVIEW_RESOLUTION, samples: int
 
     ``resolution``: the render's size (the sensor view keeps the width and takes the receiver's aspect); the
     PNG adds the title and legend around it."""
-    from .results import point_radius, set_point_radius
+    from .colors import point_radius, set_point_radius
 
     objects = [o for o in objects if o is not None and o.type == "MESH" and len(o.data.vertices)]
     if not objects:

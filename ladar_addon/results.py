@@ -32,31 +32,14 @@ import bpy
 import numpy as np
 
 from .errors import LadarError
+from .colors import COLOR_ATTRIBUTE, COLOR_BY, RAMP, apply_color, intensity_norm, socket_identifier
 from .names import RESULT_TAG
 
 RESULTS_COLLECTION = "Ladar Results"
 NODE_GROUP_NAME = "Ladar Point Cloud"
 MATERIAL_NAME = "Ladar Points"
-COLOR_ATTRIBUTE = "ladar_color"
-COLOR_RGB_ATTRIBUTE = "ladar_rgb"
 IMAGE_PRODUCTS = ("range", "intensity", "energy")
 
-#: Colour ramp of the display (perceptually uniform, after matplotlib's viridis), linear RGB.
-RAMP = ((0.0, (0.267, 0.005, 0.329)), (0.25, (0.229, 0.322, 0.546)), (0.5, (0.128, 0.567, 0.551)),
-        (0.75, (0.369, 0.789, 0.383)), (1.0, (0.993, 0.906, 0.144)))
-
-#: What the points can be coloured by: key → (point attribute, label, unit, scale).  Scales: "p99" = 0 … the
-#: 99th percentile (a few glints do not darken the rest), "minmax" = the data's minimum … maximum, "count" =
-#: whole numbers from 1 (or 0) … the maximum.  Unit None: the run's own (``metadata.json`` → ``units``, kept on
-#: the object as ``ladar_unit_<attribute>`` by :func:`create_point_cloud`).
-COLOR_BY = {
-    "INTENSITY": ("intensity", "Intensity", None, "p99"),
-    "RANGE": ("range_m", "Range", "m", "minmax"),
-    "ECHO": ("echo_index", "Echo Number", "", "count"),
-    "SNR": ("snr", "Detection SNR", "", "p99"),
-    "FRAME": ("frame", "Frame", "", "minmax"),
-    "CHANNEL": ("channel", "Channel", "", "minmax"),
-}
 #: float64 point arrays stored relative to their minimum (object property ``<name>_offset``).
 OFFSET_ATTRIBUTES = ("gps_time_s",)
 
@@ -95,143 +78,6 @@ def check_result_names(run_name: str, overwrite: bool, frames=None, clouds: str 
         kind = "an object" if bpy.data.objects.get(taken[0]) is not None else "an image"
         raise LadarError(f"{kind} named {taken[0]!r} already exists: delete it, keep it by choosing a new run "
                          f"name (If Exists: New Name) or replace it (If Exists: Replace)")
-
-
-# ------------------------------------------------------------------------------------------------------------
-# Colour
-# ------------------------------------------------------------------------------------------------------------
-def intensity_norm(intensity: np.ndarray, percentile: float = 99.0) -> np.ndarray:
-    """Intensity scaled to 0…1 by its ``percentile`` (clipped; a few glints do not darken the rest)."""
-    intensity = np.asarray(intensity, dtype=np.float64)
-    finite = intensity[np.isfinite(intensity)]
-    top = float(np.percentile(finite, percentile)) if finite.size else 0.0
-    if top <= 0.0:
-        return np.zeros(intensity.shape, np.float32)
-    return np.clip(np.nan_to_num(intensity / top, nan=0.0), 0.0, 1.0).astype(np.float32)
-
-
-def color_scale(values: np.ndarray, scale: str) -> tuple[float, float]:
-    """(value at the ramp's start, value at its end) for ``values`` on the scale kind of :data:`COLOR_BY`."""
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return 0.0, 1.0
-    if scale == "p99":
-        lo, hi = 0.0, float(np.percentile(v, 99.0))
-    elif scale == "count":
-        lo, hi = min(1.0, float(v.min())), float(v.max())
-    else:
-        lo, hi = float(v.min()), float(v.max())
-    if not hi > lo:
-        hi = lo + 1.0
-    return lo, hi
-
-
-def color_values(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """``values`` mapped linearly onto 0…1 (lo → 0, hi → 1), clipped; NaN → 0."""
-    v = (np.asarray(values, dtype=np.float64) - lo) / (hi - lo)
-    return np.clip(np.nan_to_num(v, nan=0.0), 0.0, 1.0).astype(np.float32)
-
-
-def ramp_colors(values: np.ndarray) -> np.ndarray:
-    """RGBA (n, 4) float32 of :data:`RAMP` at ``values`` in 0…1 (linear interpolation, as the Color Ramp)."""
-    stops = np.array([p for p, _ in RAMP])
-    rgb = np.array([c for _, c in RAMP])
-    out = np.ones((len(values), 4), np.float32)
-    for k in range(3):
-        out[:, k] = np.interp(values, stops, rgb[:, k])
-    return out
-
-
-def available_color_by(obj) -> list[str]:
-    """The :data:`COLOR_BY` keys this point cloud has the attribute for."""
-    attrs = obj.data.attributes
-    return [k for k, (attr, *_) in COLOR_BY.items() if attrs.get(attr) is not None]
-
-
-def _read_attribute(mesh, name) -> np.ndarray:
-    attr = mesh.attributes[name]
-    dtype = {"INT": np.int32, "BOOLEAN": bool}.get(attr.data_type, np.float32)
-    out = np.empty(len(attr.data), dtype)
-    if len(out):
-        attr.data.foreach_get("value", out)
-    return out
-
-
-def apply_color(obj, color_by: str) -> tuple[float, float]:
-    """Colour a result point cloud by ``color_by`` (a :data:`COLOR_BY` key): writes ``ladar_color`` (0…1) and
-    ``ladar_rgb`` and records the legend on the object.  Returns the values at the ramp's ends.
-
-    Raises LadarError if the cloud lacks the attribute (e.g. SNR without the noisy receiver)."""
-    if color_by not in COLOR_BY:
-        raise LadarError(f"unknown colour attribute {color_by!r}: one of {', '.join(COLOR_BY)}")
-    attr_name, label, unit, scale = COLOR_BY[color_by]
-    if unit is None:
-        unit = obj.get(f"ladar_unit_{attr_name}", "")
-    mesh = obj.data
-    if mesh.attributes.get(attr_name) is None:
-        have = ", ".join(COLOR_BY[k][1] for k in available_color_by(obj))
-        raise LadarError(f"the point cloud {obj.name!r} has no {label.lower()} attribute ({attr_name}); it can be "
-                         f"coloured by: {have}")
-    values = _read_attribute(mesh, attr_name).astype(np.float64)
-    lo, hi = color_scale(values, scale)
-    norm = color_values(values, lo, hi)
-    if mesh.attributes.get(COLOR_ATTRIBUTE) is None:
-        mesh.attributes.new(COLOR_ATTRIBUTE, "FLOAT", "POINT")
-    if mesh.color_attributes.get(COLOR_RGB_ATTRIBUTE) is None:
-        mesh.color_attributes.new(COLOR_RGB_ATTRIBUTE, "FLOAT_COLOR", "POINT")
-    # look both up again: adding an attribute may reallocate the layers and invalidate earlier references
-    value_attr = mesh.attributes[COLOR_ATTRIBUTE]
-    rgb_attr = mesh.color_attributes[COLOR_RGB_ATTRIBUTE]
-    if len(norm):
-        value_attr.data.foreach_set("value", norm)
-        rgb_attr.data.foreach_set("color", ramp_colors(norm).ravel())
-    mesh.color_attributes.active_color = rgb_attr
-    mesh.update()
-    obj["ladar_color_by"] = color_by
-    obj["ladar_color_label"] = label + (f" ({unit})" if unit else "")
-    obj["ladar_color_min"] = lo
-    obj["ladar_color_max"] = hi
-    return lo, hi
-
-
-def result_objects(scene=None) -> list:
-    """Result point clouds (objects tagged with the run they came from), of ``scene`` or of the file."""
-    objs = scene.objects if scene is not None else bpy.data.objects
-    return [o for o in objs if o.get(RESULT_TAG) is not None and o.type == "MESH"]
-
-
-def recolor(objects, color_by: str) -> tuple[int, list[str]]:
-    """Apply :func:`apply_color` to ``objects``; returns (number recoloured, names lacking the attribute)."""
-    done, missing = 0, []
-    for obj in objects:
-        if COLOR_BY[color_by][0] in obj.data.attributes:
-            apply_color(obj, color_by)
-            done += 1
-        else:
-            missing.append(obj.name)
-    return done, missing
-
-
-def point_radius(obj) -> float | None:
-    """The display radius (Blender units) of a result point cloud (None without the point modifier)."""
-    mod = obj.modifiers.get("Ladar Points")
-    if mod is None or mod.node_group is None:
-        return None
-    return float(mod[_socket_identifier(mod.node_group, "Point Radius")])
-
-
-def set_point_radius(objects, radius: float) -> int:
-    """Set the display radius (Blender units) of result point clouds; returns how many were changed."""
-    n = 0
-    for obj in objects:
-        mod = obj.modifiers.get("Ladar Points")
-        if mod is None or mod.node_group is None:
-            continue
-        mod[_socket_identifier(mod.node_group, "Point Radius")] = float(radius)
-        obj.update_tag()
-        n += 1
-    return n
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -360,13 +206,6 @@ def ensure_point_node_group():
     return ng
 
 
-def _socket_identifier(ng, name):
-    for item in ng.interface.items_tree:
-        if getattr(item, "item_type", "SOCKET") == "SOCKET" and item.in_out == "INPUT" and item.name == name:
-            return item.identifier
-    raise KeyError(name)
-
-
 # ------------------------------------------------------------------------------------------------------------
 # Point clouds
 # ------------------------------------------------------------------------------------------------------------
@@ -442,8 +281,8 @@ def create_point_cloud(name: str, points, scene, *, unit_scale: float = 1.0, rep
         ng = ensure_point_node_group()
         mod = obj.modifiers.new("Ladar Points", "NODES")
         mod.node_group = ng
-        mod[_socket_identifier(ng, "Point Radius")] = float(point_radius)
-        mod[_socket_identifier(ng, "Material")] = material
+        mod[socket_identifier(ng, "Point Radius")] = float(point_radius)
+        mod[socket_identifier(ng, "Material")] = material
         apply_color(obj, color_by if COLOR_BY.get(color_by, ("",))[0] in mesh.attributes else "INTENSITY")
     except BaseException:
         if obj is not None:
@@ -501,7 +340,7 @@ def _load_slices(run_path: Path, run_name: str, replace: bool) -> list:
     return images
 
 
-def _load_points(path: Path) -> dict:
+def load_points(path: Path) -> dict:
     with np.load(path) as npz:
         return {k: npz[k] for k in npz.files}
 
@@ -534,14 +373,14 @@ def import_run(run_path, scene, *, run_name: str | None = None, unit_scale: floa
     objects, images = [], []
     try:
         if not sequence:
-            objects.append(create_point_cloud(run_name, _load_points(run_path / "points.npz"), scene,
+            objects.append(create_point_cloud(run_name, load_points(run_path / "points.npz"), scene,
                                               unit_scale=unit_scale, replace=replace, point_radius=point_radius,
                                               run_path=run_path, color_by=color_by, units=units))
             images += _load_run_images(run_path, run_name, replace)
         else:
             if clouds == "RUN":
                 merged = run_path / "points_merged.npz"
-                points = _load_points(merged) if merged.is_file() else {"position_world": np.zeros((0, 3))}
+                points = load_points(merged) if merged.is_file() else {"position_world": np.zeros((0, 3))}
                 objects.append(create_point_cloud(run_name, points, scene, unit_scale=unit_scale, replace=replace,
                                                   point_radius=point_radius, run_path=run_path,
                                                   color_by=color_by, units=units))
@@ -549,7 +388,7 @@ def import_run(run_path, scene, *, run_name: str | None = None, unit_scale: floa
                 coll = _results_collection(scene, run_name)
                 for f in frames:
                     objects.append(create_point_cloud(
-                        frame_run_name(run_name, f), _load_points(run_path / f"frame_{f:04d}" / "points.npz"),
+                        frame_run_name(run_name, f), load_points(run_path / f"frame_{f:04d}" / "points.npz"),
                         scene, unit_scale=unit_scale, replace=replace, point_radius=point_radius,
                         run_path=run_path / f"frame_{f:04d}", color_by=color_by, collection=coll, units=units))
             images += _load_sequence_images(run_path, run_name, replace)
@@ -578,82 +417,3 @@ def _load_sequence_images(run_path: Path, run_name: str, replace: bool) -> list:
     return images
 
 
-# ------------------------------------------------------------------------------------------------------------
-# Waveform view
-# ------------------------------------------------------------------------------------------------------------
-def frame_run_folder(run_path, frame: int | None = None) -> Path:
-    """The run folder of one frame: ``run_path`` itself, or for a sequence its ``frame_NNNN`` (``frame``, else
-    the first frame)."""
-    run_path = Path(run_path)
-    info = read_run_info(run_path)
-    if info.get("format") != "ladar-sequence":
-        return run_path
-    frames = [int(f) for f in info["frames"]]
-    if frame is None or frame not in frames:
-        frame = frames[0]
-    return run_path / f"frame_{frame:04d}"
-
-
-def waveform_plot(run_path, *, pixel_x: int | None = None, pixel_y: int | None = None, pulse: int | None = None,
-                  frame: int | None = None) -> tuple[Path, dict]:
-    """Plot one waveform of a run as a PNG in ``<run>/previews/`` (a new file; an existing plot of the same
-    waveform is reused, never replaced).  Returns (png path, what was plotted).
-
-    Image runs (flash, profiler): the waveform of pixel (``pixel_x``, ``pixel_y``), default (0, 0) — the range
-    profiler's one waveform.  Scanner runs: pulse ``pulse``, default the pulse that received the most energy.
-    The echoes detected on it are marked.  Raises LadarError when the run saved no waveforms."""
-    from ..core.errors import ConfigError
-    from ..core.fileio.preview import bin_centres_range_m, waveform_png
-
-    folder = frame_run_folder(run_path, frame)
-    info = read_run_info(folder)
-    wf_file = folder / "waveforms.npy"
-    if not wf_file.is_file():
-        raise LadarError(f"the run {folder} has no waveforms.npy: enable Run > Save Waveforms and simulate again")
-    cube = np.load(wf_file, mmap_mode="r")
-    points = _load_points(folder / "points.npz") if (folder / "points.npz").is_file() else {}
-    if cube.ndim == 3:
-        h, w, n_bins = cube.shape
-        x = 0 if pixel_x is None else int(pixel_x)
-        y = 0 if pixel_y is None else int(pixel_y)
-        if not 0 <= x < w:
-            raise ConfigError("pixel_x", x, f"a column of the {w}×{h} receiver: 0 … {w - 1}")
-        if not 0 <= y < h:
-            raise ConfigError("pixel_y", y, f"a row of the {w}×{h} receiver: 0 … {h - 1}")
-        values = np.asarray(cube[y, x], dtype=np.float64)
-        mine = ((points.get("pixel_x", np.zeros(0)) == x) & (points.get("pixel_y", np.zeros(0)) == y)) \
-            if points else np.zeros(0, bool)
-        what = {"pixel_x": x, "pixel_y": y}
-        name = f"waveform_x{x:04d}_y{y:04d}.png"
-        title = "Range profile" if (h, w) == (1, 1) else f"Waveform of pixel ({x}, {y})"
-    elif cube.ndim == 2:
-        n_pulses, n_bins = cube.shape
-        p = int(np.argmax(np.asarray(cube).sum(axis=1))) if pulse is None else int(pulse)
-        if not 0 <= p < n_pulses:
-            raise ConfigError("pulse", p, f"a pulse of the scan: 0 … {n_pulses - 1}")
-        values = np.asarray(cube[p], dtype=np.float64)
-        mine = (points.get("pulse_index", np.zeros(0)) == p) if points else np.zeros(0, bool)
-        what = {"pulse": p}
-        name = f"waveform_pulse{p:08d}.png"
-        title = f"Waveform of pulse {p}"
-    else:
-        raise LadarError(f"{wf_file} has an unexpected shape {cube.shape}")
-    gate = info["settings"]["gate"]
-    range_m = bin_centres_range_m(gate["gate_start_s"], gate["bin_width_s"], n_bins)
-    echoes_m = np.asarray(points["range_m"])[mine] if points and mine.any() else np.zeros(0)
-    what.update({"frame": info.get("frame"), "n_bins": int(n_bins), "peak_j": float(values.max()),
-                 "energy_j": float(values.sum()), "echo_ranges_m": [float(r) for r in echoes_m]})
-    out = folder / "previews" / name
-    if not out.exists():
-        waveform_png(out, range_m, values, title=title, markers_m=echoes_m)
-    return out, what
-
-
-def show_waveform(run_path, run_name: str | None = None, **kwargs):
-    """:func:`waveform_plot`, loaded as the image ``<run>.waveform`` (replacing that view).  Returns
-    (image, what was plotted)."""
-    path, what = waveform_plot(run_path, **kwargs)
-    name = f"{run_name or Path(run_path).name}.waveform"
-    img = load_image(path, name, replace=True, data=False)
-    img.reload()
-    return img, what

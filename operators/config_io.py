@@ -6,7 +6,7 @@ from ..core.errors import ConfigError
 from ..ladar_addon.cli import export_config
 from ..ladar_addon.errors import LadarError
 from ..ladar_addon.blend_config import apply_config_to_blender
-from ..ladar_addon.simulate import active_sensor, build_config
+from ..ladar_addon.run_inputs import active_sensor, build_config
 
 
 class LADAR_OT_export_config(bpy.types.Operator, ExportHelper):

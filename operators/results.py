@@ -9,7 +9,9 @@ from ..ladar_addon.errors import LadarError
 from ..ladar_addon.names import RESULT_TAG
 from ..ladar_addon.blend_config import unit_scale
 from ..ladar_addon.render import PREVIEW_RESOLUTION, PREVIEW_SAMPLES, render_preview
-from ..ladar_addon.results import import_run, read_run_info, result_objects, show_waveform
+from ..ladar_addon.colors import result_objects
+from ..ladar_addon.results import import_run, read_run_info
+from ..ladar_addon.waveform_view import show_waveform
 
 _USER_ERRORS = (ConfigError, LadarError, OSError)
 

@@ -10,8 +10,9 @@ import bpy
 from ..core.errors import ConfigError
 from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.simulate import (SimulationJob, current_job, handle_modal_event, parse_frames, progress_printer,
-                                    set_current_job)
+from ..ladar_addon.frames import parse_frames
+from ..ladar_addon.job import SimulationJob, current_job, handle_modal_event, set_current_job
+from ..ladar_addon.run_inputs import progress_printer
 
 _USER_ERRORS = (ConfigError, LadarError, Cancelled, OSError)
 

@@ -69,7 +69,7 @@ class LADAR_PT_brdf(bpy.types.Panel):
         from ..ladar_addon.materials import material_brdf_settings
         try:
             brdf = material_brdf_settings(props.id_data)
-            from ..core.config.settings import validate
+            from ..core.config.validate import validate
             validate(brdf)
             rho = lambertian_equivalent_reflectance(brdf, [0.0, 60.0])
         except Exception:  # noqa: BLE001 - draw must never fail; the table lines say what is wrong

@@ -80,7 +80,8 @@ class LADAR_PT_scene_output(_ScenePanel, bpy.types.Panel):
 def draw_results(layout, scene, obj=None):
     """Colouring, legend and point size of the result point clouds; waveform view and preview render."""
     from ..ladar_addon.names import RESULT_TAG
-    from ..ladar_addon.results import COLOR_BY, legend_ramp_node, result_objects
+    from ..ladar_addon.colors import COLOR_BY, result_objects
+    from ..ladar_addon.results import legend_ramp_node
 
     props = scene.ladar
     layout.prop(props, "color_by")

@@ -9,7 +9,8 @@ from .derived import n_pulse_times, n_scan_pulses, scan_duration_s
 from .settings import (BRDF_TABLE_FIELDS, DEFAULT_BRDF, GROUPS, SCHEMA_VERSION, SYSTEM_TYPES, AtmosphereSettings,
                        BRDFSettings, DetectionSettings, DetectorSettings, GatedSettings, LaserSettings,
                        RangeGateSettings, ReceiverSettings, RunSettings, ScannerSettings, SimulationConfig,
-                       check_brdf_table, field_specs, setting, validate)
+                       field_specs, setting)
+from .validate import check_brdf_table, validate
 from .files import config_from_dict, config_to_dict, dump_config_json, dump_config_toml, load_config
 
 __all__ = ["ConfigError", "n_pulse_times", "n_scan_pulses", "scan_duration_s", "BRDF_TABLE_FIELDS", "DEFAULT_BRDF",

@@ -11,7 +11,8 @@ import json
 from pathlib import Path
 
 from ..errors import ConfigError
-from .settings import BRDF_TABLE_FIELDS, GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig, validate
+from .settings import BRDF_TABLE_FIELDS, GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig
+from .validate import validate
 
 
 def _from_mapping(cls, data: dict, prefix: str):

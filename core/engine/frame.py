@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config.settings import SimulationConfig, validate
+from ..config.settings import SimulationConfig
+from ..config.validate import validate
 from ..geometry.culling import frustum_triangles
 from ..geometry.motion import split_pose
 from ..geometry.scene import SceneGeometry

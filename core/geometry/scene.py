@@ -5,7 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config.settings import DEFAULT_BRDF, BRDFSettings, validate
+from ..config.settings import DEFAULT_BRDF, BRDFSettings
+from ..config.validate import validate
 from ..errors import ConfigError
 
 

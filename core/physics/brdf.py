@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config.settings import BRDFSettings, check_brdf_table
+from ..config.settings import BRDFSettings
+from ..config.validate import check_brdf_table
 from ..errors import ConfigError
 
 

@@ -13,7 +13,8 @@ import time
 
 import numpy as np
 
-from ..config.settings import SimulationConfig, validate
+from ..config.settings import SimulationConfig
+from ..config.validate import validate
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
 from ..engine.blocks import balanced_block_size, item_blocks, run_blocks, worker_threads

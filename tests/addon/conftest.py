@@ -38,7 +38,9 @@ def lad(addon):
     ns = types.SimpleNamespace(package=addon)
     for short, mod in [("properties", "ladar_addon.properties"), ("blend_config", "ladar_addon.blend_config"),
                        ("fields", "ladar_addon.fields"), ("export", "ladar_addon.export"),
-                       ("results", "ladar_addon.results"), ("simulate", "ladar_addon.simulate"),
+                       ("results", "ladar_addon.results"), ("colors", "ladar_addon.colors"),
+                       ("waveform_view", "ladar_addon.waveform_view"), ("simulate", "ladar_addon.simulate"), ("job", "ladar_addon.job"),
+                       ("frames", "ladar_addon.frames"), ("run_inputs", "ladar_addon.run_inputs"),
                        ("cli", "ladar_addon.cli"), ("sensor", "ladar_addon.sensor"),
                        ("errors", "ladar_addon.errors"), ("config", "core.config"), ("scene", "core.geometry.scene"),
                        ("flash", "core.systems.flash"), ("staging", "core.fileio.staging")]:

@@ -14,8 +14,8 @@ SAMPLE = Path(__file__).resolve().parents[2] / "sample_blends" / "flash_demo.ble
 def demo(lad, addon):
     bpy.ops.wm.open_mainfile(filepath=str(SAMPLE), load_ui=False)
     scene = bpy.context.scene
-    sensor = lad.simulate.active_sensor(scene)
-    cfg, _ = lad.simulate.build_config(scene, sensor)
+    sensor = lad.run_inputs.active_sensor(scene)
+    cfg, _ = lad.run_inputs.build_config(scene, sensor)
     cfg.materials = {}
     geometry = lad.export.scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(), exclude={sensor.name})
     return geometry, np.array(sensor.matrix_world), cfg

@@ -30,7 +30,7 @@ def test_cancel_mid_run_within_a_second_leaves_nothing(lad, scene, tmp_path, fra
     _scene(scene, tmp_path)
     scene.frame_set(4)
     before = _snapshot()
-    job = lad.simulate.SimulationJob(scene, frames=frames, frame=None if frames else 4)
+    job = lad.job.SimulationJob(scene, frames=frames, frame=None if frames else 4)
     job.start(threaded=True)
     t0 = time.perf_counter()
     while job.fraction == 0.0 and not job.finished:  # the core has started
@@ -52,7 +52,7 @@ def test_cancel_mid_run_within_a_second_leaves_nothing(lad, scene, tmp_path, fra
 
 def test_step_serves_frames_and_imports_on_the_main_thread(lad, scene, tmp_path):
     _scene(scene, tmp_path, width=16, subsamples=1)
-    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3])
+    job = lad.job.SimulationJob(scene, frames=[1, 2, 3])
     job.start(threaded=True)
     n_steps = 0
     while not job.step():
@@ -64,7 +64,7 @@ def test_step_serves_frames_and_imports_on_the_main_thread(lad, scene, tmp_path)
     obj = bpy.data.objects["Ladar_f0001-0003"]
     assert len(obj.data.vertices) == 3 * 256
     assert job.max_step_s < 0.5  # each main-thread step is short (the interface stays responsive)
-    assert lad.simulate.current_job() is None
+    assert lad.job.current_job() is None
 
 
 def test_worker_failure_is_reported_and_writes_nothing(lad, scene, tmp_path):
@@ -74,7 +74,7 @@ def test_worker_failure_is_reported_and_writes_nothing(lad, scene, tmp_path):
     plate.location.x = 500.0  # out of view at frame 3
     plate.keyframe_insert("location", frame=3)
     before = _snapshot()
-    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3])
+    job = lad.job.SimulationJob(scene, frames=[1, 2, 3])
     job.start(threaded=True)
     assert job.wait(timeout_s=60)
     assert job.state == "failed"
@@ -85,8 +85,8 @@ def test_worker_failure_is_reported_and_writes_nothing(lad, scene, tmp_path):
 
 def test_modal_event_handling(lad, scene, tmp_path):
     _scene(scene, tmp_path, width=16, subsamples=1)
-    handle = lad.simulate.handle_modal_event
-    job = lad.simulate.SimulationJob(scene)
+    handle = lad.job.handle_modal_event
+    job = lad.job.SimulationJob(scene)
     job.start(threaded=True)
     assert handle(job, "MOUSEMOVE", "NOTHING") == "PASS_THROUGH"  # the interface keeps its events
     status = "PASS_THROUGH"
@@ -97,7 +97,7 @@ def test_modal_event_handling(lad, scene, tmp_path):
         time.sleep(0.01)
     assert status == "FINISHED" and bpy.data.objects.get("Ladar_f0001") is not None
 
-    job = lad.simulate.SimulationJob(scene, out_dir=tmp_path / "esc")
+    job = lad.job.SimulationJob(scene, out_dir=tmp_path / "esc")
     job.start(threaded=True)
     assert handle(job, "ESC", "PRESS") == "RUNNING_MODAL" and job.cancelled_requested()
     assert "cancelling" in job.status_text()
@@ -117,9 +117,9 @@ def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
     removed = []
     wm = types.SimpleNamespace(windows=[], event_timer_remove=removed.append)
     ctx = types.SimpleNamespace(window_manager=wm)
-    job = lad.simulate.SimulationJob(scene)
+    job = lad.job.SimulationJob(scene)
     job.start(threaded=True)
-    lad.simulate.set_current_job(job)
+    lad.job.set_current_job(job)
     assert not op_cls.poll(types.SimpleNamespace(scene=scene))  # one run at a time
     reports = []
     op = types.SimpleNamespace(_job_ref=job, _timer="timer", report=lambda kind, msg: reports.append((kind, msg)))
@@ -132,7 +132,7 @@ def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
             break
         time.sleep(0.01)
     assert result == {"FINISHED"}
-    assert removed == ["timer"] and lad.simulate.current_job() is None
+    assert removed == ["timer"] and lad.job.current_job() is None
     assert reports and reports[-1][0] == {"INFO"} and "64 points" in reports[-1][1]
     assert op_cls.poll(types.SimpleNamespace(scene=scene))
 
@@ -164,7 +164,7 @@ def test_invoke_runs_modally_with_a_window(lad, scene, tmp_path, monkeypatch):
         setattr(op, name, types.MethodType(getattr(op_module.LADAR_OT_simulate, name), op))
     assert op_module.LADAR_OT_simulate.invoke(op, ctx, None) == {"RUNNING_MODAL"}
     assert calls[:2] == [("timer", 0.1), ("modal", op)]
-    job = lad.simulate.current_job()
+    job = lad.job.current_job()
     assert job is op._job_ref and job.sequence and job.frames == [1, 2]
     assert _status(lad)[0][0] == "progress"
     timer = types.SimpleNamespace(type="TIMER", value="NOTHING")
@@ -174,12 +174,12 @@ def test_invoke_runs_modally_with_a_window(lad, scene, tmp_path, monkeypatch):
             break
         time.sleep(0.01)
     assert result == {"FINISHED"} and calls[-1] == ("remove", "T")
-    assert lad.simulate.current_job() is None and _status(lad) == []
+    assert lad.job.current_job() is None and _status(lad) == []
     assert (tmp_path / "runs" / "Ladar_f0001-0002" / "metadata.json").is_file()
     # a user error is reported by invoke and nothing starts
     op.frames = "2-1"
     assert op_module.LADAR_OT_simulate.invoke(op, ctx, None) == {"CANCELLED"}
-    assert reports[-1][0] == {"ERROR"} and "frames" in reports[-1][1] and lad.simulate.current_job() is None
+    assert reports[-1][0] == {"ERROR"} and "frames" in reports[-1][1] and lad.job.current_job() is None
 
 
 def _status(lad):
@@ -191,7 +191,7 @@ def _status(lad):
 
 def test_a_folder_created_during_the_run_is_not_replaced(lad, scene, tmp_path):
     _scene(scene, tmp_path, width=32, subsamples=2)
-    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3], out_dir=tmp_path / "runs" / "taken")
+    job = lad.job.SimulationJob(scene, frames=[1, 2, 3], out_dir=tmp_path / "runs" / "taken")
     job.start(threaded=True)
     (tmp_path / "runs" / "taken").mkdir(parents=True)
     (tmp_path / "runs" / "taken" / "mine.txt").write_text("keep")

@@ -206,8 +206,8 @@ def test_results_panel_legend_and_running_job(lad, scene, tmp_path):
     assert {("operator", "ladar.waveform_view"), ("operator", "ladar.render_preview")} <= set(log)
     # while a run is going: a progress bar and a cancel button instead of Simulate, also in the status bar
     assert _draw_status(lad) == []
-    job = lad.simulate.SimulationJob(scene, out_dir=tmp_path / "running")
-    lad.simulate.set_current_job(job)
+    job = lad.job.SimulationJob(scene, out_dir=tmp_path / "running")
+    lad.job.set_current_job(job)
     try:
         job.fraction, job.text = 0.25, "block 3/12"
         log = _draw(panels.scene.LADAR_PT_scene, _context(scene, cam))
@@ -216,7 +216,7 @@ def test_results_panel_legend_and_running_job(lad, scene, tmp_path):
         assert _draw_status(lad) == [("progress", "Ladar running: 25% block 3/12"),
                                      ("operator", "ladar.simulate_cancel")]
     finally:
-        lad.simulate.set_current_job(None)
+        lad.job.set_current_job(None)
 
 
 def _draw_status(lad):

@@ -35,7 +35,7 @@ def test_colour_by_each_attribute(lad, scene, tmp_path):
     obj = bpy.data.objects["stairs"]
     rng = _attribute(obj, "range_m").astype(np.float64)
     assert set(np.round(rng)) == {100.0, 103.0}
-    assert lad.results.available_color_by(obj) == ["INTENSITY", "RANGE", "ECHO", "FRAME"]
+    assert lad.colors.available_color_by(obj) == ["INTENSITY", "RANGE", "ECHO", "FRAME"]
 
     scene.ladar.color_by = "RANGE"  # the property update recolours every result cloud of the scene
     assert obj["ladar_color_by"] == "RANGE" and obj["ladar_color_label"] == "Range (m)"
@@ -46,8 +46,8 @@ def test_colour_by_each_attribute(lad, scene, tmp_path):
     rgb = np.empty(len(value) * 4, np.float32)
     obj.data.color_attributes["ladar_rgb"].data.foreach_get("color", rgb)
     rgb = rgb.reshape(-1, 4)
-    np.testing.assert_allclose(rgb[rng > 102][:, :3] - lad.results.RAMP[-1][1], 0.0, atol=2e-3)
-    np.testing.assert_allclose(rgb[rng < 101][:, :3] - lad.results.RAMP[0][1], 0.0, atol=2e-3)
+    np.testing.assert_allclose(rgb[rng > 102][:, :3] - lad.colors.RAMP[-1][1], 0.0, atol=2e-3)
+    np.testing.assert_allclose(rgb[rng < 101][:, :3] - lad.colors.RAMP[0][1], 0.0, atol=2e-3)
 
     scene.ladar.color_by = "ECHO"  # one echo per pixel: every point at the ramp's start (echo 1 of 1 … 2)
     assert obj["ladar_color_min"] == 1.0 and obj["ladar_color_max"] == 2.0
@@ -56,14 +56,14 @@ def test_colour_by_each_attribute(lad, scene, tmp_path):
     scene.ladar.color_by = "SNR"  # the ideal receiver gives no SNR: the cloud keeps its colouring
     assert obj["ladar_color_by"] == "ECHO"
     with pytest.raises(lad.errors.LadarError, match="no detection snr attribute"):
-        lad.results.apply_color(obj, "SNR")
+        lad.colors.apply_color(obj, "SNR")
 
 
 def test_snr_colouring_with_the_noisy_receiver(lad, scene, tmp_path):
     run, result = _staircase_run(lad, scene, tmp_path, "noisy", noisy=True)
     obj = bpy.data.objects["noisy"]
-    assert "SNR" in lad.results.available_color_by(obj)
-    lo, hi = lad.results.apply_color(obj, "SNR")
+    assert "SNR" in lad.colors.available_color_by(obj)
+    lo, hi = lad.colors.apply_color(obj, "SNR")
     snr = _attribute(obj, "snr").astype(np.float64)
     np.testing.assert_allclose(snr, np.sort(result.points["snr"])[np.argsort(np.argsort(snr))], rtol=1e-6)
     assert lo == 0.0 and hi == pytest.approx(np.percentile(snr, 99), rel=1e-6)
@@ -74,7 +74,7 @@ def test_point_radius_follows_the_scene_setting(lad, scene, tmp_path):
     _staircase_run(lad, scene, tmp_path)
     obj = bpy.data.objects["stairs"]
     mod = obj.modifiers["Ladar Points"]
-    ident = lad.results._socket_identifier(mod.node_group, "Point Radius")
+    ident = lad.colors.socket_identifier(mod.node_group, "Point Radius")
     assert mod[ident] == pytest.approx(0.05)
     scene.ladar.point_radius = 0.2
     assert mod[ident] == pytest.approx(0.2)
@@ -108,15 +108,15 @@ def test_import_an_existing_run_folder(lad, scene, tmp_path):
 
 def test_waveform_view_of_a_flash_pixel(lad, scene, tmp_path):
     run, result = _staircase_run(lad, scene, tmp_path)
-    path, what = lad.results.waveform_plot(run, pixel_x=6, pixel_y=3)
+    path, what = lad.waveform_view.waveform_plot(run, pixel_x=6, pixel_y=3)
     assert path == run / "previews" / "waveform_x0006_y0003.png"
     assert what["echo_ranges_m"] == pytest.approx([float(result.range_image[3, 6])], rel=1e-6)  # image: float32
     assert what["echo_ranges_m"][0] == pytest.approx(103.0, abs=0.01)  # right half: the far step
     assert what["energy_j"] == pytest.approx(float(result.waveforms[3, 6].sum()), rel=1e-6)
     stamp = path.stat().st_mtime_ns
-    assert lad.results.waveform_plot(run, pixel_x=6, pixel_y=3)[0].stat().st_mtime_ns == stamp  # not rewritten
+    assert lad.waveform_view.waveform_plot(run, pixel_x=6, pixel_y=3)[0].stat().st_mtime_ns == stamp  # not rewritten
     with pytest.raises(lad.config.ConfigError, match="pixel_y"):
-        lad.results.waveform_plot(run, pixel_x=0, pixel_y=8)
+        lad.waveform_view.waveform_plot(run, pixel_x=0, pixel_y=8)
 
 
 def _capture_raw_renders(lad, monkeypatch, tmp_path):
@@ -168,7 +168,7 @@ def test_preview_render_from_the_sensor_with_a_legend(lad, scene, tmp_path, monk
                                    "y: Intensity (J per bin)")
     np.testing.assert_array_equal(corner, [16, 16, 20])  # the dark background
     assert bpy.data.objects["stairs"].modifiers["Ladar Points"] is not None
-    assert lad.results.point_radius(bpy.data.objects["stairs"]) == pytest.approx(0.02)  # restored
+    assert lad.colors.point_radius(bpy.data.objects["stairs"]) == pytest.approx(0.02)  # restored
     assert set(bpy.data.objects.keys()) == objects_before and set(bpy.data.scenes.keys()) == scenes_before
     assert bpy.ops.ladar.render_preview(resolution_x=32, resolution_y=24, samples=1) == {"FINISHED"}
     assert (tmp_path / "stairs" / "previews" / "render_2.png").is_file()  # the first render is kept
@@ -195,7 +195,7 @@ def test_intensity_legend_carries_the_runs_unit(lad, scene, tmp_path):
     which (from the run's metadata.json units)."""
     _staircase_run(lad, scene, tmp_path, "noisy_units", noisy=True)
     obj = bpy.data.objects["noisy_units"]
-    lad.results.apply_color(obj, "INTENSITY")
+    lad.colors.apply_color(obj, "INTENSITY")
     assert obj["ladar_color_label"] == "Intensity (counts)"
     bpy.ops.wm.read_homefile(use_empty=True)
     _staircase_run(lad, bpy.context.scene, tmp_path, "ideal_units")

@@ -45,7 +45,7 @@ def _fcurves(obj):
 def test_static_scene_exports_once_and_builds_one_bvh(lad, scene, tmp_path):
     _scene(scene, tmp_path)
     scene.frame_set(7)
-    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3]).run()
+    job = lad.job.SimulationJob(scene, frames=[1, 2, 3]).run()
     run = tmp_path / "runs" / "Ladar_f0001-0003"
     assert job.run_path == run and job.state == "done"
     assert scene.frame_current == 7  # the scene returns to its frame
@@ -84,7 +84,7 @@ def test_animated_plate_reexports_and_rebuilds_only_when_it_moves(lad, scene, tm
     for fc in _fcurves(plate):
         for key in fc.keyframe_points:
             key.interpolation = "CONSTANT"
-    job = lad.simulate.SimulationJob(scene, frames=[1, 2, 3, 9], out_dir=tmp_path / "seq").run()
+    job = lad.job.SimulationJob(scene, frames=[1, 2, 3, 9], out_dir=tmp_path / "seq").run()
     assert job.source.time_dependent == {"Plate": ["animated"]}
     assert job.source.exports == 4                 # animated: every frame exported …
     assert job.source.geometries == 2              # … but frames 1–3 give the same geometry
@@ -126,11 +126,11 @@ def test_sequence_names_are_checked_before_running(lad, scene, tmp_path):
     assert bpy.data.objects.get("s") is None
     assert {"s_frame_0001", "s_frame_0002"} <= set(bpy.data.objects.keys())
     with pytest.raises(lad.config.ConfigError, match="frames"):
-        lad.simulate.parse_frames("5-1")
-    assert lad.simulate.parse_frames("1-10:4,20") == [1, 5, 9, 20]
+        lad.frames.parse_frames("5-1")
+    assert lad.frames.parse_frames("1-10:4,20") == [1, 5, 9, 20]
     for bad in ("", "a-b", "1-", "3,3", "1-5:0"):
         with pytest.raises(lad.config.ConfigError, match="frames"):
-            lad.simulate.parse_frames(bad)
+            lad.frames.parse_frames(bad)
 
 
 def test_operator_frame_range(lad, scene, tmp_path):

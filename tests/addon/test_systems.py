@@ -78,9 +78,9 @@ def test_static_scanner_has_no_trajectory(lad, scene, tmp_path):
     run, result = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "scan")
     meta = json.loads((run / "metadata.json").read_text())
     assert meta["blender"]["export"]["motion_samples"] == 0
-    assert lad.simulate.motion_sample_count(0.05, 1000.0, 24.0) == 21
-    assert lad.simulate.motion_sample_count(100.0, 1000.0, 24.0) == lad.simulate.MAX_MOTION_SAMPLES
-    assert lad.simulate.motion_sample_count(1e-6, 1000.0, 24.0) == 2
+    assert lad.frames.motion_sample_count(0.05, 1000.0, 24.0) == 21
+    assert lad.frames.motion_sample_count(100.0, 1000.0, 24.0) == lad.frames.MAX_MOTION_SAMPLES
+    assert lad.frames.motion_sample_count(1e-6, 1000.0, 24.0) == 2
 
 
 def test_gated_slices_load_as_an_image_sequence(lad, scene, tmp_path):
@@ -116,11 +116,11 @@ def test_profiler_waveform_view(lad, scene, tmp_path):
     img = bpy.data.images["prof.waveform"]
     assert img.filepath == str(run / "previews" / "waveform_x0000_y0000.png")
     assert tuple(img.size) == (640, 360)
-    path, what = lad.results.waveform_plot(run)
+    path, what = lad.waveform_view.waveform_plot(run)
     assert what["energy_j"] == pytest.approx(float(result.waveforms.sum()), rel=1e-6)
     assert what["echo_ranges_m"] == pytest.approx(sorted(result.points["range_m"].tolist()), rel=1e-9)
     with pytest.raises(lad.config.ConfigError, match="pixel_x"):
-        lad.results.waveform_plot(run, pixel_x=1)
+        lad.waveform_view.waveform_plot(run, pixel_x=1)
 
 
 def test_gated_sequence_loads_each_frames_slices(lad, scene, tmp_path):

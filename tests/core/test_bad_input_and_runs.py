@@ -7,7 +7,8 @@ import pytest
 
 from core.systems import flash as pipeline
 from core.errors import ConfigError
-from core.config.settings import SimulationConfig, validate
+from core.config.settings import SimulationConfig
+from core.config.validate import validate
 from core.config.files import config_from_dict, config_to_dict, dump_config_json, dump_config_toml, load_config
 from core.errors import Cancelled
 from core.run import run_simulation

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...config.settings import DetectorSettings, validate
+from ...config.settings import DetectorSettings
+from ...config.validate import validate
 from .adc import adc_convert, adc_dtype
 from .code_tables import (CAUGHT_TABLES, P_BITS, TABLE_MIN_SIGMA_STEPS, CaughtCodeTables, CodeTable, noise_code_pmf,
                           uniform_uint32)

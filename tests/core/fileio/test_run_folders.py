@@ -277,7 +277,7 @@ _ON_A_MOUNT = textwrap.dedent("""
     from pathlib import Path
     import numpy as np
     from core.errors import ConfigError
-    from core.systems.flash import run_simulation
+    from core.run import run_simulation
     from scenes import config_for, plate
     parent, mount = Path(sys.argv[2]), Path(sys.argv[3])
     print("MOUNTED", flush=True)

@@ -10,7 +10,8 @@ from core.fileio.preview import plot_brdf
 from core.physics.brdf import (brdf_from_principled, directional_hemispherical_reflectance, evaluate_brdf,
                                evaluate_materials, lambertian_equivalent_reflectance, load_brdf_table,
                                parse_brdf_table, table_brdf)
-from core.config.settings import BRDFSettings, SimulationConfig, validate
+from core.config.settings import BRDFSettings, SimulationConfig
+from core.config.validate import validate
 from core.config.files import config_from_dict, dump_config_json, dump_config_toml, load_config
 from core.errors import ConfigError
 from core.physics.radiometry import received_energy

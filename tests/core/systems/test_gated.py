@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from core.errors import ConfigError
-from core.config.settings import LaserSettings, SimulationConfig, validate
+from core.config.settings import LaserSettings, SimulationConfig
+from core.config.validate import validate
 from core.systems.gated import gate_response, pulse_cdf_integral, slice_delays_s, two_gate_range_m
 from core.physics.laser import pulse_cdf
 from core.run import run_simulation, simulate

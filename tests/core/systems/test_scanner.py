@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from core.errors import ConfigError
-from core.config.settings import SimulationConfig, validate
+from core.config.settings import SimulationConfig
+from core.config.validate import validate
 from core.geometry.motion import Trajectory
 from core.run import run_simulation, simulate
 from core.fileio.run_folder import read_ply, run_summary

@@ -232,7 +232,7 @@ def test_chain_geiger_mode():
 
 def test_settings_validate():
     from core.errors import ConfigError
-    from core.config.settings import validate
+    from core.config.validate import validate
     validate(DetectorSettings())
     with pytest.raises(ConfigError):
         validate(dataclasses.replace(DetectorSettings(), quantum_efficiency=1.5))
