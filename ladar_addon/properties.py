@@ -43,6 +43,7 @@ import bpy
 from ..core.config.settings import BRDFSettings
 from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, INT32_MAX, MIB, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS,
                      SENSOR_GROUPS, TOP_FIELDS, FieldMap, label)
+from .moved import moved_names
 
 
 def _number_subtypes() -> set:
@@ -311,17 +312,7 @@ def sensor_field_maps(group: str) -> list[FieldMap]:
 #: Names that lived here before the Blender <-> core conversion and the field maps got their own modules.
 _MOVED = {"blend_config": ("unit_scale", "material_key", "brdf_from_material", "check_sensor", "config_from_blender",
                            "find_material", "apply_config_to_blender", "set_settings"),
-          "fields": ("SENSOR_GROUPS", "SCENE_GROUPS", "SYSTEM_TYPE_FIELD", "SEED_FIELD", "all_core_paths")}
+          "fields": ("SYSTEM_TYPE_FIELD", "all_core_paths")}
 
 
-def __getattr__(name):
-    """The old path of a moved name keeps working for now, with a DeprecationWarning naming the new one."""
-    import importlib
-    import warnings
-
-    for module, names in _MOVED.items():
-        if name in names:
-            warnings.warn(f"ladar_addon.properties.{name} has moved to ladar_addon.{module}.{name}",
-                          DeprecationWarning, stacklevel=2)
-            return getattr(importlib.import_module(f"{__package__}.{module}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved_names(__name__, _MOVED)

@@ -41,6 +41,7 @@ from __future__ import annotations
 import bpy
 
 from .job import SimulationJob
+from .moved import moved_names
 from .run_inputs import progress_printer
 
 # ------------------------------------------------------------------------------------------------------------
@@ -84,22 +85,12 @@ def simulate_sequence(scene, frames, out_dir=None, seed=None, config_path=None, 
 
 
 #: Names that lived here before the job, the frames and the run inputs got their own modules.
-_MOVED = {"job": ("SimulationJob", "current_job", "set_current_job", "handle_modal_event", "link_image_sequences",
+_MOVED = {"job": ("current_job", "set_current_job", "handle_modal_event", "link_image_sequences",
                   "IF_EXISTS", "CLOUDS"),
           "frames": ("parse_frames", "scene_time_s", "sensor_may_move", "motion_sample_count", "sample_trajectory",
                      "FrameInputs", "FrameSource", "MAX_MOTION_SAMPLES", "MOTION_SAMPLES_PER_FRAME"),
-          "run_inputs": ("active_sensor", "default_run_name", "resolve_run_dir", "build_config", "progress_printer",
+          "run_inputs": ("active_sensor", "default_run_name", "resolve_run_dir", "build_config",
                          "print_error")}
 
 
-def __getattr__(name):
-    """The old path of a moved name keeps working for now, with a DeprecationWarning naming the new one."""
-    import importlib
-    import warnings
-
-    for module, names in _MOVED.items():
-        if name in names:
-            warnings.warn(f"ladar_addon.simulate.{name} has moved to ladar_addon.{module}.{name}",
-                          DeprecationWarning, stacklevel=2)
-            return getattr(importlib.import_module(f"{__package__}.{module}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved_names(__name__, _MOVED)
