@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 
 from .config.settings import SimulationConfig
-from .config.validate import validate
+from .config.validate import validate_config
 from .config.files import config_to_dict
 from .engine.result import FrameResult
 from .errors import Cancelled, ConfigError
@@ -41,9 +41,9 @@ SYSTEMS = {
 def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
              trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None) -> FrameResult:
     """Simulate one frame of the sensor system ``config.system_type`` (:data:`SYSTEMS`)."""
+    validate_config(config)  # a SimulationConfig (not None or a dict) with valid settings, e.g. its system type
     system = SYSTEMS.get(config.system_type)
     if system is None:
-        validate(config)  # names the setting and the allowed system types
         raise ConfigError("system_type", config.system_type, f"one of {', '.join(SYSTEMS)}")
     result = system(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
                     start_time_s=start_time_s, progress=progress, cancel=cancel)
@@ -73,6 +73,7 @@ def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     false (with ``overwrite``: if it is not a previous run of this tool), if another run is writing it, or if the
     run is cancelled.  The folder's name is claimed before the simulation starts (fileio.staging).
     """
+    validate_config(config)  # a SimulationConfig (not None or a dict); before the folder is claimed
     with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
         result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
                           start_time_s=start_time_s, progress=progress, cancel=cancel)

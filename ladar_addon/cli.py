@@ -161,6 +161,14 @@ def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:
     return path
 
 
+def _check_frames(frames, field: str) -> None:
+    """Refuse frames Blender would clamp (``scene.frame_set`` silently moves them to its limit)."""
+    prop = bpy.types.Scene.bl_rna.properties["frame_current"]
+    for f in frames:
+        if not prop.hard_min <= f <= prop.hard_max:
+            raise ConfigError(field, f, f"a frame in [{prop.hard_min}, {prop.hard_max}] (Blender's frame range)")
+
+
 def _cmd_simulate(scene, args) -> int:
     from ..core.fileio.run_folder import run_summary
     from .frames import parse_frames
@@ -169,6 +177,7 @@ def _cmd_simulate(scene, args) -> int:
 
     sensor = _sensor(scene, args.sensor)
     frames = parse_frames(args.frames) if args.frames is not None else None
+    _check_frames(frames or ([args.frame] if args.frame is not None else []), "frames" if frames else "frame")
     if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
     job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
                         config_path=args.config, if_exists=if_exists, sensor=sensor,
@@ -195,12 +204,23 @@ def _cmd_export_config(scene, args) -> int:
 
 
 def _cmd_validate_config(scene, args) -> int:
+    """What ``simulate`` would refuse before running: the settings, the material names the file overrides (the
+    scene's exported materials) and the run's memory and work (core.engine.memory, without the memory free now)."""
+    from ..core.engine.memory import check_memory
     from .blend_config import config_from_blender
+    from .export import scene_geometry_from_depsgraph
 
-    base = None
+    base, sensor = None, None
     if args.sensor is not None or (scene is not None and (scene.ladar.sensor or scene.camera) is not None):
-        base = config_from_blender(scene, _sensor(scene, args.sensor))
-    load_config(args.file, base=base if base is not None else SimulationConfig())
+        sensor = _sensor(scene, args.sensor)
+        base = config_from_blender(scene, sensor)
+    cfg = load_config(args.file, base=base if base is not None else SimulationConfig())
+    blend_materials = base.materials if base is not None else {}
+    changed = {n: b for n, b in cfg.materials.items() if blend_materials.get(n) != b}
+    if changed and scene is not None:  # simulate matches these by name against the exported scene
+        scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(),
+                                      exclude={sensor.name} if sensor is not None else ()).with_overrides(changed)
+    check_memory(cfg, available=None)
     emit(f"ladar: {args.file} is valid")
     return 0
 

@@ -19,10 +19,13 @@ interrupted run leaves nothing behind: its staging folder and the temporary Blen
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-try:
+try:  # every import inside: Ctrl-C within the first milliseconds exits 130 without a traceback
+    import os
+    import tempfile
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     import blender_env  # noqa: E402  (puts the repository on sys.path: core.process is standard library only)
     import core.process as process  # noqa: E402
 except KeyboardInterrupt:  # Ctrl-C within the first milliseconds: nothing started yet
@@ -30,6 +33,36 @@ except KeyboardInterrupt:  # Ctrl-C within the first milliseconds: nothing start
 
 USAGE = ("usage: ladar_run.py SCENE.blend {simulate,export-config,validate-config} [options]\n"
          "       (ladar_run.py -h: this script; ladar_run.py SCENE.blend simulate -h: the command's options)")
+
+
+class BlendFileError(Exception):
+    """The .blend file cannot be opened (truncated, corrupt, not a .blend file)."""
+
+
+def open_blend(bpy, path: Path) -> None:
+    """Open ``path`` in Blender.  Raises BlendFileError with Blender's reason on one line; Blender's own report of
+    the failure (printed on stdout) is dropped, and its output of a file that opens is passed through."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryFile() as log:
+        os.dup2(log.fileno(), 1)
+        try:
+            bpy.ops.wm.open_mainfile(filepath=str(path.resolve()), load_ui=False)
+        except RuntimeError as exc:
+            reason = str(exc).splitlines()[-1] if str(exc).strip() else type(exc).__name__
+            for noise in (f" '{path.resolve()}'", f' in file "{path.resolve()}"', "Error: "):
+                reason = reason.split("failed: ")[-1].replace(noise, "")
+            raise BlendFileError(f"{path} is not a readable .blend file ({reason[:200].strip(' :.')})") from None
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved, 1)
+            os.close(saved)
+        log.seek(0)
+        try:
+            sys.stdout.buffer.write(log.read())
+            sys.stdout.flush()
+        except (OSError, ValueError):  # the reader has gone: output never ends a run
+            pass
 
 
 def main(argv=None) -> int:
@@ -49,8 +82,11 @@ def main(argv=None) -> int:
                 import bpy
 
                 addon = blender_env.install_extension()
-                bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
+                open_blend(bpy, blend)
             return addon.ladar_addon.cli.cli_handler(command)
+        except BlendFileError as exc:
+            process.emit(f"ladar: error: {exc}", err=True)
+            return 1
         except KeyboardInterrupt as exc:  # while Blender was starting (the command reports its own)
             how = getattr(exc, "signal_name", "SIGINT")
             process.emit("ladar: interrupted" + (f" ({how})" if how != "SIGINT" else "") + ": nothing was written",

@@ -10,7 +10,7 @@ from .settings import (BRDF_TABLE_FIELDS, DEFAULT_BRDF, GROUPS, SCHEMA_VERSION, 
                        BRDFSettings, DetectionSettings, DetectorSettings, GatedSettings, LaserSettings,
                        RangeGateSettings, ReceiverSettings, RunSettings, ScannerSettings, SimulationConfig,
                        field_specs, setting)
-from .validate import check_brdf_table, validate
+from .validate import check_brdf_table, validate, validate_config
 from .files import config_from_dict, config_to_dict, dump_config_json, dump_config_toml, load_config
 
 __all__ = ["ConfigError", "n_pulse_times", "n_scan_pulses", "scan_duration_s", "BRDF_TABLE_FIELDS", "DEFAULT_BRDF",
@@ -18,4 +18,4 @@ __all__ = ["ConfigError", "n_pulse_times", "n_scan_pulses", "scan_duration_s", "
            "DetectorSettings", "GatedSettings", "LaserSettings", "RangeGateSettings", "ReceiverSettings",
            "RunSettings", "ScannerSettings", "SimulationConfig", "check_brdf_table", "config_from_dict",
            "config_to_dict", "dump_config_json", "dump_config_toml", "field_specs", "load_config", "setting",
-           "validate"]
+           "validate", "validate_config"]

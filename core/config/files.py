@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tomllib
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..errors import ConfigError, cut
 from .settings import BRDF_TABLE_FIELDS, GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig
-from .validate import validate
+from .validate import finite_number, validate
 
 
 def _from_mapping(cls, data: dict, prefix: str):
@@ -33,7 +34,8 @@ def _from_mapping(cls, data: dict, prefix: str):
             kwargs[key] = {name: _brdf_from_mapping(sub, f"{prefix}{key}.{name}.")
                            for name, sub in value.items()}
         else:
-            if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool):
+            if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool) \
+                    and finite_number(value):  # (an integer too large for a float is refused by validate)
                 value = float(value)
             kwargs[key] = value
     return cls(**kwargs)
@@ -52,7 +54,7 @@ def config_from_dict(data: dict, base: SimulationConfig | None = None) -> Simula
         raise ConfigError("config", type(data).__name__, "a table of settings")
     data = dict(data)
     version = data.pop("schema_version", SCHEMA_VERSION)
-    if version != SCHEMA_VERSION:
+    if type(version) is not int or version != SCHEMA_VERSION:
         raise ConfigError("schema_version", version, f"{SCHEMA_VERSION} (this version of the simulator)")
     merged = config_to_dict(base) if base is not None else config_to_dict(SimulationConfig())
     merged.pop("schema_version")
@@ -73,24 +75,59 @@ def load_config(path, base: SimulationConfig | None = None) -> SimulationConfig:
     path = Path(path)
     if not path.is_file():
         raise ConfigError("config file", str(path), "an existing .json or .toml file")
-    text = path.read_text(encoding="utf-8")
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".json"):
+        raise ConfigError("config file", str(path), "a file ending in .json or .toml")
+    kind = suffix[1:].upper()
+    raw = path.read_bytes()
     try:
-        if path.suffix.lower() == ".toml":
-            import tomllib
-            data = tomllib.loads(text)
-        elif path.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            raise ConfigError("config file", str(path), "a file ending in .json or .toml")
-    except (json.JSONDecodeError, ValueError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError("config file", str(path), f"valid {path.suffix[1:].upper()} ({exc})") from exc
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError("config file", str(path), f"UTF-8 text (byte {exc.start} is {raw[exc.start]:#04x}, "
+                                                    f"not UTF-8)") from None
+    try:
+        data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
+    except RecursionError:
+        raise ConfigError("config file", str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep "
+                                                    f"(settings tables hold numbers, strings and lists)") from None
+    except ValueError as exc:  # JSONDecodeError, TOMLDecodeError, integers too long to read
+        raise ConfigError("config file", str(path), f"valid {kind} ({cut(str(exc), 200)})") from None
+    if _depth(data) > MAX_CONFIG_DEPTH:
+        raise ConfigError("config file", str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep")
     return config_from_dict(data, base)
+
+
+#: Deepest nesting a config file may have (materials.<name>.table_angle_deg[i] is 4).
+MAX_CONFIG_DEPTH = 8
+
+
+def _depth(value, level: int = 0) -> int:
+    if level > MAX_CONFIG_DEPTH:
+        return level
+    if isinstance(value, dict):
+        return max((_depth(v, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, level + 1) for v in value), default=level + 1)
+    return level
 
 
 def dump_config_json(cfg: SimulationConfig) -> str:
     return json.dumps(config_to_dict(cfg), indent=2, sort_keys=False)
+
+
+def toml_string(text: str) -> str:
+    """A TOML basic string: characters as they are (UTF-8), except the quote, the backslash and the control
+    characters TOML forbids, which are escaped (JSON's escapes would turn an emoji into a surrogate pair
+    \\ud83d\\ude00, which TOML does not accept)."""
+    out = []
+    for ch in text:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
 
 
 def dump_config_toml(cfg: SimulationConfig) -> str:
@@ -101,7 +138,7 @@ def dump_config_toml(cfg: SimulationConfig) -> str:
         if isinstance(v, bool):
             return "true" if v else "false"
         if isinstance(v, str):
-            return json.dumps(v)
+            return toml_string(v)
         if isinstance(v, float):
             return repr(v)
         return str(v)
@@ -112,7 +149,7 @@ def dump_config_toml(cfg: SimulationConfig) -> str:
         lines += [f"{k} = {fmt(v)}" for k, v in data[group].items()]
         lines.append("")
     for name, brdf in data["materials"].items():
-        lines.append(f"[materials.{json.dumps(name)}]")
+        lines.append(f"[materials.{toml_string(name)}]")
         lines += [f"{k} = [{', '.join(fmt(x) for x in v)}]" if isinstance(v, (list, tuple)) else f"{k} = {fmt(v)}"
                   for k, v in brdf.items()]
         lines.append("")
@@ -125,6 +162,6 @@ def _brdf_from_mapping(data, prefix: str) -> "BRDFSettings":
     for name in BRDF_TABLE_FIELDS:
         values = getattr(brdf, name)
         if isinstance(values, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                     for v in values):
+                                                     and finite_number(v) for v in values):
             setattr(brdf, name, [float(v) for v in values])
     return brdf

@@ -8,7 +8,7 @@ import math
 
 from ..errors import ConfigError
 from .derived import n_scan_pulses
-from .settings import BRDFSettings, SimulationConfig
+from .settings import BRDF_TABLE_FIELDS, BRDFSettings, SimulationConfig
 
 
 def _range_text(meta) -> str:
@@ -19,6 +19,14 @@ def _range_text(meta) -> str:
     lo_s = "-inf" if lo is None else f"{lo:g}"
     hi_s = "inf" if hi is None else f"{hi:g}"
     return f"a finite number in {left}{lo_s}, {hi_s}{right}{unit}"
+
+
+def finite_number(value) -> bool:
+    """A finite real number (an integer too large for a float is not)."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def _check_value(path: str, value, f: dataclasses.Field):
@@ -39,7 +47,7 @@ def _check_value(path: str, value, f: dataclasses.Field):
     elif isinstance(f.default, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(path, value, _range_text(meta))
-        if not math.isfinite(value):
+        if not finite_number(value):
             raise ConfigError(path, value, _range_text(meta))
     else:
         return
@@ -58,7 +66,7 @@ def check_brdf_table(angle_deg, brdf_per_sr, prefix: str = "") -> None:
         if not isinstance(values, (list, tuple)):
             raise ConfigError(path, values, "a list of numbers")
         for i, v in enumerate(values):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_number(v):
                 raise ConfigError(f"{path}[{i}]", v, "a finite number")
     if len(angle_deg) != len(brdf_per_sr):
         raise ConfigError(v_path, f"{len(brdf_per_sr)} values",
@@ -79,12 +87,24 @@ def check_brdf_table(angle_deg, brdf_per_sr, prefix: str = "") -> None:
 def _check_brdf(brdf: "BRDFSettings", prefix: str) -> None:
     """The table of a BRDF: checked when the model is "table" or a table is present (another model keeps a
     table it does not use, e.g. while the user compares models)."""
-    if brdf.model == "table" or brdf.table_angle_deg or brdf.table_brdf_per_sr:
+    if brdf.model == "table" or any(getattr(brdf, n) != [] for n in BRDF_TABLE_FIELDS):
         check_brdf_table(brdf.table_angle_deg, brdf.table_brdf_per_sr, prefix)
+
+
+def validate_config(config) -> None:
+    """The whole run's settings at an API boundary: a :class:`SimulationConfig` (not None, a dict or another
+    settings group) with valid settings; ConfigError otherwise."""
+    if not isinstance(config, SimulationConfig):
+        raise ConfigError("config", f"a {type(config).__name__}",
+                          "a SimulationConfig (core.config; config_from_dict or load_config build one from a "
+                          "table of settings)")
+    validate(config)
 
 
 def validate(obj, prefix: str = "") -> None:
     """Check every field of a settings dataclass (recursively); raise ConfigError on the first bad one."""
+    if not (dataclasses.is_dataclass(obj) and not isinstance(obj, type)):
+        raise ConfigError(prefix.rstrip(".") or "settings", f"a {type(obj).__name__}", "a settings dataclass")
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         path = f"{prefix}{f.name}"
@@ -166,8 +186,8 @@ def _check_gated(cfg: SimulationConfig) -> None:
             raise ConfigError("gated.delay_step_s", g.delay_step_s,
                               f"at most gated.gate_width_s = {g.gate_width_s:g} s for range_method peak (a step "
                               f"longer than the gate leaves ranges no slice sees)")
-    stack = cfg.receiver.width_px * cfg.receiver.height_px * g.n_slices * 4
-    if stack > cfg.run.max_memory_bytes:
+    stack = cfg.receiver.width_px * cfg.receiver.height_px * g.n_slices * 8
+    if stack > cfg.run.max_memory_bytes:  # the first of several stacks (the run's whole estimate: engine.memory)
         raise ConfigError("gated.n_slices", g.n_slices,
-                          f"fewer slices: the float32 slice stack would need {stack / 2**30:.2f} GiB, more than "
-                          f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB")
+                          f"fewer slices: the float64 slice stack alone would need {stack / 2**30:.2f} GiB, more "
+                          f"than run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB")

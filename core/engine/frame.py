@@ -1,6 +1,7 @@
 """Opening a frame, and the record of what ran: what every sensor system does before and around its physics.
 
-    open_frame: validate the settings → (the system's preflight, e.g. the memory plan) → material overrides →
+    open_frame: validate the settings → the memory and work plan (refuses what would not fit or not end) →
+                (the system's own preflight) → material overrides →
                 scene check → sensor pose → BVH (reuse the caller's when it serves this scene, else build it,
                 on the triangles inside the field of view when the system culls)
     StageLog:   stage times, the stages run (in order) and the stages skipped with the reason, for metadata.json
@@ -17,11 +18,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config.settings import SimulationConfig
-from ..config.validate import validate
+from ..config.validate import validate_config
 from ..geometry.culling import frustum_triangles
 from ..geometry.motion import split_pose
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer
+from .memory import check_memory
 
 
 @dataclass
@@ -75,7 +77,8 @@ class Frame:
     built: bool                    # the BVH was built for this frame (else the caller's was reused)
     bvh: dict                      # how: built, culled (triangles traced / total) or reused
     t_wall: float                  # perf_counter() when the frame was opened
-    preflight: object = None       # what the system's preflight returned (e.g. the memory estimate)
+    memory: dict = None            # the memory and work estimate (engine.memory.check_memory)
+    preflight: object = None       # what the system's preflight returned
 
 
 def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, log: StageLog, *,
@@ -85,12 +88,15 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
 
     ``world_from_sensor``: 4×4 sensor→world matrix, or None when the system poses every pulse from a trajectory.
     ``tracer``: a BVH built on this scene's geometry (static scenes: one BVH for all frames) is reused.
-    ``preflight(config)``: the system's own check after validation, before anything is built.
+    The memory and work estimate of the frame (:func:`~.memory.check_memory`, every system) refuses, naming the
+    setting to change, a frame that would not fit or not end, before anything is built; it is ``Frame.memory``.
+    ``preflight(config)``: the system's own check after those, before anything is built.
     ``fov_culling``: None for a system that traces the whole scene; True (False) for one that builds its BVH on
     the triangles inside the frustum ``frustum_tan`` = (half width, half height) in tan units (or says it does not).
     The BVH's time is logged as ``build_bvh``; reuse and culling are recorded in ``log``."""
     t_wall = time.perf_counter()
-    validate(config)
+    validate_config(config)  # a SimulationConfig (not None, a dict or a settings group) with valid settings
+    memory = check_memory(config)
     checked = preflight(config) if preflight is not None else None
     scene = scene.with_overrides(config.materials)
     scene.check()
@@ -118,4 +124,4 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
         log.skip("build_bvh", "the caller's BVH of this scene was reused")
     log.times["build_bvh"] = time.perf_counter() - t0
     return Frame(config=config, scene=scene, tracer=tracer, origin=origin, rot=rot, built=built, bvh=bvh,
-                 t_wall=t_wall, preflight=checked)
+                 t_wall=t_wall, memory=memory, preflight=checked)

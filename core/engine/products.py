@@ -21,14 +21,16 @@ from ..physics.receiver.conversions import photons_per_joule
 from .result import FrameResult
 
 
-def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None) -> Echoes:
+def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None,
+                 noise_floor=0.0) -> Echoes:
     """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
     core/physics/detection/noisy.py), in the per-echo layout of :class:`Echoes`, with the detection SNR.
 
     With ``truth`` (the noise-free waveforms the chain saw, (pixels, bins) J) every echo is classified as a
     true return or a false alarm (core.physics.detection.noisy.classify_false_alarms): the returned Echoes carries a
     per-echo bool ``false_alarm`` attribute and ``info`` (a dict) receives the counts, rates and the Gaussian
-    expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report)."""
+    expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report).  ``noise_floor``:
+    the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``)."""
     d, g = config.detection, config.gate
     h, w, n_bins = digital.shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
@@ -36,7 +38,7 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     found = detect_echoes_noisy(digital.reshape(h * w, n_bins).astype(np.float32), g.bin_width_s, g.gate_start_s,
                                 threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
                                 k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
-                                interpolation=d.interpolation)
+                                interpolation=d.interpolation, min_noise_sigma=noise_floor)
     pix, slot = np.nonzero(found.detected)
     echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
                     amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),

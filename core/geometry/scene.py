@@ -27,9 +27,12 @@ class SceneGeometry:
     material_names: list = field(default_factory=lambda: ["default"])
 
     def __post_init__(self):
-        self.vertices_m = np.ascontiguousarray(self.vertices_m, dtype=np.float64).reshape(-1, 3)
-        self.triangles = np.ascontiguousarray(self.triangles, dtype=np.int32).reshape(-1, 3)
-        self.material_ids = np.ascontiguousarray(self.material_ids, dtype=np.int32).reshape(-1)
+        self.vertices_m = _real_array("scene.vertices_m", self.vertices_m, (None, 3),
+                                      "an (N, 3) array of real x, y, z coordinates (m)")
+        self.triangles = _index_array("scene.triangles", self.triangles, (None, 3),
+                                      "an (M, 3) array of whole-number vertex indices")
+        self.material_ids = _index_array("scene.material_ids", self.material_ids, (None,),
+                                         "an (M,) array of whole-number material indices, one per triangle")
 
     @property
     def n_triangles(self) -> int:
@@ -68,6 +71,52 @@ class SceneGeometry:
                               "the name of a material in the scene: " + ", ".join(self.material_names))
         mats = [overrides.get(n, m) for n, m in zip(self.material_names, self.materials)]
         return SceneGeometry(self.vertices_m, self.triangles, self.material_ids, mats, list(self.material_names))
+
+
+def _as_array(path: str, value, allowed: str) -> np.ndarray:
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError):  # ragged nested lists
+        raise ConfigError(path, f"a {type(value).__name__} that is not a rectangular array", allowed) \
+            from None
+    if a.dtype.kind not in "iuf":  # bool, complex, strings, objects (None, ragged lists)
+        raise ConfigError(path, f"an array of dtype {a.dtype}", allowed)
+    return a
+
+
+def _check_shape(path: str, a: np.ndarray, shape: tuple, allowed: str) -> None:
+    if a.ndim != len(shape) or any(want is not None and got != want for got, want in zip(a.shape, shape)):
+        if not (a.size == 0 and a.ndim == 1 and len(shape) == 2):  # [] for "no triangles"
+            raise ConfigError(path, f"an array of shape {a.shape}, dtype {a.dtype}", allowed)
+
+
+def _real_array(path: str, value, shape: tuple, allowed: str) -> np.ndarray:
+    """``value`` as a C-contiguous float64 array of ``shape`` (None: any length), or ConfigError."""
+    a = _as_array(path, value, allowed)
+    _check_shape(path, a, shape, allowed)
+    return np.ascontiguousarray(a, dtype=np.float64).reshape((-1,) + tuple(shape[1:]))
+
+
+#: Largest index an int32 index array can hold.
+_MAX_INDEX = np.iinfo(np.int32).max
+
+
+def _index_array(path: str, value, shape: tuple, allowed: str) -> np.ndarray:
+    """``value`` as a C-contiguous int32 array of ``shape`` (None: any length), or ConfigError: whole numbers
+    only (floats with a fraction are refused, not truncated), in [0, 2³¹ − 1] (never wrapped)."""
+    a = _as_array(path, value, allowed)
+    _check_shape(path, a, shape, allowed)
+    if a.size:
+        if a.dtype.kind == "f":
+            bad = ~np.isfinite(a) | (a != np.floor(a))
+            if bad.any():
+                raise ConfigError(path, f"{a.reshape(-1)[np.argmax(bad.reshape(-1))]!r} in an array of dtype "
+                                        f"{a.dtype}", allowed + " (no fractions)")
+        lo, hi = a.min(), a.max()
+        if lo < 0 or hi > _MAX_INDEX:
+            raise ConfigError(path, f"index {lo if lo < 0 else hi} (dtype {a.dtype})",
+                              f"{allowed} in [0, {_MAX_INDEX}]")
+    return np.ascontiguousarray(a, dtype=np.int32).reshape((-1,) + tuple(shape[1:]))
 
 
 def merge_meshes(parts) -> SceneGeometry:

@@ -14,12 +14,12 @@ import time
 import numpy as np
 
 from ..config.settings import SimulationConfig
-from ..config.validate import validate
+from ..config.validate import validate_config
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
 from ..engine.blocks import balanced_block_size, item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
-from ..engine.memory import BLOCK_WAVEFORM_BYTES, check_flash_memory
+from ..engine.memory import BLOCK_WAVEFORM_BYTES
 from ..engine.products import noisy_echoes, points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
@@ -67,14 +67,14 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     ``world_from_sensor`` (``trajectory`` and ``start_time_s`` are not used).
     ``tracer``: a SceneTracer built on this scene's geometry (static scenes: one BVH for all frames); otherwise
     one is built, on the triangles inside the field of view only when ``fov_culling`` (core/geometry/culling.py)."""
-    validate(config)  # before the detector and the plan are derived from the settings (open_frame checks again)
+    validate_config(config)  # before the detector and the plan are derived from it (open_frame checks again)
     det = Detector.from_settings(config.receiver)
     run_plan = plan(config)
     log = StageLog.of(STAGES, run_plan["stages_run"], run_plan["stages_skipped"])
-    # the memory plan refuses, naming the setting to change, what would not fit
-    fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer, preflight=check_flash_memory,
+    # the memory and work plan refuses, naming the setting to change, what would not fit or not end
+    fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer,
                     frustum_tan=(det.half_width_tan, det.half_height_tan), fov_culling=fov_culling)
-    scene, tracer, origin, rot, memory = fr.scene, fr.tracer, fr.origin, fr.rot, fr.preflight
+    scene, tracer, origin, rot, memory = fr.scene, fr.tracer, fr.origin, fr.rot, fr.memory
     needs_reference = any(s not in log.skipped
                           for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
     with log.timed("atmosphere"):
@@ -183,7 +183,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         with log.timed("echoes"):
             fa_info = {}
             echo_parts = [noisy_echoes(digital, config, truth=waveforms, info=fa_info,
-                                       noise_sigma=receiver_report.get("noise_sigma"))]
+                                       noise_sigma=receiver_report.get("noise_sigma"),
+                                       noise_floor=receiver_report.get("noise_sigma_floor", 0.0))]
             receiver_report["false_alarms"] = fa_info  # noise detections counted against the noise-free cube
     elif blur:
         with log.timed("echoes"):
@@ -228,6 +229,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     stats.update(stages_run=log.ran, stages_skipped=log.skipped)
     stats["bvh"] = fr.bvh  # built, culled or reused (static geometry)
     stats["memory_estimate_bytes"] = memory["total"]
+    stats["work_estimate_samples"] = memory["work"]
     stats["subray_pattern"] = config.receiver.subray_pattern
     if refined:
         stats["adaptive"] = {"refined_pixels": int(sum(r[0] for r in refined)),
@@ -252,7 +254,7 @@ def simulate_profiler(scene: SceneGeometry, world_from_sensor, config: Simulatio
                       cancel=None) -> FrameResult:
     """Range profiler (paper §5.3): the flash model with one detector element (receiver width/height are
     ignored) whose field of view holds the target, all returning energy in one waveform."""
-    validate(config)
+    validate_config(config)
     single = dataclasses.replace(config, receiver=dataclasses.replace(config.receiver, width_px=1, height_px=1))
     result = simulate_frame(scene, world_from_sensor, single, frame=frame, tracer=tracer, progress=progress,
                             cancel=cancel)

@@ -43,6 +43,7 @@ from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
+from ..engine.memory import GATE_MAX_TERMS, check_memory, estimate_gated_memory, held_bytes
 from ..engine.products import points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
@@ -53,8 +54,6 @@ from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import round_trip_time_s
 
-#: Largest number of (ray, slice) gate evaluations at once (bounds memory, ~64 MB of float64 each).
-MAX_GATE_TERMS = 4_000_000
 
 
 def pulse_cdf_integral(laser, x_s):
@@ -264,8 +263,11 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     needs_ref = any(s not in switches for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
     r_ref = reference_range_m(tracer, det, origin, rot) if needs_ref else None
     per_slice_random = any(s not in switches for s in ("scintillation", "beam_wander"))
-    atm_slices = [prepare_frame_atmosphere(config, det, r_ref, frame, pulse=k if per_slice_random else None)
-                  for k in (range(n_sl) if per_slice_random else [0])]
+    atm_slices = [prepare_frame_atmosphere(config, det, r_ref, frame, pulse=0 if per_slice_random else None)]
+    # one realisation per slice: check the sweep's memory with the first one's size before drawing the others
+    memory = check_memory(config, estimate=estimate_gated_memory(config, pattern_bytes=held_bytes(atm_slices[0])))
+    atm_slices += [prepare_frame_atmosphere(config, det, r_ref, frame, pulse=k)
+                   for k in (range(1, n_sl) if per_slice_random else [])]
     atm = atm_slices[0]
     fractions = [cell_energy_fractions(laser, det, a.beam_offset_tan, a.beam_width_scale) for a in atm_slices]
     times["atmosphere"] = time.perf_counter() - t0
@@ -310,7 +312,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         out = np.zeros((n_sl, b - a))
         e_mat = np.stack(per_slice, axis=0) if len(per_slice) > 1 else None  # (n_slices, rays)
         if span > 0:
-            step_rays = max(1, MAX_GATE_TERMS // span)
+            step_rays = max(1, GATE_MAX_TERMS // span)
             for c in range(0, len(t_rt), step_rays):
                 sl = slice(c, c + step_rays)
                 kk = lo[sl, None] + np.arange(span)[None, :]
@@ -392,7 +394,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                            "rule": "strongest slice ≥ max(min_peak_fraction × the frame's strongest slice, "
                                    + ("k_sigma × noise σ" if noise_sigma is not None else "min_signal_j") + ")"},
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(energy_image.sum()),
-             "stages_run": ran, "stages_skipped": skipped}
+             "stages_run": ran, "stages_skipped": skipped, "memory_estimate_bytes": memory["total"],
+             "work_estimate_samples": memory["work"]}
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
         if per_slice_random:

@@ -25,6 +25,7 @@ from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import turbulence_switches
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
+from ..engine.memory import SCAN_NOISE_TILE_PULSES
 from ..engine.products import noisy_echoes
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_rng, stage_seed
@@ -37,9 +38,6 @@ from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import accumulate_waveforms, binning_method, round_trip_time_s
 from .scan_patterns import beam_subrays, pulse_schedule, scan_rays
-
-#: Pulses per random-number tile (noisy receiver): streams are per tile, so results do not depend on blocks.
-NOISE_TILE_PULSES = 4096
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -288,7 +286,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     if trajectory.is_static:
         skipped["motion"] = "static sensor: one pose for every pulse"
 
-    tile = NOISE_TILE_PULSES
+    tile = SCAN_NOISE_TILE_PULSES
     per_block = max(1, config.run.chunk_rays // m)
     per_block = max(tile, (per_block // tile) * tile)
     if save or noisy:  # full-gate waveforms: bound the block's float64 waveform memory (~64 MiB)
@@ -350,7 +348,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                     chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], chain_settings,
                                                  stage_seed(config.run.seed, frame, "receiver", (a + ta) // tile))
                     ech = noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
-                                        noise_sigma=chain.report.get("noise_sigma"))
+                                        noise_sigma=chain.report.get("noise_sigma"),
+                                        noise_floor=chain.report.get("noise_sigma_floor", 0.0))
                     ech.pixel = ech.pixel + ta
                     parts.append(ech)
                     dig.append(chain.report)
@@ -408,7 +407,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
              "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
              "scan_duration_s": scan_duration_s(config), "stage_times_s": times,
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(pulse_energy.sum()),
-             "stages_run": ran, "stages_skipped": skipped,
+             "stages_run": ran, "stages_skipped": skipped, "memory_estimate_bytes": fr.memory["total"],
+             "work_estimate_samples": fr.memory["work"],
              "notes": {"divergence_fills_fov": "ignored by the scanner: the beam is laser.beam_divergence_rad",
                        "receiver": "the receiver collects the whole footprint; width/height/fov unused"}}
     if atm.metadata:

@@ -130,7 +130,7 @@ class NoisyEchoes:
 
 def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_mode="adaptive",
                         threshold=0.0, k_sigma=5.0, pulse=None, max_echoes=3, min_separation_bins=None,
-                        interpolation="gaussian", noise_sigma=None, baseline=None):
+                        interpolation="gaussian", noise_sigma=None, baseline=None, min_noise_sigma=0.0):
     """Detect up to ``max_echoes`` echoes per pixel on noisy waveforms (physics.md §9).
 
     waveforms      : (..., B) digital counts or any real waveform.
@@ -140,6 +140,9 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     min_separation_bins : smallest distance between two echoes of a pixel (default: pulse length or 3).
     interpolation  : "gaussian" (falls back to parabolic where a sample ≤ 0 — counted), "parabolic", "none".
     noise_sigma, baseline : known per-pixel values instead of the robust estimates.
+    min_noise_sigma : floor of the raw noise σ (and σ/‖pulse‖ after the matched filter): the receiver's
+                     signal-free σ (core.receiver.noise_sigma_floor), so that a waveform whose noise is below
+                     one A/D count (MAD 0) gets neither a zero threshold nor infinite SNRs.
     Edge bins 0 and B−1 are never peaks (no 3-point neighbourhood).
     """
     y = np.asarray(waveforms)
@@ -152,13 +155,15 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     base = (b_est if baseline is None else np.broadcast_to(np.asarray(baseline, np.float64), shape).reshape(-1))
     sig = (s_est if noise_sigma is None else np.broadcast_to(np.asarray(noise_sigma, np.float64),
                                                              shape).reshape(-1))
+    sig = np.maximum(sig, float(min_noise_sigma))
     yd = y.astype(np.float32) - base.astype(np.float32)[:, None]
     if pulse is not None:
         yd = matched_filter(yd, pulse)
+        k = np.asarray(pulse, np.float64)
         if noise_sigma is None:
             _, sig_det = robust_baseline_noise(yd)
+            sig_det = np.maximum(sig_det, float(min_noise_sigma) / np.sqrt(np.sum(k * k)))
         else:
-            k = np.asarray(pulse, np.float64)
             sig_det = sig / np.sqrt(np.sum(k * k))
     else:
         sig_det = sig

@@ -14,7 +14,8 @@ from .adc import adc_convert, adc_dtype
 from .chain import STEPS, ChainOutput, ChainSettings, apply_receiver_chain
 from .code_tables import CaughtCodeTables, CodeTable, noise_code_pmf, uniform_uint32
 from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, energy_to_photons,
-                          linear_detector_moments, mcintyre_excess_noise, photons_per_joule, snr_linear)
+                          linear_detector_moments, mcintyre_excess_noise, noise_sigma_floor, photons_per_joule,
+                          snr_linear)
 from .geiger import coates_correction, geiger_detection_probability, geiger_histogram, pileup_probabilities
 from .samplers import gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
 
@@ -22,6 +23,7 @@ __all__ = ["DetectorSettings", "H_PLANCK_J_S", "Q_ELECTRON_C", "SPEED_OF_LIGHT_M
            "STEPS", "ChainOutput", "ChainSettings", "apply_receiver_chain", "CaughtCodeTables", "CodeTable",
            "noise_code_pmf", "uniform_uint32", "adc_step_e", "background_photons", "bin_moments",
            "current_to_electrons", "energy_to_photons", "linear_detector_moments", "mcintyre_excess_noise",
+           "noise_sigma_floor",
            "photons_per_joule", "snr_linear", "coates_correction", "geiger_detection_probability",
            "geiger_histogram", "pileup_probabilities", "gamma_gain", "poisson_dense", "poisson_sparse_counts",
            "poisson_uniform_rows"]

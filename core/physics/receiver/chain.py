@@ -37,7 +37,7 @@ from .adc import adc_convert, adc_dtype
 from .code_tables import (CAUGHT_TABLES, P_BITS, TABLE_MIN_SIGMA_STEPS, CaughtCodeTables, CodeTable, noise_code_pmf,
                           uniform_uint32)
 from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
-                          photons_per_joule)
+                          noise_sigma_floor, photons_per_joule)
 from .geiger import geiger_histogram
 from .samplers import DENSE_MEAN, NORMAL_MEAN, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
 
@@ -196,6 +196,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
             skip.append(s)
         hist = _geiger_chain(src, k_sig, spk, b_mult + ds, det, ss, report)
         report["units"] = "detections"
+        report["noise_sigma_floor"] = noise_sigma_floor(det, tau)
         return ChainOutput(hist, report)
 
     gain = 1.0 if det.detector_type == "pin" else det.apd_gain
@@ -269,6 +270,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
             report["noise_sigma"] = math.sqrt(var0) / step
         else:
             report["noise_mean"], report["noise_sigma"] = m0, math.sqrt(var0)
+    report["noise_sigma_floor"] = noise_sigma_floor(det, tau)
 
     src2 = np.ascontiguousarray(src, dtype=np.float32).reshape(H * W, B)
     rows = max(1, _BLOCK_SAMPLES // max(B, 1))

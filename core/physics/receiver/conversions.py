@@ -2,6 +2,8 @@
 moments and SNR of a linear detector.  Pure and vectorized."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ...config.settings import DetectorSettings
@@ -103,3 +105,30 @@ def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s):
              "read_noise_e": sigma_r, "adc_step_e": step, "speckle_dof": M}
     return mean, var, parts
 
+
+
+def noise_sigma_floor(det: DetectorSettings, bin_width_s) -> float:
+    """The smallest noise σ echo detection may assume for a bin without signal, in output units (A/D counts,
+    electrons without the A/D, detections in Geiger mode); never 0.
+
+    Linear mode: the signal-free σ of :func:`bin_moments` with every term — shot noise on background and
+    dark current, surface dark, read noise and the A/D's Δ²/12 (so ≥ 1/√12 count with the A/D: a waveform
+    whose electronic noise is below one count has no usable MAD, and a zero σ would put the threshold at 0
+    and every SNR at infinity).  Without the A/D and with every noise term off, the σ of one primary
+    electron (G√F electrons), the signal's own granularity.  Geiger mode: integer detection counts over
+    ``geiger_pulses`` pulses, √(λ + 1/12) with λ the expected noise detections per bin."""
+    if det.detector_type == "geiger":
+        noise = 0.0
+        if det.enable_background:
+            noise += float(background_photons(det.background_rate_photons_per_s, bin_width_s)) * \
+                det.quantum_efficiency
+        if det.enable_dark_current:
+            noise += float(current_to_electrons(det.dark_current_bulk_a + det.dark_current_surface_a,
+                                                bin_width_s))
+        lam = det.geiger_pulses * -math.expm1(-noise)
+        return math.sqrt(lam + 1.0 / 12.0)
+    _, var0, parts = bin_moments(det, 0.0, bin_width_s)
+    step = parts["adc_step_e"]
+    if var0 > 0:
+        return math.sqrt(float(var0)) / (step if step > 0 else 1.0)
+    return parts["gain"] * math.sqrt(parts["excess_noise"])

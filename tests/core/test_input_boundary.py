@@ -1,0 +1,120 @@
+"""Hostile input at the core's boundary (issue 15): config files that cannot be read, values that cannot be
+represented, scene arrays of the wrong shape, type or range, objects that are not configs.  Each must give a
+ConfigError — one line, naming the field, echoing the value cut to a sane length, saying what is allowed —
+and write nothing."""
+import numpy as np
+import pytest
+
+from core.config import SimulationConfig, config_from_dict, load_config
+from core.errors import MAX_ECHO_CHARS, ConfigError
+from core.run import run_simulation, simulate
+from core.geometry.scene import SceneGeometry
+
+V = np.array([[-1, -1, -10], [1, -1, -10], [1, 1, -10], [-1, 1, -10]], float)
+T = [[0, 1, 2], [0, 2, 3]]
+
+
+def _one_line(exc, *fragments):
+    msg = str(exc.value)
+    assert "\n" not in msg and len(msg) < 4 * MAX_ECHO_CHARS + 400, msg[:300]
+    for f in fragments:
+        assert f in msg, msg
+    return msg
+
+
+@pytest.mark.parametrize("name,data,fragments", [
+    ("big.toml", b"[laser]\npulse_energy_j = " + b"9" * 400 + b"\n", ["laser.pulse_energy_j", "(0, 100] J"]),
+    ("big.json", b'{"laser": {"pulse_energy_j": ' + b"9" * 400 + b"}}", ["laser.pulse_energy_j", "(0, 100] J"]),
+    ("huge.json", b'{"laser": {"pulse_energy_j": ' + b"9" * 5000 + b"}}", ["config file", "valid JSON"]),
+    ("table.toml", b"[materials.m]\nmodel = \"table\"\ntable_angle_deg = [0, " + b"9" * 400 + b"]\n"
+                   b"table_brdf_per_sr = [1, 1]\n", ["materials.m.table_angle_deg[1]", "a finite number"]),
+    ("latin1.toml", b"[laser]\npulse_shape = \"gau\xdfian\"\n", ["config file", "UTF-8", "byte 26"]),
+    ("latin1.json", b'{"laser": {"pulse_shape": "\xff"}}', ["config file", "UTF-8"]),
+    ("deep.json", b"[" * 100_000 + b"]" * 100_000, ["config file", "nested at most"]),
+    ("deep.toml", b"x = " + b"[" * 100_000 + b"]" * 100_000, ["config file"]),
+    ("deep2.json", b'{"laser": {"pulse_shape": ' + b"[" * 500 + b"]" * 500 + b"}}", ["nested at most"]),
+    ("schema.toml", b"schema_version = true\n", ["schema_version = True", "1 (this version"]),
+    ("schema2.toml", b"schema_version = 1.0\n", ["schema_version = 1.0"]),
+    ("angle.toml", b"[materials.m]\ntable_angle_deg = 0\n", ["materials.m.table_angle_deg = 0", "a list"]),
+    ("brdf.toml", b"[materials.m]\ntable_brdf_per_sr = false\n", ["materials.m.table_brdf_per_sr = False"]),
+])
+def test_unreadable_config_files_give_one_clean_line(tmp_path, name, data, fragments):
+    (tmp_path / name).write_bytes(data)
+    with pytest.raises(ConfigError) as exc:
+        load_config(tmp_path / name)
+    _one_line(exc, *fragments)
+
+
+@pytest.mark.parametrize("data", [b'[laser]\npulse_shape = "' + b"x" * 10_000_000 + b'"\n',
+                                  b'[laser]\n"' + b"k" * 10_000_000 + b'" = 1\n',
+                                  b'[laser]\npulse_shape = [' + b"1, " * 1_000_000 + b"1]\n"])
+def test_a_huge_bad_value_is_echoed_cut(tmp_path, data):
+    """A 10 MB value (or key) is echoed in ≤ ~150 characters, with its length."""
+    (tmp_path / "c.toml").write_bytes(data)
+    with pytest.raises(ConfigError) as exc:
+        load_config(tmp_path / "c.toml")
+    msg = _one_line(exc, "laser.")
+    assert len(msg) < 700
+
+
+def test_huge_integer_value_is_echoed_by_its_size():
+    with pytest.raises(ConfigError) as exc:
+        config_from_dict({"gate": {"n_bins": 10 ** 20000}})
+    _one_line(exc, "gate.n_bins = <an integer of about 20001 digits>", "[1, 1e+06]")
+
+
+@pytest.mark.parametrize("config", [None, {"laser": {}}, "flash", SimulationConfig])
+def test_core_api_refuses_what_is_not_a_config(tmp_path, config):
+    scene = SceneGeometry(V, T, [0, 0])
+    for call in (lambda: simulate(scene, np.eye(4), config),
+                 lambda: run_simulation(scene, np.eye(4), config, tmp_path / "run")):
+        with pytest.raises(ConfigError) as exc:
+            call()
+        _one_line(exc, "config = ", "a SimulationConfig")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("kwargs,fragments", [
+    (dict(triangles=np.array([[0, 1, 2], [0, 2, 2 ** 32 + 3]])), ["scene.triangles", "index 4294967299", "int64"]),
+    (dict(triangles=[[0, 1, 2], [0, 2, -1]]), ["scene.triangles", "index -1"]),
+    (dict(material_ids=np.array([0, 2 ** 32])), ["scene.material_ids", "index 4294967296"]),
+    (dict(material_ids=np.array([0, -2 ** 40])), ["scene.material_ids", "index -1099511627776"]),
+    (dict(vertices_m=np.zeros((6, 2))), ["scene.vertices_m", "shape (6, 2)", "(N, 3)"]),
+    (dict(vertices_m=np.zeros(12)), ["scene.vertices_m", "shape (12,)"]),
+    (dict(triangles=np.zeros((3, 4), int)), ["scene.triangles", "shape (3, 4)", "(M, 3)"]),
+    (dict(triangles=np.zeros(6, int)), ["scene.triangles", "shape (6,)"]),
+    (dict(material_ids=[[0], [0]]), ["scene.material_ids", "shape (2, 1)"]),
+    (dict(triangles=[[0, 1, 2.7], [0, 2, 3]]), ["scene.triangles", "2.7", "float64", "no fractions"]),
+    (dict(material_ids=[0.5, 0]), ["scene.material_ids", "0.5"]),
+    (dict(triangles=[[0, 1, np.nan], [0, 2, 3]]), ["scene.triangles", "nan"]),
+    (dict(vertices_m=V.astype(complex)), ["scene.vertices_m", "complex128"]),
+    (dict(vertices_m=[[1, 2, 3], [4]]), ["scene.vertices_m", "not a rectangular array"]),
+    (dict(vertices_m="abc"), ["scene.vertices_m", "dtype <U3"]),
+    (dict(triangles=None), ["scene.triangles", "dtype object"]),
+    (dict(material_ids=[True, False]), ["scene.material_ids", "dtype bool"]),
+])
+def test_scene_arrays_are_checked_not_reshaped_truncated_or_wrapped(kwargs, fragments):
+    args = dict(vertices_m=V, triangles=T, material_ids=[0, 0])
+    args.update(kwargs)
+    with pytest.raises(ConfigError) as exc:
+        SceneGeometry(**args)
+    _one_line(exc, *fragments)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_vertices_are_refused_before_tracing(tmp_path, bad):
+    v = V.copy()
+    v[2, 1] = bad
+    cfg = SimulationConfig()
+    cfg.receiver.width_px = cfg.receiver.height_px = 4
+    with pytest.raises(ConfigError) as exc:
+        run_simulation(SceneGeometry(v, T, [0, 0]), np.eye(4), cfg, tmp_path / "run")
+    _one_line(exc, "scene.vertices_m", "finite")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_whole_number_float_indices_are_accepted():
+    """Index arrays built with np.zeros(n) (float64 of whole numbers) keep working."""
+    s = SceneGeometry(V, np.array(T, float), np.zeros(2))
+    assert s.triangles.dtype == np.int32 and s.material_ids.dtype == np.int32
+    assert s.triangles.tolist() == T
