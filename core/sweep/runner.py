@@ -1,0 +1,408 @@
+"""Run a sweep on Dask: the client side (docs/sweeps.md).
+
+:func:`run_sweep` checks everything first (the sweep file, every point's settings, the sweep folder), then
+
+1. writes the sweep folder: ``sweep.json`` (what defines the results: the normalised sweep, the base settings,
+   the scene digest — its *fingerprint*), a copy of the sweep file and the exported scene (``scene/``);
+2. connects to Dask — a ``LocalCluster`` of worker processes sized to the cores, or the scheduler at
+   ``scheduler`` — and makes the core importable there: the core's source is staged as a package named
+   ``ladar_core_<hash of its files>`` (a new name whenever the code changes, so a long-lived cluster never runs
+   stale code) which a local cluster's workers inherit and a remote cluster receives through
+   ``distributed``'s ``UploadDirectory`` plugin (workers need the pinned packages of requirements-worker.txt,
+   nothing else: no Blender, no copy of this repository);
+3. submits every task (point × seed × frame) whose run folder is not already there, records each as it
+   completes (a failure in ``failed/<task>.json``, the others go on) and reports progress (done/total, ETA);
+4. writes ``results.csv`` (one row per task) and ``plots/<figure>_vs_<axis>.png``.
+
+Re-running the same sweep into the same folder resumes it: finished tasks are read back from their run folders,
+failed and missing ones run again.  A sweep folder whose fingerprint differs (a changed sweep file, base settings
+or scene) is refused unless ``restart`` is asked, which discards its runs and starts again.  Each task's seed
+derives from the sweep seed and its point and seed index (``spec.task_seed``), so the results do not depend on
+the number of workers or the order the tasks ran in.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import importlib
+import io
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..config import ConfigError, SimulationConfig, config_to_dict
+from ..pipeline import Cancelled
+from ..runio import software_versions
+from .scene import SweepScene, boresight_point, write_json_atomically
+from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed
+from .shipping import ship_core
+from .task import FIGURES, finished_row
+
+SWEEP_FORMAT = "ladar-sweep"
+SWEEP_FORMAT_VERSION = 1
+#: Sub-folders and files of a sweep folder that ``restart`` discards (never anything else).
+OWNED = ("runs", "failed", "scene", "plots", "results.csv", "sweep.json", "sweep_file.toml", "sweep_file.json")
+
+
+@dataclass
+class SweepOutcome:
+    path: Path                      # the sweep folder
+    rows: list                      # one dict per task (results.csv), in task order
+    n_tasks: int = 0
+    n_done: int = 0
+    n_failed: int = 0
+    n_run: int = 0                  # tasks run by this call
+    n_resumed: int = 0              # tasks found finished in the folder (not run again)
+    wall_time_s: float = 0.0
+    n_workers: int = 0
+    plots: list = field(default_factory=list)
+
+    def summary(self) -> str:
+        return (f"sweep    {self.path}\n"
+                f"tasks    {self.n_done}/{self.n_tasks} done, {self.n_failed} failed; {self.n_run} run now on "
+                f"{self.n_workers} worker(s), {self.n_resumed} finished before; {self.wall_time_s:.1f} s\n"
+                f"table    {self.path / 'results.csv'}" + (f"\nplots    {len(self.plots)} in {self.path / 'plots'}"
+                                                             if self.plots else ""))
+
+
+@dataclass
+class SweepPlan:
+    """Everything checked and derived before anything is written."""
+    spec: SweepSpec
+    scene: SweepScene
+    base: SimulationConfig
+    tasks: list
+    fingerprint: str
+    manifest: dict
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Planning: every point validated, every task named and seeded
+# --------------------------------------------------------------------------------------------------------------
+def plan_sweep(spec: SweepSpec, scene: SweepScene, base: SimulationConfig | None = None,
+               out_dir=None) -> SweepPlan:
+    """Validate every point's settings and build the task list (writes nothing).  Raises ConfigError."""
+    base = base_config(spec, base)
+    scene = scene.with_overrides(base.materials)
+    frames = spec.frames if spec.frames is not None else [scene.frames[0]]
+    for f in frames:
+        scene.frame_index(f)  # a frame the scene was exported for
+    configs = point_configs(spec, base, scene.material_brdfs())
+    targets = {}
+    if RANGE_AXIS in spec.axis_names:
+        targets = {f: boresight_point(scene, f).tolist() for f in frames}
+    wp = max(4, len(str(len(configs) - 1)))
+    ws = max(2, len(str(spec.seeds - 1)))
+    tasks = []
+    out = Path(out_dir).resolve() if out_dir is not None else Path("sweep")
+    for p, (values, cfg, range_m) in enumerate(configs):
+        cfg_dict = config_to_dict(cfg)
+        for s in range(spec.seeds):
+            seed = task_seed(spec.seed, p, s)
+            for f in frames:
+                name = f"p{p:0{wp}d}-s{s:0{ws}d}" + (f"-f{f:04d}" if len(frames) > 1 else "")
+                tasks.append({"name": name, "point": p, "seed_index": s, "seed": seed, "frame": f,
+                              "values": values, "config": cfg_dict, "range_m": range_m,
+                              "target_m": targets.get(f), "out": str(out / "runs" / name)})
+    normal = spec.normalized()
+    normal["frames"] = frames
+    fp_data = {"spec": normal, "base": config_to_dict(base), "scene": scene.digest()}
+    fingerprint = hashlib.sha256(json.dumps(fp_data, sort_keys=True, default=str).encode()).hexdigest()
+    manifest = {"format": SWEEP_FORMAT, "format_version": SWEEP_FORMAT_VERSION, "fingerprint": fingerprint,
+                "sweep": normal, "base_settings": fp_data["base"], "scene_digest": fp_data["scene"],
+                "source": spec.source, "n_points": len(configs), "n_tasks": len(tasks),
+                "axes": spec.axis_names, "figures": list(FIGURES), "simulator_version": __version__,
+                "software": software_versions(), "created_unix_s": time.time(),
+                "tasks": [{k: t[k] for k in ("name", "point", "seed_index", "seed", "frame", "values")}
+                          for t in tasks]}
+    return SweepPlan(spec, scene, base, tasks, fingerprint, manifest)
+
+
+def _differences(old: dict, plan: SweepPlan) -> str:
+    what = []
+    if old.get("sweep") != json.loads(json.dumps(plan.manifest["sweep"])):
+        what.append("the sweep file")
+    if old.get("base_settings") != json.loads(json.dumps(plan.manifest["base_settings"])):
+        what.append("the base settings")
+    if old.get("scene_digest") != plan.manifest["scene_digest"]:
+        what.append("the scene")
+    return " and ".join(what) or "the sweep"
+
+
+def prepare_folder(plan: SweepPlan, out_dir, *, restart: bool = False) -> Path:
+    """Create (or check, to resume) the sweep folder; write the manifest and the scene.  Returns the folder."""
+    out = Path(out_dir).resolve()
+    manifest_path = out / "sweep.json"
+    if out.exists() and not out.is_dir():
+        raise ConfigError("out", str(out), "a folder path (a file of that name exists)")
+    if manifest_path.is_file():
+        try:
+            old = json.loads(manifest_path.read_text(encoding="utf-8"))
+        except ValueError:
+            old = {}
+        if old.get("fingerprint") != plan.fingerprint:
+            if not restart:
+                raise ConfigError("out", str(out), f"the folder of this same sweep: it holds a sweep run with "
+                                  f"different inputs ({_differences(old, plan)} changed); restart it "
+                                  f"(--restart: its runs are discarded) or choose another folder")
+            for name in OWNED:
+                p = out / name
+                if p.is_dir():
+                    shutil.rmtree(p)
+                elif p.exists():
+                    p.unlink()
+    elif out.exists() and any(out.iterdir()):
+        raise ConfigError("out", str(out), "a new or empty folder, or the folder of this same sweep (to resume it)")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "runs").mkdir(exist_ok=True)
+    if not manifest_path.is_file():
+        if plan.spec.source and Path(plan.spec.source).is_file():
+            src = Path(plan.spec.source)
+            shutil.copyfile(src, out / ("sweep_file" + src.suffix.lower()))
+        scene_dir = out / "scene"
+        plan.scene.save(scene_dir)
+        write_json_atomically(manifest_path, plan.manifest)  # last: a folder without it is not a sweep yet
+    elif not (out / "scene" / "scene.json").is_file():
+        plan.scene.save(out / "scene")
+    for stale in (out / "runs").glob(".*.partial-*"):  # a worker killed while writing; nothing runs now
+        shutil.rmtree(stale, ignore_errors=True)
+    return out
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Results
+# --------------------------------------------------------------------------------------------------------------
+def table_columns(axis_names) -> list:
+    return (["task", "point", "seed_index", "frame", *axis_names, "seed", "status", "error", "run_time_s",
+             *FIGURES, "run"])
+
+
+def task_row(task: dict, result: dict | None, root: Path) -> dict:
+    """A results-table row: the task's identity and swept values, then its result (or status "pending")."""
+    row = {"task": task["name"], "point": task["point"], "seed_index": task["seed_index"], "frame": task["frame"],
+           **task["values"], "seed": task["seed"], "status": "pending", "error": "", "run_time_s": math.nan}
+    row.update(dict.fromkeys(FIGURES, math.nan))
+    if result:
+        row.update({k: v for k, v in result.items() if k in row and k not in ("task",)})
+    row["run"] = os.path.relpath(task["out"], root) if row["status"] == "done" else ""
+    return row
+
+
+def _cell(v):
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return str(v)
+
+
+def write_table(path, rows: list, columns: list) -> Path:
+    """CSV (header + one line per row; empty cells where a figure is not defined), written atomically."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(columns)
+    for r in rows:
+        w.writerow([_cell(r.get(c, "")) for c in columns])
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+            f.write(buf.getvalue())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_table(path) -> list:
+    """The rows of a results.csv as dicts of strings (empty string: not defined)."""
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def _read_finished(task: dict):
+    return finished_row(Path(task["out"]), task["name"])
+
+
+def figure_statistics(rows: list, axis: str, figure: str, other_axes: list) -> list:
+    """[(label of the other axes' values, x values, mean, std, n)] of ``figure`` against ``axis`` over the done
+    rows: the mean and standard deviation across seeds (and frames) at each x, one series per combination of the
+    other axes."""
+    groups = {}
+    for r in rows:
+        if r["status"] != "done":
+            continue
+        v = r.get(figure)
+        if not isinstance(v, (int, float)) or not math.isfinite(v):
+            continue
+        key = tuple((a, r[a]) for a in other_axes)
+        groups.setdefault(key, {}).setdefault(r[axis], []).append(float(v))
+    out = []
+    for key, by_x in groups.items():
+        xs = sorted(by_x)
+        label = ", ".join(f"{a} = {v:g}" if isinstance(v, (int, float)) else f"{a} = {v}" for a, v in key)
+        out.append((label, xs, [float(np.mean(by_x[x])) for x in xs], [float(np.std(by_x[x])) for x in xs],
+                    [len(by_x[x]) for x in xs]))
+    return out
+
+
+def write_plots(folder: Path, rows: list, axis_names: list, axis_values: dict) -> list:
+    """``plots/<figure>_vs_<axis>.png`` for every figure defined somewhere and every numeric axis."""
+    from ..preview import sweep_plot_png
+
+    folder.mkdir(exist_ok=True)
+    written = []
+    for axis in axis_names:
+        values = axis_values[axis]
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+            continue  # a categorical axis (strings, booleans): see the table
+        positive = min(values) > 0
+        log_x = positive and len(values) > 2 and max(values) / min(values) >= 50
+        others = [a for a in axis_names if a != axis]
+        for figure in FIGURES:
+            series = figure_statistics(rows, axis, figure, others)
+            if not series:
+                continue
+            path = folder / f"{figure}_vs_{axis.replace('.', '_')}.png"
+            sweep_plot_png(path, series, xlabel=axis, ylabel=figure, log_x=log_x, overwrite=True)
+            written.append(path)
+    return written
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------------------------------
+def open_client(scheduler: str | None = None, n_workers: int | None = None):
+    """(client, cluster or None): a Client of the scheduler at ``scheduler`` or of a new LocalCluster of
+    ``n_workers`` single-threaded worker processes (default: one per core)."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - dask/distributed are requirements
+        raise ConfigError("scheduler", "dask", "an installed dask/distributed (pip install -r "
+                                               "requirements-worker.txt)") from exc
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError("scheduler", scheduler, f"the address of a running Dask scheduler ({exc})") from None
+    n = n_workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=40)
+    return Client(cluster), cluster
+
+
+def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | None = None, scheduler=None,
+              client=None, n_workers: int | None = None, restart: bool = False, progress=None, cancel=None,
+              plots: bool = True) -> SweepOutcome:
+    """Run a sweep (a SweepSpec or the path of a sweep file) over ``scene`` into the folder ``out_dir``.
+
+    ``base``: the settings the sweep starts from (default settings if None; the sweep file's ``base`` and
+    ``[settings]`` apply over it).  ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``client``:
+    an existing ``distributed.Client`` (neither: a LocalCluster of ``n_workers`` processes, default one per core).
+    ``restart``: discard the runs of a sweep folder whose inputs changed.  ``progress(fraction, text)`` is called
+    as tasks finish; ``cancel()`` returning true stops the sweep (finished tasks are kept; re-run to resume).
+    Raises ConfigError (nothing written) if any point's settings are bad, or Cancelled.
+    """
+    t0 = time.perf_counter()
+    spec = sweep if isinstance(sweep, SweepSpec) else load_sweep(sweep)
+    plan = plan_sweep(spec, scene, base, out_dir)
+    out = prepare_folder(plan, out_dir, restart=restart)
+    tasks = plan.tasks
+    results = {}
+    for t in tasks:
+        row = _read_finished(t)
+        if row is not None:
+            results[t["name"]] = row
+    pending = [t for t in tasks if t["name"] not in results]
+    n_total, n_before = len(tasks), len(results)
+    failed_dir = out / "failed"
+    outcome = SweepOutcome(out, [], n_tasks=n_total)
+    own_client, cluster = None, None
+    try:
+        if pending:
+            if client is None:
+                own_client, cluster = open_client(scheduler, n_workers)
+                client = own_client
+            name = ship_core(client)
+            run_task = importlib.import_module(f"{name}.sweep.task").run_task
+            outcome.n_workers = len(client.scheduler_info().get("workers", {}))
+            _run_tasks(client, run_task, out, plan, pending, results, failed_dir, n_total, n_before, progress,
+                       cancel)
+    finally:
+        if own_client is not None:
+            own_client.close()
+        if cluster is not None:
+            cluster.close()
+        for stale in (out / "runs").glob(".*.partial-*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        outcome.rows = [task_row(t, results.get(t["name"]), out) for t in tasks]
+        write_table(out / "results.csv", outcome.rows, table_columns(spec.axis_names))
+    outcome.n_done = sum(r["status"] == "done" for r in outcome.rows)
+    outcome.n_failed = sum(r["status"] == "failed" for r in outcome.rows)
+    outcome.n_run = len(results) - n_before
+    outcome.n_resumed = n_before
+    if plots:
+        outcome.plots = write_plots(out / "plots", outcome.rows, spec.axis_names,
+                                    {a.name: a.values for a in spec.axes})
+    outcome.wall_time_s = time.perf_counter() - t0
+    return outcome
+
+
+def _run_tasks(client, run_task, out, plan, pending, results, failed_dir, n_total, n_before, progress, cancel):
+    from distributed import as_completed
+
+    digest = plan.manifest["scene_digest"]
+    scene_dir = str(out / "scene")
+    tag = plan.fingerprint[:10]
+    futures = {}
+    for t in pending:
+        fut = client.submit(run_task, scene_dir, digest, t, key=f"ladar-sweep-{tag}-{t['name']}", pure=False)
+        futures[fut.key] = (fut, t)
+    ac = as_completed([f for f, _ in futures.values()])
+    t_start = time.perf_counter()
+    n_failed = 0
+    try:
+        while not ac.is_empty():
+            batch = ac.next_batch(block=False)
+            if not batch:
+                if cancel is not None and cancel():
+                    raise Cancelled()
+                time.sleep(0.05)
+                continue
+            for fut in batch:
+                _, task = futures[fut.key]
+                try:
+                    row = fut.result()
+                except Exception as exc:  # the task never returned (e.g. its workers kept dying)
+                    row = {"task": task["name"], "status": "failed",
+                           "error": " ".join(f"{type(exc).__name__}: {exc}".split())[:2000], "run_time_s": math.nan}
+                results[task["name"]] = row
+                fail_file = failed_dir / f"{task['name']}.json"
+                if row["status"] == "done":
+                    fail_file.unlink(missing_ok=True)
+                else:
+                    n_failed += 1
+                    failed_dir.mkdir(exist_ok=True)
+                    write_json_atomically(fail_file, {"task": {k: task[k] for k in ("name", "point", "seed_index",
+                                                                                    "seed", "frame", "values")},
+                                                      "error": row["error"]})
+                fut.release()
+            if progress is not None:
+                done = len(results)
+                run_now = done - n_before
+                elapsed = time.perf_counter() - t_start
+                eta = (n_total - done) * elapsed / run_now if run_now else math.nan
+                progress(done / n_total, f"{done}/{n_total} tasks" + (f", {n_failed} failed" if n_failed else "")
+                         + (f", ETA {eta:.0f} s" if math.isfinite(eta) else ""))
+    except BaseException:
+        client.cancel([f for f, _ in futures.values()])
+        raise

@@ -1,0 +1,184 @@
+"""One sweep task — a point's settings with one seed at one frame — as a Dask worker runs it.
+
+:func:`run_task` loads the exported scene (once per worker process, with one BVH per geometry kept for every
+later task), simulates the frame (``core.pipeline.simulate``), summarises it (:func:`summarize`) and writes the
+run folder through ``core.runio.write_run`` (assembled in a hidden folder, renamed into place), with the summary
+in its ``metadata.json`` under ``"sweep"``.  A finished run folder is never computed twice: if the task's folder
+exists with its summary (a worker died after writing it, before the scheduler heard), that summary is returned.
+A task that fails returns a row with ``status = "failed"`` and the error; it never raises.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..config import ConfigError, SimulationConfig, config_from_dict
+from ..echoes import detect_echoes
+from ..motion import Trajectory
+from ..pipeline import run_metadata, simulate
+from ..runio import write_run
+from ..waveform import SPEED_OF_LIGHT_M_S
+from .scene import SweepScene, pose_at_range
+
+#: Summary figures of a task, in table order (docs/sweeps.md explains each).
+FIGURES = ("points", "pixels_with_echo", "received_energy_j", "detection_probability", "range_error_mean_m",
+           "range_error_rms_m", "range_error_p95_abs_m", "false_alarms")
+#: Systems whose noise-free truth (the waveform cube before the receiver chain) the range error is measured on.
+TRUTH_SYSTEMS = ("flash", "profiler")
+_TRUTH_BLOCK_BYTES = 64 * 2**20
+
+_cache = {"key": None, "scene": None, "tracers": {}}
+
+
+def load_scene_cached(scene_dir: str, digest: str) -> SweepScene:
+    """The exported scene, read once per worker process (and per sweep: keyed by folder and digest)."""
+    key = (str(scene_dir), digest)
+    if _cache["key"] != key:
+        scene = SweepScene.load(scene_dir)
+        _cache.update(key=key, scene=scene, tracers={})
+    return _cache["scene"]
+
+
+def _tracer(scene: SweepScene, frame: int):
+    from ..trace import SceneTracer
+
+    g = scene.geometry_of_frame[scene.frame_index(frame)]
+    tracer = _cache["tracers"].get(g)
+    if tracer is None:  # the whole scene (no culling): serves every pose of a range axis
+        tracer = _cache["tracers"][g] = SceneTracer(scene.geometries[g])
+    return tracer
+
+
+def truth_first_echo_range(waveforms, config: SimulationConfig) -> np.ndarray:
+    """First-echo range (m) per pixel, NaN where none, detected on the noise-free waveform cube (H, W, n_bins)
+    with the noise-free detection settings (the ideal receiver's echoes: the truth of a noisy point)."""
+    h, w, n_bins = waveforms.shape
+    flat = waveforms.reshape(h * w, n_bins)
+    out = np.full(h * w, np.nan)
+    rows = max(1, _TRUTH_BLOCK_BYTES // (8 * n_bins))
+    g = config.gate
+    for a in range(0, h * w, rows):
+        ech = detect_echoes(flat[a:a + rows].astype(np.float64), config.detection)
+        first = ech.echo_index == 0
+        out[a + ech.pixel[first]] = 0.5 * SPEED_OF_LIGHT_M_S * (g.gate_start_s + ech.position_bins[first] * g.bin_width_s)
+    return out.reshape(h, w)
+
+
+def summarize(result, config: SimulationConfig, truth_range=None) -> dict:
+    """The summary figures of one simulated frame (:data:`FIGURES`); NaN where a figure is not defined.
+
+    ``points``: echoes (points of the cloud); ``pixels_with_echo``: first echoes (pixels, or pulses of a scanner,
+    with at least one echo); ``received_energy_j``: energy received by the whole frame before time binning;
+    ``false_alarms``: echoes the noisy receiver flagged as noise (no true return near them).
+
+    ``truth_range`` (H, W): the noise-free first-echo range (:func:`truth_first_echo_range`), given for noisy
+    flash/profiler points.  Then ``detection_probability`` = pixels with a noise-free echo that report a true
+    (not false-alarm) echo / pixels with a noise-free echo, and the range error is, in each such pixel, its true
+    echo nearest the noise-free one minus the noise-free range: mean, root mean square, and the 95th percentile
+    of its magnitude over the pixels."""
+    pts = result.points
+    echo_index = np.asarray(pts.get("echo_index", ()))
+    row = {"points": int(len(pts.get("range_m", ()))), "pixels_with_echo": int((echo_index == 1).sum()),
+           "received_energy_j": float(result.stats.get("received_energy_j", np.nan))}
+    row.update(dict.fromkeys(("detection_probability", "range_error_mean_m", "range_error_rms_m",
+                              "range_error_p95_abs_m", "false_alarms"), np.nan))
+    false_alarm = np.asarray(pts["false_alarm"], dtype=bool) if "false_alarm" in pts else None
+    if false_alarm is not None:
+        row["false_alarms"] = int(false_alarm.sum())
+    if truth_range is not None:
+        truth = np.asarray(truth_range, dtype=np.float64)
+        n_truth = int(np.isfinite(truth).sum())
+        if n_truth:
+            pixel = np.asarray(pts["pixel_y"], np.int64) * truth.shape[1] + np.asarray(pts["pixel_x"], np.int64)
+            t = truth.reshape(-1)[pixel]
+            keep = np.isfinite(t) if false_alarm is None else np.isfinite(t) & ~false_alarm
+            err = np.asarray(pts["range_m"], np.float64)[keep] - t[keep]
+            pixel = pixel[keep]
+            order = np.lexsort((np.abs(err), pixel))  # per pixel, the echo nearest the truth first
+            first = np.ones(len(order), bool)
+            first[1:] = pixel[order][1:] != pixel[order][:-1]
+            err = err[order][first]
+            row["detection_probability"] = float(len(err) / n_truth)
+            if len(err):
+                row["range_error_mean_m"] = float(err.mean())
+                row["range_error_rms_m"] = float(np.sqrt(np.mean(err ** 2)))
+                row["range_error_p95_abs_m"] = float(np.percentile(np.abs(err), 95))
+    return row
+
+
+def task_config(task: dict) -> SimulationConfig:
+    """The task's settings: the point's, with the task's seed; ``run.threads = 0`` (all cores) becomes 1, since
+    a worker process runs one task per thread (the products never depend on the thread count)."""
+    cfg = config_from_dict(task["config"])
+    cfg.run.seed = int(task["seed"])
+    if cfg.run.threads == 0:
+        cfg.run.threads = 1
+    return cfg
+
+
+def finished_row(out: Path, name: str):
+    """The results row a finished task recorded in its run folder's metadata, or None if it has not finished."""
+    try:
+        meta = json.loads((out / "metadata.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    sweep = meta.get("sweep") or {}
+    if sweep.get("task") != name or "row" not in sweep:
+        return None
+    return dict(sweep["row"])
+
+
+def _one_line(exc: BaseException) -> str:
+    text = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ConfigError) else f"ConfigError: {exc}"
+    return " ".join(text.split())[:2000]
+
+
+def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
+    """Run one task (see the module docstring); returns its results-table row (never raises)."""
+    out = Path(task["out"])
+    row = {"task": task["name"], "status": "failed", "error": "", "run_time_s": np.nan}
+    try:
+        existing = finished_row(out, task["name"])
+        if existing is not None:
+            return existing
+        t0 = time.perf_counter()
+        cfg = task_config(task)
+        scene = load_scene_cached(scene_dir, scene_digest)
+        frame = int(task["frame"])
+        i = scene.frame_index(frame)
+        pose, traj = scene.poses[i], scene.trajectories[i]
+        if task.get("range_m") is not None:
+            moved = pose_at_range(pose, task["target_m"], float(task["range_m"]))
+            if traj is not None:  # the whole trajectory moves with the pose
+                shift = np.eye(4)
+                shift[:3, 3] = moved[:3, 3] - pose[:3, 3]
+                traj = Trajectory(traj.times_s, shift @ traj.matrices)
+            pose = moved
+        truth_wanted = cfg.detector.mode == "noisy" and cfg.system_type in TRUTH_SYSTEMS
+        sim_cfg = cfg
+        if truth_wanted and not cfg.run.save_waveforms:  # the noisy chain holds the cube anyway: keep it
+            sim_cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, save_waveforms=True))
+        result = simulate(scene.geometry(frame), pose, sim_cfg, frame=frame, tracer=_tracer(scene, frame),
+                          trajectory=traj, start_time_s=scene.start_times_s[i])
+        truth = truth_first_echo_range(result.waveforms, cfg) if truth_wanted else None
+        if not cfg.run.save_waveforms:
+            result.waveforms = None
+        row.update(summarize(result, cfg, truth))
+        row.update(status="done", run_time_s=time.perf_counter() - t0)
+        meta = run_metadata(cfg, result, frame, {"sweep": {"task": task["name"], "point": task["point"],
+                                                           "values": task["values"], "row": row}})
+        try:
+            write_run(out, result, meta)
+        except ConfigError:  # the folder appeared meanwhile: another attempt of this task finished first
+            existing = finished_row(out, task["name"])
+            if existing is None:
+                raise
+            return existing
+        return row
+    except Exception as exc:  # recorded in the table; the other tasks go on
+        row.update(status="failed", error=_one_line(exc))
+        return row
