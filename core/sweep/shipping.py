@@ -1,7 +1,7 @@
 """Getting the core onto Dask workers, with no manual copying and no Blender.
 
 The core imports itself only relatively, so a copy of its ``.py`` files works under any package name.
-:func:`stage_core` copies them to ``<tmp>/ladar-sweep-core-<uid>/<name>/<name>/`` with the versioned name
+:func:`stage_core` copies them to ``<tmp>/ladar-sweep-core-<uid>/<name>-pkg/<name>/`` with the versioned name
 ``ladar_core_<hash of the files>`` (so a long-lived cluster never runs stale code: new code, new name) and puts
 the outer folder on this process's ``sys.path``; the client then submits ``<name>.sweep.task.run_task``.
 
@@ -43,7 +43,7 @@ def stage_core() -> tuple:
     """Stage the core under its versioned name (once per version); returns (package name, the outer folder)."""
     name = f"ladar_core_{core_digest()}"
     uid = os.getuid() if hasattr(os, "getuid") else 0
-    outer = Path(tempfile.gettempdir()) / f"ladar-sweep-core-{uid}" / name
+    outer = Path(tempfile.gettempdir()) / f"ladar-sweep-core-{uid}" / f"{name}-pkg"  # not importable itself
     if not (outer / name / "__init__.py").is_file():
         outer.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=".stage-", dir=outer))
@@ -64,10 +64,13 @@ def stage_core() -> tuple:
 
 
 def can_import(name: str) -> bool:
-    """Runs on a worker: can it import the package ``name``?"""
+    """Runs on a worker: can it import the shipped core ``name`` (its sweep task module)?"""
     import importlib.util
 
-    return importlib.util.find_spec(name) is not None
+    try:
+        return importlib.util.find_spec(f"{name}.sweep.task") is not None
+    except ImportError:
+        return False
 
 
 def ship_core(client) -> str:
