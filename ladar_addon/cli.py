@@ -6,6 +6,7 @@ Commands::
     simulate         [--out RUN_DIR] [--frame N | --frames 1-100[:STEP]] [--seed N] [--config FILE]
                      [--overwrite | --if-exists {stop,replace,new}] [--sensor NAME] [--clouds {run,frame}]
                      [--no-import] [--no-previews]
+    sweep            SWEEP.toml --out DIR [--scheduler tcp://HOST:8786] [--workers N] [--restart] [--sensor NAME]
     export-config    --out FILE.json|FILE.toml [--sensor NAME] [--overwrite]
     validate-config  FILE [--sensor NAME]
 
@@ -92,6 +93,21 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--no-import", action="store_true",
                      help="do not add the point cloud and images to the (unsaved) scene")
     sim.add_argument("--no-previews", action="store_true", help="do not write false-colour PNG previews")
+
+    swp = sub.add_parser("sweep", help="run a parameter sweep (a TOML sweep file) on Dask into a sweep folder",
+                         description="Export the scene once, run every point × seed × frame of the sweep file on "
+                                     "Dask and write a results table and plots (docs/sweeps.md).", epilog=_EPILOG)
+    swp.add_argument("file", metavar="SWEEP.toml", help="the sweep file (sweep_version = 1; axes, seeds, frames)")
+    swp.add_argument("--out", required=True, metavar="DIR",
+                     help="the sweep folder (re-running the same sweep into it resumes it)")
+    swp.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                     help="a running Dask scheduler, e.g. tcp://host:8786 (default: a local cluster, one worker "
+                          "process per core)")
+    swp.add_argument("--workers", type=int, default=None, metavar="N",
+                     help="worker processes of the local cluster (default: one per core)")
+    swp.add_argument("--restart", action="store_true",
+                     help="the folder holds a sweep with different inputs: discard its runs and start again")
+    swp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
 
     exp = sub.add_parser("export-config", help="write the sensor's settings as a JSON or TOML config file",
                          epilog=_EPILOG)
@@ -197,6 +213,19 @@ def _cmd_simulate(scene, args) -> int:
     return EXIT_OK
 
 
+def _cmd_sweep(scene, args) -> int:
+    from .simulate import progress_printer
+    from .sweep import sweep_scene
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError("workers", args.workers, "a whole number ≥ 1")
+    outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
+                          restart=args.restart, sensor=_sensor(scene, args.sensor),
+                          progress=progress_printer("ladar: sweep "))
+    emit(outcome.summary())
+    return EXIT_OK if outcome.n_failed == 0 else EXIT_USER_ERROR
+
+
 def _cmd_export_config(scene, args) -> int:
     path = export_config(scene, args.out, _sensor(scene, args.sensor), overwrite=args.overwrite)
     emit(f"ladar: wrote {path}")
@@ -225,7 +254,7 @@ def _cmd_validate_config(scene, args) -> int:
     return 0
 
 
-COMMANDS = {"simulate": _cmd_simulate, "export-config": _cmd_export_config,
+COMMANDS = {"simulate": _cmd_simulate, "sweep": _cmd_sweep, "export-config": _cmd_export_config,
             "validate-config": _cmd_validate_config}
 
 

@@ -11,6 +11,8 @@ from . import materials  # noqa: E402 - material BRDF operators (table import, P
 CLASSES += materials.CLASSES
 from . import export_las  # noqa: E402 - LAS 1.4 export of a run's point cloud
 CLASSES += export_las.CLASSES
+from . import sweep  # noqa: E402 - parameter sweeps on Dask
+CLASSES += sweep.CLASSES
 
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)

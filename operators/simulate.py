@@ -17,7 +17,7 @@ from ..ladar_addon.run_inputs import progress_printer
 _USER_ERRORS = (ConfigError, LadarError, Cancelled, OSError)
 
 
-def _tag_redraw(context):
+def tag_redraw(context):
     wm = context.window_manager
     for window in getattr(wm, "windows", ()):
         for area in window.screen.areas:
@@ -87,7 +87,7 @@ cloud and images.  ESC cancels"""
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.1, window=context.window)
         wm.modal_handler_add(self)
-        _tag_redraw(context)
+        tag_redraw(context)
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
@@ -95,7 +95,7 @@ cloud and images.  ESC cancels"""
         outcome = handle_modal_event(job, event.type, event.value)
         if outcome in ("PASS_THROUGH", "RUNNING_MODAL"):
             if event.type == "TIMER":
-                _tag_redraw(context)
+                tag_redraw(context)
             return {outcome}
         self._end(context)
         if outcome == "FINISHED":
@@ -121,7 +121,7 @@ cloud and images.  ESC cancels"""
             context.window_manager.event_timer_remove(timer)
             self._timer = None
         set_current_job(None)
-        _tag_redraw(context)
+        tag_redraw(context)
 
 
 class LADAR_OT_simulate_cancel(bpy.types.Operator):

@@ -75,6 +75,7 @@ class LADAR_PT_scene_output(_ScenePanel, bpy.types.Panel):
         col.active = props.import_results
         col.prop(props, "clouds")
         layout.operator("ladar.import_run", text="Import Run Folder", icon="IMPORT")
+        layout.operator("ladar.sweep", text="Run Sweep…", icon="GRAPH")
 
 
 def draw_results(layout, scene, obj=None):

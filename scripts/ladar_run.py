@@ -4,6 +4,8 @@
     python scripts/ladar_run.py scene.blend simulate [--out RUN_DIR] [--frame N | --frames 1-100[:STEP]]
                                 [--seed N] [--config FILE] [--overwrite | --if-exists {stop,replace,new}]
                                 [--sensor NAME] [--clouds {run,frame}] [--no-import] [--no-previews]
+    python scripts/ladar_run.py scene.blend sweep sweep.toml --out DIR [--scheduler tcp://HOST:8786]
+                                [--workers N] [--restart] [--sensor NAME]
     python scripts/ladar_run.py scene.blend export-config --out settings.toml
     python scripts/ladar_run.py scene.blend validate-config settings.toml
     python scripts/ladar_run.py scene.blend simulate --help      (the command's full help)
@@ -31,7 +33,7 @@ try:  # every import inside: Ctrl-C within the first milliseconds exits 130 with
 except KeyboardInterrupt:  # Ctrl-C within the first milliseconds: nothing started yet
     sys.exit(130)
 
-USAGE = ("usage: ladar_run.py SCENE.blend {simulate,export-config,validate-config} [options]\n"
+USAGE = ("usage: ladar_run.py SCENE.blend {simulate,sweep,export-config,validate-config} [options]\n"
          "       (ladar_run.py -h: this script; ladar_run.py SCENE.blend simulate -h: the command's options)")
 
 

@@ -1,0 +1,99 @@
+"""Sweeps from Blender: ``blender -c ladar sweep`` (through the command handler), the threaded SweepJob that the
+modal operator and the status bar use, and resuming; the workers are real dask.distributed worker processes."""
+import csv
+import json
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_scenes import add_camera, add_plate
+
+pytest.importorskip("distributed")
+
+
+@pytest.fixture
+def plate_scene(scene):
+    cam = add_camera(scene, width_px=8, height_px=8, fov_rad=0.004)
+    cam.ladar.receiver.subsamples = 1
+    add_plate(scene, size=2.0, location=(0, 0, -100))
+    return scene
+
+
+def _sweep_file(tmp_path, axes='"laser.pulse_energy_j" = [1e-4, 1e-3]\n"sensor.range_m" = [90.0, 110.0]\n'):
+    f = tmp_path / "sweep.toml"
+    f.write_text('sweep_version = 1\nseed = 3\n[settings]\nrun = { save_waveforms = false }\n'
+                 'gate = { gate_start_s = 4e-7, n_bins = 1024 }\n[axes]\n' + axes, encoding="utf-8")
+    return f
+
+
+def _run(lad, capsys, *argv):
+    code = lad.cli.cli_handler(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _rows(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_sweep_command_runs_every_point_then_resumes(lad, plate_scene, tmp_path, capsys):
+    out_dir = tmp_path / "sw"
+    code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(out_dir), "--workers", "2")
+    assert code == 0, err
+    assert "4/4 done, 0 failed; 4 run now on 2 worker(s)" in out and "ladar: sweep" in out
+    rows = _rows(out_dir / "results.csv")
+    assert [r["status"] for r in rows] == ["done"] * 4
+    by_range = {float(r["sensor.range_m"]): r for r in rows if float(r["laser.pulse_energy_j"]) == 1e-3}
+    assert int(by_range[90.0]["pixels_with_echo"]) == 64  # the plate fills the field of view at both ranges
+    # the echo moves with the sensor: 90 m and 110 m from the plate (boresight point at −100 m on the axis)
+    for r_m, row in by_range.items():
+        meta = json.loads((out_dir / row["run"] / "metadata.json").read_text())
+        assert meta["sweep"]["values"]["sensor.range_m"] == r_m
+        pts = np.load(out_dir / row["run"] / "points.npz")
+        assert np.median(pts["range_m"]) == pytest.approx(r_m, abs=0.05)
+    scene_meta = json.loads((out_dir / "scene" / "scene.json").read_text())
+    assert scene_meta["info"]["sensor"] == "Ladar" and scene_meta["info"]["geometry_exports"] == 1
+    # the same command again: nothing is run, the table is the same
+    table = (out_dir / "results.csv").read_text()
+    code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(out_dir))
+    assert code == 0, err
+    assert "0 run now" in out and "4 finished before" in out
+    assert (out_dir / "results.csv").read_text() == table
+    # the scene changed: refused, unless --restart
+    plate_scene.objects["Plate"].location.z = -105.0
+    code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(out_dir))
+    assert code == 1 and "the scene changed" in err and "--restart" in err
+    assert (out_dir / "results.csv").read_text() == table
+
+
+def test_bad_axis_value_names_the_field_and_writes_nothing(lad, plate_scene, tmp_path, capsys):
+    f = _sweep_file(tmp_path, axes='"atmosphere.visibility_m" = [1000, 10]\n')
+    code, _, err = _run(lad, capsys, "sweep", str(f), "--out", str(tmp_path / "sw"))
+    lines = err.strip().splitlines()
+    assert code == 1 and len(lines) == 1
+    assert lines[0].startswith("ladar: error: atmosphere.visibility_m = 10.0 is not allowed: 0 (off) or a "
+                               "visibility in [50, 1e+06] m (sweep point 1")
+    assert not (tmp_path / "sw").exists()
+
+
+def test_threaded_sweep_job_reports_progress_for_the_status_bar(lad, plate_scene, tmp_path):
+    import importlib
+    sweep = importlib.import_module(f"{lad.package.__name__}.ladar_addon.sweep")
+    job = sweep.SweepJob(plate_scene, _sweep_file(tmp_path, axes='"laser.pulse_energy_j" = [1e-4, 1e-3, 1e-2]\n'),
+                         tmp_path / "sw", n_workers=1)
+    assert job.n_tasks == 3 and job.status_text() == "Ladar sweep sw: 3 tasks"
+    seen = []
+    job.user_progress = lambda f, t: seen.append(t)
+    lad.simulate.set_current_job(job)
+    try:
+        job.start(threaded=True)
+        assert lad.simulate.current_job() is job  # the status bar draws it
+        assert job.wait(timeout_s=300)
+    finally:
+        lad.simulate.set_current_job(None)
+    assert job.state == "done", job.error
+    assert seen[-1].startswith("3/3 tasks") and job.fraction == 1.0
+    assert job.summary().startswith("sweep: 3/3 tasks done, 0 failed")
+    assert bpy.context.scene.ladar.last_run == str(tmp_path / "sw")
