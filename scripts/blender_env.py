@@ -40,8 +40,8 @@ PACKAGE_PATHS = ("__init__.py", "blender_manifest.toml", "README.md", "core", "l
 PACKAGE_IGNORE = ("__pycache__", "*.pyc", ".*", "*.blend1", "*.zip")
 #: Tracked top-level entries that are deliberately not packaged (tests/test_packaging.py checks that every tracked
 #: entry is in PACKAGE_PATHS or here, so a new one is a decision).
-DEVELOPMENT_ONLY = (".ci", ".gitignore", "bench", "docs", "pyproject.toml", "requirements.txt", "scripts", "tests",
-                    "sample_blends/build_samples.py")
+DEVELOPMENT_ONLY = (".ci", ".gitignore", "bench", "docs", "pyproject.toml", "requirements.txt",
+                    "requirements-worker.txt", "scripts", "tests", "sample_blends/build_samples.py")
 
 
 def _ignored(name: str) -> bool:
