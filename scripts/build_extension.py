@@ -9,6 +9,8 @@
    ``requirements.txt``) into ``build/wheels/<platform>/`` (kept as a cache; ``--offline`` uses only the cache).
    numpy is not bundled: Blender ships it (4.2 LTS: 1.24.3), and a second numpy would break Blender's; every
    bundled package accepts numpy 1.24.3 (matplotlib 3.10, contourpy 1.3.2: the newest that do).
+   Dask (dask, distributed and all their dependencies, :data:`DASK`) is too: sweeps started from Blender run on
+   it.
    A package with no wheel for a platform is reported and that platform is not built.
 2. **Stage.** ``build/stage/ladar_simulator/``: the package files — exactly the entries
    ``blender_env.PACKAGE_PATHS`` lists (what ``scripts/blender_env.py`` also installs for development;
@@ -42,10 +44,17 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_env import EXTENSION_ID, package_files  # noqa: E402
 
-#: Packages bundled as wheels (distribution names); versions come from requirements.txt.  matplotlib draws the
-#: previews (title, axes, colour bar); the others after it are its dependencies (packaging: Blender lacks it).
-BUNDLED = ("scipy", "embreex", "OpenEXR", "matplotlib", "contourpy", "cycler", "fonttools", "kiwisolver", "pillow",
-           "pyparsing", "python-dateutil", "tzdata", "packaging")
+#: Packages bundled as wheels (distribution names); versions come from requirements.txt.  The simulator's own:
+#: scipy, embreex, OpenEXR, and matplotlib, which draws the previews (title, axes, colour bar), with its
+#: dependencies (packaging: Blender lacks it).
+SIMULATOR = ("scipy", "embreex", "OpenEXR", "matplotlib", "contourpy", "cycler", "fonttools", "kiwisolver", "pillow",
+             "pyparsing", "python-dateutil", "tzdata", "packaging")
+#: Then Dask with every dependency it has (requirements-worker.txt lists the same; packaging is above): a sweep
+#: started from Blender (``blender -c ladar sweep``, ``ladar.sweep``) runs on dask.distributed.
+DASK = ("dask", "distributed", "cloudpickle", "msgpack", "psutil", "tornado", "toolz", "partd", "fsspec", "PyYAML",
+        "click", "Jinja2", "MarkupSafe", "zict", "tblib", "sortedcontainers", "locket", "importlib_metadata", "zipp",
+        "lazy-importer")
+BUNDLED = SIMULATOR + DASK
 PYTHON_VERSION = "3.11"
 MACOS_TARGET = "13_0"
 #: Blender platform → pip ``--platform`` tags (pip accepts older macOS versions of a macOS tag by itself).

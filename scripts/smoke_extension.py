@@ -14,7 +14,10 @@ packages (scipy, embreex, OpenEXR): the script checks that first.  It then
 4. builds a scene (a camera 100 m from a 10 m plate, 16×16 pixels) and runs ``bpy.ops.ladar.simulate()``;
 5. checks the run folder: every pixel has its echo at 100 m ± 1 cm, the EXR range image (written by the
    bundled OpenEXR) reads back, the range preview was drawn by the bundled matplotlib with a title, angle axes
-   and a colour bar in metres, and the point cloud is in the .blend.
+   and a colour bar in metres, and the point cloud is in the .blend;
+6. runs a two-point sweep with ``bpy.ops.ladar.sweep`` on a local Dask cluster of one worker process (the
+   bundled dask.distributed; the worker imports the bundled packages and the shipped core) and checks its
+   results table.
 
 This proves the bundled wheels work with the Blender (and numpy) of that environment: CI runs it on bpy 4.2 LTS
 with numpy 1.24.3 (``scripts/smoke_bpy.sh``).  Exit status 0 on success; a one-line reason otherwise.
@@ -32,9 +35,9 @@ import tempfile
 import time
 from pathlib import Path
 
-#: Import names of the bundled packages (scripts/build_extension.py BUNDLED).
+#: Import names of the bundled packages (scripts/build_extension.py BUNDLED; Dask's dependencies come with it).
 BUNDLED = ("scipy", "embreex", "OpenEXR", "matplotlib", "contourpy", "cycler", "fontTools", "kiwisolver", "PIL",
-           "pyparsing", "dateutil", "tzdata", "packaging")
+           "pyparsing", "dateutil", "tzdata", "packaging", "dask", "distributed")
 EXTENSION_ID = "ladar_simulator"
 REPO_MODULE = "user_default"
 
@@ -142,10 +145,21 @@ def main(argv=None) -> int:
         clouds = [o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith(run.name)]
         if not clouds or len(clouds[0].data.vertices) != 256:
             fail(f"the point cloud object of {run.name} is missing or incomplete")
+        sweep_file = resources / "sweep.toml"
+        sweep_file.write_text('sweep_version = 1\n[axes]\n"laser.pulse_energy_j" = [1e-4, 1e-3]\n')
+        t1 = time.perf_counter()
+        if bpy.ops.ladar.sweep(filepath=str(sweep_file), out_dir=str(resources / "sweep"), workers=1) != {"FINISHED"}:
+            fail("bpy.ops.ladar.sweep() did not finish")
+        sweep_s = time.perf_counter() - t1
+        import csv
+        with open(resources / "sweep" / "results.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        if [(r["status"], r["pixels_with_echo"]) for r in rows] != [("done", "256")] * 2:
+            fail(f"sweep results {[(r['status'], r['pixels_with_echo'], r['error']) for r in rows]}")
         summary = {"ok": True, "blender": bpy.app.version_string, "python": sys.version.split()[0],
                    "numpy": np.__version__, "zip": args.zip.name, "bundled": origins, "points": int(len(range_m)),
                    "range_m_mean": float(range_m.mean()), "preview": preview, "install_s": round(install_s, 2),
-                   "simulate_s": round(simulate_s, 2)}
+                   "simulate_s": round(simulate_s, 2), "sweep_s": round(sweep_s, 2)}
         print("smoke: OK " + json.dumps(summary), flush=True)
         if args.json:
             args.json.write_text(json.dumps(summary, indent=2))

@@ -33,6 +33,25 @@ WHEELS = {
 }
 
 
+#: Dask and its dependencies (scripts/build_extension.py DASK): pure wheels go into every platform's zip ...
+DASK_PURE = ["dask-2026.8.0-py3-none-any.whl", "distributed-2026.8.0-py3-none-any.whl",
+             "cloudpickle-3.1.3-py3-none-any.whl", "toolz-1.2.0-py3-none-any.whl", "partd-1.4.2-py3-none-any.whl",
+             "fsspec-2026.9.0-py3-none-any.whl", "click-8.5.1-py3-none-any.whl", "jinja2-3.1.6-py3-none-any.whl",
+             "zict-3.0.0-py2.py3-none-any.whl", "tblib-3.2.2-py3-none-any.whl",
+             "sortedcontainers-2.4.0-py2.py3-none-any.whl", "locket-1.0.0-py2.py3-none-any.whl",
+             "importlib_metadata-10.2.0-py3-none-any.whl",
+             "zipp-4.1.2-py3-none-any.whl", "lazy_importer-0.1.0-py3-none-any.whl"]
+# ... the compiled ones only into their platform's
+WHEELS["linux-x64"] += ["msgpack-1.2.4-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                        "psutil-7.2.2-cp36-abi3-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                        "tornado-6.6.1-cp39-abi3-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                        "pyyaml-6.0.4-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
+                        "markupsafe-3.0.4-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"] + DASK_PURE
+WHEELS["windows-x64"] += ["msgpack-1.2.4-cp311-cp311-win_amd64.whl", "psutil-7.2.2-cp37-abi3-win_amd64.whl",
+                          "tornado-6.6.1-cp39-abi3-win_amd64.whl", "pyyaml-6.0.4-cp311-cp311-win_amd64.whl",
+                          "markupsafe-3.0.4-cp311-cp311-win_amd64.whl"] + DASK_PURE
+
+
 def _fake_wheels(root: Path, platforms=("linux-x64", "windows-x64")):
     for platform in platforms:
         (root / platform).mkdir(parents=True)
@@ -45,12 +64,21 @@ def test_pins_come_from_requirements():
     """scipy 1.15.3, matplotlib 3.10.9 and contourpy 1.3.2: the newest that still support the numpy 1.24.3 of
     Blender 4.2 LTS; matplotlib's dependencies bundled with it (Blender has none of them)."""
     pins = be.pinned_versions()
-    assert pins == {"scipy": "1.15.3", "embreex": "4.4.0.post1", "OpenEXR": "3.5.3", "matplotlib": "3.10.9",
-                    "contourpy": "1.3.2", "cycler": "0.12.1", "fonttools": "4.68.0", "kiwisolver": "1.5.1",
-                    "pillow": "13.0.0", "pyparsing": "3.3.3", "python-dateutil": "4.0.0", "tzdata": "2026.6",
-                    "packaging": "26.3"}
+    assert {k: pins[k] for k in be.SIMULATOR} == {
+        "scipy": "1.15.3", "embreex": "4.4.0.post1", "OpenEXR": "3.5.3", "matplotlib": "3.10.9", "contourpy": "1.3.2",
+        "cycler": "0.12.1", "fonttools": "4.68.0", "kiwisolver": "1.5.1", "pillow": "13.0.0", "pyparsing": "3.3.3",
+        "python-dateutil": "4.0.0", "tzdata": "2026.6", "packaging": "26.3"}
+    assert pins["dask"] == pins["distributed"] == "2026.8.0"  # sweeps from Blender (docs/sweeps.md)
     text = (REPO / "requirements.txt").read_text()
     assert all(f"{k}=={v}" in text for k, v in pins.items())
+
+
+def test_the_bundled_dask_is_what_a_sweep_worker_installs():
+    """The extension bundles Dask with the same closed, pinned set of packages a worker installs."""
+    worker = [ln.split("==")[0] for ln in (REPO / "requirements-worker.txt").read_text().splitlines()
+              if "==" in ln and not ln.startswith("#")]
+    assert set(worker) - {"numpy", "numba", "llvmlite"} <= set(be.BUNDLED)
+    assert set(be.DASK) <= set(worker)
 
 
 def test_fill_manifest_adds_platforms_and_wheels_and_leaves_the_repository_alone():
@@ -82,7 +110,8 @@ def test_offline_build_splits_the_platforms(tmp_path, capsys):
             manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
         assert sorted(n for n in names if n.endswith(".whl")) == sorted(f"wheels/{w}" for w in WHEELS[platform])
         assert manifest["build"]["generated"]["platforms"] == [platform]
-        assert len(manifest["wheels"]) == 2 * 8 + len(PURE) and manifest["platforms"] == ["linux-x64", "windows-x64"]
+        assert len(manifest["wheels"]) == 2 * (8 + 5) + len(PURE) + len(DASK_PURE)
+        assert manifest["platforms"] == ["linux-x64", "windows-x64"]
         for required in ("__init__.py", "core/fileio/las.py", "core/physics/brdf.py", "ladar_addon/materials.py",
                          "presets/ladar_simulator/sensor/Airborne_1064_nm_full_waveform.py",
                          "presets/ladar_simulator/material/Retroreflective_sheeting.py"):

@@ -1,0 +1,128 @@
+#!/usr/bin/env python3
+"""Sweep throughput on Dask: points/s with 1, 2 and 4 worker processes against the same points run serially in
+one process, and the scheduler's overhead per point.
+
+    .venv/bin/python bench/bench_sweep.py [--points 16] [--workers 1,2,4]
+
+Scene: the bundled flash demo (bench/sample_scenes.py: 80 triangles; its sensor cut to 32×32 pixels).  The sweep: a
+``sensor.range_m`` × ``atmosphere.visibility_m`` grid with seeds, noisy receiver, save_waveforms off — the
+worked example of docs/sweeps.md, cut to ``--points`` tasks.
+
+* serial: every task through ``core.sweep.task.run_task`` in this process, one after the other (the same work a
+  worker does: the scene read once, one BVH, simulate, summarise, write the run folder);
+* Dask: ``run_sweep`` on a LocalCluster of N single-threaded worker processes started beforehand (its start-up
+  is reported apart), into a fresh folder each time;
+* overhead per point: (1-worker sweep − serial) / points, and the round trip of a no-op task through the same
+  scheduler (submit → result, one at a time and 200 at once).
+
+Writes ``bench/results/sweep.json``.  On a machine with fewer cores than workers the extra processes share
+cores: compare the ratios with ``cpu_count``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+RESULTS = ROOT / "bench" / "results" / "sweep.json"
+
+
+def sweep_spec(n_points: int):
+    from core.sweep.spec import sweep_from_dict
+
+    seeds = 2
+    ranges = max(1, n_points // (2 * seeds))
+    return sweep_from_dict({"sweep_version": 1, "seed": 2026, "seeds": seeds,
+                            "settings": {"detector": {"mode": "noisy"}, "run": {"save_waveforms": False},
+                                         "receiver": {"width_px": 32, "height_px": 32}},
+                            "axes": {"sensor.range_m": {"start": 150, "stop": 300, "num": ranges},
+                                     "atmosphere.visibility_m": [2000, 10000]}})
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--points", type=int, default=16, help="tasks (points × seeds) per run")
+    ap.add_argument("--workers", default="1,2,4")
+    args = ap.parse_args(argv)
+    from distributed import Client, LocalCluster
+
+    from core.sweep.runner import plan_sweep, run_sweep
+    from core.sweep.scene import SweepScene
+    from core.sweep.shipping import stage_core
+    from core.sweep.task import run_task
+    from sample_scenes import flash_demo
+
+    geometry, pose, cfg = flash_demo()
+    scene = SweepScene.single(geometry, pose, frame=1)
+    spec = sweep_spec(args.points)
+    work = Path(tempfile.mkdtemp(prefix="bench_sweep_"))
+    stage_core()
+    out = {"scene": "sample_blends/flash_demo.blend", "receiver": f"32×32 px "
+           f"× {cfg.receiver.subsamples}×{cfg.receiver.subsamples} sub-rays, {cfg.gate.n_bins} bins, noisy",
+           "cpu_count": os.cpu_count(), "sweep": spec.normalized()}
+    try:
+        # serial, in this process
+        plan = plan_sweep(spec, scene, cfg, work / "serial")
+        plan.scene.save(work / "serial" / "scene")
+        t0 = time.perf_counter()
+        rows = [run_task(str(work / "serial" / "scene"), plan.manifest["scene_digest"], t) for t in plan.tasks]
+        serial_s = time.perf_counter() - t0
+        assert all(r["status"] == "done" for r in rows), [r["error"] for r in rows if r["status"] != "done"]
+        n = len(plan.tasks)
+        out["tasks"] = n
+        out["serial"] = {"wall_s": serial_s, "points_per_s": n / serial_s,
+                         "task_s_mean": sum(r["run_time_s"] for r in rows) / n}
+        print(f"serial    {n} tasks in {serial_s:.2f} s: {n / serial_s:.2f} points/s", flush=True)
+        out["dask"] = {}
+        for w in [int(x) for x in args.workers.split(",")]:
+            t0 = time.perf_counter()
+            cluster = LocalCluster(n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=40)
+            client = Client(cluster)
+            startup = time.perf_counter() - t0
+            try:
+                t0 = time.perf_counter()
+                res = run_sweep(spec, scene, work / f"dask{w}", base=cfg, client=client, plots=False)
+                wall = time.perf_counter() - t0
+                assert res.n_done == n, res.summary()
+                entry = {"cluster_startup_s": startup, "wall_s": wall, "points_per_s": n / wall,
+                         "speedup_vs_serial": serial_s / wall}
+                if w == 1:
+                    entry["overhead_per_point_s"] = (wall - serial_s) / n
+                    t0 = time.perf_counter()
+                    for i in range(50):
+                        client.submit(abs, -i, pure=False).result()
+                    entry["noop_round_trip_s"] = (time.perf_counter() - t0) / 50
+                    t0 = time.perf_counter()
+                    client.gather(client.map(abs, range(-200, 0), pure=False))
+                    entry["noop_batch_per_task_s"] = (time.perf_counter() - t0) / 200
+                out["dask"][str(w)] = entry
+                print(f"dask {w}w   {n} tasks in {wall:.2f} s: {n / wall:.2f} points/s ({serial_s / wall:.2f}× "
+                      f"serial; cluster start-up {startup:.1f} s)", flush=True)
+            finally:
+                client.close()
+                cluster.close()
+        one = out["dask"].get("1")
+        if one:
+            print(f"overhead  {one['overhead_per_point_s'] * 1e3:.0f} ms per point (1 worker vs serial); no-op task "
+                  f"round trip {one['noop_round_trip_s'] * 1e3:.1f} ms, {one['noop_batch_per_task_s'] * 1e3:.2f} ms "
+                  f"per task in a batch of 200", flush=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(out, indent=2) + "\n")
+    print(f"wrote {RESULTS}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
