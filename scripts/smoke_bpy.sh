@@ -4,7 +4,7 @@
 #     build/wheels/);
 #  2. in clean bpy environments — Blender 4.2 LTS with numpy 1.24.3 (the minimum the manifest claims) and
 #     Blender 5.0.1 (the current one), each with none of the bundled packages — install the zip, enable it and
-#     simulate one frame (scripts/smoke_extension.py).
+#     simulate one frame and run a two-point sweep on a local Dask worker (scripts/smoke_extension.py).
 # The environments live in build/venvs/<name> and are rebuilt only when their requirements file changes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -34,4 +34,4 @@ for name in bpy42 bpy50; do
   clean_venv "build/venvs/$name" "scripts/requirements-$name.txt"
   "build/venvs/$name/bin/python" scripts/smoke_extension.py "$zip" --json "build/smoke-$name.json"
 done
-echo "smoke_bpy: the linux zip installs and simulates on Blender 4.2 LTS and 5.0 (build/smoke-*.json)"
+echo "smoke_bpy: the linux zip installs, simulates and sweeps (bundled Dask) on Blender 4.2 LTS and 5.0 (build/smoke-*.json)"
