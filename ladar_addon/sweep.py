@@ -21,7 +21,7 @@ from pathlib import Path
 
 import bpy
 
-from ..core.pipeline import Cancelled
+from ..core.errors import Cancelled
 from ..core.sweep.runner import plan_sweep, run_sweep
 from ..core.sweep.scene import SweepScene
 from ..core.sweep.spec import load_sweep

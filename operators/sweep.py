@@ -9,8 +9,8 @@ or in background mode it runs to the end before returning.
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..core.config import ConfigError
-from ..core.pipeline import Cancelled
+from ..core.errors import ConfigError
+from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
 from ..ladar_addon.simulate import current_job, handle_modal_event, progress_printer, set_current_job
 from ..ladar_addon.sweep import SweepJob

@@ -30,17 +30,17 @@ import json
 import math
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..config import ConfigError, SimulationConfig, config_to_dict
-from ..pipeline import Cancelled
-from ..runio import software_versions
+from ..config.settings import SimulationConfig, config_to_dict
+from ..errors import Cancelled, ConfigError
+from ..fileio.preview import sweep_plot_png
+from ..fileio.run_folder import new_temp_file, software_versions
+from ..version import __version__
 from .scene import SweepScene, boresight_point, write_json_atomically
 from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed
 from .shipping import ship_core
@@ -212,7 +212,7 @@ def write_table(path, rows: list, columns: list) -> Path:
     for r in rows:
         w.writerow([_cell(r.get(c, "")) for c in columns])
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
             f.write(buf.getvalue())
@@ -257,8 +257,6 @@ def figure_statistics(rows: list, axis: str, figure: str, other_axes: list) -> l
 
 def write_plots(folder: Path, rows: list, axis_names: list, axis_values: dict) -> list:
     """``plots/<figure>_vs_<axis>.png`` for every figure defined somewhere and every numeric axis."""
-    from ..preview import sweep_plot_png
-
     folder.mkdir(exist_ok=True)
     written = []
     for axis in axis_names:

@@ -12,15 +12,17 @@ import dataclasses
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..config import BRDFSettings, ConfigError
-from ..motion import Trajectory, split_pose
-from ..scene import SceneGeometry
+from ..config.settings import BRDFSettings
+from ..errors import ConfigError
+from ..fileio.run_folder import json_default, new_temp_file
+from ..geometry.motion import Trajectory, split_pose
+from ..geometry.scene import SceneGeometry
+from ..geometry.trace import SceneTracer
 
 SCENE_FORMAT = "ladar-sweep-scene"
 SCENE_FORMAT_VERSION = 1
@@ -137,7 +139,7 @@ class SweepScene:
         folder.mkdir(parents=True, exist_ok=True)
         arrays, meta = self._arrays_and_json()
         meta["digest"] = self.digest()
-        fd, tmp = tempfile.mkstemp(prefix=".scene.npz.", suffix=".tmp", dir=folder)
+        fd, tmp = new_temp_file(folder, ".scene.npz.", ".tmp")
         try:
             with os.fdopen(fd, "wb") as f:
                 np.savez(f, **arrays)
@@ -174,10 +176,10 @@ class SweepScene:
 def write_json_atomically(path, data) -> Path:
     """``json.dump`` through a hidden temporary file in the same folder, then renamed over ``path``."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=2, default=_json_default)
+            json.dump(data, f, indent=2, default=json_default)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -185,18 +187,8 @@ def write_json_atomically(path, data) -> Path:
     return path
 
 
-def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, (np.ndarray, Path)):
-        return obj.tolist() if isinstance(obj, np.ndarray) else str(obj)
-    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
-
-
 def boresight_point(scene: SweepScene, frame: int) -> np.ndarray:
     """World point where the sensor's centre ray (−Z of the sensor frame) first hits the frame's geometry."""
-    from ..trace import SceneTracer
-
     origin, rot = split_pose(scene.poses[scene.frame_index(frame)])
     direction = rot @ np.array([0.0, 0.0, -1.0])
     prim, range_m, _ = SceneTracer(scene.geometry(frame)).intersect(origin, direction[None])

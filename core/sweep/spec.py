@@ -25,7 +25,7 @@ the scene point on its boresight (the centre ray's first hit at the base pose) i
 ``run.seed`` cannot be swept (``seeds`` sets the realisations).
 
 Every point's settings are built and validated (:func:`point_configs`) before anything runs: a bad value is
-refused with a :class:`~core.config.ConfigError` naming the setting, the value, what is allowed and the point.
+refused with a :class:`~core.errors.ConfigError` naming the setting, the value, what is allowed and the point.
 """
 from __future__ import annotations
 
@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import (BRDFSettings, ConfigError, SimulationConfig, config_from_dict, config_to_dict, load_config)
+from ..config.settings import BRDFSettings, SimulationConfig, config_from_dict, config_to_dict, load_config
+from ..errors import ConfigError
 
 SWEEP_VERSION = 1
 COMBINE = ("grid", "zip")

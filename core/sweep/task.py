@@ -1,7 +1,7 @@
 """One sweep task — a point's settings with one seed at one frame — as a Dask worker runs it.
 
 :func:`run_task` loads the exported scene (once per worker process, with one BVH per geometry kept for every
-later task), simulates the frame (``core.pipeline.simulate``), summarises it (:func:`summarize`) and writes the
+later task), simulates the frame (``core.systems.flash.simulate``), summarises it (:func:`summarize`) and writes the
 run folder through ``core.runio.write_run`` (assembled in a hidden folder, renamed into place), with the summary
 in its ``metadata.json`` under ``"sweep"``.  A finished run folder is never computed twice: if the task's folder
 exists with its summary (a worker died after writing it, before the scheduler heard), that summary is returned.
@@ -16,12 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import ConfigError, SimulationConfig, config_from_dict
-from ..echoes import detect_echoes
-from ..motion import Trajectory
-from ..pipeline import run_metadata, simulate
-from ..runio import write_run
-from ..waveform import SPEED_OF_LIGHT_M_S
+from ..config.settings import SimulationConfig, config_from_dict
+from ..constants import SPEED_OF_LIGHT_M_S
+from ..errors import ConfigError
+from ..fileio.run_folder import write_run
+from ..geometry.motion import Trajectory
+from ..geometry.trace import SceneTracer
+from ..physics.detection.peaks import detect_echoes
+from ..systems.flash import run_metadata, simulate
 from .scene import SweepScene, pose_at_range
 
 #: Summary figures of a task, in table order (docs/sweeps.md explains each).
@@ -44,8 +46,6 @@ def load_scene_cached(scene_dir: str, digest: str) -> SweepScene:
 
 
 def _tracer(scene: SweepScene, frame: int):
-    from ..trace import SceneTracer
-
     g = scene.geometry_of_frame[scene.frame_index(frame)]
     tracer = _cache["tracers"].get(g)
     if tracer is None:  # the whole scene (no culling): serves every pose of a range axis

@@ -5,7 +5,7 @@ import re
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 #: import name → distribution name, where they differ
 DISTRIBUTION = {"yaml": "PyYAML", "markupsafe": "MarkupSafe", "jinja2": "Jinja2"}
 #: imported by the core only on the client, never in a worker's task (the sweep plots; previews of a run)

@@ -11,8 +11,8 @@ import sys
 import numpy as np
 import pytest
 
-from core.config import ConfigError
-from core.pipeline import run_simulation
+from core.errors import ConfigError
+from core.systems.flash import run_simulation
 from core.sweep.runner import plan_sweep, read_table, run_sweep
 from core.sweep.shipping import can_import, ship_core, stage_core
 from core.sweep.scene import SweepScene, boresight_point, pose_at_range
