@@ -106,7 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
     swp.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes of the local cluster (default: one per core)")
     swp.add_argument("--restart", action="store_true",
-                     help="the folder holds a sweep with different inputs: discard its runs and start again")
+                     help="discard the sweep folder's runs, table and plots and start again (needed when the "
+                          "sweep file, the base settings or the scene changed)")
     swp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
 
     exp = sub.add_parser("export-config", help="write the sensor's settings as a JSON or TOML config file",

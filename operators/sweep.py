@@ -37,8 +37,8 @@ and plots.  ESC cancels (finished points are kept; the same sweep resumes)"""
     workers: bpy.props.IntProperty(name="Workers", default=0, min=0, max=1024,
                                    description="Worker processes of the local cluster (0: one per core)")
     restart: bpy.props.BoolProperty(name="Restart", default=False,
-                                    description="The folder holds a sweep with other inputs: discard its runs and "
-                                                "start again")
+                                    description="Discard the sweep folder's runs, table and plots and start again "
+                                                "(needed when the sweep file, settings or scene changed)")
 
     @classmethod
     def poll(cls, context):

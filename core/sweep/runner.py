@@ -148,11 +148,11 @@ def prepare_folder(plan: SweepPlan, out_dir, *, restart: bool = False) -> Path:
             old = json.loads(manifest_path.read_text(encoding="utf-8"))
         except ValueError:
             old = {}
-        if old.get("fingerprint") != plan.fingerprint:
-            if not restart:
-                raise ConfigError("out", str(out), f"the folder of this same sweep: it holds a sweep run with "
-                                  f"different inputs ({_differences(old, plan)} changed); restart it "
-                                  f"(--restart: its runs are discarded) or choose another folder")
+        if old.get("fingerprint") != plan.fingerprint and not restart:
+            raise ConfigError("out", str(out), f"the folder of this same sweep: it holds a sweep run with "
+                              f"different inputs ({_differences(old, plan)} changed); restart it "
+                              f"(--restart: its runs are discarded) or choose another folder")
+        if restart:  # asked: whatever the folder holds of a sweep is discarded
             for name in OWNED:
                 p = out / name
                 if p.is_dir():
@@ -276,6 +276,32 @@ def write_plots(folder: Path, rows: list, axis_names: list, axis_values: dict) -
     return written
 
 
+def _number_or_text(text: str):
+    if text == "":
+        return math.nan
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def replot(folder) -> list:
+    """Draw a sweep folder's plots again from its ``results.csv`` and ``sweep.json`` (e.g. with matplotlib, for a
+    sweep run in a Blender that has none); returns the plot paths."""
+    folder = Path(folder)
+    try:
+        manifest = json.loads((folder / "sweep.json").read_text(encoding="utf-8"))
+        rows = read_table(folder / "results.csv")
+    except (OSError, ValueError) as exc:
+        raise ConfigError("sweep folder", str(folder), f"a folder with sweep.json and results.csv ({exc})") from None
+    axes = {name: values for name, values in manifest["sweep"]["axes"]}
+    parsed = [{k: (v if k in ("task", "status", "error", "run") else _number_or_text(v)) for k, v in r.items()}
+              for r in rows]
+    return write_plots(folder / "plots", parsed, list(axes), axes)
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------------------------------------------
@@ -306,9 +332,10 @@ def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | Non
     ``base``: the settings the sweep starts from (default settings if None; the sweep file's ``base`` and
     ``[settings]`` apply over it).  ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``client``:
     an existing ``distributed.Client`` (neither: a LocalCluster of ``n_workers`` processes, default one per core).
-    ``restart``: discard the runs of a sweep folder whose inputs changed.  ``progress(fraction, text)`` is called
-    as tasks finish; ``cancel()`` returning true stops the sweep (finished tasks are kept; re-run to resume).
-    Raises ConfigError (nothing written) if any point's settings are bad, or Cancelled.
+    ``restart``: discard what the sweep folder holds (its runs, table, plots) and start again.
+    ``progress(fraction, text)`` is called as tasks finish; ``cancel()`` returning true stops the sweep (finished
+    tasks are kept; run it again to resume).  Raises ConfigError (nothing written) if any point's settings are
+    bad, or Cancelled.
     """
     t0 = time.perf_counter()
     spec = sweep if isinstance(sweep, SweepSpec) else load_sweep(sweep)

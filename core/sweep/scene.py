@@ -95,7 +95,8 @@ class SweepScene:
         names = set().union(*(g.material_names for g in self.geometries))
         unknown = sorted(set(overrides) - names)
         if unknown:
-            raise ConfigError("materials", unknown[0], "the name of a material in the scene: " + ", ".join(sorted(names)))
+            raise ConfigError("materials", unknown[0],
+                              "the name of a material in the scene: " + ", ".join(sorted(names)))
         geoms = [g.with_overrides({k: v for k, v in overrides.items() if k in g.material_names})
                  for g in self.geometries]
         return dataclasses.replace(self, geometries=geoms)

@@ -53,33 +53,34 @@ def _tracer(scene: SweepScene, frame: int):
     return tracer
 
 
-def truth_first_echo_range(waveforms, config: SimulationConfig) -> np.ndarray:
-    """First-echo range (m) per pixel, NaN where none, detected on the noise-free waveform cube (H, W, n_bins)
-    with the noise-free detection settings (the ideal receiver's echoes: the truth of a noisy point)."""
+def truth_echo_ranges(waveforms, config: SimulationConfig) -> np.ndarray:
+    """Range (m) of every echo per pixel, (H, W, max_echoes) in time order, NaN where none, detected on the
+    noise-free waveform cube (H, W, n_bins) with the noise-free detection settings: the ideal receiver's echoes,
+    the truth of a noisy point."""
     h, w, n_bins = waveforms.shape
     flat = waveforms.reshape(h * w, n_bins)
-    out = np.full(h * w, np.nan)
+    out = np.full((h * w, config.detection.max_echoes), np.nan)
     rows = max(1, _TRUTH_BLOCK_BYTES // (8 * n_bins))
     g = config.gate
     for a in range(0, h * w, rows):
         ech = detect_echoes(flat[a:a + rows].astype(np.float64), config.detection)
-        first = ech.echo_index == 0
-        out[a + ech.pixel[first]] = 0.5 * SPEED_OF_LIGHT_M_S * (g.gate_start_s + ech.position_bins[first] * g.bin_width_s)
-    return out.reshape(h, w)
+        time_s = g.gate_start_s + ech.position_bins * g.bin_width_s
+        out[a + ech.pixel, ech.echo_index] = 0.5 * SPEED_OF_LIGHT_M_S * time_s
+    return out.reshape(h, w, -1)
 
 
-def summarize(result, config: SimulationConfig, truth_range=None) -> dict:
+def summarize(result, config: SimulationConfig, truth=None) -> dict:
     """The summary figures of one simulated frame (:data:`FIGURES`); NaN where a figure is not defined.
 
     ``points``: echoes (points of the cloud); ``pixels_with_echo``: first echoes (pixels, or pulses of a scanner,
     with at least one echo); ``received_energy_j``: energy received by the whole frame before time binning;
     ``false_alarms``: echoes the noisy receiver flagged as noise (no true return near them).
 
-    ``truth_range`` (H, W): the noise-free first-echo range (:func:`truth_first_echo_range`), given for noisy
-    flash/profiler points.  Then ``detection_probability`` = pixels with a noise-free echo that report a true
-    (not false-alarm) echo / pixels with a noise-free echo, and the range error is, in each such pixel, its true
-    echo nearest the noise-free one minus the noise-free range: mean, root mean square, and the 95th percentile
-    of its magnitude over the pixels."""
+    ``truth`` (H, W, E): the noise-free echo ranges (:func:`truth_echo_ranges`), given for noisy flash/profiler
+    points.  Then ``detection_probability`` = pixels with a noise-free echo that report a true (not false-alarm)
+    echo / pixels with a noise-free echo, and the range error is, for every true echo reported, its range minus
+    that of the nearest noise-free echo of its pixel: mean, root mean square, and the 95th percentile of its
+    magnitude over the echoes."""
     pts = result.points
     echo_index = np.asarray(pts.get("echo_index", ()))
     row = {"points": int(len(pts.get("range_m", ()))), "pixels_with_echo": int((echo_index == 1).sum()),
@@ -89,20 +90,19 @@ def summarize(result, config: SimulationConfig, truth_range=None) -> dict:
     false_alarm = np.asarray(pts["false_alarm"], dtype=bool) if "false_alarm" in pts else None
     if false_alarm is not None:
         row["false_alarms"] = int(false_alarm.sum())
-    if truth_range is not None:
-        truth = np.asarray(truth_range, dtype=np.float64)
-        n_truth = int(np.isfinite(truth).sum())
-        if n_truth:
-            pixel = np.asarray(pts["pixel_y"], np.int64) * truth.shape[1] + np.asarray(pts["pixel_x"], np.int64)
-            t = truth.reshape(-1)[pixel]
-            keep = np.isfinite(t) if false_alarm is None else np.isfinite(t) & ~false_alarm
-            err = np.asarray(pts["range_m"], np.float64)[keep] - t[keep]
+    if truth is not None:
+        truth = np.asarray(truth, dtype=np.float64)
+        h, w = truth.shape[:2]
+        truth = truth.reshape(h * w, -1)
+        has_truth = np.isfinite(truth[:, 0])
+        if has_truth.any():
+            pixel = np.asarray(pts["pixel_y"], np.int64) * w + np.asarray(pts["pixel_x"], np.int64)
+            keep = has_truth[pixel] if false_alarm is None else has_truth[pixel] & ~false_alarm
             pixel = pixel[keep]
-            order = np.lexsort((np.abs(err), pixel))  # per pixel, the echo nearest the truth first
-            first = np.ones(len(order), bool)
-            first[1:] = pixel[order][1:] != pixel[order][:-1]
-            err = err[order][first]
-            row["detection_probability"] = float(len(err) / n_truth)
+            diff = np.asarray(pts["range_m"], np.float64)[keep][:, None] - truth[pixel]
+            diff = np.where(np.isfinite(diff), diff, np.inf)
+            err = diff[np.arange(len(diff)), np.argmin(np.abs(diff), axis=1)] if len(diff) else diff[:, 0]
+            row["detection_probability"] = float(len(np.unique(pixel)) / has_truth.sum())
             if len(err):
                 row["range_error_mean_m"] = float(err.mean())
                 row["range_error_rms_m"] = float(np.sqrt(np.mean(err ** 2)))
@@ -164,7 +164,7 @@ def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
             sim_cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, save_waveforms=True))
         result = simulate(scene.geometry(frame), pose, sim_cfg, frame=frame, tracer=_tracer(scene, frame),
                           trajectory=traj, start_time_s=scene.start_times_s[i])
-        truth = truth_first_echo_range(result.waveforms, cfg) if truth_wanted else None
+        truth = truth_echo_ranges(result.waveforms, cfg) if truth_wanted else None
         if not cfg.run.save_waveforms:
             result.waveforms = None
         row.update(summarize(result, cfg, truth))

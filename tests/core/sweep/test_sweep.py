@@ -13,11 +13,11 @@ import pytest
 
 from core.errors import ConfigError
 from core.systems.flash import run_simulation
-from core.sweep.runner import plan_sweep, read_table, run_sweep
+from core.sweep.runner import figure_statistics, plan_sweep, read_table, replot, run_sweep
 from core.sweep.shipping import can_import, ship_core, stage_core
 from core.sweep.scene import SweepScene, boresight_point, pose_at_range
 from core.sweep.spec import load_sweep, point_configs, points, sweep_from_dict, task_seed
-from core.sweep.task import FIGURES, summarize, task_config, truth_first_echo_range
+from core.sweep.task import FIGURES, summarize, task_config, truth_echo_ranges
 from scenes import config_for, plate
 
 distributed = pytest.importorskip("distributed")
@@ -143,6 +143,42 @@ def test_material_axis_starts_from_the_scene_brdf():
     assert cfgs[0][1].materials["plate"].model == "lambertian"
 
 
+def test_frames_make_one_task_each_with_the_point_seed(tmp_path):
+    pose2 = np.eye(4)
+    pose2[2, 3] = 10.0  # frame 2: the sensor 10 m further back
+    sc = SweepScene([plate(RANGE_M, 4.0)], [1, 2], [0, 0], [np.eye(4), pose2])
+    spec = sweep_from_dict({"sweep_version": 1, "seeds": 2, "frames": [1, 2],
+                            "axes": {"laser.pulse_energy_j": [1e-4, 1e-3]}})
+    plan = plan_sweep(spec, sc, base_config(), tmp_path / "sw")
+    assert [t["name"] for t in plan.tasks[:4]] == ["p0000-s00-f0001", "p0000-s00-f0002", "p0000-s01-f0001",
+                                                    "p0000-s01-f0002"]
+    assert plan.tasks[0]["seed"] == plan.tasks[1]["seed"] != plan.tasks[2]["seed"]
+    with pytest.raises(ConfigError) as err:
+        plan_sweep(sweep_from_dict({**spec.normalized(), "frames": [3], "axes": {"laser.pulse_energy_j": [1e-3]}}),
+                   sc, base_config())
+    assert err.value.field == "frames" and "1, 2" in str(err.value)
+
+
+def test_summary_figures_against_a_known_truth():
+    """Pixel 0 has noise-free echoes at 100 and 110 m and reports 100.1 and 109.8 m; pixel 1 (truth 50 m) reports
+    only a false alarm; pixel 2 (no truth) a false alarm."""
+    from types import SimpleNamespace
+    truth = np.full((1, 3, 2), np.nan)
+    truth[0, 0] = (100.0, 110.0)
+    truth[0, 1, 0] = 50.0
+    pts = {"range_m": np.array([100.1, 109.8, 70.0, 30.0]), "pixel_x": np.array([0, 0, 1, 2]),
+           "pixel_y": np.zeros(4, int), "echo_index": np.array([1, 2, 1, 1]), "false_alarm": np.array([0, 0, 1, 1])}
+    row = summarize(SimpleNamespace(points=pts, stats={"received_energy_j": 2.5e-12}), None, truth)
+    assert (row["points"], row["pixels_with_echo"], row["false_alarms"]) == (4, 3, 2)
+    assert row["received_energy_j"] == 2.5e-12
+    assert row["detection_probability"] == 0.5
+    assert row["range_error_mean_m"] == pytest.approx(-0.05, abs=1e-12)
+    assert row["range_error_rms_m"] == pytest.approx(math.sqrt(0.025), abs=1e-12)
+    assert row["range_error_p95_abs_m"] == pytest.approx(0.195, abs=1e-12)
+    ideal = summarize(SimpleNamespace(points={k: v for k, v in pts.items() if k != "false_alarm"}, stats={}), None)
+    assert math.isnan(ideal["detection_probability"]) and math.isnan(ideal["false_alarms"])
+
+
 def test_scene_round_trips_through_its_files(tmp_path):
     sc = scene()
     sc.save(tmp_path / "scene")
@@ -164,7 +200,7 @@ def serial_row(task, noisy):
     tmp = f"{task['out']}-serial"
     _, result = run_simulation(plate(RANGE_M, 4.0), pose, cfg, tmp)
     shutil.rmtree(tmp)
-    truth = truth_first_echo_range(result.waveforms, cfg) if noisy else None
+    truth = truth_echo_ranges(result.waveforms, cfg) if noisy else None
     return summarize(result, cfg, truth)
 
 
@@ -200,6 +236,16 @@ def test_two_axis_sweep_table_equals_the_points_run_one_by_one(client, tmp_path)
     assert all(abs(as_number(r["range_error_mean_m"])) < 0.15 for r in strong)
     assert len(out.plots) == 2 * sum(1 for r in FIGURES)  # every figure is defined for a noisy flash sweep
     assert all(p.stat().st_size > 1000 for p in out.plots)
+    assert sorted(p.name for p in replot(tmp_path / "sw")) == sorted(p.name for p in out.plots)  # from the table
+
+
+def test_plot_statistics_are_the_mean_and_spread_over_seeds():
+    rows = [{"status": "done", "a": a, "b": b, "points": v} for a, b, v in
+            [(1, 10, 2.0), (1, 10, 4.0), (2, 10, 6.0), (2, 10, 6.0), (1, 20, 1.0), (1, 20, 3.0), (2, 20, 5.0)]]
+    rows.append({"status": "failed", "a": 2, "b": 20, "points": math.nan})
+    series = figure_statistics(rows, "a", "points", ["b"])
+    assert series == [("b = 10", [1, 2], [3.0, 6.0], [1.0, 0.0], [2, 2]),
+                      ("b = 20", [1, 2], [2.0, 5.0], [1.0, 0.0], [2, 1])]
 
 
 def test_resume_runs_only_what_is_missing_and_a_changed_sweep_is_refused(client, tmp_path):
