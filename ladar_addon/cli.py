@@ -284,7 +284,10 @@ def cli_handler(argv) -> int:
         except (KeyboardInterrupt, Cancelled) as exc:
             how = f" ({exc.signal_name})" if isinstance(exc, Interrupted) and exc.signum != signal.SIGINT else ""
             job = getattr(args, "job", None)
-            if job is not None and job.claim is not None and job.claim.committed:
+            if args.command == "sweep":
+                emit(f"ladar: interrupted{how}: the finished points are kept in {args.out}; the same command "
+                     f"resumes the sweep", err=True)
+            elif job is not None and job.claim is not None and job.claim.committed:
                 emit(f"ladar: interrupted{how} after the run was written to {job.run_path}", err=True)
             else:
                 emit(f"ladar: interrupted{how}: nothing of the run was written", err=True)

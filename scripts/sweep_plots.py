@@ -3,9 +3,9 @@
 
     .venv/bin/python scripts/sweep_plots.py SWEEP_DIR
 
-Useful for a sweep run from a Blender without matplotlib (its plots are the NumPy fallback, without axes or
-text): this environment's matplotlib draws ``SWEEP_DIR/plots/<figure>_vs_<axis>.png`` with axes, legends and
-the mean ± std bands.  Exit status 0, or 1 with one line naming what is wrong.
+A sweep draws its plots when every task has run; one that was cancelled (or whose table was merged by hand)
+gets them here: ``SWEEP_DIR/plots/<figure>_vs_<axis>.png`` from ``results.csv`` and ``sweep.json``, over the
+tasks done so far.  Exit status 0, or 1 with one line naming what is wrong.
 """
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """Every picture the simulator draws (the one home of plotting; physics modules never write files): false-colour
 PNGs of a run's range/intensity/energy images and of every gated slice, the scanner's point cloud seen from the
-sensor, waveform plots with their detected echoes, and BRDF plots.  Never imports bpy.
+sensor, waveform plots with their detected echoes, BRDF plots, and a sweep's summary figures against its axes
+(``core/sweep``).  Never imports bpy.
 
 Matplotlib draws them all (Agg, object API without pyplot: safe in a worker thread and leaves the user's
 backend alone); the extension bundles it with its dependencies (scripts/build_extension.py), so every preview
@@ -269,23 +270,15 @@ def scan_figure(points: dict, world_from_sensor, *, title: str = "Scanner points
 # ----------------------------------------------------------------------------------------------------------
 # Sweep plots
 # ----------------------------------------------------------------------------------------------------------
-def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = False, use_matplotlib: bool | None = None,
-                   overwrite: bool = False, size_px=(720, 440)) -> Path:
+def sweep_figure(series, *, xlabel: str, ylabel: str, log_x: bool = False):
     """A summary figure of a sweep against one swept axis: ``series`` = [(label, x values, mean, std, n)], one per
-    combination of the other axes; the mean across seeds as a line with markers and mean ± one standard
-    deviation as a band (matplotlib; without it, the first series' means as columns, no text)."""
+    combination of the other axes (at most 12 drawn); the mean across seeds as a line with markers and mean ± one
+    standard deviation as a band."""
     if not series:
         raise ValueError("no series to plot")
-    if use_matplotlib is None:
-        use_matplotlib = have_matplotlib()
-    if not use_matplotlib:
-        mean = np.asarray(series[0][2], dtype=np.float64)
-        return write_bytes_atomically(path, encode_png(_numpy_plot(mean, *size_px)), overwrite=overwrite)
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(size_px[0] / 100, size_px[1] / 100), dpi=100)
+    fig = _figure(7.2, 4.4)
     ax = fig.add_subplot()
-    for label, x, mean, std, n in series[:12]:
+    for label, x, mean, std, _ in series[:12]:
         x, mean, std = (np.asarray(a, dtype=np.float64) for a in (x, mean, std))
         line, = ax.plot(x, mean, marker="o", ms=4, lw=1.2, label=label or None)
         ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.2, lw=0)
@@ -295,12 +288,17 @@ def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = Fals
     ax.set_ylabel(ylabel)
     counts = sorted({int(k) for s in series for k in s[4]})
     ax.set_title(f"{ylabel} vs {xlabel}: mean ± std over "
-                 + (f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}–{counts[-1]}") + " seeds", fontsize="medium")
+                 + (f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}–{counts[-1]}") + " seeds", fontsize=10)
     if any(s[0] for s in series):
         ax.legend(fontsize="x-small", loc="best")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    return _save_figure(fig, path, overwrite)
+    return fig
+
+
+def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = False, overwrite: bool = False) -> Path:
+    """Write :func:`sweep_figure` as a PNG; returns the path."""
+    return save_figure(sweep_figure(series, xlabel=xlabel, ylabel=ylabel, log_x=log_x), path, overwrite)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -40,6 +40,7 @@ from ..config.settings import SimulationConfig, config_to_dict
 from ..errors import Cancelled, ConfigError
 from ..fileio.preview import sweep_plot_png
 from ..fileio.run_folder import new_temp_file, software_versions
+from ..fileio.staging import remove_abandoned_staging
 from ..version import __version__
 from .scene import SweepScene, boresight_point, write_json_atomically
 from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed
@@ -172,8 +173,7 @@ def prepare_folder(plan: SweepPlan, out_dir, *, restart: bool = False) -> Path:
         write_json_atomically(manifest_path, plan.manifest)  # last: a folder without it is not a sweep yet
     elif not (out / "scene" / "scene.json").is_file():
         plan.scene.save(out / "scene")
-    for stale in (out / "runs").glob(".*.partial-*"):  # a worker killed while writing; nothing runs now
-        shutil.rmtree(stale, ignore_errors=True)
+    remove_abandoned_staging(out / "runs")  # what workers killed while writing left (their claims are gone)
     return out
 
 
@@ -288,8 +288,8 @@ def _number_or_text(text: str):
 
 
 def replot(folder) -> list:
-    """Draw a sweep folder's plots again from its ``results.csv`` and ``sweep.json`` (e.g. with matplotlib, for a
-    sweep run in a Blender that has none); returns the plot paths."""
+    """Draw a sweep folder's plots again from its ``results.csv`` and ``sweep.json`` (e.g. after a cancelled sweep,
+    over the tasks done so far); returns the plot paths."""
     folder = Path(folder)
     try:
         manifest = json.loads((folder / "sweep.json").read_text(encoding="utf-8"))
@@ -367,8 +367,7 @@ def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | Non
             own_client.close()
         if cluster is not None:
             cluster.close()
-        for stale in (out / "runs").glob(".*.partial-*"):
-            shutil.rmtree(stale, ignore_errors=True)
+        remove_abandoned_staging(out / "runs")
         outcome.rows = [task_row(t, results.get(t["name"]), out) for t in tasks]
         write_table(out / "results.csv", outcome.rows, table_columns(spec.axis_names))
     outcome.n_done = sum(r["status"] == "done" for r in outcome.rows)

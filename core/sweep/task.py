@@ -172,7 +172,7 @@ def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
         meta = run_metadata(cfg, result, frame, {"sweep": {"task": task["name"], "point": task["point"],
                                                            "values": task["values"], "row": row}})
         try:
-            write_run(out, result, meta)
+            write_run(out, result, meta)  # claimed, built hidden, renamed into place (fileio.staging)
         except ConfigError:  # the folder appeared meanwhile: another attempt of this task finished first
             existing = finished_row(out, task["name"])
             if existing is None:
