@@ -77,10 +77,12 @@ def summarize(result, config: SimulationConfig, truth=None) -> dict:
     ``false_alarms``: echoes the noisy receiver flagged as noise (no true return near them).
 
     ``truth`` (H, W, E): the noise-free echo ranges (:func:`truth_echo_ranges`), given for noisy flash/profiler
-    points.  Then ``detection_probability`` = pixels with a noise-free echo that report a true (not false-alarm)
-    echo / pixels with a noise-free echo, and the range error is, for every true echo reported, its range minus
-    that of the nearest noise-free echo of its pixel: mean, root mean square, and the 95th percentile of its
-    magnitude over the echoes."""
+    points.  A reported true (not false-alarm) echo *matches* a noise-free echo of its pixel within
+    :func:`match_window_m` (the pulse's half width in range); ``detection_probability`` = pixels with a noise-free
+    echo that report a matching echo / pixels with a noise-free echo, and the range error is each matching
+    echo's range minus its noise-free echo's: mean, root mean square, and the 95th percentile of its magnitude
+    over the matching echoes.  (A true echo matching none — a weaker surface the noise-free detection's relative
+    threshold leaves out, or the far part of a long return from a grazing surface — is neither.)"""
     pts = result.points
     echo_index = np.asarray(pts.get("echo_index", ()))
     row = {"points": int(len(pts.get("range_m", ()))), "pixels_with_echo": int((echo_index == 1).sum()),
@@ -102,12 +104,20 @@ def summarize(result, config: SimulationConfig, truth=None) -> dict:
             diff = np.asarray(pts["range_m"], np.float64)[keep][:, None] - truth[pixel]
             diff = np.where(np.isfinite(diff), diff, np.inf)
             err = diff[np.arange(len(diff)), np.argmin(np.abs(diff), axis=1)] if len(diff) else diff[:, 0]
+            matched = np.abs(err) <= match_window_m(config)
+            err, pixel = err[matched], pixel[matched]
             row["detection_probability"] = float(len(np.unique(pixel)) / has_truth.sum())
             if len(err):
                 row["range_error_mean_m"] = float(err.mean())
                 row["range_error_rms_m"] = float(np.sqrt(np.mean(err ** 2)))
                 row["range_error_p95_abs_m"] = float(np.percentile(np.abs(err), 95))
     return row
+
+
+def match_window_m(config: SimulationConfig) -> float:
+    """How far (m) a reported echo may be from a noise-free echo to be that echo: half the pulse's length in range,
+    c·τ/2 (τ: the pulse FWHM, or full width of a rectangular pulse), at least one bin."""
+    return 0.5 * SPEED_OF_LIGHT_M_S * max(config.laser.pulse_fwhm_s, config.gate.bin_width_s)
 
 
 def task_config(task: dict) -> SimulationConfig:

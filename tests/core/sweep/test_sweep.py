@@ -17,7 +17,7 @@ from core.sweep.runner import figure_statistics, plan_sweep, read_table, replot,
 from core.sweep.shipping import can_import, ship_core, stage_core
 from core.sweep.scene import SweepScene, boresight_point, pose_at_range
 from core.sweep.spec import load_sweep, point_configs, points, sweep_from_dict, task_seed
-from core.sweep.task import FIGURES, summarize, task_config, truth_echo_ranges
+from core.sweep.task import FIGURES, match_window_m, summarize, task_config, truth_echo_ranges
 from scenes import config_for, plate
 
 distributed = pytest.importorskip("distributed")
@@ -160,16 +160,21 @@ def test_frames_make_one_task_each_with_the_point_seed(tmp_path):
 
 
 def test_summary_figures_against_a_known_truth():
-    """Pixel 0 has noise-free echoes at 100 and 110 m and reports 100.1 and 109.8 m; pixel 1 (truth 50 m) reports
-    only a false alarm; pixel 2 (no truth) a false alarm."""
+    """Pixel 0 has noise-free echoes at 100 and 110 m and reports 100.1, 104 (a true return the noise-free
+    detection left out: no match within c·5 ns/2 = 0.75 m) and 109.8 m; pixel 1 (truth 50 m) reports only a false
+    alarm; pixel 2 (no truth) a false alarm."""
     from types import SimpleNamespace
+    cfg = base_config()
+    cfg.laser.pulse_fwhm_s = 5e-9
+    assert match_window_m(cfg) == pytest.approx(0.749481145)
     truth = np.full((1, 3, 2), np.nan)
     truth[0, 0] = (100.0, 110.0)
     truth[0, 1, 0] = 50.0
-    pts = {"range_m": np.array([100.1, 109.8, 70.0, 30.0]), "pixel_x": np.array([0, 0, 1, 2]),
-           "pixel_y": np.zeros(4, int), "echo_index": np.array([1, 2, 1, 1]), "false_alarm": np.array([0, 0, 1, 1])}
-    row = summarize(SimpleNamespace(points=pts, stats={"received_energy_j": 2.5e-12}), None, truth)
-    assert (row["points"], row["pixels_with_echo"], row["false_alarms"]) == (4, 3, 2)
+    pts = {"range_m": np.array([100.1, 104.0, 109.8, 70.0, 30.0]), "pixel_x": np.array([0, 0, 0, 1, 2]),
+           "pixel_y": np.zeros(5, int), "echo_index": np.array([1, 2, 3, 1, 1]),
+           "false_alarm": np.array([0, 0, 0, 1, 1])}
+    row = summarize(SimpleNamespace(points=pts, stats={"received_energy_j": 2.5e-12}), cfg, truth)
+    assert (row["points"], row["pixels_with_echo"], row["false_alarms"]) == (5, 3, 2)
     assert row["received_energy_j"] == 2.5e-12
     assert row["detection_probability"] == 0.5
     assert row["range_error_mean_m"] == pytest.approx(-0.05, abs=1e-12)
