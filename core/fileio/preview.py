@@ -276,7 +276,7 @@ def sweep_figure(series, *, xlabel: str, ylabel: str, log_x: bool = False):
     standard deviation as a band."""
     if not series:
         raise ValueError("no series to plot")
-    fig = _figure(7.2, 4.4)
+    fig = new_figure(7.2, 4.4)
     ax = fig.add_subplot()
     for label, x, mean, std, _ in series[:12]:
         x, mean, std = (np.asarray(a, dtype=np.float64) for a in (x, mean, std))
