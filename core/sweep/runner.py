@@ -44,7 +44,7 @@ from ..fileio.staging import remove_abandoned_staging
 from ..version import __version__
 from .scene import SweepScene, boresight_point, write_json_atomically
 from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed
-from .shipping import ship_core
+from .shipping import ship_core, stage_core
 from .task import FIGURES, finished_row
 
 SWEEP_FORMAT = "ladar-sweep"
@@ -319,6 +319,7 @@ def open_client(scheduler: str | None = None, n_workers: int | None = None):
         except (OSError, TimeoutError) as exc:
             raise ConfigError("scheduler", scheduler, f"the address of a running Dask scheduler ({exc})") from None
     n = n_workers or os.cpu_count() or 1
+    stage_core()  # before the workers start: they inherit its folder on sys.path (no upload, no restart)
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                            silence_logs=40)
     return Client(cluster), cluster

@@ -244,6 +244,37 @@ def test_two_axis_sweep_table_equals_the_points_run_one_by_one(client, tmp_path)
     assert sorted(p.name for p in replot(tmp_path / "sw")) == sorted(p.name for p in out.plots)  # from the table
 
 
+def test_results_do_not_depend_on_the_number_of_workers(client, tmp_path, monkeypatch):
+    """The same noisy sweep on the 2-worker cluster and on a 1-worker LocalCluster that run_sweep starts itself
+    (which inherits the staged core: no upload); the same table but for run times; progress counts the tasks
+    with an ETA."""
+    import re
+
+    import distributed.diagnostics.plugin as plugin
+
+    def no_upload(*args, **kwargs):
+        raise AssertionError("the workers of the sweep's own local cluster should not need the core uploaded")
+
+    spec = sweep_from_dict(spec_dict(seeds=3))  # 12 tasks
+    two = run_sweep(spec, scene(), tmp_path / "two", base=base_config(noisy=True), client=client, plots=False)
+    monkeypatch.setattr(plugin, "UploadDirectory", no_upload)
+    _, outer = stage_core()
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p != str(outer)])  # as in a fresh process
+    seen = []
+    one = run_sweep(spec, scene(), tmp_path / "one", base=base_config(noisy=True), n_workers=1, plots=False,
+                    progress=lambda fraction, text: seen.append((fraction, text)))
+    assert (two.n_workers, one.n_workers) == (2, 1) and one.n_done == two.n_done == 12
+    keep = ("task", "point", "seed_index", "laser.pulse_energy_j", "sensor.range_m", "seed", "status", "run",
+            *FIGURES)
+    rows_one = read_table(tmp_path / "one" / "results.csv")
+    assert [{k: r[k] for k in keep} for r in rows_one] == [{k: r[k] for k in keep}
+                                                            for r in read_table(tmp_path / "two" / "results.csv")]
+    assert len({r["seed"] for r in rows_one}) == 12 and all(as_number(r["false_alarms"]) >= 0 for r in rows_one)
+    assert [f for f, _ in seen] == sorted(f for f, _ in seen) and seen[-1][0] == 1.0 and len(seen) >= 2
+    assert all(re.fullmatch(r"\d+/12 tasks, ETA \d+ s", text) for _, text in seen), seen
+    assert seen[-1][1] == "12/12 tasks, ETA 0 s"
+
+
 def test_plot_statistics_are_the_mean_and_spread_over_seeds():
     rows = [{"status": "done", "a": a, "b": b, "points": v} for a, b, v in
             [(1, 10, 2.0), (1, 10, 4.0), (2, 10, 6.0), (2, 10, 6.0), (1, 20, 1.0), (1, 20, 3.0), (2, 20, 5.0)]]
