@@ -15,6 +15,9 @@ worked example of docs/sweeps.md, cut to ``--points`` tasks.
 * overhead per point: (1-worker sweep − serial) / points, and the round trip of a no-op task through the same
   scheduler (submit → result, one at a time and 200 at once).
 
+The serial pass runs before and after the Dask runs (the machine's load drifts; both are reported, the ratios use
+their mean).
+
 Writes ``bench/results/sweep.json``.  On a machine with fewer cores than workers the extra processes share
 cores: compare the ratios with ``cpu_count``.
 """
@@ -66,22 +69,27 @@ def main(argv=None) -> int:
     spec = sweep_spec(args.points)
     work = Path(tempfile.mkdtemp(prefix="bench_sweep_"))
     stage_core()
-    out = {"scene": "sample_blends/flash_demo.blend", "receiver": f"32×32 px "
-           f"× {cfg.receiver.subsamples}×{cfg.receiver.subsamples} sub-rays, {cfg.gate.n_bins} bins, noisy",
+    out = {"scene": "sample_blends/flash_demo.blend", "load_average_start": os.getloadavg(),
+           "receiver": f"32×32 px × {cfg.receiver.subsamples}×{cfg.receiver.subsamples} sub-rays, "
+                       f"{cfg.gate.n_bins} bins, noisy",
            "cpu_count": os.cpu_count(), "sweep": spec.normalized()}
     try:
-        # serial, in this process
-        plan = plan_sweep(spec, scene, cfg, work / "serial")
-        plan.scene.save(work / "serial" / "scene")
-        t0 = time.perf_counter()
-        rows = [run_task(str(work / "serial" / "scene"), plan.manifest["scene_digest"], t) for t in plan.tasks]
-        serial_s = time.perf_counter() - t0
-        assert all(r["status"] == "done" for r in rows), [r["error"] for r in rows if r["status"] != "done"]
-        n = len(plan.tasks)
+        def serial(tag):  # every task in this process, one after the other (the scene read once, one BVH)
+            plan = plan_sweep(spec, scene, cfg, work / tag)
+            plan.scene.save(work / tag / "scene")
+            t0 = time.perf_counter()
+            rows = [run_task(str(work / tag / "scene"), plan.manifest["scene_digest"], t) for t in plan.tasks]
+            wall = time.perf_counter() - t0
+            assert all(r["status"] == "done" for r in rows), [r["error"] for r in rows if r["status"] != "done"]
+            n = len(plan.tasks)
+            print(f"serial    {n} tasks in {wall:.2f} s: {n / wall:.2f} points/s", flush=True)
+            return n, {"wall_s": wall, "points_per_s": n / wall,
+                       "task_s_mean": sum(r["run_time_s"] for r in rows) / n}
+
+        n, first = serial("serial")
         out["tasks"] = n
-        out["serial"] = {"wall_s": serial_s, "points_per_s": n / serial_s,
-                         "task_s_mean": sum(r["run_time_s"] for r in rows) / n}
-        print(f"serial    {n} tasks in {serial_s:.2f} s: {n / serial_s:.2f} points/s", flush=True)
+        out["serial"] = first
+        serial_s = first["wall_s"]
         out["dask"] = {}
         for w in [int(x) for x in args.workers.split(",")]:
             t0 = time.perf_counter()
@@ -95,9 +103,8 @@ def main(argv=None) -> int:
                 wall = time.perf_counter() - t0
                 assert res.n_done == n, res.summary()
                 entry = {"cluster_startup_s": startup, "wall_s": wall, "points_per_s": n / wall,
-                         "speedup_vs_serial": serial_s / wall}
+                         "task_s_mean": sum(r["run_time_s"] for r in res.rows) / n}
                 if w == 1:
-                    entry["overhead_per_point_s"] = (wall - serial_s) / n
                     t0 = time.perf_counter()
                     for i in range(50):
                         client.submit(abs, -i, pure=False).result()
@@ -106,11 +113,21 @@ def main(argv=None) -> int:
                     client.gather(client.map(abs, range(-200, 0), pure=False))
                     entry["noop_batch_per_task_s"] = (time.perf_counter() - t0) / 200
                 out["dask"][str(w)] = entry
-                print(f"dask {w}w   {n} tasks in {wall:.2f} s: {n / wall:.2f} points/s ({serial_s / wall:.2f}× "
-                      f"serial; cluster start-up {startup:.1f} s)", flush=True)
+                print(f"dask {w}w   {n} tasks in {wall:.2f} s: {n / wall:.2f} points/s (cluster start-up "
+                      f"{startup:.1f} s)", flush=True)
             finally:
                 client.close()
                 cluster.close()
+        _, last = serial("serial-after")
+        out["serial_after"] = last
+        serial_s = 0.5 * (first["wall_s"] + last["wall_s"])
+        out["serial_mean_wall_s"] = serial_s
+        for w, entry in out["dask"].items():
+            entry["speedup_vs_serial"] = serial_s / entry["wall_s"]
+            if w == "1":
+                entry["overhead_per_point_s"] = (entry["wall_s"] - serial_s) / n
+            print(f"dask {w}w   {entry['points_per_s']:.2f} points/s = {entry['speedup_vs_serial']:.2f}× serial "
+                  f"(mean of the two serial passes, {n / serial_s:.2f} points/s)", flush=True)
         one = out["dask"].get("1")
         if one:
             print(f"overhead  {one['overhead_per_point_s'] * 1e3:.0f} ms per point (1 worker vs serial); no-op task "
@@ -118,6 +135,7 @@ def main(argv=None) -> int:
                   f"per task in a batch of 200", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    out["load_average_end"] = os.getloadavg()
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(out, indent=2) + "\n")
     print(f"wrote {RESULTS}")
