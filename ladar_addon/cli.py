@@ -215,7 +215,7 @@ def _cmd_simulate(scene, args) -> int:
 
 
 def _cmd_sweep(scene, args) -> int:
-    from .simulate import progress_printer
+    from .run_inputs import progress_printer
     from .sweep import sweep_scene
 
     if args.workers is not None and args.workers < 1:

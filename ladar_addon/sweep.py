@@ -6,7 +6,7 @@
 A :class:`SweepJob` reads everything from Blender on the main thread — the settings (the .blend's, then the sweep
 file's ``base`` config file, exactly as ``simulate --config``), and for every frame of the sweep the evaluated
 geometry with its materials, the sensor pose and, for a scanner on an animated sensor, its trajectory (the
-frame-range machinery of :mod:`.simulate`: static geometry is exported once) — into a ``core.sweep``
+frame-range machinery of :mod:`.frames`: static geometry is exported once) — into a ``core.sweep``
 SweepScene.  Then the sweep runs without Blender data, inline (scripts, background mode: progress lines) or in a
 worker thread while the modal operator polls :meth:`SweepJob.step` (the status bar shows done/total and the ETA;
 ESC cancels: finished points are kept and the same command resumes).  The workers are plain Python processes
@@ -26,8 +26,9 @@ from ..core.sweep.runner import plan_sweep, run_sweep
 from ..core.sweep.scene import SweepScene
 from ..core.sweep.spec import load_sweep
 from .errors import LadarError
-from .properties import unit_scale
-from .simulate import FrameSource, active_sensor, build_config
+from .blend_config import unit_scale
+from .frames import FrameSource
+from .run_inputs import active_sensor, build_config
 
 
 def export_sweep_scene(scene, sensor, cfg, blender_materials, frames) -> SweepScene:
@@ -60,7 +61,7 @@ class SweepJob:
     """One sweep from set-up to the results table.  The constructor reads the sweep file, the settings and the
     scene and validates every point (raising ConfigError/LadarError before anything is written); then
     :meth:`run` (blocking) or :meth:`start` ``(threaded=True)`` + :meth:`step` from the main thread, the
-    interface of :class:`.simulate.SimulationJob` (the modal operator and the status bar serve both).
+    interface of :class:`.job.SimulationJob` (the modal operator and the status bar serve both).
 
     States: "ready" → "running" → "done" | "failed" (``error``) | "cancelled"."""
 

@@ -12,7 +12,8 @@ from bpy_extras.io_utils import ImportHelper
 from ..core.errors import ConfigError
 from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.simulate import current_job, handle_modal_event, progress_printer, set_current_job
+from ..ladar_addon.job import current_job, handle_modal_event, set_current_job
+from ..ladar_addon.run_inputs import progress_printer
 from ..ladar_addon.sweep import SweepJob
 from .simulate import tag_redraw
 

@@ -36,11 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config.settings import SimulationConfig, config_to_dict
+from ..config.files import config_to_dict
+from ..config.settings import SimulationConfig
 from ..errors import Cancelled, ConfigError
 from ..fileio.preview import sweep_plot_png
-from ..fileio.run_folder import new_temp_file, software_versions
-from ..fileio.staging import remove_abandoned_staging
+from ..fileio.run_folder import software_versions
+from ..fileio.staging import new_temp_file, remove_abandoned_staging
 from ..version import __version__
 from .scene import SweepScene, boresight_point, write_json_atomically
 from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..config.settings import BRDFSettings
 from ..errors import ConfigError
-from ..fileio.run_folder import json_default, new_temp_file
+from ..fileio.run_folder import json_default
+from ..fileio.staging import new_temp_file
 from ..geometry.motion import Trajectory, split_pose
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer

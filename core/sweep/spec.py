@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config.settings import BRDFSettings, SimulationConfig, config_from_dict, config_to_dict, load_config
+from ..config.files import config_from_dict, config_to_dict, load_config
+from ..config.settings import BRDFSettings, SimulationConfig
 from ..errors import ConfigError
 
 SWEEP_VERSION = 1

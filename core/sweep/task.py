@@ -1,8 +1,8 @@
 """One sweep task — a point's settings with one seed at one frame — as a Dask worker runs it.
 
 :func:`run_task` loads the exported scene (once per worker process, with one BVH per geometry kept for every
-later task), simulates the frame (``core.systems.flash.simulate``), summarises it (:func:`summarize`) and writes the
-run folder through ``core.runio.write_run`` (assembled in a hidden folder, renamed into place), with the summary
+later task), simulates the frame (``core.run.simulate``), summarises it (:func:`summarize`) and writes the
+run folder through ``core.fileio.run_folder.write_run`` (assembled in a hidden folder, renamed into place), with the summary
 in its ``metadata.json`` under ``"sweep"``.  A finished run folder is never computed twice: if the task's folder
 exists with its summary (a worker died after writing it, before the scheduler heard), that summary is returned.
 A task that fails returns a row with ``status = "failed"`` and the error; it never raises.
@@ -16,14 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config.settings import SimulationConfig, config_from_dict
+from ..config.files import config_from_dict
+from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..errors import ConfigError
 from ..fileio.run_folder import write_run
 from ..geometry.motion import Trajectory
 from ..geometry.trace import SceneTracer
 from ..physics.detection.peaks import detect_echoes
-from ..systems.flash import run_metadata, simulate
+from ..run import run_metadata, simulate
 from .scene import SweepScene, pose_at_range
 
 #: Summary figures of a task, in table order (docs/sweeps.md explains each).

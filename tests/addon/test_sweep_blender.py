@@ -86,13 +86,13 @@ def test_threaded_sweep_job_reports_progress_for_the_status_bar(lad, plate_scene
     assert job.n_tasks == 3 and job.status_text() == "Ladar sweep sw: 3 tasks"
     seen = []
     job.user_progress = lambda f, t: seen.append(t)
-    lad.simulate.set_current_job(job)
+    lad.job.set_current_job(job)
     try:
         job.start(threaded=True)
-        assert lad.simulate.current_job() is job  # the status bar draws it
+        assert lad.job.current_job() is job  # the status bar draws it
         assert job.wait(timeout_s=300)
     finally:
-        lad.simulate.set_current_job(None)
+        lad.job.set_current_job(None)
     assert job.state == "done", job.error
     assert seen[-1].startswith("3/3 tasks") and job.fraction == 1.0
     assert job.summary().startswith("sweep: 3/3 tasks done, 0 failed")

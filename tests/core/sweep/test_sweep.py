@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from core.errors import ConfigError
-from core.systems.flash import run_simulation
+from core.run import run_simulation
 from core.sweep.runner import figure_statistics, plan_sweep, read_table, replot, run_sweep
 from core.sweep.shipping import can_import, ship_core, stage_core
 from core.sweep.scene import SweepScene, boresight_point, pose_at_range
