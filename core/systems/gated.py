@@ -242,13 +242,19 @@ def two_gate_range_m(e1, e2, gate_width_s, pulse_width_s, first_delay_s=0.0, pul
     return 0.5 * SPEED_OF_LIGHT_M_S * (first_delay_s + gate_width_s - pulse_cdf_inverse(laser, 1.0 - r))
 
 
+#: the stages of a sweep in the order of the run record; StageLog.skip takes out those a run skips
+STAGES_PLANNED = ("build_bvh", "rays", "trace", "radiometry", "gating", "extinction", "beam_broadening",
+                  "scintillation", "return_scintillation", "beam_wander", "turbulence_blur", "receiver_chain",
+                  "products")
+
+
 def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
                    trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None) -> FrameResult:
     """Simulate one gated-viewing sweep (all slices of one frame).  Returns a FrameResult with ``slices``
     (n_slices, H, W), the range image from the slices, points and metadata.  The systems' common signature
     (core.run.SYSTEMS): the sweep is fired from one pose, ``world_from_sensor`` (``trajectory`` and
     ``start_time_s`` are not used)."""
-    log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "gating", "products"))
+    log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "gating", "products"), STAGES_PLANNED)
     fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer)
     scene, tracer, origin, rot = fr.scene, fr.tracer, fr.origin, fr.rot
     times = log.times
@@ -342,23 +348,21 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     h, w = det.height_px, det.width_px
     cube = np.ascontiguousarray(slices.T.reshape(h, w, n_sl))  # (H, W, slices)
     energy_image = energy.mean(axis=0).reshape(h, w)
-    skipped = log.skipped
-    skipped.update(atm.skipped)
-    stage_times = times
+    for stage, reason in atm.skipped.items():
+        log.skip(stage, reason)
     if atm.blur_r0_m is not None:
-        t0 = time.perf_counter()
-        energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
-        stage_times["turbulence_blur"] = time.perf_counter() - t0
+        with log.timed("turbulence_blur"):
+            energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
     receiver_report = None
     data = cube
     if config.detector.mode == "noisy":
-        t0 = time.perf_counter()
-        chain = dataclasses.replace(ChainSettings.from_config(config), bin_width_s=g.gate_width_s)
-        out = apply_receiver_chain(cube.astype(np.float32), chain, stage_seed(config.run.seed, frame, "receiver"))
-        data, receiver_report = out.data, out.report
-        stage_times["receiver_chain"] = time.perf_counter() - t0
+        with log.timed("receiver_chain"):
+            chain = dataclasses.replace(ChainSettings.from_config(config), bin_width_s=g.gate_width_s)
+            out = apply_receiver_chain(cube.astype(np.float32), chain,
+                                       stage_seed(config.run.seed, frame, "receiver"))
+            data, receiver_report = out.data, out.report
     else:
-        skipped["receiver_chain"] = "detector.mode = ideal: noise-free slice energies"
+        log.skip("receiver_chain", "detector.mode = ideal: noise-free slice energies")
     t0 = time.perf_counter()
     stack = np.moveaxis(np.asarray(data, dtype=np.float32), 2, 0)  # (slices, H, W)
     noise_sigma = None
@@ -379,22 +383,18 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     zeros = np.zeros(len(pix), np.int16)
     points = points_along_rays(det, origin, rot, pix, rng_m, amp, zeros, zeros + 1, 2 * rng_m / SPEED_OF_LIGHT_M_S,
                                frame)
-    stage_times["products"] = time.perf_counter() - t0
-    skipped["waveform"] = "gated viewing: the gate response is evaluated in closed form per ray, no time bins"
-    ran = [s for s in ("build_bvh", "rays", "trace", "radiometry", "gating", "extinction", "beam_broadening",
-                       "scintillation", "return_scintillation", "beam_wander", "turbulence_blur", "receiver_chain",
-                       "products")
-           if s not in skipped]
+    times["products"] = time.perf_counter() - t0
+    log.skip("waveform", "gated viewing: the gate response is evaluated in closed form per ray, no time bins")
     stats = {"n_rays": det.n_pixels * s2, "n_hits": n_hits, "n_points": int(len(pix)),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "n_slices": n_sl,
              "slice_delays_s": delays, "ray_traces": 1, "threads": max(1, min(threads, len(blocks))),
-             "range_method": g.range_method, "stage_times_s": stage_times,
+             "range_method": g.range_method, "stage_times_s": log.times,
              "detection": {"threshold": detection_threshold(peak_image, config, noise_sigma),
                            "noise_sigma": noise_sigma, "pixels_detected": int(len(pix)),
                            "rule": "strongest slice ≥ max(min_peak_fraction × the frame's strongest slice, "
                                    + ("k_sigma × noise σ" if noise_sigma is not None else "min_signal_j") + ")"},
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(energy_image.sum()),
-             "stages_run": ran, "stages_skipped": skipped, "memory_estimate_bytes": memory["total"],
+             "stages_run": log.ran, "stages_skipped": log.skipped, "memory_estimate_bytes": memory["total"],
              "work_estimate_samples": memory["work"]}
     if atm.metadata:
         stats["atmosphere"] = atm.metadata

@@ -252,13 +252,19 @@ def _merge_echoes(parts) -> Echoes:
 # ----------------------------------------------------------------------------------------------------------
 # The scan
 # ----------------------------------------------------------------------------------------------------------
+#: the stages of a scan in the order of the run record; StageLog.skip takes out those a run skips
+STAGES_PLANNED = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products", "extinction",
+                  "beam_broadening", "scintillation", "return_scintillation", "beam_wander", "receiver_chain",
+                  "waveform_cube", "motion")
+
+
 def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
                   trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None,
                   cancel=None) -> FrameResult:
     """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a FrameResult whose images are None
     and whose ``points`` and ``pulses`` carry the products (see module docstring).  The sensor moves along
     ``trajectory`` (poses sampled in time) or stays at ``world_from_sensor``."""
-    log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products"))
+    log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products"), STAGES_PLANNED)
     fr = open_frame(scene, world_from_sensor if trajectory is None else None, config, log, tracer=tracer)
     scene, tracer, times = fr.scene, fr.tracer, log.times
     if trajectory is None:
@@ -272,19 +278,19 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     method = binning_method(laser, gate)
     table = PulseTable(laser, gate.bin_width_s) if laser.pulse_shape == "gaussian" and method == "exact" else None
 
-    skipped = log.skipped
     t0 = time.perf_counter()
     needs_ref = any(s not in turbulence_switches(config)
                     for s in ("beam_broadening", "scintillation", "beam_wander"))
     atm = scan_atmosphere(config, _reference_range(tracer, trajectory, config, n_pulses) if needs_ref else None)
     times["atmosphere"] = time.perf_counter() - t0
-    skipped.update(atm.skipped)
+    for stage, reason in atm.skipped.items():
+        log.skip(stage, reason)
     if not noisy:
-        skipped["receiver_chain"] = "detector.mode = ideal: echoes from the noise-free waveforms"
+        log.skip("receiver_chain", "detector.mode = ideal: echoes from the noise-free waveforms")
     if not save:
-        skipped["waveform_cube"] = "run.save_waveforms = false: per-pulse waveforms built in windows and discarded"
+        log.skip("waveform_cube", "run.save_waveforms = false: per-pulse waveforms built in windows and discarded")
     if trajectory.is_static:
-        skipped["motion"] = "static sensor: one pose for every pulse"
+        log.skip("motion", "static sensor: one pose for every pulse")
 
     tile = SCAN_NOISE_TILE_PULSES
     per_block = max(1, config.run.chunk_rays // m)
@@ -396,18 +402,13 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
               "scan_angle_rad": pulse_angle.astype(np.float32), "n_echoes": n_echo_per_pulse,
               "received_energy_j": pulse_energy}
     times["products"] = time.perf_counter() - t0
-    ran = ["rays", "trace", "radiometry", "waveform", "echoes", "products"] + \
-        [s for s in ("extinction", "beam_broadening", "scintillation", "return_scintillation", "beam_wander",
-                     "receiver_chain", "waveform_cube", "motion") if s not in skipped]
-    if fr.built:
-        ran.insert(0, "build_bvh")
     stats = {"n_pulses": n_pulses, "subrays_per_pulse": m, "n_rays": n_pulses * m, "n_hits": n_hits,
              "n_points": int(len(range_m)), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
              "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
-             "scan_duration_s": scan_duration_s(config), "stage_times_s": times,
+             "scan_duration_s": scan_duration_s(config), "stage_times_s": log.times,
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(pulse_energy.sum()),
-             "stages_run": ran, "stages_skipped": skipped, "memory_estimate_bytes": fr.memory["total"],
+             "stages_run": log.ran, "stages_skipped": log.skipped, "memory_estimate_bytes": fr.memory["total"],
              "work_estimate_samples": fr.memory["work"],
              "notes": {"divergence_fills_fov": "ignored by the scanner: the beam is laser.beam_divergence_rad",
                        "receiver": "the receiver collects the whole footprint; width/height/fov unused"}}
