@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 from pathlib import Path
 
@@ -28,7 +27,7 @@ import bpy
 from ..core.errors import ConfigError
 from ..core.config.settings import SimulationConfig
 from ..core.config.files import dump_config_json, dump_config_toml, load_config
-from ..core.fileio.staging import new_temp_file
+from ..core.fileio.staging import write_file_atomically
 from ..core.process import Interrupted, emit, exit_code, interrupts_as_exceptions
 from .errors import LadarError
 
@@ -140,23 +139,11 @@ def _write_text_atomically(path: Path, text: str, overwrite: bool = False) -> No
     ConfigError, even if the file appears while writing: the new file is linked into place, never over one)."""
     if not overwrite and (path.exists() or path.is_symlink()):
         raise ConfigError("out", str(path), "a file that does not exist yet (or --overwrite to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = new_temp_file(path.parent, f".{path.name[:100]}.", ".tmp")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)  # atomic, and fails if the name exists
-            except FileExistsError:
-                raise ConfigError("out", str(path), "a file that does not exist yet (it was created meanwhile; "
-                                                    "--overwrite to replace it)") from None
-            except OSError:  # no hard links on this file system: rename after the check above
-                os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+        write_file_atomically(path, lambda f: f.write(text.encode("utf-8")), overwrite=overwrite)
+    except FileExistsError:
+        raise ConfigError("out", str(path), "a file that does not exist yet (it was created meanwhile; "
+                                            "--overwrite to replace it)") from None
 
 
 def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:

@@ -53,14 +53,13 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import os
 import struct
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError
-from .staging import new_temp_file
+from .staging import write_file_atomically
 
 LAS_VERSION = (1, 4)
 HEADER_SIZE = 375
@@ -338,19 +337,13 @@ def write_las(path, points: dict, *, coordinates: str = "world", intensity_unit:
         flat.extend(v if isinstance(v, tuple) else (v,))
     header = HEADER_STRUCT.pack(*flat)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".partial")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(header)
-            for v in vlrs:
-                f.write(v)
-            f.write(table.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    def write(f):
+        f.write(header)
+        for v in vlrs:
+            f.write(v)
+        f.write(table.tobytes())
+
+    return write_file_atomically(path, write, suffix=".partial")
 
 
 def read_header(data: bytes) -> dict:

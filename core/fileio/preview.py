@@ -8,15 +8,14 @@ backend alone); the extension bundles it with its dependencies (scripts/build_ex
 has a title, axes with units and a colour bar (or a legend) wherever it is made.  Images show the receiver's
 field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at the top).
 
-Every PNG is written atomically (a hidden temporary file in the same folder, then ``os.replace``) and an existing
-file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks repeat what is drawn (``Title``,
+Every PNG is written atomically (``staging.write_file_atomically``: a hidden temporary file, then
+``os.replace``) and an existing file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks repeat what is drawn (``Title``,
 ``Description``: the axes and colour-bar labels), for tools (and tests) that read them.
 """
 from __future__ import annotations
 
 import io
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ import numpy as np
 from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..physics.brdf import evaluate_brdf
+from .staging import write_file_atomically
 
 #: What each image product shows: (title, colour map, scale starts at zero).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
@@ -48,18 +48,7 @@ def write_bytes_atomically(path, data: bytes, *, overwrite: bool = False) -> Pat
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists (previews never replace a file unless asked)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    from .staging import new_temp_file
-
-    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_file_atomically(path, lambda f: f.write(data))
 
 
 def save_figure(fig, path, overwrite: bool = False) -> Path:

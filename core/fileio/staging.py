@@ -1,4 +1,5 @@
-"""Run folders: claimed before the run, built hidden, renamed into place; never anything else replaced.
+"""Run folders: claimed before the run, built hidden, renamed into place; never anything else replaced.  Single
+files (previews, LAS, exported configs): :func:`write_file_atomically`.
 
 The one implementation of the staged run folder (used by ``fileio.run_folder.write_run``,
 ``core.run.run_simulation``, ``sequence.run_sequence``, the add-on's job and the command line).  Rules:
@@ -68,6 +69,35 @@ def new_temp_file(parent, prefix: str, suffix: str = "") -> tuple[int, Path]:
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary file name {prefix}…{suffix} in {parent}")
+
+
+def write_file_atomically(path, write, *, overwrite: bool = True, suffix: str = ".tmp") -> Path:
+    """Write the single file ``path`` complete or not at all: ``write(f)`` fills a hidden temporary file
+    ``.<name>.<random><suffix>`` in the same folder (binary, the user's umask), which then takes the name.
+
+    ``overwrite``: replace an existing file (``os.replace``); otherwise the file is linked into place, which fails
+    with FileExistsError if the name exists, even when it appears while writing (on a file system without hard
+    links: replaced after a check).  A failure leaves neither a temporary file nor half a file."""
+    path = Path(path)
+    if not overwrite and (path.exists() or path.is_symlink()):
+        raise FileExistsError(f"{path} exists")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = new_temp_file(path.parent, f".{path.name[:100]}.", suffix)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)  # atomic, and fails if the name exists
+            except FileExistsError:
+                raise FileExistsError(f"{path} exists (it was created meanwhile)") from None
+            except OSError:  # no hard links on this file system
+                os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    return path
 
 
 # ------------------------------------------------------------------------------------------------------------

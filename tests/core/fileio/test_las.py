@@ -192,11 +192,11 @@ def test_no_silent_overwrite_and_atomic_write(tmp_path, monkeypatch):
     write_las(path, pts, overwrite=True)
     assert path.read_bytes() != before
     # A failure while writing leaves the old file and no temporary file.
-    import core.fileio.las as las_module
+    import core.fileio.staging as staging  # the one atomic single-file write
 
     def fail(*args, **kwargs):
         raise OSError("disk full")
-    monkeypatch.setattr(las_module.os, "replace", fail)
+    monkeypatch.setattr(staging.os, "replace", fail)
     current = path.read_bytes()
     with pytest.raises(OSError, match="disk full"):
         write_las(path, pts, overwrite=True)

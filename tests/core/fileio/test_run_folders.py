@@ -308,3 +308,34 @@ def test_overwrite_onto_a_real_mount_point_is_refused_and_leaves_nothing(tmp_pat
         pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
     assert "REFUSED" in done.stdout and "mount point" in done.stdout, done.stdout + done.stderr
     assert _names(tmp_path) == ["m", "r"]  # no ".old-…" folder, no staging
+
+
+def test_single_file_write_is_complete_or_absent(tmp_path):
+    """staging.write_file_atomically (previews, LAS, exported configs): all or nothing, no temporary left."""
+    from core.fileio.staging import write_file_atomically
+
+    path = tmp_path / "a.txt"
+    write_file_atomically(path, lambda f: f.write(b"one"), overwrite=False)
+    assert path.read_bytes() == b"one"
+    with pytest.raises(FileExistsError):
+        write_file_atomically(path, lambda f: f.write(b"two"), overwrite=False)
+
+    def appears_meanwhile(f):  # another writer creates the name while this one writes
+        f.write(b"three")
+        path.write_bytes(b"theirs")
+
+    path.unlink()
+    with pytest.raises(FileExistsError, match="created meanwhile"):
+        write_file_atomically(path, appears_meanwhile, overwrite=False)
+    assert path.read_bytes() == b"theirs"
+
+    def fails(f):
+        f.write(b"half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_file_atomically(path, fails)
+    assert path.read_bytes() == b"theirs"
+    write_file_atomically(path, lambda f: f.write(b"four"))
+    assert path.read_bytes() == b"four"
+    assert _names(tmp_path) == ["a.txt"]
