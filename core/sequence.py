@@ -23,6 +23,7 @@ from .run import run_metadata, simulate
 from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
 from .geometry.trace import SceneTracer
+from .fileio.las import las_run_facts, write_las
 
 
 def merge_points(point_sets: list[dict]) -> dict:
@@ -102,7 +103,6 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
             files["points_merged.npz"] = "the same as NumPy arrays"
             if len(merged.get("range_m", ())):
-                from .fileio.las import las_run_facts, write_las
                 write_las(tmp / "points_merged.las", merged, **las_run_facts(
                     {"system_type": config.system_type, "frames": frames, "seed": config.run.seed,
                      "units": units, "material_names": names}))

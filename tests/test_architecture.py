@@ -6,6 +6,7 @@ modules (module level, inside functions, under ``if``/``try``):
 * nothing imports through the ``core`` package namespace (core/__init__.py holds only the version and the old
   import paths), and core never imports bpy or the Blender side;
 * no module imports a private ``_name`` from another module;
+* core/ imports its own modules at module level (deferred imports only for optional heavy libraries);
 * there is no import cycle in core/ or in ladar_addon/;
 * ladar_addon/ never imports operators/ or panels/ (the UI sits on top of it), and its fields mapping imports no
   Blender at all.
@@ -151,6 +152,31 @@ def test_the_blender_side_is_a_one_way_chain():
     assert bad == []
 
 
+def _deferred_imports(name: str, path: Path):
+    """(line, imported module) of the imports inside functions of module ``name``."""
+    package = name if _is_package(name) else name.rpartition(".")[0]
+    for fn in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(fn):
+                if isinstance(node, ast.ImportFrom):
+                    base = package.split(".")[:len(package.split(".")) - node.level + 1] if node.level else []
+                    yield node.lineno, ".".join(base + ([node.module] if node.module else []))
+                elif isinstance(node, ast.Import):
+                    for alias in node.names:
+                        yield node.lineno, alias.name
+
+
+def test_core_defers_no_import_of_its_own_modules():
+    """In core/, a deferred (function-level) import is for an optional heavy library only (matplotlib, OpenEXR,
+    embreex): every dependency on another module of the simulator stands at the top of the module."""
+    bad = [f"{name}:{line} imports {module} inside a function" for name, path in SOURCES.items()
+           if name.startswith("core.") for line, module in _deferred_imports(name, path)
+           if module.split(".")[0] == "core"]
+    assert bad == []
+    assert ("ladar_addon.cli", "ladar_addon.job") in {  # the check sees imports inside functions
+        (n, m) for n in ("ladar_addon.cli",) for _, m in _deferred_imports(n, SOURCES[n])}
+
+
 def test_the_fields_mapping_needs_no_blender():
     name = "ladar_addon.fields"
     assert name in SOURCES
@@ -201,7 +227,8 @@ def test_no_import_cycle(package):
 def test_the_checker_sees_what_it_must():
     """The rules above are not vacuous: the edge list holds function-level imports, relative imports resolve,
     and a made-up cycle, an upward import and a private import would be caught."""
-    assert ("core.fileio.preview", "core.fileio.run_folder") in {(s, d) for s, d, _, _ in EDGES}  # in a function
+    assert ("ladar_addon.cli", "ladar_addon.job") in {(s, d) for s, d, _, _ in EDGES}  # in a function
+    assert ("core.fileio.preview", "core.fileio.run_folder") in {(s, d) for s, d, _, _ in EDGES}
     assert ("core.run", "core.systems.flash") in {(s, d) for s, d, _, _ in EDGES}
     assert _layer("core.physics.receiver.chain") == 3 and _layer("core.engine.frame") == 4
     EDGES.append(("core.geometry.scene", "core.geometry.trace", 0, ["_private"]))

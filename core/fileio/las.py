@@ -60,6 +60,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .staging import write_file_atomically
+from ..version import __version__
 
 LAS_VERSION = (1, 4)
 HEADER_SIZE = 375
@@ -316,7 +317,6 @@ def write_las(path, points: dict, *, coordinates: str = "world", intensity_unit:
     by_return = np.bincount(return_number, minlength=16)[1:16] if n else np.zeros(15, np.int64)
     date = creation_date or _dt.datetime.now(_dt.timezone.utc).date()
     if software is None:
-        from ..version import __version__
         software = f"ladar_simulator {__version__}"
     values = {
         "file_signature": b"LASF", "file_source_id": 0, "global_encoding": GLOBAL_ENCODING_WKT,

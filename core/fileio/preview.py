@@ -24,6 +24,7 @@ from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..physics.brdf import evaluate_brdf
 from .staging import write_file_atomically
+from .run_folder import read_exr
 
 #: What each image product shows: (title, colour map, scale starts at zero).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
@@ -304,7 +305,6 @@ def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
 
     Call it on a run folder that is still being assembled.  ``cancel()`` true stops between files.  Returns the
     written paths."""
-    from .run_folder import read_exr
 
     run_dir = Path(run_dir)
     written = []
@@ -388,7 +388,6 @@ def _slice_stack(run_dir, slice_files) -> np.ndarray:
         stack = np.load(npy, mmap_mode="r")
         if len(stack) == len(slice_files):
             return np.asarray(stack, dtype=np.float64)
-    from .run_folder import read_exr
     return np.stack([_first_channel(read_exr(p)) for p in slice_files]).astype(np.float64)
 
 

@@ -16,6 +16,8 @@ import numpy as np
 
 from ..constants import SPEED_OF_LIGHT_M_S
 from .staging import claim_run_dir
+from ..version import __version__
+from .las import las_run_facts, write_las
 
 EXR_COMPRESSION = "ZIP"  # Blender reads ZIP/PIZ/RLE/NONE, not ZSTD
 
@@ -114,7 +116,6 @@ def software_versions() -> dict:
             versions[mod] = getattr(__import__(mod), "__version__", "unknown")
         except ImportError:  # pragma: no cover - all are requirements
             versions[mod] = "missing"
-    from ..version import __version__
     versions["ladar_core"] = __version__
     if "bpy" in sys.modules:
         versions["blender"] = sys.modules["bpy"].app.version_string
@@ -155,7 +156,6 @@ def write_run_files(folder, result, metadata: dict) -> Path:
     files["points.ply"] = "point cloud, world coordinates + per-point attributes"
     files["points.npz"] = "the same point cloud as NumPy arrays"
     if len(result.points.get("range_m", ())):
-        from .las import las_run_facts, write_las
         write_las(tmp / "points.las", result.points, **las_run_facts(dict(metadata, units=units)))
         files["points.las"] = ("the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time, "
                                "scan angle, classes from the scene's materials, synthetic flag)")

@@ -11,7 +11,8 @@ import numpy as np
 
 from scipy.special import erf
 
-from ..atmosphere import extinction_from_visibility, gaussian_random_field
+from ..atmosphere import (extinction_from_visibility, gamma_factor_g_correlation, gaussian_random_field,
+                          unit_gamma_from_gaussian)
 from ..config.settings import SimulationConfig
 
 
@@ -51,7 +52,6 @@ def draw_return_factor(shape, pixel_footprint_m, variance_info: dict, rng, max_g
     px, py = variance_info["pixel_footprint_m"]
     if min(px, py) >= 2.0 * rho:
         return rng.gamma(alpha, var, size=shape), "gamma_independent_pixels"
-    from ..atmosphere import gamma_factor_g_correlation, unit_gamma_from_gaussian
     pitch = float(np.sqrt(px * py))  # isotropic grid (square pixels; the geometric mean otherwise)
     n_min = int(np.ceil(8 * rho / pitch))
     grid = (min(max(shape[0], n_min), max(shape[0], max_grid_px)), min(max(shape[1], n_min), max(shape[1], max_grid_px)))

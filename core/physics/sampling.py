@@ -22,6 +22,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 from ..constants import SPEED_OF_LIGHT_M_S
+from .laser import beam_half_angle_tan
 
 
 
@@ -165,7 +166,6 @@ class SubraySampler:
         self._beam = None
         self._nets = {}
         if laser is not None and laser.beam_profile == "gaussian":
-            from .laser import beam_half_angle_tan
             self._beam = (float(beam_offset_tan[0]), float(beam_offset_tan[1]),
                           beam_half_angle_tan(laser, det) * beam_width_scale)
         s = det.subsamples

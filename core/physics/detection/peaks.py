@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...config.settings import DetectionSettings
+from ..waveform import bucket_size
 
 #: Two bins closer than this (relative) count as one flat top (rounding in the bin integrals).
 _FLAT_RTOL = 1e-7
@@ -163,7 +164,6 @@ def detect_echoes_windows(windows, settings: DetectionSettings) -> Echoes:
     Every bin outside a pixel's window is exactly zero, which is what the detector assumes beyond the gate,
     so each window is detected on its own (pixels grouped by window length, zero padding to the right) and the
     positions are shifted back by the window's first bin."""
-    from ..waveform import bucket_size
 
     parts = []
     has = windows.length > 0

@@ -40,6 +40,7 @@ from .conversions import (adc_step_e, background_photons, bin_moments, current_t
                           noise_sigma_floor, photons_per_joule)
 from .geiger import geiger_histogram
 from .samplers import DENSE_MEAN, NORMAL_MEAN, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
+from .speckle import apply_mtf, optics_mtf_2d, speckle_gain_field
 
 #: Table route: signal bins with a mean below this are drawn by sparse placement (one Poisson total first).
 _SPARSE_MEAN = 1e-3
@@ -142,7 +143,6 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     run.append("photon_conversion")
     src = cube
     if det.enable_optics_mtf:
-        from .speckle import apply_mtf, optics_mtf_2d
         # zero padding (light from outside the field of view is not simulated) against FFT wrap-around:
         # 8 diffraction widths λ/D, at most the image size
         ifov = min(settings.ifov_x_rad, settings.ifov_y_rad)
@@ -164,7 +164,6 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     if det.speckle_dof > 0 and geiger:
         run.append("speckle")  # redrawn per pulse inside the Geiger simulation
     elif det.speckle_dof > 0:
-        from .speckle import speckle_gain_field
         spk = speckle_gain_field((H, W), det.speckle_dof, _child(ss, 1), correlated=det.speckle_correlated,
                                  wavelength_m=settings.wavelength_m,
                                  aperture_diameter_m=settings.aperture_diameter_m,
