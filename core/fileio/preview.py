@@ -9,8 +9,9 @@ has a title, axes with units and a colour bar (or a legend) wherever it is made.
 field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at the top).
 
 Every PNG is written atomically (``staging.write_file_atomically``: a hidden temporary file, then
-``os.replace``) and an existing file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks repeat what is drawn (``Title``,
-``Description``: the axes and colour-bar labels), for tools (and tests) that read them.
+``os.replace``) and an existing file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks
+repeat what is drawn (``Title``, ``Description``: the axes and colour-bar labels), for tools (and tests) that
+read them.
 """
 from __future__ import annotations
 

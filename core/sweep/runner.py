@@ -41,7 +41,7 @@ from ..config.settings import SimulationConfig
 from ..errors import Cancelled, ConfigError
 from ..fileio.preview import sweep_plot_png
 from ..fileio.run_folder import software_versions
-from ..fileio.staging import new_temp_file, remove_abandoned_staging
+from ..fileio.staging import remove_abandoned_staging, write_file_atomically
 from ..version import __version__
 from .scene import SweepScene, boresight_point, write_json_atomically
 from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed
@@ -212,16 +212,7 @@ def write_table(path, rows: list, columns: list) -> Path:
     w.writerow(columns)
     for r in rows:
         w.writerow([_cell(r.get(c, "")) for c in columns])
-    path = Path(path)
-    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_file_atomically(path, lambda f: f.write(buf.getvalue().encode("utf-8")))
 
 
 def read_table(path) -> list:

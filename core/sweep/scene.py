@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 from ..config.settings import BRDFSettings
 from ..errors import ConfigError
 from ..fileio.run_folder import json_default
-from ..fileio.staging import new_temp_file
+from ..fileio.staging import write_file_atomically
 from ..geometry.motion import Trajectory, split_pose
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer
@@ -141,14 +140,7 @@ class SweepScene:
         folder.mkdir(parents=True, exist_ok=True)
         arrays, meta = self._arrays_and_json()
         meta["digest"] = self.digest()
-        fd, tmp = new_temp_file(folder, ".scene.npz.", ".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(tmp, folder / "scene.npz")
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_file_atomically(folder / "scene.npz", lambda f: np.savez(f, **arrays))
         write_json_atomically(folder / "scene.json", meta)
         return folder
 
@@ -177,16 +169,8 @@ class SweepScene:
 
 def write_json_atomically(path, data) -> Path:
     """``json.dump`` through a hidden temporary file in the same folder, then renamed over ``path``."""
-    path = Path(path)
-    fd, tmp = new_temp_file(path.parent, f".{path.name}.", ".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=2, default=json_default)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    text = json.dumps(data, indent=2, default=json_default)
+    return write_file_atomically(path, lambda f: f.write(text.encode("utf-8")))
 
 
 def boresight_point(scene: SweepScene, frame: int) -> np.ndarray:
