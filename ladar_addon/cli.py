@@ -224,15 +224,15 @@ def _cmd_validate_config(scene, args) -> int:
     """What ``simulate`` would refuse before running: the settings, the material names the file overrides (the
     scene's exported materials) and the run's memory and work (core.engine.memory, without the memory free now)."""
     from ..core.engine.memory import check_memory
-    from .blend_config import config_from_blender
     from .export import scene_geometry_from_depsgraph
+    from .run_inputs import build_config
 
-    base, sensor = None, None
+    sensor = None
     if args.sensor is not None or (scene is not None and (scene.ladar.sensor or scene.camera) is not None):
         sensor = _sensor(scene, args.sensor)
-        base = config_from_blender(scene, sensor)
-    cfg = load_config(args.file, base=base if base is not None else SimulationConfig())
-    blend_materials = base.materials if base is not None else {}
+        cfg, blend_materials = build_config(scene, sensor, config_path=args.file)  # as simulate builds it
+    else:
+        cfg, blend_materials = load_config(args.file, base=SimulationConfig()), {}
     changed = {n: b for n, b in cfg.materials.items() if blend_materials.get(n) != b}
     if changed and scene is not None:  # simulate matches these by name against the exported scene
         scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(),

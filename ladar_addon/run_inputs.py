@@ -2,7 +2,6 @@
 the messages a run prints."""
 from __future__ import annotations
 
-import json
 import re
 import threading
 import time
@@ -11,7 +10,7 @@ from pathlib import Path
 import bpy
 
 from ..core.config.validate import validate
-from ..core.config.files import load_config
+from ..core.config.files import config_from_dict, read_config_file
 from ..core.process import emit
 from .errors import LadarError
 from .blend_config import check_sensor, config_from_blender
@@ -58,18 +57,6 @@ def resolve_run_dir(scene, sensor, frame: int, out_dir=None, last_frame: int | N
     return Path(path).expanduser().resolve()
 
 
-def _file_keys(config_path) -> dict:
-    """The raw top-level tables of a config file (to tell which settings it sets explicitly)."""
-    path = Path(config_path)
-    try:
-        if path.suffix.lower() == ".toml":
-            import tomllib
-            return tomllib.loads(path.read_text(encoding="utf-8"))
-        return json.loads(path.read_text(encoding="utf-8"))
-    except Exception:  # load_config reports the error properly
-        return {}
-
-
 def build_config(scene, sensor, *, config_path=None, seed=None):
     """The run's settings: the .blend's, then the config file's, then ``seed``.  Validated.
 
@@ -79,8 +66,9 @@ def build_config(scene, sensor, *, config_path=None, seed=None):
     cfg = config_from_blender(scene, sensor)
     blender_materials = dict(cfg.materials)
     if config_path is not None:
-        cfg = load_config(config_path, base=cfg)
-        receiver = _file_keys(config_path).get("receiver", {})
+        data = read_config_file(config_path)
+        cfg = config_from_dict(data, base=cfg)
+        receiver = data.get("receiver", {})  # the settings the file sets itself
         if not isinstance(receiver, dict) or not ({"fov_x_rad", "fov_y_rad"} & set(receiver)):
             rx = cfg.receiver
             rx.fov_x_rad, rx.fov_y_rad = camera_receiver_fov_rad(sensor.data, rx.width_px, rx.height_px)

@@ -72,6 +72,13 @@ def config_from_dict(data: dict, base: SimulationConfig | None = None) -> Simula
 
 def load_config(path, base: SimulationConfig | None = None) -> SimulationConfig:
     """Read a JSON (``.json``) or TOML (``.toml``) config file; its keys override ``base``."""
+    return config_from_dict(read_config_file(path), base)
+
+
+def read_config_file(path):
+    """The table a JSON or TOML config file holds, not yet checked as settings (:func:`config_from_dict` does
+    that).  A file that cannot be read as one — missing, another suffix, not UTF-8, not valid JSON/TOML, nested
+    deeper than ``MAX_CONFIG_DEPTH`` — is a one-line ConfigError naming the file."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError("config file", str(path), "an existing .json or .toml file")
@@ -94,7 +101,7 @@ def load_config(path, base: SimulationConfig | None = None) -> SimulationConfig:
         raise ConfigError("config file", str(path), f"valid {kind} ({cut(str(exc), 200)})") from None
     if _depth(data) > MAX_CONFIG_DEPTH:
         raise ConfigError("config file", str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep")
-    return config_from_dict(data, base)
+    return data
 
 
 #: Deepest nesting a config file may have (materials.<name>.table_angle_deg[i] is 4).

@@ -83,10 +83,11 @@ class Frame:
 
 def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, log: StageLog, *,
                tracer: SceneTracer | None = None, preflight=None, frustum_tan=None,
-               fov_culling: bool | None = None) -> Frame:
+               fov_culling: bool | None = None, posed_by_trajectory: bool = False) -> Frame:
     """Open one frame (module docstring).  Raises ConfigError on bad settings, scene or pose.
 
-    ``world_from_sensor``: 4×4 sensor→world matrix, or None when the system poses every pulse from a trajectory.
+    ``world_from_sensor``: 4×4 sensor→world matrix; None only with ``posed_by_trajectory`` (the system poses every
+    pulse from a trajectory), otherwise a ConfigError like any other matrix that is not a finite 4×4.
     ``tracer``: a BVH built on this scene's geometry (static scenes: one BVH for all frames) is reused.
     The memory and work estimate of the frame (:func:`~.memory.check_memory`, every system) refuses, naming the
     setting to change, a frame that would not fit or not end, before anything is built; it is ``Frame.memory``.
@@ -100,7 +101,7 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
     checked = preflight(config) if preflight is not None else None
     scene = scene.with_overrides(config.materials)
     scene.check()
-    origin, rot = split_pose(world_from_sensor) if world_from_sensor is not None else (None, None)
+    origin, rot = (None, None) if world_from_sensor is None and posed_by_trajectory else split_pose(world_from_sensor)
     t0 = time.perf_counter()
     bvh = {}
     built = tracer is None or not tracer.serves(scene)

@@ -17,14 +17,27 @@ from ..errors import ConfigError
 
 def split_pose(world_from_sensor):
     """(origin (3,), rotation (3, 3) with unit columns) of a 4×4 sensor-to-world matrix (scale removed)."""
-    m = np.asarray(world_from_sensor, dtype=np.float64)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise ConfigError("sensor.matrix_world", "shape %s" % (m.shape,), "a finite 4×4 matrix")
+    m = _real_array("sensor.matrix_world", world_from_sensor, (4, 4), "a finite 4×4 matrix")
+    if not np.all(np.isfinite(m)):
+        raise ConfigError("sensor.matrix_world", "non-finite values", "a finite 4×4 matrix")
     rot = m[:3, :3]
     scale = np.linalg.norm(rot, axis=0)
     if np.any(scale == 0):
         raise ConfigError("sensor.matrix_world", "zero scale", "an invertible rotation (non-zero scale)")
     return m[:3, 3].copy(), rot / scale
+
+
+def _real_array(name: str, value, shape: tuple, allowed: str) -> np.ndarray:
+    """``value`` as float64 if it is an array of real numbers of ``shape`` (None: any length); ConfigError
+    naming ``name``, its shape and dtype otherwise (never reshaped)."""
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError):
+        raise ConfigError(name, "not a rectangular array", allowed) from None
+    if a.dtype.kind not in "iuf" or len(a.shape) != len(shape) or any(
+            n is not None and m != n for m, n in zip(a.shape, shape)):
+        raise ConfigError(name, f"shape {a.shape}, dtype {a.dtype}", f"{allowed} of real numbers")
+    return a.astype(np.float64)
 
 
 @dataclass
@@ -35,8 +48,9 @@ class Trajectory:
     matrices: np.ndarray
 
     def __post_init__(self):
-        self.times_s = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
-        self.matrices = np.asarray(self.matrices, dtype=np.float64).reshape(-1, 4, 4)
+        self.times_s = _real_array("trajectory.times_s", self.times_s, (None,), "(n,) times in seconds")
+        self.matrices = _real_array("trajectory.matrices", self.matrices, (None, 4, 4),
+                                    "(n, 4, 4) sensor→world matrices")
         if len(self.times_s) != len(self.matrices) or len(self.times_s) == 0:
             raise ConfigError("trajectory", f"{len(self.times_s)} times, {len(self.matrices)} poses",
                               "as many poses as times (at least one)")

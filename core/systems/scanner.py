@@ -265,7 +265,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     and whose ``points`` and ``pulses`` carry the products (see module docstring).  The sensor moves along
     ``trajectory`` (poses sampled in time) or stays at ``world_from_sensor``."""
     log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products"), STAGES_PLANNED)
-    fr = open_frame(scene, world_from_sensor if trajectory is None else None, config, log, tracer=tracer)
+    fr = open_frame(scene, world_from_sensor if trajectory is None else None, config, log, tracer=tracer,
+                    posed_by_trajectory=trajectory is not None)
     scene, tracer, times = fr.scene, fr.tracer, log.times
     if trajectory is None:
         trajectory = Trajectory.static(world_from_sensor)

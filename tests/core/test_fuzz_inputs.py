@@ -184,7 +184,8 @@ def test_malformed_scene_arrays_are_refused_cleanly(tmp_path_factory, data):
 def test_what_is_not_a_config_is_refused_cleanly(tmp_path_factory, config):
     out = tmp_path_factory.mktemp("run")
     scene = SceneGeometry(V, [[0, 1, 2], [0, 2, 3]], [0, 0])
-    for call in (lambda: simulate(scene, np.eye(4), config), lambda: run_simulation(scene, np.eye(4), config, out / "r")):
+    for call in (lambda: simulate(scene, np.eye(4), config),
+                 lambda: run_simulation(scene, np.eye(4), config, out / "r")):
         with pytest.raises(ConfigError) as exc:
             call()
         _clean(exc.value, "config")
@@ -208,3 +209,29 @@ def test_json_special_numbers_in_files(tmp_path):
         with pytest.raises(ConfigError) as exc:
             load_config(p)
         _clean(exc.value, "laser.pulse_energy_j")
+
+
+@FUZZ
+@given(st.data())
+def test_malformed_poses_and_trajectories_are_refused_cleanly(data):
+    """Sensor poses (4×4) and scanner trajectories ((n,) times, (n, 4, 4) poses) of random shape, dtype and
+    values: accepted exactly as given or refused with one clean line, never reshaped or a traceback."""
+    from core.geometry.motion import Trajectory, split_pose
+    pose = _array(data, 4, 4, coord_values)
+    try:
+        origin, rot = split_pose(pose)
+    except ConfigError as exc:
+        _clean(exc, "sensor.")
+    else:
+        assert pose.shape == (4, 4) and pose.dtype.kind in "iuf"
+        assert np.isfinite(origin).all() and np.isfinite(rot).all()
+    n = data.draw(st.integers(0, 3))
+    times = np.arange(n, dtype=float) if data.draw(st.booleans()) else _array(data, n, 0, coord_values)
+    matrices = (np.stack([np.eye(4)] * n) if n else np.zeros((0, 4, 4))) if data.draw(st.booleans()) \
+        else _array(data, n, 4, coord_values)
+    try:
+        traj = Trajectory(times, matrices)
+    except ConfigError as exc:
+        _clean(exc, "trajectory")
+        return
+    assert traj.matrices.shape == (len(traj.times_s), 4, 4) and np.asarray(times).shape == (len(traj.times_s),)

@@ -118,3 +118,37 @@ def test_whole_number_float_indices_are_accepted():
     s = SceneGeometry(V, np.array(T, float), np.zeros(2))
     assert s.triangles.dtype == np.int32 and s.material_ids.dtype == np.int32
     assert s.triangles.tolist() == T
+
+
+@pytest.mark.parametrize("system", ["flash", "profiler", "scanner", "gated"])
+@pytest.mark.parametrize("pose", [None, np.eye(3), np.full((4, 4), np.nan), "pose"])
+def test_a_pose_that_is_not_a_4x4_matrix_is_refused_by_every_system(tmp_path, system, pose):
+    """Every system opens its frame through the engine: a missing or malformed sensor pose is one ConfigError
+    (before the Engine refactor's None-means-trajectory rule, None reached the culling as a ValueError)."""
+    cfg = SimulationConfig()
+    cfg.system_type = system
+    cfg.receiver.width_px = cfg.receiver.height_px = 4
+    cfg.scanner.n_lines = 4
+    for call in (lambda: simulate(SceneGeometry(V, T, [0, 0]), pose, cfg),
+                 lambda: run_simulation(SceneGeometry(V, T, [0, 0]), pose, cfg, tmp_path / "run")):
+        with pytest.raises(ConfigError) as exc:
+            call()
+        _one_line(exc, "sensor.matrix_world", "a finite 4×4 matrix")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("times,matrices,fragments", [
+    ([0.0, 1.0], np.zeros((2, 3, 4)), ["trajectory.matrices", "shape (2, 3, 4)", "(n, 4, 4)"]),
+    ([0.0, 1.0], np.tile(np.eye(4), (2, 1)).reshape(8, 4), ["trajectory.matrices", "shape (8, 4)"]),
+    (np.array([[0.0, 1.0]]), np.stack([np.eye(4)] * 2), ["trajectory.times_s", "shape (1, 2)", "(n,)"]),
+    (["a", "b"], np.stack([np.eye(4)] * 2), ["trajectory.times_s", "dtype <U1"]),
+    ([0.0, 1.0], [np.eye(4), np.eye(3)], ["trajectory.matrices", "not a rectangular array"]),
+    ([0.0, 1.0], np.stack([np.eye(4)] * 2).astype(complex), ["trajectory.matrices", "complex128"]),
+])
+def test_trajectory_arrays_are_checked_not_reshaped(times, matrices, fragments):
+    """A scanner's trajectory is a core-API array too: (n,) times and (n, 4, 4) poses, never reshaped (an (8, 4)
+    stack of two poses was read as two 4×4 matrices by reshape, a (2, 3, 4) array gave a ValueError)."""
+    from core.geometry.motion import Trajectory
+    with pytest.raises(ConfigError) as exc:
+        Trajectory(times, matrices)
+    _one_line(exc, *fragments)

@@ -166,3 +166,18 @@ def test_profiler_is_checked_as_one_element(tmp_path):
     cfg.detector.mode, cfg.detector.detector_type = "noisy", "geiger"
     cfg.detector.geiger_pulses, cfg.detector.geiger_dead_time_bins = 10_000_000, 0
     _refused(tmp_path, cfg, "detector.geiger_pulses", "samples")
+
+
+def test_geiger_histogram_memory_is_counted(tmp_path):
+    """Geiger mode keeps float64 rates and pile-up probabilities and an int64 histogram per (pixel, bin): 48 B
+    beyond the float32 cube (measured 52 B in all).  512² px × 4096 bins needs ≈ 52 GiB: refused under a 30 GiB
+    limit, naming gate.n_bins, where the linear chain's 16 B/sample of the old estimate (≈ 20 GiB) let it start."""
+    cfg = _cfg(pixels=512, bins=4096, sub=1)
+    cfg.detector.mode, cfg.detector.detector_type = "noisy", "geiger"
+    cfg.run.save_waveforms = False
+    cfg.run.max_memory_bytes = 2 ** 40
+    est = estimate_memory(cfg)
+    samples = 512 ** 2 * 4096
+    assert est["parts"]["receiver_chain"] == 48 * samples and est["parts"]["waveform_cube"] == 4 * samples
+    cfg.run.max_memory_bytes = 30 * 2 ** 30
+    _refused(tmp_path, cfg, "gate.n_bins", "receiver_chain")
