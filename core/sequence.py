@@ -10,13 +10,14 @@ geometry) the ray-tracing acceleration structure is built once and reused.
 from __future__ import annotations
 
 import json
+import operator
 import time
 
 import numpy as np
 
 from .errors import ConfigError
 from .config.settings import SimulationConfig
-from .config.validate import validate
+from .config.validate import validate_config
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
@@ -61,12 +62,15 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     (scanner motion within a frame), start_time_for_frame(frame) -> seconds (the scanner's GPS-style time).
     Returns (run_path, list of per-frame stats).
     """
-    frames = [int(f) for f in frames]
+    try:  # whole numbers only: int() would truncate 1.5 to frame 1
+        frames = [operator.index(f) for f in frames]
+    except TypeError:
+        raise ConfigError("frames", frames, "an iterable of whole frame numbers") from None
     if not frames:
         raise ConfigError("frames", frames, "at least one frame")
     if len(set(frames)) != len(frames):
         raise ConfigError("frames", frames, "distinct frame numbers")
-    validate(config)
+    validate_config(config)  # a SimulationConfig (not None or a dict), before the folder is claimed
     with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
         tmp = claim.work
         tmp.mkdir()

@@ -152,3 +152,23 @@ def test_trajectory_arrays_are_checked_not_reshaped(times, matrices, fragments):
     with pytest.raises(ConfigError) as exc:
         Trajectory(times, matrices)
     _one_line(exc, *fragments)
+
+
+@pytest.mark.parametrize("frames,config,fragments", [
+    ([1, 2], None, ["config = 'a NoneType'", "a SimulationConfig"]),
+    ([1, 2], {"laser": {}}, ["config = 'a dict'"]),
+    ([1.5, 2], "ok", ["frames = [1.5, 2]", "whole frame numbers"]),
+    (None, "ok", ["frames = None"]),
+    (["a"], "ok", ["frames = ['a']"]),
+])
+def test_a_sequence_refuses_what_is_not_a_config_or_a_frame_number(tmp_path, frames, config, fragments):
+    """core.sequence.run_sequence is a core API too: None or a dict as config was an AttributeError, and
+    ``int()`` truncated frame 1.5 to frame 1 silently."""
+    from core.sequence import run_sequence
+    cfg = SimulationConfig()
+    cfg.receiver.width_px = cfg.receiver.height_px = 4
+    with pytest.raises(ConfigError) as exc:
+        run_sequence(frames, lambda f: SceneGeometry(V, T, [0, 0]), lambda f: np.eye(4),
+                     cfg if config == "ok" else config, tmp_path / "seq")
+    _one_line(exc, *fragments)
+    assert list(tmp_path.iterdir()) == []
