@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from ..core.atmosphere.extinction import extinction_from_visibility
-from ..core.atmosphere.turbulence import derived_turbulence
+from ..core.atmosphere.derived import derived_turbulence
 from ..core.physics.laser import pulse_cdf
 from ..core.physics.receiver.conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons,
                                                  mcintyre_excess_noise, photons_per_joule)
@@ -29,12 +29,15 @@ def extinction_per_m(atmosphere, wavelength_m: float) -> float:
 
 def atmosphere_figures(atmosphere, wavelength_m: float, range_m: float) -> dict:
     """Extinction, two-way transmission at ``range_m`` and (when Cn² > 0) the spherical-wave turbulence figures
-    of :func:`core.atmosphere.turbulence.derived_turbulence`."""
+    of :func:`core.atmosphere.derived.derived_turbulence`."""
     sigma = extinction_per_m(atmosphere, wavelength_m)
     out = {"wavelength_m": float(wavelength_m), "range_m": float(range_m), "extinction_per_m": sigma,
            "extinction_per_km": sigma * 1e3, "two_way_transmission": math.exp(-2.0 * sigma * range_m)}
     if atmosphere.cn2_m_23 > 0.0:
-        out["turbulence"] = derived_turbulence(atmosphere.cn2_m_23, wavelength_m, range_m, wave="spherical")
+        out["turbulence"] = derived_turbulence(
+            atmosphere.cn2_m_23, wavelength_m, range_m, wave="spherical",
+            statistics=atmosphere.scintillation_statistics, inner_scale_m=atmosphere.inner_scale_m,
+            outer_scale_m=atmosphere.outer_scale_m if atmosphere.outer_scale_m > 0.0 else math.inf)
     return out
 
 
@@ -133,8 +136,10 @@ def atmosphere_lines(atmosphere, wavelength_m: float, range_m: float) -> list[st
         lines += [f"Rytov variance σ_R² {t['rytov_variance_plane']:.4g} (spherical β0² "
                   f"{t['rytov_variance_spherical']:.4g}), {t['regime']}",
                   f"ρ0 {_km(t['rho0_spherical_m'])} m, r0 {_km(t['r0_spherical_m'])} m (spherical)",
-                  f"Cell radius (eq. 3-6) {t['cell_radius_m']:.4g} m",
-                  f"σ_lnI² {t['sigma2_lnI']:.4g}, scintillation index {t['scintillation_index']:.4g}"]
+                  (f"Cell radius (eq. 3-6) {t['cell_radius_m']:.4g} m" if t["scintillation_statistics"] == "paper"
+                   else f"Cell radius (wave-optics 1/e) {t['cell_radius_m']:.4g} m"),
+                  f"σ_lnI² {t['sigma2_lnI']:.4g}, scintillation index {t['scintillation_index']:.4g} "
+                  f"({t['scintillation_statistics'].replace('_', ' ')})"]
     return lines
 
 

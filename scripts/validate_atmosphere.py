@@ -4,7 +4,8 @@
     .venv/bin/python scripts/validate_atmosphere.py [OUT_DIR] [--seed N] [--quick]
 
 OUT_DIR defaults to docs/validation/atmosphere/.  Writes scintillation_pdf.png, correlation.png, mtf.png,
-transmission.png, si_vs_rytov.png and summary.md.  Runtime ≈ 1 min on 2 cores (--quick: ≈ 20 s).
+transmission.png, si_vs_rytov.png, si_vs_beta2.png, radius_vs_beta2.png and summary.md.  The wave-optics
+comparison reads the split-step runs of scripts/tabulate_scintillation.py (bench/results/scintillation_wave_optics.json).  Runtime ≈ 1 min on 2 cores (--quick: ≈ 20 s).
 """
 from __future__ import annotations
 
@@ -37,6 +38,89 @@ def one_over_e(prof, pitch):
     j = np.nonzero(prof < math.exp(-1))[0][0]
     p0, p1 = prof[j - 1], prof[j]
     return (j - 1 + (p0 - math.exp(-1)) / (p0 - p1)) * pitch
+
+
+def wave_optics_section(out, nreal_patterns=8):
+    """Plots si_vs_beta2.png and radius_vs_beta2.png and returns summary rows: the split-step wave-optics runs
+    (the shipped table and the off-grid validation cases of bench/results/scintillation_wave_optics.json, made by
+    scripts/tabulate_scintillation.py), the product (the table model, and SI/radius measured on the patterns the
+    simulator generates at the validation cases) and the paper's formulas, over β0²."""
+    import json
+    from core.atmosphere import phasescreen as ps
+    from core.atmosphere import wave_optics as wo
+    runs = json.loads((Path(__file__).resolve().parents[1] / "bench" / "results"
+                       / "scintillation_wave_optics.json").read_text())
+    t = wo.load_table()
+    lam, L = 532e-9, 1e3
+    F = float(atm.fresnel_scale(lam, L))
+    unit = float(atm.rytov_variance(1.0, lam, L, "spherical"))
+    bgrid = np.geomspace(0.02, 12, 120)
+    measured = []
+    for v in runs["validation"]:
+        lags = np.asarray(v["lags_m"])
+        acc = None
+        for seed in range(nreal_patterns):
+            p = atm.make_scintillation_pattern((-0.2, 0.2, -0.2, 0.2), v["cn2_m_23"], v["wavelength_m"], v["range_m"],
+                                               np.random.default_rng(seed), wave=v["wave"],
+                                               inner_scale_m=v["inner_scale_m"], max_grid_px=1024)
+            if acc is None:
+                acc = ps.IntensityStatistics(p.values.shape[0], p.pitch_m, lags[lags <= p.values.shape[0] * p.pitch_m / 3])
+            acc.add(p.values)
+        measured.append(acc.result())
+    rows = []
+    figs = {}
+    for quantity in ("si", "radius"):
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
+        for ax, wave in zip(axes, ("spherical", "plane")):
+            w = t["waves"].index(wave)
+            for j, (l0f, col) in enumerate(zip(t["l0_over_f"], ("C0", "C2", "C4"))):
+                model = [wo.statistics(b / unit, lam, L, wave, l0f * F) for b in bgrid]
+                y = [m["scintillation_index"] if quantity == "si" else m["correlation_radius_m"] / F for m in model]
+                ax.plot(bgrid, y, col, lw=1, label=f"product (table), l0/F = {l0f:g}")
+                ys = (t["scintillation_index"][w, j] if quantity == "si" else
+                      [ps.one_over_e_radius_profile(t["lags_over_f"], c) for c in t["covariance"][w, j]])
+                ax.plot(t["beta2"], ys, col + "o", ms=3, mfc="none", label=f"split-step, l0/F = {l0f:g}")
+            if quantity == "si":
+                s_w = bgrid if wave == "spherical" else bgrid / 0.406
+                ax.plot(bgrid, atm.scintillation_index(atm.log_intensity_variance(s_w, wave)), "k--", lw=1,
+                        label="paper formula (all-regime)")
+                ax.plot(bgrid, s_w, "k:", lw=1, label="first order (β0², σ_R²)")
+            else:
+                rho0 = atm.coherence_radius(bgrid / unit, lam, L, wave)
+                ax.plot(bgrid, atm.cell_radius(lam, L, rho0) / F, "k--", lw=1, label="paper eq. 3-6")
+            for v, m in zip(runs["validation"], measured):
+                if v["wave"] != wave:
+                    continue
+                Fv = v["fresnel_scale_m"]
+                ref = v["scintillation_index"] if quantity == "si" else v["correlation_radius_over_f"]
+                got = m["scintillation_index"] if quantity == "si" else m["correlation_radius_m"] / Fv
+                ax.plot(v["beta2"], ref, "ks", ms=5, mfc="none")
+                ax.plot(v["beta2"], got, "rx", ms=6)
+            ax.plot([], [], "ks", mfc="none", label="split-step, validation case")
+            ax.plot([], [], "rx", label="product pattern, measured")
+            ax.set(xscale="log", yscale="log" if quantity == "si" else "linear", xlabel="β0²", title=wave)
+            ax.grid(alpha=0.3)
+        axes[0].set_ylabel("SI" if quantity == "si" else "1/e covariance radius / √(L/k)")
+        axes[1].legend(fontsize=6)
+        fig.tight_layout()
+        name = "si_vs_beta2.png" if quantity == "si" else "radius_vs_beta2.png"
+        fig.savefig(out / name, dpi=DPI)
+        plt.close(fig)
+        figs[quantity] = name
+    for v, m in zip(runs["validation"], measured):
+        st = wo.statistics(v["cn2_m_23"], v["wavelength_m"], v["range_m"], v["wave"], v["inner_scale_m"])
+        Fv = v["fresnel_scale_m"]
+        paper = atm.derived_turbulence(v["cn2_m_23"], v["wavelength_m"], v["range_m"], wave=v["wave"],
+                                       statistics="paper")
+        label = (f"{v['wave']} {v['wavelength_m'] * 1e9:.0f} nm, Cn² {v['cn2_m_23']:.0e} (β0² {v['beta2']:.3g}), "
+                 f"l0 {v['inner_scale_m'] * 1e3:g} mm")
+        rows.append((f"SI {label}: wave optics / product table / product pattern / paper",
+                     f"{v['scintillation_index']:.4f} / {st['scintillation_index']:.4f} / "
+                     f"{m['scintillation_index']:.4f} / {paper['scintillation_index']:.4f}", "±10 %"))
+        rows.append((f"1/e radius [mm] {label}: wave optics / table / pattern / paper",
+                     f"{v['correlation_radius_over_f'] * Fv * 1e3:.2f} / {st['correlation_radius_m'] * 1e3:.2f} / "
+                     f"{m['correlation_radius_m'] * 1e3:.2f} / {paper['cell_radius_m'] * 1e3:.2f}", "±10 %"))
+    return rows
 
 
 def main(argv=None):
@@ -202,6 +286,9 @@ def main(argv=None):
         rows.append((f"split-step SI at σ_R² = {sr} (all-regime formula {th:.4f})", f"{si:.4f} ± {err:.4f}",
                      "reference"))
 
+    # ---------------------------------------------------------------- wave optics vs product vs formulas (issue 17)
+    rows += wave_optics_section(out, nreal_patterns=4 if args.quick else 8)
+
     # ---------------------------------------------------------------- beam wander
     rc2 = float(atm.beam_wander_variance(1e-14, 2e3, 0.02))
     d = atm.beam_wander_offsets(rc2, rng, 100_000)
@@ -215,7 +302,8 @@ def main(argv=None):
              "| quantity | measured | tolerance / reference |", "|---|---|---|"]
     lines += [f"| {q} | {m} | {t} |" for q, m, t in rows]
     lines += ["", "Plots: `scintillation_pdf.png`, `correlation.png`, `mtf.png`, `transmission.png`, "
-                  "`si_vs_rytov.png`.", ""]
+                  "`si_vs_rytov.png`, `si_vs_beta2.png` and `radius_vs_beta2.png` (split-step wave optics vs the "
+                  "product vs the paper's formulas, issue 17).", ""]
     (out / "summary.md").write_text("\n".join(lines), encoding="utf-8")
     print("\n".join(lines))
     return 0

@@ -19,6 +19,7 @@ Marginal transforms
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -28,8 +29,10 @@ from scipy import fft as sfft
 from scipy.special import gammainccinv, gammaincinv, ndtr, ndtri
 
 from . import turbulence as tb
+from . import wave_optics as wo
+from .derived import derived_turbulence
 
-PATTERN_MODELS = ("auto", "lognormal", "gamma_gamma")
+PATTERN_MODELS = ("auto", "lognormal", "gamma_gamma", "gamma_lognormal")
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -49,12 +52,23 @@ def field_spectrum(shape, pitch_m, correlation):
     ``correlation(r_m)`` must return ρ_g(r) with ρ_g(0) = 1.  Returns (P, clipped_fraction) where
     clipped_fraction is the fraction of spectral power that was negative and set to zero.
     """
-    rho = correlation(periodic_distances(shape, pitch_m))
+    ny, nx = shape
+    # the correlation is evaluated on one quadrant of minimum-image distances and mirrored (4× fewer calls)
+    qy, qx = ny // 2 + 1, nx // 2 + 1
+    quad = correlation(np.hypot(np.arange(qy)[:, None] * float(pitch_m), np.arange(qx)[None, :] * float(pitch_m)))
+    iy = np.minimum(np.arange(ny), ny - np.arange(ny))
+    ix = np.minimum(np.arange(nx), nx - np.arange(nx))
+    rho = quad[iy[:, None], ix[None, :]]
     p = sfft.rfft2(rho).real
     neg = -p[p < 0.0].sum()
     tot = np.abs(p).sum()
     p = np.maximum(p, 0.0)
-    var = sfft.irfft2(p, s=shape)[0, 0]
+    # IDFT(P)[0] without a transform: the half-plane columns other than 0 (and nx/2) stand for two
+    weight = np.full(p.shape[1], 2.0)
+    weight[0] = 1.0
+    if nx % 2 == 0:
+        weight[-1] = 1.0
+    var = float(p.sum(axis=0) @ weight) / (ny * nx)
     if not var > 0.0:
         raise ValueError("correlation has no positive spectral power on this grid")
     return p / var, (neg / tot if tot > 0 else 0.0)
@@ -71,6 +85,38 @@ def gaussian_random_field(shape, pitch_m, correlation, rng, spectrum=None):
         spectrum, _ = field_spectrum(shape, pitch_m, correlation)
     w = rng.standard_normal(shape)
     return sfft.irfft2(np.sqrt(spectrum) * sfft.rfft2(w), s=shape)
+
+
+def _full_plane(half, shape):
+    """The full (ny, nx) spectrum of a real, even field from its rfft2 half plane."""
+    ny, nx = shape
+    full = np.empty(shape)
+    h = half.shape[1]
+    full[:, :h] = half
+    if nx - h > 0:
+        kx = np.arange(h, nx)
+        full[:, h:] = half[(-np.arange(ny)) % ny][:, nx - kx]
+    return full
+
+
+def gaussian_random_field_pair(shape, pitch_m, correlation_a, correlation_b, rng):
+    """Two independent zero-mean, unit-variance Gaussian fields with correlations ρ_a and ρ_b, from one
+    complex transform (same statistics as two :func:`gaussian_random_field` calls at about half the cost).
+
+    Complex white noise W (E|W|² = 2N) has the spectra of two real white fields as its Hermitian parts,
+    ŵ_a = (W(k) + W*(−k))/2 and ŵ_b = (W(k) − W*(−k))/(2i); the real and imaginary parts of
+    IDFT(√P_a ŵ_a + i √P_b ŵ_b) are then the two fields exactly.
+    """
+    ny, nx = shape
+    pa = _full_plane(field_spectrum(shape, pitch_m, correlation_a)[0], shape)
+    pb = _full_plane(field_spectrum(shape, pitch_m, correlation_b)[0], shape)
+    n = ny * nx
+    w = rng.standard_normal((2, ny, nx))
+    w = math.sqrt(n) * (w[0] + 1j * w[1])
+    wm = np.conj(np.roll(np.flip(w, (0, 1)), 1, axis=(0, 1)))      # W*(−k)
+    z = np.sqrt(pa) * (0.5 * (w + wm)) + np.sqrt(pb) * (0.5 * (w - wm))
+    g = sfft.ifft2(z)
+    return g.real, g.imag
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -142,11 +188,40 @@ def unit_gamma_from_gaussian(g, shape_param):
     return out / a
 
 
+#: Nodes of the tabulated translation ln X(g) (:func:`unit_gamma_transform`): uniform on [−8.5, 8.5].
+_TRANSFORM_NODES = np.linspace(-8.5, 8.5, 4097)
+_TRANSFORM_STEP = 17.0 / 4096
+
+
+@functools.lru_cache(maxsize=64)
+def _log_unit_gamma_table(shape_param):
+    return np.log(unit_gamma_from_gaussian(_TRANSFORM_NODES, shape_param))
+
+
+def unit_gamma_transform(g, shape_param):
+    """Fast :func:`unit_gamma_from_gaussian`: ln X tabulated on 4097 nodes of g ∈ [−8.5, 8.5] (exact
+    inverse there) and interpolated linearly, then exponentiated.  ln X is smooth in g (≈ −g²/(2α) in the
+    lower tail), so the relative error is < 1e-5 for α ≥ 0.5 (test); |g| > 8.5 (probability 2e-17) is
+    clamped.  Used by the pattern generators; α = inf gives 1."""
+    a = float(shape_param)
+    g = np.asarray(g, dtype=np.float64)
+    if not math.isfinite(a):
+        return np.ones_like(g)
+    tab = _log_unit_gamma_table(a)
+    u = np.clip((g - _TRANSFORM_NODES[0]) * (1.0 / _TRANSFORM_STEP), 0.0, len(tab) - 1.000001)
+    i = u.astype(np.intp)
+    f = u - i
+    return np.exp(tab[i] * (1.0 - f) + tab[i + 1] * f)
+
+
+@functools.lru_cache(maxsize=64)
 def _gamma_translation_correlation(shape_param, n_terms=40, n_nodes=160):
     """Tabulated map ρ_g → corr(X1, X2) for X = unit_gamma_from_gaussian(g, α) (Hermite expansion).
 
     corr = Σ_{n≥1} d_n² ρ^n / Σ d_n², d_n = E[h(Z) ψ_n(Z)] with ψ_n the orthonormal Hermite polynomials,
-    by Gauss–Hermite quadrature.  Returns (rho_g_table, corr_table), both increasing on [0, 1].
+    by Gauss–Hermite quadrature.  Returns (rho_g_table, corr_table) on ρ_g ∈ [−1, 1] (the nodes on [0, 1]
+    are those of a 4001-point grid), corr made non-decreasing (a negative target beyond the reachable minimum
+    maps to ρ_g = −1).
     """
     z, w = hermegauss(n_nodes)
     w = w / math.sqrt(2.0 * math.pi)
@@ -158,19 +233,22 @@ def _gamma_translation_correlation(shape_param, n_terms=40, n_nodes=160):
         d.append(np.sum(w * h * psi))
         psi_prev, psi = psi, (z * psi - math.sqrt(n) * psi_prev) / math.sqrt(n + 1)
     d2 = np.asarray(d) ** 2
-    rho = np.linspace(0.0, 1.0, 4001)
+    rho = np.linspace(-1.0, 1.0, 8001)
     corr = (rho[:, None] ** np.arange(1, n_terms + 1)[None, :]) @ d2 / d2.sum()
-    return rho, corr
+    return rho, np.maximum.accumulate(corr)
 
 
-def gamma_factor_g_correlation(shape_param, radius_m):
-    """ρ_g(r) such that X = unit_gamma_from_gaussian(g, α) has correlation exactly exp(−r²/radius²).
+def gamma_factor_g_correlation(shape_param, radius_m=None, target=None):
+    """ρ_g(r) such that X = unit_gamma_from_gaussian(g, α) has correlation exactly exp(−r²/radius²), or
+    ``target(r)`` when given (a correlation function with target(0) = 1, in [−1, 1]).
 
-    Inverse of the Hermite-expansion map (translation fields lose correlation, so ρ_g ≥ the target).
+    Inverse of the Hermite-expansion map (translation fields lose correlation, so |ρ_g| ≥ |target|).
     """
-    rho_tab, corr_tab = _gamma_translation_correlation(shape_param)
-    rad = float(radius_m)
-    return lambda r: np.interp(np.exp(-(r / rad) ** 2), corr_tab, rho_tab)
+    rho_tab, corr_tab = _gamma_translation_correlation(float(shape_param))
+    if target is None:
+        rad = float(radius_m)
+        target = lambda r: np.exp(-(r / rad) ** 2)  # noqa: E731
+    return lambda r: np.interp(target(r), corr_tab, rho_tab)
 
 
 def gamma_gamma_covariance(r_m, alpha, beta, large_scale_radius_m, small_scale_radius_m):
@@ -188,7 +266,7 @@ def gamma_gamma_covariance(r_m, alpha, beta, large_scale_radius_m, small_scale_r
 
 
 def gamma_gamma_pattern(shape, pitch_m, alpha, beta, large_scale_radius_m, small_scale_radius_m, rng, *,
-                        mean=1.0):
+                        mean=1.0, targets=(None, None)):
     """Gamma-gamma scintillation pattern I = S_av · X · Y on a periodic grid (physics.md §3, §11).
 
     X (shape α, large-scale eddies) and Y (shape β, small-scale eddies) are independent unit-mean gamma
@@ -201,18 +279,41 @@ def gamma_gamma_pattern(shape, pitch_m, alpha, beta, large_scale_radius_m, small
     Gaussian correlations with ρ_Y = eq. 3-6 cell radius and ρ_X = (L/k)/ρ_Y (see
     :func:`~core.atmosphere.turbulence.large_scale_radius`); the total intensity covariance is then
     :func:`gamma_gamma_covariance`.  The joint (multi-point) statistics are those of a translation field,
-    not of a propagated optical field.
+    not of a propagated optical field.  ``targets`` = (b_X, b_Y) correlation functions, when given, replace the
+    Gaussian ones (the wave-optics statistics give both factors the correlation solved from the tabulated
+    covariance, :func:`~core.atmosphere.wave_optics.shared_factor_correlation`).  The two Gaussian fields come from one
+    complex transform (:func:`gaussian_random_field_pair`); the gamma translation is tabulated
+    (:func:`unit_gamma_transform`, relative error < 1e-5).
     """
-    x = _gamma_factor(shape, pitch_m, alpha, large_scale_radius_m, rng)
-    y = _gamma_factor(shape, pitch_m, beta, small_scale_radius_m, rng)
-    return mean * x * y
+    ga, gb = gaussian_random_field_pair(shape, pitch_m,
+                                        gamma_factor_g_correlation(alpha, large_scale_radius_m, targets[0]),
+                                        gamma_factor_g_correlation(beta, small_scale_radius_m, targets[1]), rng)
+    return mean * unit_gamma_transform(ga, alpha) * unit_gamma_transform(gb, beta)
 
 
-def _gamma_factor(shape, pitch_m, shape_param, radius_m, rng):
+def gamma_lognormal_pattern(shape, pitch_m, alpha, sigma2, correlation_x, correlation_y, rng, *, mean=1.0):
+    """Gamma × log-normal pattern I = S_av · X · Y on a periodic grid (the wave-optics statistics' default).
+
+    X: unit-mean gamma of shape α, a translation field whose own correlation is ``correlation_x(r)`` (ρ_g
+    solved by the Hermite map); Y = exp(σ g − σ²/2) with g of correlation ``correlation_y(r)`` (ρ_g itself; for
+    Y to share X's normalised covariance b, ρ_g = ln(1 + (e^(σ²) − 1) b)/σ²).  Exact: the one-point law (product
+    of independent unit-mean gamma and log-normal), the mean, SI = (1 + 1/α) e^(σ²) − 1 and
+    var(ln I) = ψ₁(α) + σ²; the covariance up to the Hermite truncation and clipped negative spectral power.
+    """
+    gx = gamma_factor_g_correlation(alpha, None, correlation_x)
+    if sigma2 > 0.0:
+        ga, gb = gaussian_random_field_pair(shape, pitch_m, gx, correlation_y, rng)
+        y = np.exp(math.sqrt(sigma2) * gb - 0.5 * sigma2)
+    else:
+        ga, y = gaussian_random_field(shape, pitch_m, gx, rng), 1.0
+    return mean * unit_gamma_transform(ga, alpha) * y
+
+
+def _gamma_factor(shape, pitch_m, shape_param, radius_m, rng, target=None):
     if not math.isfinite(float(shape_param)):
         return np.ones(shape)
-    g = gaussian_random_field(shape, pitch_m, gamma_factor_g_correlation(shape_param, radius_m), rng)
-    return unit_gamma_from_gaussian(g, shape_param)
+    g = gaussian_random_field(shape, pitch_m, gamma_factor_g_correlation(shape_param, radius_m, target), rng)
+    return unit_gamma_transform(g, shape_param)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -297,49 +398,92 @@ def sample_pattern(pattern, x_m, y_m, method="linear"):
 
 def make_scintillation_pattern(extent_m, cn2_m_23, wavelength_m, range_m, rng, *, wave="spherical",
                                model="auto", lognormal_max_rytov=tb.WEAK_LIMIT, samples_per_cell=8,
-                               max_grid_px=4096, correlation="exact"):
-    """Scintillation pattern covering a target-plane footprint, model picked by regime (paper §3.4 B).
+                               max_grid_px=4096, correlation="exact", statistics="wave_optics",
+                               inner_scale_m=0.0):
+    """Scintillation pattern covering a target-plane footprint (paper §3.4 B).
 
-    ``extent_m`` = (x_min, x_max, y_min, y_max) of the footprint [m].  Parameters from
-    :func:`~core.atmosphere.turbulence.derived_turbulence` (``wave`` chooses the plane/spherical formulas;
-    spherical suits a diverging ladar beam).  ``model="auto"``: log-normal (eq. 3-5, one scale ρ_l) when
-    σ_R² < ``lognormal_max_rytov``, else gamma-gamma (scales ρ_l and (L/k)/ρ_l).  Pitch = smallest
-    correlation radius / ``samples_per_cell``; the grid is ≥ 8 of the largest radius and covers the
-    footprint unless that needs more than ``max_grid_px`` per side, in which case the periodic tile
-    (still ≥ hundreds of cells) repeats over the footprint.  When the gamma-gamma scales are too far apart
-    for one grid (strong turbulence: 8 ρ_X > max_grid_px · ρ_l/samples_per_cell) a :class:`ProductPattern`
-    of the X and Y factors on their own grids is returned (same ``sample`` interface, no ``values``).
-    Cn² = 0 returns the constant pattern 1.
+    ``extent_m`` = (x_min, x_max, y_min, y_max) of the footprint [m]; ``wave`` chooses the plane/spherical
+    statistics (spherical suits a diverging ladar beam).  ``statistics`` picks where the statistics come from:
+
+    * ``"wave_optics"`` (default): SI, σ²_lnI and the covariance shape C(r) of our split-step wave-optics
+      table (:mod:`core.atmosphere.wave_optics`, inner scale ``inner_scale_m``).  ``model="auto"`` is
+      ``"gamma_lognormal"``: I = X·Y, X gamma (shape α) and Y log-normal (σ²) fitted to SI and σ²_lnI
+      (:func:`~core.atmosphere.wave_optics.gamma_lognormal_fit`; gamma-gamma cannot reach the wave-optics σ²_lnI
+      in strong turbulence); X and Y share the normalised covariance b(r) solved from
+      (1 + b v_X)(1 + b v_Y) − 1 = SI·C(r), so the intensity covariance is the tabulated one (a Gaussian
+      large-scale X would add spectral power at zero frequency that the wave-optics covariance, whose integral
+      is ≈ 0 by energy conservation, does not have).  ``"gamma_gamma"``: α, β from
+      :func:`~core.atmosphere.wave_optics.gamma_gamma_fit`, same shared covariance.  ``"lognormal"``: σ² = ln(1 + SI),
+      ρ_g = ln(1 + SI·C)/σ² (exact SI and covariance; σ²_lnI then differs from wave optics).
+    * ``"paper"``: the paper's formulas (:func:`~core.atmosphere.derived.derived_turbulence`): ``auto`` is
+      log-normal (eq. 3-5, Gaussian covariance of radius ρ_l, eq. 3-6) when σ_R² < ``lognormal_max_rytov``,
+      else gamma-gamma (Gaussian scales ρ_l and (L/k)/ρ_l).
+
+    Pitch = smallest correlation radius / ``samples_per_cell``; the grid is ≥ 8 of the largest correlation
+    radius and covers the footprint unless that needs more than ``max_grid_px`` per side, in which case the
+    periodic tile (still ≥ hundreds of cells) repeats over the footprint.  When the gamma-gamma scales are too
+    far apart for one grid (8 ρ_X > max_grid_px · pitch) a :class:`ProductPattern` of the X and Y factors on
+    their own grids is returned instead (same ``sample`` interface, no ``values``).  Cn² = 0 returns the
+    constant pattern 1.
     """
     if model not in PATTERN_MODELS:
         raise ValueError(f"model must be one of {PATTERN_MODELS}")
+    if model == "gamma_lognormal" and statistics != "wave_optics":
+        raise ValueError("model 'gamma_lognormal' needs statistics='wave_optics' (it is fitted to its σ²_lnI)")
     x0, x1, y0, y1 = (float(e) for e in extent_m)
-    d = tb.derived_turbulence(cn2_m_23, wavelength_m, range_m, wave=wave,
-                              lognormal_max_rytov=lognormal_max_rytov)
+    d = derived_turbulence(cn2_m_23, wavelength_m, range_m, wave=wave, lognormal_max_rytov=lognormal_max_rytov,
+                              statistics=statistics, inner_scale_m=inner_scale_m)
     if d["pdf_model"] == "none" or d["sigma2_lnI"] <= 0.0:
         return ScintillationPattern(np.ones((1, 1)), max(x1 - x0, y1 - y0, 1.0), (x0, y0), "none", d)
     chosen = d["pdf_model"] if model == "auto" else model
-    r_small = d["cell_radius_m"]
-    r_large = r_small if chosen == "lognormal" else d["large_scale_radius_m"]
     a = d["gamma_alpha"] if d["gamma_alpha"] is not None else np.inf
     b = d["gamma_beta"] if d["gamma_beta"] is not None else np.inf
+    r_small = d["cell_radius_m"]
+    target_x = target_y = g_corr = None
+    r_large = r_small if chosen == "lognormal" else d["large_scale_radius_m"]
+    if statistics == "wave_optics":
+        st = wo.statistics(cn2_m_23, wavelength_m, range_m, wave, inner_scale_m)
+        cov = wo.covariance_function(st)
+        si = st["scintillation_index"]
+        lags, c = st["lags_m"], st["covariance"]
+        # grid ≥ 8 r_large ≥ 3 × the lag beyond which |C| < 0.02 (the covariance's tail fits in the period)
+        r_large = max(r_small, 3.0 * float(lags[np.nonzero(np.abs(c) >= 0.02)[0][-1]]) / 8.0)
+        if chosen == "lognormal":
+            s2 = math.log1p(si)
+            g_corr = lambda r: np.log1p(si * cov(r)) / s2  # noqa: E731
+        elif chosen == "gamma_gamma":
+            a, b, _ = wo.gamma_gamma_fit(si, st["sigma2_lnI"])
+            d = dict(d, pattern_gamma_alpha=a, pattern_gamma_beta=b)
+            target_x = target_y = wo.shared_factor_correlation(cov, si, 1.0 / a, 1.0 / b)
+        else:
+            s2 = d["lognormal_sigma2"]
+            target_x = wo.shared_factor_correlation(cov, si, 1.0 / a, math.expm1(s2))
+            if s2 > 0.0:
+                target_y = lambda r: np.log1p(math.expm1(s2) * target_x(r)) / s2  # noqa: E731
     pitch = r_small / float(samples_per_cell)
-    if chosen == "gamma_gamma" and 8.0 * r_large / pitch > max_grid_px - 2:
+    if chosen == "gamma_gamma" and target_x is None and 8.0 * r_large / pitch > max_grid_px - 2:
         # scales too far apart for one grid: X and Y on their own grids (each at its radius/samples_per_cell)
         px = r_large / float(samples_per_cell)
         fx = _grid_for(extent_m, px, r_large, max_grid_px)
         fy = _grid_for(extent_m, pitch, r_small, max_grid_px)
         xf = ScintillationPattern(_gamma_factor(fx[0], px, a, r_large, rng), px, (x0, y0), "gamma_X")
-        yf = ScintillationPattern(_gamma_factor(fy[0], pitch, b, r_small, rng), pitch, (x0, y0), "gamma_Y")
+        yf = ScintillationPattern(_gamma_factor(fy[0], pitch, b, r_small, rng, target_y), pitch, (x0, y0),
+                                  "gamma_Y")
         params = dict(d, pattern_model=chosen, pitch_m=[px, pitch], grid_shape=[list(fx[0]), list(fy[0])],
                       periodic_tile_m=[[fx[0][1] * px, fx[0][0] * px], [fy[0][1] * pitch, fy[0][0] * pitch]],
                       tiled=bool(fx[1] or fy[1]))
         return ProductPattern((xf, yf), chosen, params)
     shape, tiled = _grid_for(extent_m, pitch, r_large, max_grid_px)
-    if chosen == "lognormal":
+    if chosen == "lognormal" and g_corr is not None:
+        s2 = math.log1p(d["scintillation_index"])
+        g = gaussian_random_field(shape, pitch, g_corr, rng)
+        vals = np.exp(math.sqrt(s2) * g - 0.5 * s2)
+    elif chosen == "lognormal":
         vals = lognormal_pattern(shape, pitch, d["sigma2_lnI"], r_small, rng, correlation=correlation)
+    elif chosen == "gamma_lognormal":
+        vals = gamma_lognormal_pattern(shape, pitch, a, d["lognormal_sigma2"], target_x, target_y, rng)
     else:
-        vals = gamma_gamma_pattern(shape, pitch, a, b, r_large, r_small, rng)
+        vals = gamma_gamma_pattern(shape, pitch, a, b, r_large, r_small, rng, targets=(target_x, target_y))
     params = dict(d, pattern_model=chosen, pitch_m=pitch, grid_shape=list(shape),
                   periodic_tile_m=[shape[1] * pitch, shape[0] * pitch], tiled=tiled)
     return ScintillationPattern(vals, pitch, (x0, y0), chosen, params)

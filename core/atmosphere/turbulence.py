@@ -25,7 +25,7 @@ def _f64(x):
     return np.asarray(x, dtype=np.float64)
 
 
-def _check_wave(wave):
+def check_wave(wave):
     if wave not in WAVE_TYPES:
         raise ValueError(f"wave must be one of {WAVE_TYPES}, got {wave!r}")
 
@@ -48,7 +48,7 @@ def rytov_variance(cn2_m_23, wavelength_m, range_m, wave="plane"):
     These are the first-order (weak-fluctuation) scintillation indices of a point receiver; they are the
     turbulence-strength parameters used by all the other formulas, not the SI in strong turbulence.
     """
-    _check_wave(wave)
+    check_wave(wave)
     c = 1.23 if wave == "plane" else 0.50
     k = wavenumber(wavelength_m)
     return c * _f64(cn2_m_23) * k ** (7.0 / 6.0) * _f64(range_m) ** (11.0 / 6.0)
@@ -76,7 +76,7 @@ def coherence_radius(cn2_m_23, wavelength_m, range_m, wave="spherical"):
     Kolmogorov spectrum, zero inner scale, ρ0 ≫ l0.  +inf for Cn² = 0 or L = 0 (no turbulence).
     Use the spherical value when imaging a target at range L (physics §2).
     """
-    _check_wave(wave)
+    check_wave(wave)
     c = 1.46 if wave == "plane" else 0.545
     k = wavenumber(wavelength_m)
     x = c * _f64(cn2_m_23) * k**2 * _f64(range_m)
@@ -89,7 +89,7 @@ def fried_parameter(cn2_m_23, wavelength_m, range_m, wave="spherical"):
 
     plane: r0 = (0.423 k² Cn² L)^(−3/5); spherical: r0 = ((3/8) 0.423 k² Cn² L)^(−3/5).  +inf for Cn² = 0.
     """
-    _check_wave(wave)
+    check_wave(wave)
     c = 0.423 if wave == "plane" else 0.423 * 3.0 / 8.0
     k = wavenumber(wavelength_m)
     x = c * _f64(cn2_m_23) * k**2 * _f64(range_m)
@@ -139,7 +139,7 @@ def log_intensity_variance_terms(rytov, wave="plane"):
     σ_lnX² = 0.49 s/(1 + a s^(6/5))^(7/6), σ_lnY² = 0.51 s/(1 + 0.69 s^(6/5))^(5/6), with s = σ_R², a = 1.11
     for a plane wave and s = β0², a = 0.56 for a spherical wave.  ``rytov`` is σ_R² or β0² accordingly.
     """
-    _check_wave(wave)
+    check_wave(wave)
     a = 1.11 if wave == "plane" else 0.56
     s = _f64(rytov)
     s65 = s ** 1.2
@@ -264,7 +264,7 @@ def aperture_averaging_factor(wavelength_m, range_m, aperture_diameter_m, wave="
     d² = k D²/(4L); plane A = (1 + 1.062 d²)^(−7/6), spherical A = (1 + 0.33 d²)^(−7/6).
     Applies to a receiver of diameter D looking at a point source/beam; not to the target-plane pattern.
     """
-    _check_wave(wave)
+    check_wave(wave)
     c = 1.062 if wave == "plane" else 0.33
     k = wavenumber(wavelength_m)
     with np.errstate(divide="ignore"):
@@ -380,57 +380,3 @@ def diffraction_mtf(nu_cyc_per_rad, wavelength_m, aperture_diameter_m):
 def pixel_mtf(nu_cyc_per_m, pixel_pitch_m):
     """Pixel (square aperture of width a) MTF |sinc(a ν)| along one axis (physics.md §5); ν in cycles/m."""
     return np.abs(np.sinc(_f64(pixel_pitch_m) * _f64(nu_cyc_per_m)))
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Summary for the run metadata
-# ----------------------------------------------------------------------------------------------------------
-def _py(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def derived_turbulence(cn2_m_23, wavelength_m, range_m, *, wave="spherical", aperture_diameter_m=None,
-                       lognormal_max_rytov=WEAK_LIMIT):
-    """All derived turbulence quantities of one path, as a JSON-ready dict (scalars only).
-
-    Keys (SI; an infinite value, e.g. ρ0 without turbulence, is reported as None):
-    rytov_variance_plane (σ_R²), rytov_variance_spherical (β0²), rho0_plane_m, rho0_spherical_m,
-    r0_plane_m, r0_spherical_m, fresnel_scale_m, cell_radius_m (eq. 3-6 with ρ0 of ``wave``),
-    large_scale_radius_m, regime, wave, sigma2_lnI, sigma2_lnX, sigma2_lnY, scintillation_index,
-    gamma_alpha, gamma_beta, pdf_model ("none", "lognormal" or "gamma_gamma"), rytov_strict (σ_R² ≤ 0.3),
-    and aperture_averaging (when ``aperture_diameter_m`` is given).
-    """
-    _check_wave(wave)
-    s_pl = float(rytov_variance(cn2_m_23, wavelength_m, range_m, "plane"))
-    s_sp = float(rytov_variance(cn2_m_23, wavelength_m, range_m, "spherical"))
-    s_w = s_pl if wave == "plane" else s_sp
-    rho0 = {w: float(coherence_radius(cn2_m_23, wavelength_m, range_m, w)) for w in WAVE_TYPES}
-    r0 = {w: float(fried_parameter(cn2_m_23, wavelength_m, range_m, w)) for w in WAVE_TYPES}
-    sx, sy = (float(v) for v in log_intensity_variance_terms(s_w, wave))
-    a, b = (float(v) for v in gamma_gamma_parameters(s_w, wave))
-    regime = turbulence_regime(s_pl)
-    if s_pl <= 0.0:
-        model = "none"
-    elif s_pl < lognormal_max_rytov:
-        model = "lognormal"
-    else:
-        model = "gamma_gamma"
-    out = {
-        "cn2_m_23": float(cn2_m_23), "wavelength_m": float(wavelength_m), "range_m": float(range_m),
-        "wave": wave,
-        "rytov_variance_plane": s_pl, "rytov_variance_spherical": s_sp,
-        "rho0_plane_m": _py(rho0["plane"]), "rho0_spherical_m": _py(rho0["spherical"]),
-        "r0_plane_m": _py(r0["plane"]), "r0_spherical_m": _py(r0["spherical"]),
-        "fresnel_scale_m": float(fresnel_scale(wavelength_m, range_m)),
-        "cell_radius_m": float(cell_radius(wavelength_m, range_m, rho0[wave])),
-        "large_scale_radius_m": _py(large_scale_radius(wavelength_m, range_m, rho0[wave])),
-        "regime": regime, "rytov_strict": bool(s_pl <= STRICT_RYTOV_LIMIT),
-        "sigma2_lnX": sx, "sigma2_lnY": sy, "sigma2_lnI": sx + sy,
-        "scintillation_index": float(np.expm1(sx + sy)),
-        "gamma_alpha": _py(a), "gamma_beta": _py(b), "pdf_model": model,
-    }
-    if aperture_diameter_m is not None:
-        out["aperture_averaging"] = float(aperture_averaging_factor(wavelength_m, range_m,
-                                                                    aperture_diameter_m, wave))
-    return out

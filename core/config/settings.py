@@ -145,9 +145,23 @@ class AtmosphereSettings:
                                               "(or long-term, without wander) radius")
     scintillation: bool = setting(True, doc="B: multiply a random scintillation pattern onto the "
                                             "illumination at the target")
-    scintillation_model: str = setting("auto", choices=("auto", "lognormal", "gamma_gamma"),
-                                       doc="Scintillation pdf: log-normal (eq. 3-5) in weak turbulence, "
-                                           "gamma-gamma in moderate/strong; auto picks by regime")
+    scintillation_model: str = setting("auto", choices=("auto", "lognormal", "gamma_gamma", "gamma_lognormal"),
+                                       doc="Scintillation pdf. auto: with wave_optics statistics gamma × log-normal "
+                                           "fitted to SI and σ²_lnI; with paper statistics log-normal (eq. 3-5) in "
+                                           "weak turbulence, gamma-gamma in moderate/strong (gamma_lognormal needs "
+                                           "wave_optics)")
+    scintillation_statistics: str = setting("wave_optics", choices=("wave_optics", "paper"),
+                                            doc="Scintillation statistics (SI, covariance, aperture averaging): "
+                                                "wave_optics = tabulated from split-step wave optics (agrees "
+                                                "from weak to strong turbulence); paper = the paper's formulas "
+                                                "(to reproduce its figures)")
+    inner_scale_m: float = setting(0.0, lo=0.0, hi=0.05, unit="m", subtype="DISTANCE",
+                                   doc="Inner scale l0 of the turbulence (modified von Kármán spectrum, "
+                                       "typically 1–10 mm; 0: none); used by the wave_optics statistics")
+    outer_scale_m: float = setting(0.0, lo=0.0, hi=1e4, unit="m", subtype="DISTANCE",
+                                   doc="Outer scale L0 of the turbulence (0: infinite, else ≥ 1 m; typically "
+                                       "1–100 m); recorded in the metadata: the wave-optics table is for L0 = ∞ "
+                                       "(its measured effect: docs/atmosphere.md)")
     return_scintillation: bool = setting(True, doc="B: with scintillation, also the return path (target → "
                                                    "receiver aperture): one aperture-averaged factor per pixel "
                                                    "and pulse")

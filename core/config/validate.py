@@ -124,6 +124,13 @@ def validate(obj, prefix: str = "") -> None:
 
 
 def _check_cross_field(cfg: SimulationConfig) -> None:
+    if cfg.atmosphere.scintillation_model == "gamma_lognormal" and cfg.atmosphere.scintillation_statistics != "wave_optics":
+        raise ConfigError("atmosphere.scintillation_model", "gamma_lognormal",
+                          "auto, lognormal or gamma_gamma with atmosphere.scintillation_statistics = 'paper' "
+                          "(gamma_lognormal is fitted to the wave-optics statistics)")
+    if 0.0 < cfg.atmosphere.outer_scale_m < 1.0:
+        raise ConfigError("atmosphere.outer_scale_m", cfg.atmosphere.outer_scale_m,
+                          "0 (infinite outer scale) or a finite number in [1, 10000] m")
     if 0.0 < cfg.atmosphere.visibility_m < 50.0:
         raise ConfigError("atmosphere.visibility_m", cfg.atmosphere.visibility_m,
                           "0 (off) or a visibility in [50, 1e+06] m")

@@ -37,7 +37,7 @@ from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_tur
                           turbulence_mtf_long)
 from ..config.settings import SimulationConfig
 from ..physics.propagation import (FootprintAveragedPattern, draw_return_factor, effective_extinction_per_m,
-                                   return_scintillation_variance)
+                                   return_scintillation_variance, turbulence_model_settings)
 from .rng import stage_rng
 
 #: The turbulence blur is skipped when the MTF at the pixel Nyquist frequency exceeds this (PSF ≪ a pixel).
@@ -123,7 +123,8 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
     lam = laser.wavelength_m
     focus = laser.beam_focus_range_m if laser.beam_focus_range_m > 0 else np.inf
     derived = derived_turbulence(atm.cn2_m_23, lam, r_ref, wave="spherical",
-                                 aperture_diameter_m=config.receiver.aperture_diameter_m)
+                                 aperture_diameter_m=config.receiver.aperture_diameter_m,
+                                 **turbulence_model_settings(config))
     meta = {"reference_range_m": r_ref, "derived": derived}
     beam = gaussian_beam_parameters(lam, laser.beam_waist_radius_m, r_ref, focus)
     r_c2 = float(beam_wander_variance(atm.cn2_m_23, r_ref, laser.beam_waist_radius_m, focus))
@@ -150,7 +151,8 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
             half_x, half_y = det.half_width_tan * r_ref, det.half_height_tan * r_ref
             out.pattern = make_scintillation_pattern((-half_x, half_x, -half_y, half_y), atm.cn2_m_23, lam, r_ref,
                                                      rng, wave="spherical", model=atm.scintillation_model,
-                                                     max_grid_px=2048)
+                                                     max_grid_px=2048, statistics=atm.scintillation_statistics,
+                                                     inner_scale_m=atm.inner_scale_m)
             meta["scintillation_pattern"] = {k: v for k, v in out.pattern.params.items() if k != "derived"}
         if "return_scintillation" not in out.skipped:  # B': the return path through the receiver aperture
             px_m = (2 * det.half_width_tan * r_ref / det.width_px, 2 * det.half_height_tan * r_ref / det.height_px)

@@ -13,6 +13,7 @@ from scipy.special import erf
 
 from ..atmosphere import (extinction_from_visibility, gamma_factor_g_correlation, gaussian_random_field,
                           unit_gamma_from_gaussian)
+from ..atmosphere import wave_optics as wo
 from ..config.settings import SimulationConfig
 
 
@@ -32,11 +33,32 @@ def return_scintillation_variance(derived: dict, pixel_footprint_m) -> dict:
     a = float(derived["aperture_averaging"])
     si = float(derived["scintillation_index"])
     rho = float(derived["cell_radius_m"])
-    gx = float(box_average_variance_factor(pixel_footprint_m[0], rho))
-    gy = float(box_average_variance_factor(pixel_footprint_m[1], rho))
+    g = footprint_variance_factor(derived, pixel_footprint_m[0], pixel_footprint_m[1])
     return {"aperture_averaging_factor": a, "point_scintillation_index": si, "cell_radius_m": rho,
             "pixel_footprint_m": [float(pixel_footprint_m[0]), float(pixel_footprint_m[1])],
-            "footprint_averaging_factor": gx * gy, "variance": a * si * gx * gy}
+            "footprint_averaging_factor": g, "variance": a * si * g,
+            "statistics": derived.get("scintillation_statistics", "paper")}
+
+
+def turbulence_model_settings(config: SimulationConfig) -> dict:
+    """The scintillation-statistics keywords of :func:`derived_turbulence` from the atmosphere settings."""
+    atm = config.atmosphere
+    return {"statistics": atm.scintillation_statistics, "inner_scale_m": atm.inner_scale_m,
+            "outer_scale_m": atm.outer_scale_m if atm.outer_scale_m > 0.0 else np.inf}
+
+
+def footprint_variance_factor(derived: dict, side_x_m, side_y_m) -> float:
+    """Variance factor of the point-receiver scintillation averaged over a p_x × p_y footprint.
+
+    ``paper`` statistics: g(p_x/ρ_l) g(p_y/ρ_l) of a Gaussian covariance (:func:`box_average_variance_factor`);
+    ``wave_optics``: the rectangle average of the tabulated wave-optics covariance
+    (:func:`core.atmosphere.wave_optics.footprint_averaging_factor`)."""
+    if derived.get("scintillation_statistics", "paper") == "wave_optics":
+        st = wo.statistics(derived["cn2_m_23"], derived["wavelength_m"], derived["range_m"], derived["wave"],
+                           derived["inner_scale_m"])
+        return wo.footprint_averaging_factor(st, side_x_m, side_y_m)
+    rho = float(derived["cell_radius_m"])
+    return float(box_average_variance_factor(side_x_m, rho) * box_average_variance_factor(side_y_m, rho))
 
 
 def draw_return_factor(shape, pixel_footprint_m, variance_info: dict, rng, max_grid_px: int = 2048):
@@ -83,8 +105,7 @@ class FootprintAveragedPattern:
     def draw(cls, det, sub_pitch_m, derived, rng):
         si = derived["scintillation_index"]
         rho = derived["cell_radius_m"]
-        var = float(si * box_average_variance_factor(sub_pitch_m[0], rho)
-                    * box_average_variance_factor(sub_pitch_m[1], rho))
+        var = float(si * footprint_variance_factor(derived, sub_pitch_m[0], sub_pitch_m[1]))
         shape = (det.height_px * det.subsamples, det.width_px * det.subsamples)
         values = rng.gamma(1.0 / var, var, size=shape) if var > 0 else np.ones(shape)
         return cls(values, {"pattern_model": "footprint_averaged_gamma", "sub_ray_footprint_m": list(sub_pitch_m),

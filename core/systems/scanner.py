@@ -19,6 +19,7 @@ import numpy as np
 
 from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_turbulence, gaussian_beam_parameters,
                           long_term_beam_radius, short_term_beam_radius)
+from ..atmosphere.wave_optics import gamma_gamma_fit
 from ..config.derived import n_scan_pulses, scan_duration_s
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
@@ -33,7 +34,8 @@ from ..errors import ConfigError
 from ..geometry.motion import Trajectory
 from ..physics.detection.peaks import Echoes, detect_echoes
 from ..physics.laser import pulse_cdf, pulse_half_support_s
-from ..physics.propagation import box_average_variance_factor, effective_extinction_per_m, return_scintillation_variance
+from ..physics.propagation import (effective_extinction_per_m, footprint_variance_factor, return_scintillation_variance,
+                                   turbulence_model_settings)
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import accumulate_waveforms, binning_method, round_trip_time_s
@@ -70,6 +72,9 @@ class ScanAtmosphere:
             elif self.scint_model == "gamma_gamma":
                 a, b = p["alpha"], p["beta"]
                 scint = rng.gamma(a, 1.0 / a, n) * rng.gamma(b, 1.0 / b, n)
+            elif self.scint_model == "gamma_lognormal":
+                a, s2 = p["alpha"], p["sigma2_lnY"]
+                scint = rng.gamma(a, 1.0 / a, n) * np.exp(np.sqrt(s2) * rng.standard_normal(n) - 0.5 * s2)
             else:  # footprint-averaged: gamma of unit mean and the averaged variance
                 var = p["averaged_scintillation_index"]
                 scint = rng.gamma(1.0 / var, var, n)
@@ -99,7 +104,8 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
     lam = laser.wavelength_m
     focus = laser.beam_focus_range_m if laser.beam_focus_range_m > 0 else np.inf
     derived = derived_turbulence(atm.cn2_m_23, lam, r_ref, wave="spherical",
-                                 aperture_diameter_m=config.receiver.aperture_diameter_m)
+                                 aperture_diameter_m=config.receiver.aperture_diameter_m,
+                                 **turbulence_model_settings(config))
     beam = gaussian_beam_parameters(lam, laser.beam_waist_radius_m, r_ref, focus)
     w = float(beam["w_m"])
     r_c2 = float(beam_wander_variance(atm.cn2_m_23, r_ref, laser.beam_waist_radius_m, focus))
@@ -118,7 +124,7 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
         rho = derived["cell_radius_m"]
         si = derived["scintillation_index"]
         if footprint_m > rho:
-            var = float(si * box_average_variance_factor(footprint_m, rho) ** 2)
+            var = float(si * footprint_variance_factor(derived, footprint_m, footprint_m))
             out.scint_model, out.scint_params = "footprint_gamma", {"averaged_scintillation_index": var}
         else:
             model = atm.scintillation_model
@@ -126,6 +132,12 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
                 model = derived["pdf_model"]
             if model == "lognormal":
                 out.scint_params = {"sigma2_lnI": float(np.log1p(si))}
+            elif model == "gamma_lognormal":
+                out.scint_params = {"alpha": float(derived["gamma_alpha"]),
+                                    "sigma2_lnY": float(derived["lognormal_sigma2"])}
+            elif derived["scintillation_statistics"] == "wave_optics":   # gamma-gamma fitted to the table
+                a, b, _ = gamma_gamma_fit(si, derived["sigma2_lnI"])
+                out.scint_params = {"alpha": a, "beta": b}
             else:
                 out.scint_params = {"alpha": float(derived["gamma_alpha"]), "beta": float(derived["gamma_beta"])}
             out.scint_model = model

@@ -151,8 +151,8 @@ def test_make_pattern_regime_choice_and_grid():
     """Weak (case B, σ_R² = 0.38) → log-normal; case A (σ_R² = 1.10) → gamma-gamma; pitch ≤ ρ_l/8; the grid
     covers the 1 m footprint; every node finite and > 0."""
     rng = np.random.default_rng(1)
-    pb = atm.make_scintillation_pattern((-0.5, 0.5, -0.5, 0.5), 1e-15, 1550e-9, 5e3, rng)
-    pa = atm.make_scintillation_pattern((-0.5, 0.5, -0.5, 0.5), 1e-14, 1064e-9, 2e3, rng)
+    pb = atm.make_scintillation_pattern((-0.5, 0.5, -0.5, 0.5), 1e-15, 1550e-9, 5e3, rng, statistics="paper")
+    pa = atm.make_scintillation_pattern((-0.5, 0.5, -0.5, 0.5), 1e-14, 1064e-9, 2e3, rng, statistics="paper")
     assert pb.model == "lognormal" and pa.model == "gamma_gamma"
     for p in (pa, pb):
         assert p.pitch_m <= p.params["cell_radius_m"] / 8 * (1 + 1e-12)
@@ -164,7 +164,7 @@ def test_make_pattern_regime_choice_and_grid():
 def test_make_pattern_large_footprint_is_tiled_not_huge():
     """A 20 m footprint with a 4 mm cell: grid capped at max_grid_px per side (periodic tile), finite."""
     p = atm.make_scintillation_pattern((0, 20, 0, 20), 1e-15, 532e-9, 1e3, np.random.default_rng(0),
-                                       max_grid_px=1024)
+                                       max_grid_px=1024, statistics="paper")
     assert max(p.values.shape) <= 1024 and p.params["tiled"] is True
     v = p.sample(np.linspace(0, 20, 1000), np.linspace(0, 20, 1000))
     assert np.all(np.isfinite(v))
@@ -179,7 +179,7 @@ def test_make_pattern_separated_scales_product():
     m, v = [], []
     for seed in range(8):
         p = atm.make_scintillation_pattern((-0.3, 0.3, -0.3, 0.3), c, lam, L, np.random.default_rng(seed),
-                                           wave="plane", max_grid_px=256)
+                                           wave="plane", max_grid_px=256, statistics="paper")
         assert isinstance(p, atm.ProductPattern)
         xs, ys = np.random.default_rng(100 + seed).uniform(-0.3, 0.3, (2, 400_000))
         s = p.sample(xs, ys)
@@ -189,7 +189,7 @@ def test_make_pattern_separated_scales_product():
     assert abs(np.mean(m) - 1) < 0.03
     assert abs(np.mean(v) / si - 1) < 0.10, (np.mean(v), si)
     ps = atm.make_scintillation_pattern((-1, 1, -1, 1), 1e-12, 532e-9, 2e4, np.random.default_rng(0),
-                                        max_grid_px=1024)
+                                        max_grid_px=1024, statistics="paper")
     assert np.all(np.isfinite(ps.sample(np.linspace(-1, 1, 999), np.zeros(999))))
 
 
@@ -197,7 +197,7 @@ def test_sampling_nodes_periodicity_and_resolution_independence():
     """Bilinear sampling returns the node values exactly at nodes (1e-12), is periodic with the grid
     period, and two receivers of different resolution see identical values at the same target points."""
     rng = np.random.default_rng(3)
-    p = atm.make_scintillation_pattern((-0.2, 0.2, -0.2, 0.2), 1e-15, 1550e-9, 5e3, rng)
+    p = atm.make_scintillation_pattern((-0.2, 0.2, -0.2, 0.2), 1e-15, 1550e-9, 5e3, rng, statistics="paper")
     ny, nx = p.values.shape
     j, i = np.meshgrid(np.arange(0, ny, 7), np.arange(0, nx, 5), indexing="ij")
     x = p.origin_m[0] + i * p.pitch_m
@@ -232,7 +232,7 @@ def test_bilinear_variance_loss_small():
 
 def test_no_turbulence_pattern_is_one():
     """Cn² = 0: pattern identically 1 (exact), any sample exactly 1.0; σ² = 0 generators return S_av."""
-    p = atm.make_scintillation_pattern((-1, 1, -1, 1), 0.0, 1064e-9, 2e3, np.random.default_rng(0))
+    p = atm.make_scintillation_pattern((-1, 1, -1, 1), 0.0, 1064e-9, 2e3, np.random.default_rng(0), statistics="paper")
     assert p.model == "none" and np.all(p.values == 1.0)
     assert np.all(p.sample(np.linspace(-5, 5, 11), np.zeros(11)) == 1.0)
     assert np.all(atm.lognormal_pattern((8, 8), 1.0, 0.0, 3.0, np.random.default_rng(0), mean=2.0) == 2.0)
@@ -243,7 +243,7 @@ def test_seeds():
     """Same seed → identical patterns and wander (exact); different seeds → different (max diff > 0.1)."""
     def make(seed, model):
         return atm.make_scintillation_pattern((-0.3, 0.3, -0.3, 0.3), 1e-14, 1064e-9, 2e3,
-                                              np.random.default_rng(seed), model=model).values
+                                              np.random.default_rng(seed), model=model, statistics="paper").values
     for model in ("lognormal", "gamma_gamma"):
         assert np.array_equal(make(1, model), make(1, model))
         assert np.max(np.abs(make(1, model) - make(2, model))) > 0.1

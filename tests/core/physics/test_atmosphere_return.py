@@ -17,7 +17,7 @@ from scenes import config_for, plate
 def test_variance_formula_case_a():
     """physics.md case A (Cn² 1e-14, 1064 nm, 2 km), D = 5 cm: A_sp = 0.5741, SI_sp = 0.4373, point footprint:
     variance 0.2511; a 5 cm footprint multiplies it by g(p/ρ_l)² with ρ_l = 0.01543 m (eq. 3-6, spherical)."""
-    d = derived_turbulence(1e-14, 1.064e-6, 2000.0, aperture_diameter_m=0.05)
+    d = derived_turbulence(1e-14, 1.064e-6, 2000.0, aperture_diameter_m=0.05, statistics="paper")
     v = return_scintillation_variance(d, (1e-6, 1e-6))
     assert v["aperture_averaging_factor"] == pytest.approx(0.5741, rel=2e-4)
     assert v["point_scintillation_index"] == pytest.approx(0.4373, rel=2e-4)
@@ -29,7 +29,7 @@ def test_variance_formula_case_a():
 
 @pytest.mark.parametrize("footprint_m", [0.004, 0.05])  # correlated field (p < 2ρ_l) / independent pixels
 def test_applied_factor_has_the_formula_variance(footprint_m):
-    d = derived_turbulence(1e-14, 1.064e-6, 2000.0, aperture_diameter_m=0.05)
+    d = derived_turbulence(1e-14, 1.064e-6, 2000.0, aperture_diameter_m=0.05, statistics="paper")
     info = return_scintillation_variance(d, (footprint_m, footprint_m))
     rng = np.random.default_rng(7)
     if footprint_m < 2 * info["cell_radius_m"]:  # correlated field: samples 8 px = 2.1 ρ_l apart (corr. 0.01)
@@ -56,6 +56,7 @@ def test_pipeline_applies_the_return_factor_per_pixel():
     base.laser.wavelength_m = 532e-9
     base.laser.beam_profile = "uniform"
     base.atmosphere.cn2_m_23 = 1e-14
+    base.atmosphere.scintillation_statistics = "paper"
     base.atmosphere.beam_broadening = False
     base.atmosphere.beam_wander = False
     base.atmosphere.turbulence_blur = "none"
@@ -72,9 +73,27 @@ def test_pipeline_applies_the_return_factor_per_pixel():
         assert "return_scintillation" in off.stats["stages_skipped"]
         ratios.append((on.energy_image / off.energy_image).ravel())
     x = np.concatenate(ratios)
-    d = derived_turbulence(1e-14, 532e-9, R, aperture_diameter_m=base.receiver.aperture_diameter_m)
+    d = derived_turbulence(1e-14, 532e-9, R, aperture_diameter_m=base.receiver.aperture_diameter_m,
+                           statistics="paper")
     p = 0.02 * R / 64
     assert var == pytest.approx(d["aperture_averaging"] * d["scintillation_index"]
                                 * box_average_variance_factor(p, d["cell_radius_m"]) ** 2, rel=1e-3)
     assert x.mean() == pytest.approx(1.0, abs=4 * np.sqrt(var / x.size))
     assert x.var() == pytest.approx(var, rel=0.05)
+
+
+def test_wave_optics_return_variance_uses_the_tabulated_statistics():
+    """Default statistics: the return-path variance is A·SI·g with SI the wave-optics spherical SI, A the aperture
+    integral of the wave-optics covariance (validated against split-step disk averages in
+    test_wave_optics_scintillation) and g its rectangle average over the footprint (to 1e-12); a footprint far below
+    a cell averages nothing (g within 1e-3 of 1)."""
+    from core.atmosphere import wave_optics as wo
+    d = derived_turbulence(1e-14, 1.064e-6, 2000.0, aperture_diameter_m=0.05)
+    st = wo.statistics(1e-14, 1.064e-6, 2000.0, "spherical")
+    assert d["scintillation_statistics"] == "wave_optics"
+    v = return_scintillation_variance(d, (0.03, 0.02))
+    a = wo.aperture_averaging_factor(st, 0.05)
+    g = wo.footprint_averaging_factor(st, 0.03, 0.02)
+    assert v["statistics"] == "wave_optics"
+    assert v["variance"] == pytest.approx(a * st["scintillation_index"] * g, rel=1e-12)
+    assert return_scintillation_variance(d, (1e-6, 1e-6))["footprint_averaging_factor"] == pytest.approx(1.0, abs=1e-3)

@@ -244,7 +244,8 @@ def test_scan_scintillation_statistics(divergence_rad, model):
     meta = a.stats["atmosphere"]["turbulence"]
     scint = meta["scintillation"]
     if model == "point":  # footprint (1 cm) smaller than a cell: the point statistics of the regime
-        assert scint["model"] in ("lognormal", "gamma_gamma") and scint["footprint_m"] < scint["cell_radius_m"]
+        assert scint["model"] in ("lognormal", "gamma_gamma", "gamma_lognormal")
+        assert scint["footprint_m"] < scint["cell_radius_m"]
         target = meta["derived"]["scintillation_index"]
     else:  # footprint (1 m) averages many cells: gamma law of the averaged variance
         assert scint["model"] == model and scint["footprint_m"] > scint["cell_radius_m"]

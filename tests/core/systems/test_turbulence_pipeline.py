@@ -116,7 +116,8 @@ def test_scintillation_multiplies_the_illumination():
     (within 5 % over ~4000 px and many cells), SI within 15 % of the all-regime value at R_ref, and a new
     pattern per frame."""
     cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False, turbulence_blur="none",
-                           return_scintillation=False)  # the outgoing pattern alone (return path: its own test)
+                           return_scintillation=False,  # the outgoing pattern alone (return path: its own test)
+                           scintillation_statistics="paper")
     cfg.receiver.subsamples = 1
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 2e-4  # 0.2 m footprint, cells of ~1 cm
     cfg.laser.beam_profile = "uniform"
@@ -127,7 +128,7 @@ def test_scintillation_multiplies_the_illumination():
     calm.atmosphere.cn2_m_23 = 0.0
     scene = plate(R, 30.0)
     ratio = simulate_frame(scene, np.eye(4), cfg).energy_image / simulate_frame(scene, np.eye(4), calm).energy_image
-    d = derived_turbulence(1e-14, 532e-9, R)
+    d = derived_turbulence(1e-14, 532e-9, R, statistics="paper")
     assert ratio.mean() == pytest.approx(1.0, abs=0.05)
     assert ratio.var() / ratio.mean() ** 2 == pytest.approx(d["scintillation_index"], rel=0.15)
     again = simulate_frame(scene, np.eye(4), cfg, frame=1).energy_image
@@ -164,7 +165,8 @@ def test_footprint_averaged_scintillation_and_negligible_blur():
     variance SI·g(p_x/ρ)·g(p_y/ρ) (within 10 % over 4096 sub-rays); E is skipped, and said so, when the PSF
     is far below a pixel (MTF at Nyquist > 0.999)."""
     from core.physics.propagation import box_average_variance_factor
-    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False, return_scintillation=False)
+    cfg = turbulent_config(pixels=64, beam_broadening=False, beam_wander=False, return_scintillation=False,
+                           scintillation_statistics="paper")
     cfg.receiver.subsamples = 1
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.2  # 200 m footprint: 3 m per sub-ray ≫ 1 cm cells
     cfg.laser.beam_profile = "uniform"
