@@ -87,36 +87,26 @@ def gaussian_random_field(shape, pitch_m, correlation, rng, spectrum=None):
     return sfft.irfft2(np.sqrt(spectrum) * sfft.rfft2(w), s=shape)
 
 
-def _full_plane(half, shape):
-    """The full (ny, nx) spectrum of a real, even field from its rfft2 half plane."""
-    ny, nx = shape
-    full = np.empty(shape)
-    h = half.shape[1]
-    full[:, :h] = half
-    if nx - h > 0:
-        kx = np.arange(h, nx)
-        full[:, h:] = half[(-np.arange(ny)) % ny][:, nx - kx]
-    return full
-
-
 def gaussian_random_field_pair(shape, pitch_m, correlation_a, correlation_b, rng):
-    """Two independent zero-mean, unit-variance Gaussian fields with correlations ρ_a and ρ_b, from one
-    complex transform (same statistics as two :func:`gaussian_random_field` calls at about half the cost).
+    """Two independent zero-mean, unit-variance Gaussian fields with correlations ρ_a and ρ_b (the same
+    statistics as two :func:`gaussian_random_field` calls at about half the cost).
 
-    Complex white noise W (E|W|² = 2N) has the spectra of two real white fields as its Hermitian parts,
-    ŵ_a = (W(k) + W*(−k))/2 and ŵ_b = (W(k) − W*(−k))/(2i); the real and imaginary parts of
-    IDFT(√P_a ŵ_a + i √P_b ŵ_b) are then the two fields exactly.
+    Each field's white noise is drawn directly in the frequency domain: complex normal values W on the rfft2
+    half plane with E|W|² = N (N = ny·nx, the spectrum of real white noise), g = irfft2(√P · W).  irfft2 uses
+    the Hermitian part of the columns k_x = 0 (and n_x/2), which halves their power; those columns are drawn
+    √2 larger, so that every mode has its power P exactly (one inverse transform per field, no forward one).
     """
     ny, nx = shape
-    pa = _full_plane(field_spectrum(shape, pitch_m, correlation_a)[0], shape)
-    pb = _full_plane(field_spectrum(shape, pitch_m, correlation_b)[0], shape)
-    n = ny * nx
-    w = rng.standard_normal((2, ny, nx))
-    w = math.sqrt(n) * (w[0] + 1j * w[1])
-    wm = np.conj(np.roll(np.flip(w, (0, 1)), 1, axis=(0, 1)))      # W*(−k)
-    z = np.sqrt(pa) * (0.5 * (w + wm)) + np.sqrt(pb) * (0.5 * (w - wm))
-    g = sfft.ifft2(z)
-    return g.real, g.imag
+    out = []
+    for correlation in (correlation_a, correlation_b):
+        p = field_spectrum(shape, pitch_m, correlation)[0]
+        w = rng.standard_normal((2,) + p.shape)
+        z = np.sqrt(p * (0.5 * ny * nx)) * (w[0] + 1j * w[1])
+        z[:, 0] *= math.sqrt(2.0)
+        if nx % 2 == 0:
+            z[:, -1] *= math.sqrt(2.0)
+        out.append(sfft.irfft2(z, s=shape))
+    return out[0], out[1]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -281,8 +271,8 @@ def gamma_gamma_pattern(shape, pitch_m, alpha, beta, large_scale_radius_m, small
     :func:`gamma_gamma_covariance`.  The joint (multi-point) statistics are those of a translation field,
     not of a propagated optical field.  ``targets`` = (b_X, b_Y) correlation functions, when given, replace the
     Gaussian ones (the wave-optics statistics give both factors the correlation solved from the tabulated
-    covariance, :func:`~core.atmosphere.wave_optics.shared_factor_correlation`).  The two Gaussian fields come from one
-    complex transform (:func:`gaussian_random_field_pair`); the gamma translation is tabulated
+    covariance, :func:`~core.atmosphere.wave_optics.shared_factor_correlation`).  The two Gaussian fields are drawn in the
+    frequency domain, one inverse transform each (:func:`gaussian_random_field_pair`); the gamma translation is tabulated
     (:func:`unit_gamma_transform`, relative error < 1e-5).
     """
     ga, gb = gaussian_random_field_pair(shape, pitch_m,
