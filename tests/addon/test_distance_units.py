@@ -64,15 +64,15 @@ def test_inner_and_outer_scale_are_scene_distances(lad, scene, scale_length):
     """Issue 17: l0 and L0 are atmosphere distance properties (Blender units): 5 mm and 50 m survive the round
     trip at 1 m and 1 mm per unit, and the panel field list carries them with the statistics model."""
     cam = add_camera(scene)
-    cfg = lad.properties.config_from_blender(scene, cam)
+    cfg = lad.blend_config.config_from_blender(scene, cam)
     assert cfg.atmosphere.scintillation_statistics == "wave_optics"
     scene.unit_settings.system = "METRIC"
     scene.unit_settings.scale_length = scale_length
     cfg.atmosphere.inner_scale_m = 0.005
     cfg.atmosphere.outer_scale_m = 50.0
-    lad.properties.apply_config_to_blender(cfg, scene, cam)
+    lad.blend_config.apply_config_to_blender(cfg, scene, cam)
     assert scene.ladar_atmosphere.inner_scale_m == pytest.approx(0.005 / scale_length, rel=1e-6)
-    back = lad.properties.config_from_blender(scene, cam)
+    back = lad.blend_config.config_from_blender(scene, cam)
     assert back.atmosphere.inner_scale_m == pytest.approx(0.005, rel=1e-6)
     assert back.atmosphere.outer_scale_m == pytest.approx(50.0, rel=1e-6)
     names = {f.name: f for f in lad.properties.ATMOSPHERE_FIELDS}

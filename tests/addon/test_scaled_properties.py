@@ -22,6 +22,8 @@ SCALED = {
     "run.max_memory_bytes": 512 * 2**20,
     "atmosphere.visibility_m": 12000.0,
     "atmosphere.cn2_m_23": 5e-15,
+    "atmosphere.inner_scale_m": 0.005,
+    "atmosphere.outer_scale_m": 50.0,
     "materials.Paint.table_wavelength_m": 905e-9,
 }
 
