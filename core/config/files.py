@@ -75,32 +75,33 @@ def load_config(path, base: SimulationConfig | None = None) -> SimulationConfig:
     return config_from_dict(read_config_file(path), base)
 
 
-def read_config_file(path):
-    """The table a JSON or TOML config file holds, not yet checked as settings (:func:`config_from_dict` does
-    that).  A file that cannot be read as one — missing, another suffix, not UTF-8, not valid JSON/TOML, nested
-    deeper than ``MAX_CONFIG_DEPTH`` — is a one-line ConfigError naming the file."""
+def read_config_file(path, what: str = "config file"):
+    """The table a JSON or TOML file holds, not yet checked as settings (:func:`config_from_dict` does that; the
+    sweep reader uses it for sweep files, ``what``).  A file that cannot be read as one — missing, another
+    suffix, not UTF-8, not valid JSON/TOML, nested deeper than ``MAX_CONFIG_DEPTH`` — is a one-line ConfigError
+    naming the file."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError("config file", str(path), "an existing .json or .toml file")
+        raise ConfigError(what, str(path), "an existing .json or .toml file")
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".json"):
-        raise ConfigError("config file", str(path), "a file ending in .json or .toml")
+        raise ConfigError(what, str(path), "a file ending in .json or .toml")
     kind = suffix[1:].upper()
     raw = path.read_bytes()
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ConfigError("config file", str(path), f"UTF-8 text (byte {exc.start} is {raw[exc.start]:#04x}, "
-                                                    f"not UTF-8)") from None
+        raise ConfigError(what, str(path), f"UTF-8 text (byte {exc.start} is {raw[exc.start]:#04x}, "
+                                           f"not UTF-8)") from None
     try:
         data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except RecursionError:
-        raise ConfigError("config file", str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep "
-                                                    f"(settings tables hold numbers, strings and lists)") from None
+        raise ConfigError(what, str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep "
+                                           f"(settings tables hold numbers, strings and lists)") from None
     except ValueError as exc:  # JSONDecodeError, TOMLDecodeError, integers too long to read
-        raise ConfigError("config file", str(path), f"valid {kind} ({cut(str(exc), 200)})") from None
+        raise ConfigError(what, str(path), f"valid {kind} ({cut(str(exc), 200)})") from None
     if _depth(data) > MAX_CONFIG_DEPTH:
-        raise ConfigError("config file", str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep")
+        raise ConfigError(what, str(path), f"{kind} nested at most {MAX_CONFIG_DEPTH} levels deep")
     return data
 
 

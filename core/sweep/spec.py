@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config.files import config_from_dict, config_to_dict, load_config
+from ..config.files import config_from_dict, config_to_dict, load_config, read_config_file
 from ..config.settings import BRDFSettings, SimulationConfig
 from ..errors import ConfigError
 
@@ -87,21 +87,7 @@ class SweepSpec:
 def load_sweep(path) -> SweepSpec:
     """Read and check a sweep file (``.toml`` or ``.json``).  Raises ConfigError naming the bad entry."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError("sweep file", str(path), "an existing .toml or .json file")
-    text = path.read_text(encoding="utf-8")
-    try:
-        if path.suffix.lower() == ".toml":
-            import tomllib
-            data = tomllib.loads(text)
-        elif path.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            raise ConfigError("sweep file", str(path), "a file ending in .toml or .json")
-    except (json.JSONDecodeError, ValueError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError("sweep file", str(path), f"valid {path.suffix[1:].upper()} ({exc})") from exc
+    data = read_config_file(path, "sweep file")  # not UTF-8, not JSON/TOML, too deep: one line naming the file
     spec = sweep_from_dict(data, root=path.resolve().parent)
     spec.source = str(path)
     return spec

@@ -172,3 +172,19 @@ def test_a_sequence_refuses_what_is_not_a_config_or_a_frame_number(tmp_path, fra
                      cfg if config == "ok" else config, tmp_path / "seq")
     _one_line(exc, *fragments)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name,data,fragments", [
+    ("latin1.toml", b"sweep_version = 1\n[axes]\n\"laser.pulse_shape\" = [\"gau\xdfian\"]\n", ["UTF-8", "byte 52"]),
+    ("deep.json", b"[" * 100_000 + b"]" * 100_000, ["nested at most"]),
+    ("deep.toml", b"x = " + b"[" * 100_000 + b"]" * 100_000, ["nested at most"]),
+    ("huge.json", b'{"sweep_version": ' + b"9" * 5000 + b"}", ["valid JSON"]),
+])
+def test_unreadable_sweep_files_give_one_clean_line(tmp_path, name, data, fragments):
+    """Sweep files are read like config files (config.files.read_config_file): before, the sweep reader's own
+    copy of the old config reader gave UnicodeDecodeError and RecursionError tracebacks."""
+    from core.sweep.spec import load_sweep
+    (tmp_path / name).write_bytes(data)
+    with pytest.raises(ConfigError) as exc:
+        load_sweep(tmp_path / name)
+    _one_line(exc, "sweep file", *fragments)
