@@ -345,7 +345,8 @@ def test_killing_a_worker_mid_sweep_loses_no_finished_point(client, tmp_path):
 
 
 def test_the_core_is_shipped_to_workers_that_cannot_import_it(tmp_path, monkeypatch):
-    """The remote-cluster path: workers started without the staged core on their path get it uploaded."""
+    """The remote-cluster path: workers started without the staged core on their path get it uploaded, and a
+    sweep given the scheduler's address runs on them."""
     name, outer = stage_core()
     monkeypatch.setattr(sys, "path", [p for p in sys.path if p != str(outer)])
     cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -355,5 +356,10 @@ def test_the_core_is_shipped_to_workers_that_cannot_import_it(tmp_path, monkeypa
             assert not any(c.run(can_import, name).values())
             assert ship_core(c) == name
             assert all(c.run(can_import, name).values())
+        spec = sweep_from_dict({"sweep_version": 1, "axes": {"laser.pulse_energy_j": [1e-4, 1e-3]}})
+        out = run_sweep(spec, scene(), tmp_path / "sw", base=base_config(), scheduler=cluster.scheduler_address,
+                        plots=False)
+        assert (out.n_workers, out.n_done, out.n_run) == (1, 2, 2)
+        assert [r["status"] for r in read_table(tmp_path / "sw" / "results.csv")] == ["done", "done"]
     finally:
         cluster.close()
