@@ -13,7 +13,7 @@ import pytest
 
 from core.errors import ConfigError
 from core.run import run_simulation
-from core.sweep.runner import figure_statistics, plan_sweep, read_table, replot, run_sweep
+from core.sweep.runner import figure_statistics, open_client, plan_sweep, read_table, replot, run_sweep
 from core.sweep.shipping import can_import, ship_core, stage_core
 from core.sweep.scene import SweepScene, boresight_point, pose_at_range
 from core.sweep.spec import load_sweep, point_configs, points, sweep_from_dict, task_seed
@@ -273,6 +273,23 @@ def test_results_do_not_depend_on_the_number_of_workers(client, tmp_path, monkey
     assert [f for f, _ in seen] == sorted(f for f, _ in seen) and seen[-1][0] == 1.0 and len(seen) >= 2
     assert all(re.fullmatch(r"\d+/12 tasks, ETA \d+ s", text) for _, text in seen), seen
     assert seen[-1][1] == "12/12 tasks, ETA 0 s"
+
+
+def test_the_sweeps_local_cluster_starts_workers_without_dasks_malloc_trim(client, monkeypatch):
+    """distributed's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (the fixture's default cluster);
+    open_client's local cluster does not (its nanny also writes the setting into this process's environment,
+    which a later cluster's workers would inherit: removed here as in a fresh process)."""
+    def trim():
+        return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+    assert set(client.run(trim).values()) == {"65536"}
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    c, cluster = open_client(n_workers=1)
+    try:
+        assert list(c.run(trim).values()) == [None]
+    finally:
+        c.close()
+        cluster.close()
 
 
 def test_plot_statistics_are_the_mean_and_spread_over_seeds():
