@@ -10,10 +10,12 @@ worked example of docs/sweeps.md, cut to ``--points`` tasks.
 
 * serial: every task through ``core.sweep.task.run_task`` in this process, one after the other (the same work a
   worker does: the scene read once, one BVH, simulate, summarise, write the run folder);
-* Dask: ``run_sweep`` on a LocalCluster of N single-threaded worker processes started beforehand (its start-up
-  is reported apart), into a fresh folder each time;
+* Dask: ``run_sweep`` on the local cluster a sweep starts by default (``runner.open_client``: N single-threaded
+  worker processes), started beforehand (its start-up is reported apart), into a fresh folder each time;
 * overhead per point: (1-worker sweep − serial) / points, and the round trip of a no-op task through the same
-  scheduler (submit → result, one at a time and 200 at once).
+  scheduler (submit → result, one at a time and 200 at once);
+* CPU seconds per point (serial: this process; Dask: the workers, and apart this process — client and
+  scheduler): unlike wall times, nearly independent of what else the machine runs.
 
 The serial pass runs before and after the Dask runs (the machine's load drifts; both are reported, the ratios use
 their mean).
@@ -51,14 +53,17 @@ def sweep_spec(n_points: int):
                                      "atmosphere.visibility_m": [2000, 10000]}})
 
 
+def cpu_seconds() -> float:
+    """This process's CPU time (all its threads), s: run on each worker."""
+    return time.process_time()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--points", type=int, default=16, help="tasks (points × seeds) per run")
     ap.add_argument("--workers", default="1,2,4")
     args = ap.parse_args(argv)
-    from distributed import Client, LocalCluster
-
-    from core.sweep.runner import plan_sweep, run_sweep
+    from core.sweep.runner import open_client, plan_sweep, run_sweep
     from core.sweep.scene import SweepScene
     from core.sweep.shipping import stage_core
     from core.sweep.task import run_task
@@ -77,13 +82,13 @@ def main(argv=None) -> int:
         def serial(tag):  # every task in this process, one after the other (the scene read once, one BVH)
             plan = plan_sweep(spec, scene, cfg, work / tag)
             plan.scene.save(work / tag / "scene")
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             rows = [run_task(str(work / tag / "scene"), plan.manifest["scene_digest"], t) for t in plan.tasks]
-            wall = time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             assert all(r["status"] == "done" for r in rows), [r["error"] for r in rows if r["status"] != "done"]
             n = len(plan.tasks)
             print(f"serial    {n} tasks in {wall:.2f} s: {n / wall:.2f} points/s", flush=True)
-            return n, {"wall_s": wall, "points_per_s": n / wall,
+            return n, {"wall_s": wall, "points_per_s": n / wall, "cpu_s_per_point": cpu / n,
                        "task_s_mean": sum(r["run_time_s"] for r in rows) / n}
 
         n, first = serial("serial")
@@ -93,17 +98,19 @@ def main(argv=None) -> int:
         out["dask"] = {}
         for w in [int(x) for x in args.workers.split(",")]:
             t0 = time.perf_counter()
-            cluster = LocalCluster(n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=40)
-            client = Client(cluster)
+            client, cluster = open_client(n_workers=w)  # the local cluster a sweep starts by default
             startup = time.perf_counter() - t0
             try:
-                t0 = time.perf_counter()
+                w0 = client.run(cpu_seconds)
+                t0, c0 = time.perf_counter(), time.process_time()
                 res = run_sweep(spec, scene, work / f"dask{w}", base=cfg, client=client, plots=False)
-                wall = time.perf_counter() - t0
-                assert res.n_done == n, res.summary()
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+                w1 = client.run(cpu_seconds)
+                assert res.n_done == n and w0.keys() == w1.keys(), res.summary()
                 entry = {"cluster_startup_s": startup, "wall_s": wall, "points_per_s": n / wall,
-                         "task_s_mean": sum(r["run_time_s"] for r in res.rows) / n}
+                         "task_s_mean": sum(r["run_time_s"] for r in res.rows) / n,
+                         "worker_cpu_s_per_point": sum(w1[k] - w0[k] for k in w0) / n,
+                         "client_and_scheduler_cpu_s_per_point": cpu / n}
                 if w == 1:
                     t0 = time.perf_counter()
                     for i in range(50):
@@ -127,7 +134,10 @@ def main(argv=None) -> int:
             if w == "1":
                 entry["overhead_per_point_s"] = (entry["wall_s"] - serial_s) / n
             print(f"dask {w}w   {entry['points_per_s']:.2f} points/s = {entry['speedup_vs_serial']:.2f}× serial "
-                  f"(mean of the two serial passes, {n / serial_s:.2f} points/s)", flush=True)
+                  f"(mean of the two serial passes, {n / serial_s:.2f} points/s); CPU s per point: workers "
+                  f"{entry['worker_cpu_s_per_point']:.2f}, client + scheduler "
+                  f"{entry['client_and_scheduler_cpu_s_per_point']:.3f} (serial {first['cpu_s_per_point']:.2f}, "
+                  f"{last['cpu_s_per_point']:.2f})", flush=True)
         one = out["dask"].get("1")
         if one:
             print(f"overhead  {one['overhead_per_point_s'] * 1e3:.0f} ms per point (1 worker vs serial); no-op task "
