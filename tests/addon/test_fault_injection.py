@@ -28,6 +28,20 @@ def _terminal_signals():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+def _wait_for_sigint_handler(pid, timeout_s=30.0):
+    status = Path(f"/proc/{pid}/status")
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        try:
+            caught = next(int(line.split()[1], 16) for line in status.read_text().splitlines()
+                          if line.startswith("SigCgt:"))
+        except (OSError, StopIteration):
+            return
+        if caught & (1 << (signal.SIGINT - 1)):
+            return
+        time.sleep(0.002)
+
+
 class Case:
     def __init__(self, root: Path, name: str):
         self.dir = root / name
@@ -66,6 +80,10 @@ class Case:
             assert seen.wait(240), f"no {phase!r} line"
             assert p.poll() is None, f"the run ended before {phase}: {''.join(lines)}"
         else:
+            # the delay counts from when the interpreter handles SIGINT (CPython sets its handler before it
+            # imports site and runs the script): on a loaded machine the interpreter's own start, which no
+            # script can guard, may take longer than the delay
+            _wait_for_sigint_handler(p.pid)
             time.sleep(delay_s)
         p.send_signal(sig)
         err = p.stderr.read()
