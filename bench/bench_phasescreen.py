@@ -1,7 +1,7 @@
-"""Fast scintillation model vs the split-step phase-screen reference (physics.md §3, §11, §12).
+"""Fast scintillation model vs the split-step phase-screen reference (docs/theory.md §3, §11, §12).
 
-Plane wave over a horizontal 1 km path at 1064 nm, two strengths: σ_R² = 0.2 (Cn² = 6.477e-15, the sheet's
-§12 case) and σ_R² = 0.5 (Cn² = 1.619e-14, moderate-weak).  For each case, in the same run:
+Plane wave over a horizontal 1 km path at 1064 nm, two strengths: σ_R² = 0.2 (Cn² = 6.477e-15, the
+docs/theory.md §12 case) and σ_R² = 0.5 (Cn² = 1.619e-14, moderate-weak).  For each case, in the same run:
 
 * reference: ``split_step_plane_wave`` (the propagator behind ``split_step_reference``), n × n grid at dx,
   central ``crop`` kept (the subharmonics are not periodic);
@@ -17,7 +17,8 @@ spread, and the 1/e radius of the realisation-averaged, normalised, non-periodic
 the crop (mean of the x and y profiles).  Targets (issue): SI within 10 %, 1/e radius within 15 %.  Times are
 per realisation, generation only (the estimator is not timed).
 Each case also gets a finer split-step run (half the grid spacing, twice the screens, same crop area) to show
-that the reference is converged; in the σ_R² = 0.2 case it is compared with the sheet's split-step SI 0.1989.
+that the reference is converged; in the σ_R² = 0.2 case it is compared with the split-step SI 0.1989
+of docs/theory.md §12.
 ``diagnostics`` (not with --quick) separates the causes of an SI difference: split-step variants (subharmonics
 off, larger box, more screens, inner scale), the reference's log-irradiance variance, and first-order theory.
 
@@ -48,7 +49,7 @@ WAVELENGTH_M = 1064e-9
 RANGE_M = 1e3
 SI_TARGET = 0.10          # relative SI difference allowed (issue)
 RADIUS_TARGET = 0.15      # relative 1/e-radius difference allowed (issue)
-SHEET_SI = 0.1989          # physics.md §12: split-step SI of the σ_R² = 0.2 case (± 0.0008)
+SHEET_SI = 0.1989          # docs/theory.md §12: split-step SI of the σ_R² = 0.2 case (± 0.0008)
 CASES = (("weak_rytov_0.2", 6.477e-15), ("moderate_rytov_0.5", 6.477e-15 * 2.5))
 
 
@@ -248,7 +249,7 @@ def main(argv=None):
     for name, cn2 in CASES:
         cases[name] = run_case(name, cn2, args, grid)
     # convergence of the reference in both cases: dx/2 and 2 × screens over the same physical crop (not quick).
-    # The weak case is the sheet's §12 vector (split-step SI 0.1989 ± 0.0008): this run replaces the former
+    # The weak case is the docs/theory.md §12 vector (split-step SI 0.1989 ± 0.0008): this run replaces the former
     # LADAR_LONG_TESTS unit test (1024² grid at 1 mm, 10 screens), which asserted SI within 2 % of it.
     for k, (name, cn2) in enumerate(CASES):
         conv = run_split_step(cn2, fine["n"], fine["dx_m"], 2 * default_screens(cn2), fine["realizations"],

@@ -56,11 +56,11 @@ def with_volume_return(cube, primaries_per_bin):
     return cube + np.float32(primaries_per_bin * PJ_PER_E)
 
 
-# name: (DetectorSettings overrides, cube transform, inside the 3x target?)  physics.md §8 detector: η 0.4,
+# name: (DetectorSettings overrides, cube transform, inside the 3x target?)  docs/theory.md §8 detector: η 0.4,
 # G 100, k 0.02, 1 pA / 1 nA, 300 e⁻, 12-bit A/D with Δ = 500 e⁻
 SCENES = {
     "typical: bg 0.02 e/bin, speckle M=4": (dict(background_rate_photons_per_s=5e7, speckle_dof=4.0), None, True),
-    "dense background: 2 e/bin (physics §8 N_b) everywhere": (dict(background_rate_photons_per_s=5e9), None, True),
+    "dense background: 2 e/bin (theory §8 N_b) everywhere": (dict(background_rate_photons_per_s=5e9), None, True),
     "bright sunlight: 50 e/bin everywhere": (dict(background_rate_photons_per_s=1.25e11), None, True),
     "PIN, bg 0.02 e/bin": (dict(detector_type="pin", background_rate_photons_per_s=5e7,
                                 adc_full_scale_e=4096 * 20.0, read_noise_e=30.0), None, True),

@@ -59,7 +59,7 @@ def peak_bin_fraction(laser, bin_width_s: float) -> float:
 
 def detector_snr(cfg, peak_bin_energy_j: float) -> dict:
     """Peak-bin figures of the linear-mode receiver for ``peak_bin_energy_j`` of signal in one bin, with every
-    switch exactly as the chain applies it (:func:`core.physics.receiver.bin_moments`, physics.md §7, §8):
+    switch exactly as the chain applies it (:func:`core.physics.receiver.bin_moments`, docs/theory.md §7, §8):
 
         SNR = G N_s / √var(N_s),  var = G²F(N_s + N_b + N_db) + N_ds + G²N_s²/M + σ_read² + Δ²/12  (shot noise on)
 

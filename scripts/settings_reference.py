@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import sys
 from pathlib import Path
 
@@ -20,6 +21,36 @@ sys.path.insert(0, str(REPO))
 from core.config import GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig  # noqa: E402
 
 OUT = REPO / "docs" / "settings.md"
+THEORY = REPO / "docs" / "theory.md"
+#: One section of a citation: "§3" or a range "§1–6".
+_SECTION = r"§(\d+)(?:[–-]\d+)?"
+#: A plain citation of the physics reference in a description: "docs/theory.md §3" or "docs/theory.md §1–6, §11".
+_THEORY_CITATION = re.compile(rf"docs/theory\.md ({_SECTION}(?:, {_SECTION})*)")
+
+
+def github_slug(heading: str) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped, spaces become hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def theory_sections() -> dict:
+    """Section number → anchor of the numbered sections ("## N. Title") of docs/theory.md."""
+    text = THEORY.read_text(encoding="utf-8")
+    return {int(m.group(1)): github_slug(m.group(0)[3:]) for m in re.finditer(r"^## (\d+)\. .+$", text, re.M)}
+
+
+def link_theory(text: str) -> str:
+    """The descriptions cite the physics reference as "docs/theory.md §N" (or "§1–6, §11"); in docs/settings.md,
+    beside it, each cited section becomes a Markdown link to its heading in theory.md."""
+    sections = theory_sections()
+
+    def links(m):
+        out = []
+        for i, item in enumerate(re.findall(r"§\d+(?:[–-]\d+)?", m.group(1))):
+            anchor = sections[int(re.match(_SECTION, item).group(1))]
+            out.append(f"[{'theory ' if i == 0 else ''}{item}](theory.md#{anchor})")
+        return ", ".join(out)
+    return _THEORY_CITATION.sub(links, text)
 
 
 def _number(v) -> str:
@@ -49,7 +80,7 @@ def allowed(f: dataclasses.Field) -> str:
 
 
 def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
+    return link_theory(text.replace("|", "\\|").replace("\n", " "))
 
 
 def table(cls, prefix: str) -> list[str]:
@@ -101,9 +132,9 @@ def render() -> str:
                      f"{_cell(allowed(f))} | {_cell(f.metadata.get('doc', ''))} |")
     for g in GROUPS:
         cls = type(getattr(cfg, g))
-        doc = " ".join((cls.__doc__ or "").split())
+        doc = link_theory(" ".join((cls.__doc__ or "").split()))
         lines += ["", f"## `{g}`", "", doc, ""] + table(cls, f"{g}.")
-    doc = " ".join((BRDFSettings.__doc__ or "").split())
+    doc = link_theory(" ".join((BRDFSettings.__doc__ or "").split()))
     lines += ["", "## `materials.<name>`", "",
               "BRDF overrides by material name (`[materials.Concrete]` in TOML): a run can change a material of the "
               "scene without editing the .blend. " + doc, ""] + table(BRDFSettings, "")

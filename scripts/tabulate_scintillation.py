@@ -74,7 +74,7 @@ def fresnel(wavelength_m=WAVELENGTH_M, range_m=RANGE_M):
 
 
 def cn2_for(beta2, wavelength_m=WAVELENGTH_M, range_m=RANGE_M):
-    """Cn² giving the spherical Rytov variance β0² (physics.md §1, coefficient 0.50)."""
+    """Cn² giving the spherical Rytov variance β0² (docs/theory.md §1, coefficient 0.50)."""
     return beta2 / float(tb.rytov_variance(1.0, wavelength_m, range_m, "spherical"))
 
 

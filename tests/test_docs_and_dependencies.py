@@ -65,3 +65,88 @@ def test_a_blender_without_the_packages_is_told_what_to_install():
     assert msg.startswith("Ladar Simulator needs the Python package(s) scipy, embreex, OpenEXR, matplotlib"), \
         out.stdout + out.stderr
     assert "scripts/build_extension.py" in msg and "Install from Disk" in msg and "requirements.txt" in msg
+
+
+# --------------------------------------------------------------------------------------------------------------
+# docs/theory.md is the physics reference the code cites (issue 14c)
+# --------------------------------------------------------------------------------------------------------------
+#: The developers' private reference sheet, absent from a clone (split so that this file does not cite it).
+PRIVATE_SHEET = "physics" + ".md"
+SECTION_ITEM = r"§(\d+)(?:\s*[–-]\s*(\d+))?"
+CITATION = re.compile(rf"theory\.md`*\s+({SECTION_ITEM}(?:\s*,\s*{SECTION_ITEM})*)")
+LINK = re.compile(r"\[theory ([^\]]+)\]\(([^)#\s]*theory\.md)#([^)\s]+)\)"
+                  r"|\[(§[^\]]+)\]\(([^)#\s]*theory\.md)#([^)\s]+)\)")
+
+
+def tracked_text_files():
+    """(relative path, text) of every text file git tracks (the files a clone gets)."""
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True).stdout
+    for rel in out.decode().split("\0"):
+        path = REPO / rel
+        if not rel or not path.is_file() or path.stat().st_size > 2_000_000:
+            continue
+        try:
+            yield rel, path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            continue
+
+
+def section_numbers(items: str) -> list[int]:
+    nums = []
+    for a, b in re.findall(SECTION_ITEM, items):
+        nums += list(range(int(a), int(b or a) + 1))
+    return nums
+
+
+def test_theory_has_the_thirteen_numbered_sections():
+    sections = settings_reference.theory_sections()
+    assert sorted(sections) == list(range(1, 14))
+    assert sections[3] == "3-log-intensity-variance-aperture-averaging-and-intensity-pdfs"
+    assert settings_reference.github_slug("4. Gaussian beam: spread and wander") == "4-gaussian-beam-spread-and-wander"
+
+
+def test_nothing_cites_the_private_physics_sheet():
+    """Before: about 170 citations of the sheet in code, docs, scripts, bench, tests and presets pointed at a file
+    a clone does not have; now every one names docs/theory.md."""
+    this = str(Path(__file__).resolve().relative_to(REPO))  # names the patterns it looks for
+    offenders = [f"{rel}:{n}" for rel, text in tracked_text_files() if rel not in ("docs/theory.md", this)
+                 for n, line in enumerate(text.splitlines(), 1)
+                 if PRIVATE_SHEET in line or "shared/reference" in line
+                 or re.search(r"\bphysics §\d|\bsheet's\b|\(sheet\b|physics sheet", line)]
+    assert offenders == [], offenders
+
+
+def test_every_theory_citation_names_an_existing_section():
+    """Plain citations ("docs/theory.md §3", "§1–6, §11–13") and Markdown links (text "theory §3" to
+    theory.md#anchor): each section number exists, and a link's anchor is the heading of the section it names."""
+    sections = settings_reference.theory_sections()
+    n_plain = n_links = 0
+    for rel, text in tracked_text_files():
+        for m in CITATION.finditer(text):
+            nums = section_numbers(m.group(1))
+            assert nums and all(n in sections for n in nums), f"{rel}: {m.group(0)!r}"
+            n_plain += 1
+        for m in LINK.finditer(text):
+            label, target, anchor = (m.group(1), m.group(2), m.group(3)) if m.group(1) else m.group(4, 5, 6)
+            nums = section_numbers(label)
+            assert nums and nums[0] in sections, f"{rel}: {m.group(0)!r}"
+            assert anchor == sections[nums[0]], f"{rel}: {m.group(0)!r} should link #{sections[nums[0]]}"
+            assert ((REPO / rel).parent / target).resolve() == REPO / "docs" / "theory.md", f"{rel}: {target}"
+            n_links += 1
+    assert n_plain >= 100 and n_links >= 10, (n_plain, n_links)  # the patterns still match the citations
+
+
+def test_theory_anchors_inside_the_docs_resolve():
+    """Every link to a heading of docs/theory.md (from the docs, the README and theory.md's own contents line)
+    names a heading that exists."""
+    slugs = set(settings_reference.theory_sections().values()) | {"references"}
+    theory = (REPO / "docs" / "theory.md").read_text(encoding="utf-8")
+    for path in doc_files():
+        text = path.read_text(encoding="utf-8")
+        anchors = re.findall(r"\]\((?:[^)#\s]*theory\.md)#([^)\s]+)\)", text)
+        if path.name == "theory.md":
+            anchors += re.findall(r"\]\(#([^)\s]+)\)", text)
+        for a in anchors:
+            assert a in slugs, f"{path.relative_to(REPO)}: #{a}"
+    assert "](docs/theory.md)" in (REPO / "README.md").read_text(encoding="utf-8")  # in the documentation table
+    assert theory.count("\n## ") >= 14

@@ -1,4 +1,4 @@
-"""Atmosphere physics (paper §3.4 A–E; physics.md §1–6, §11–13): pure, vectorised numpy/scipy functions.
+"""Atmosphere physics (paper §3.4 A–E; docs/theory.md §1–6, §11–13): pure, vectorised numpy/scipy functions.
 
 * :mod:`.extinction`    — aerosol extinction from visibility, two-way transmission in log form (C).
 * :mod:`.turbulence`    — Rytov variance, ρ0/r0, cell size, σ_lnI², gamma-gamma α/β, beam spread and

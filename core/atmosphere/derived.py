@@ -1,4 +1,4 @@
-"""All derived turbulence quantities of one path for the run metadata (physics.md §1–3; issue 17).
+"""All derived turbulence quantities of one path for the run metadata (docs/theory.md §1–3; issue 17).
 
 :func:`derived_turbulence` combines the formulas of :mod:`core.atmosphere.turbulence` (the paper's statistics)
 with the split-step wave-optics table of :mod:`core.atmosphere.wave_optics` (the default statistics).  It lives

@@ -1,6 +1,6 @@
 """Aerosol extinction and the two-way transmission of the laser radar equation (paper §3.4 C, eq. 3-1).
 
-physics.md §6 (Kruse / Kim visibility models) and §13 (carry the link budget in log form).
+docs/theory.md §6 (Kruse / Kim visibility models) and §13 (carry the link budget in log form).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ EXTINCTION_MODELS = ("kim", "kruse")
 
 
 def visibility_size_exponent(visibility_m, model="kim"):
-    """Wavelength exponent q(V) of the Kruse or Kim model (physics.md §6).
+    """Wavelength exponent q(V) of the Kruse or Kim model (docs/theory.md §6).
 
     Kruse: q = 1.6 (V > 50 km), 1.3 (6 < V ≤ 50 km), 0.585 V^(1/3) (V ≤ 6 km, V in km).
     Kim:   same above 6 km; 0.16 V + 0.34 (1 < V ≤ 6 km); V − 0.5 (0.5 < V ≤ 1 km); 0 (V ≤ 0.5 km).
@@ -30,10 +30,10 @@ def visibility_size_exponent(visibility_m, model="kim"):
 
 
 def extinction_from_visibility(visibility_m, wavelength_m, model="kim"):
-    """One-way aerosol extinction coefficient σ_atm [1/m] from the visibility (physics.md §6).
+    """One-way aerosol extinction coefficient σ_atm [1/m] from the visibility (docs/theory.md §6).
 
     β = (3.912 / V) (λ / 550 nm)^(−q(V)), V the 2 %-contrast meteorological visibility.  Vectorised over
-    ``visibility_m`` and ``wavelength_m`` (broadcast).  Valid for haze and fog (V ≳ 0.2 km, physics §13);
+    ``visibility_m`` and ``wavelength_m`` (broadcast).  Valid for haze and fog (V ≳ 0.2 km, docs/theory.md §13);
     it models aerosol scattering only (no molecular absorption lines, no rain/snow).  V ≤ 0 raises.
     """
     v = np.asarray(visibility_m, dtype=np.float64)
@@ -47,7 +47,7 @@ def extinction_from_visibility(visibility_m, wavelength_m, model="kim"):
 
 
 def log_two_way_transmission(extinction_per_m, range_m):
-    """ln T² = −2 σ_atm R: log of the two-way aerial transmission of eq. 3-1 (physics.md §6, §13).
+    """ln T² = −2 σ_atm R: log of the two-way aerial transmission of eq. 3-1 (docs/theory.md §6, §13).
 
     Kept in log form so that long ranges in thick fog never underflow (exp(−2σR) is 0 in float64 below
     e^(−745)); the result is exactly ``-2.0 * sigma * R`` in float64.  Add it to the other log factors of
@@ -59,5 +59,5 @@ def log_two_way_transmission(extinction_per_m, range_m):
 
 
 def two_way_transmission(extinction_per_m, range_m):
-    """T² = exp(−2 σ_atm R) (physics.md §6).  May underflow to 0 — prefer :func:`log_two_way_transmission`."""
+    """T² = exp(−2 σ_atm R) (docs/theory.md §6).  May underflow to 0 — prefer :func:`log_two_way_transmission`."""
     return np.exp(log_two_way_transmission(extinction_per_m, range_m))

@@ -1,4 +1,4 @@
-"""Split-step phase-screen propagation: the accurate, slow reference model (physics.md §12).
+"""Split-step phase-screen propagation: the accurate, slow reference model (docs/theory.md §12).
 
 Used only to validate the fast engineering model of :mod:`core.atmosphere.scintillation` (the seed paper
 rejects phase screens for run time, §3.4).  Plane wave, constant Cn², paraxial angular-spectrum
@@ -15,7 +15,7 @@ from . import turbulence as tb
 
 
 def von_karman_phase_psd(f_cyc_per_m, r0_m, outer_scale_m=np.inf, inner_scale_m=0.0):
-    """Phase PSD Φ_φ(f) = 0.023 r0^(−5/3) (f² + 1/L0²)^(−11/6) exp(−(f/f_m)²) [rad² m²] (physics.md §12).
+    """Phase PSD Φ_φ(f) = 0.023 r0^(−5/3) (f² + 1/L0²)^(−11/6) exp(−(f/f_m)²) [rad² m²] (docs/theory.md §12).
 
     f in cycles/m, f_m = 5.92/(2π l0) (no cut-off for l0 = 0), L0 = inf: Kolmogorov.  f = 0 with L0 = inf
     returns 0 (the piston term is irrelevant).
@@ -33,7 +33,7 @@ def von_karman_phase_psd(f_cyc_per_m, r0_m, outer_scale_m=np.inf, inner_scale_m=
 
 
 def phase_screens(count, n, dx_m, r0_m, rng, *, outer_scale_m=np.inf, inner_scale_m=0.0, subharmonics=True):
-    """``count`` independent von Kármán phase screens [rad], shape (count, n, n) (physics.md §12).
+    """``count`` independent von Kármán phase screens [rad], shape (count, n, n) (docs/theory.md §12).
 
     FFT method: c_f = (a + i b) √Φ_φ(f) Δf summed over the n × n frequency grid (Δf = 1/(n dx)); the real
     and imaginary parts of the sum are two independent screens.  Lane (1992) subharmonics, 3 levels of
@@ -67,7 +67,7 @@ def phase_screens(count, n, dx_m, r0_m, rng, *, outer_scale_m=np.inf, inner_scal
 
 def default_screen_count(cn2_m_23, wavelength_m, range_m):
     """Screens of the split-step reference: each slab has a plane-wave Rytov variance ≤ 0.1,
-    n ≥ (10 σ_R²)^(6/11), and at least 5 (physics.md §12)."""
+    n ≥ (10 σ_R²)^(6/11), and at least 5 (docs/theory.md §12)."""
     s_r = float(tb.rytov_variance(cn2_m_23, wavelength_m, range_m, "plane"))
     return max(5, int(math.ceil((10 * s_r) ** (6.0 / 11.0))))
 
@@ -170,7 +170,7 @@ def one_over_e_radius(profile, dx_m):
 def split_step_reference(wavelength_m, range_m, cn2_m_23, rng, *, n=512, dx_m=2e-3, n_screens=None,
                          realizations=10, crop=0.5, outer_scale_m=np.inf, inner_scale_m=0.0,
                          subharmonics=True):
-    """Split-step reference statistics of a plane wave (physics.md §12).
+    """Split-step reference statistics of a plane wave (docs/theory.md §12).
 
     Runs ``realizations`` independent propagations, keeps the central ``crop`` fraction of each side (the
     subharmonics are not periodic, the border is polluted by wrap-around), and returns a dict:

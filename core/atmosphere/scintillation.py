@@ -1,6 +1,6 @@
 """Random turbulence realisations: scintillation patterns, beam wander, turbulence blur (paper §3.4 B, D, E).
 
-physics.md §11 (exact FFT scintillation generator), §3 (pdfs), §4 (wander), §5 (MTFs).
+docs/theory.md §11 (exact FFT scintillation generator), §3 (pdfs), §4 (wander), §5 (MTFs).
 
 Patterns are defined in metres on the target plane, on a periodic grid whose pitch is a fraction of the
 correlation radius, independent of the receiver resolution; :meth:`ScintillationPattern.sample` evaluates
@@ -75,7 +75,7 @@ def field_spectrum(shape, pitch_m, correlation):
 
 
 def gaussian_random_field(shape, pitch_m, correlation, rng, spectrum=None):
-    """Zero-mean, unit-variance Gaussian field on a periodic grid with correlation ρ_g(r) (physics.md §11).
+    """Zero-mean, unit-variance Gaussian field on a periodic grid with correlation ρ_g(r) (docs/theory.md §11).
 
     Exact: Cov = ρ_g at the grid nodes (periodic minimum-image distance), var = 1 in expectation.  The grid
     should span ≥ ~8 correlation radii so that the periodic wrap does not alter ρ_g.  ``spectrum`` may be a
@@ -113,7 +113,7 @@ def gaussian_random_field_pair(shape, pitch_m, correlation_a, correlation_b, rng
 # Log-normal pattern (weak turbulence, seed eq. 3-5)
 # ----------------------------------------------------------------------------------------------------------
 def gaussian_g_width(cell_radius_m, sigma2_lnI):
-    """Closed-form width a of a Gaussian ρ_g = exp(−r²/a²) giving an intensity 1/e radius ρ_l (physics §11).
+    """Closed-form width a of a Gaussian ρ_g = exp(−r²/a²) giving an intensity 1/e radius ρ_l (docs/theory.md §11).
 
     a = ρ_l / √(−ln(ln(1 + σ_I² e⁻¹)/σ²)), σ_I² = e^(σ²) − 1; a → ρ_l as σ² → 0.
     """
@@ -122,7 +122,7 @@ def gaussian_g_width(cell_radius_m, sigma2_lnI):
 
 
 def lognormal_g_correlation(sigma2_lnI, cell_radius_m, correlation="exact"):
-    """ρ_g(r) for the log-normal generator (physics.md §11).
+    """ρ_g(r) for the log-normal generator (docs/theory.md §11).
 
     ``"exact"``: ρ_g = ln(1 + σ_I² b_I)/σ² with b_I(r) = exp(−r²/ρ_l²): the intensity covariance is then
     exactly σ_I² · Gaussian of 1/e radius ρ_l.  ``"gaussian"``: ρ_g = exp(−r²/a²) with the closed-form a of
@@ -142,7 +142,7 @@ def lognormal_g_correlation(sigma2_lnI, cell_radius_m, correlation="exact"):
 
 def lognormal_pattern(shape, pitch_m, sigma2_lnI, cell_radius_m, rng, *, mean=1.0, correlation="exact",
                       spectrum=None):
-    """Log-normal scintillation pattern S = S_av exp(σ g − σ²/2) on a periodic grid (physics.md §11, eq. 3-5).
+    """Log-normal scintillation pattern S = S_av exp(σ g − σ²/2) on a periodic grid (docs/theory.md §11, eq. 3-5).
 
     ``shape`` (ny, nx) nodes of ``pitch_m`` metres; ``sigma2_lnI`` = σ² the log-intensity variance (use the
     all-regime :func:`~core.atmosphere.turbulence.log_intensity_variance`); ``cell_radius_m`` = ρ_l, the 1/e
@@ -257,7 +257,7 @@ def gamma_gamma_covariance(r_m, alpha, beta, large_scale_radius_m, small_scale_r
 
 def gamma_gamma_pattern(shape, pitch_m, alpha, beta, large_scale_radius_m, small_scale_radius_m, rng, *,
                         mean=1.0, targets=(None, None)):
-    """Gamma-gamma scintillation pattern I = S_av · X · Y on a periodic grid (physics.md §3, §11).
+    """Gamma-gamma scintillation pattern I = S_av · X · Y on a periodic grid (docs/theory.md §3, §11).
 
     X (shape α, large-scale eddies) and Y (shape β, small-scale eddies) are independent unit-mean gamma
     fields, each a translated Gaussian field (:func:`unit_gamma_from_gaussian`) whose Gaussian correlation
@@ -307,7 +307,7 @@ def _gamma_factor(shape, pitch_m, shape_param, radius_m, rng, target=None):
 
 
 # ----------------------------------------------------------------------------------------------------------
-# The seed paper's speckle method made exact (physics.md §11, first two bullets) — for comparison only
+# The seed paper's speckle method made exact (docs/theory.md §11, first two bullets) — for comparison only
 # ----------------------------------------------------------------------------------------------------------
 def speckle_correlation_radius_px(n, window_radius_px):
     """1/e radius N/(π w) [output pixels] of the intensity correlation of the seed FFT speckle (§11)."""
@@ -315,7 +315,7 @@ def speckle_correlation_radius_px(n, window_radius_px):
 
 
 def seed_speckle_lognormal_pattern(n, window_radius_px, sigma2_lnI, rng, *, mean=1.0):
-    """Seed §3.4.1 generator (Harris/Letalick) with the exact normal-score transform (physics.md §11).
+    """Seed §3.4.1 generator (Harris/Letalick) with the exact normal-score transform (docs/theory.md §11).
 
     Uniform random phase × TEM00 window exp(−r²/w²) on an n × n grid, FFT → fully developed speckle I
     (exponential pdf, intensity 1/e correlation radius N/(πw) px); g = −Φ⁻¹(exp(−I/Ī)) is standard normal;
@@ -525,7 +525,7 @@ def beam_wander_offsets(r_c2_m2, rng, size=None):
 # ----------------------------------------------------------------------------------------------------------
 def turbulence_mtf_grid(shape, pixel_pitch_rad, wavelength_m, r0_m, *, exposure="long",
                         aperture_diameter_m=None, alpha=1.0):
-    """Turbulence MTF on the rfft2 frequency grid of an image ``shape`` (ny, nx) (physics.md §5).
+    """Turbulence MTF on the rfft2 frequency grid of an image ``shape`` (ny, nx) (docs/theory.md §5).
 
     ``pixel_pitch_rad``: angular pixel pitch (scalar or (py, px)); frequencies in cycles/rad.
     """
@@ -544,7 +544,7 @@ def turbulence_mtf_grid(shape, pixel_pitch_rad, wavelength_m, r0_m, *, exposure=
 
 def turbulence_blur(image, pixel_pitch_rad, wavelength_m, r0_m, *, exposure="long", aperture_diameter_m=None,
                     alpha=1.0, pad_px=None, pad_mode="constant"):
-    """Blur an image (last two axes) with the turbulence MTF by FFT convolution (paper §3.4 E; physics §5).
+    """Blur an image (last two axes) with the turbulence MTF by FFT convolution (paper §3.4 E; docs/theory.md §5).
 
     ``pixel_pitch_rad``: angular pixel pitch of the image; ``r0_m``: Fried parameter (spherical for a
     target at range).  MTF(0) = 1, so the energy of the padded image is conserved (light spread beyond the

@@ -1,7 +1,7 @@
 """Optical-turbulence parameters of a horizontal path with constant Cn² (paper §3.4 A, B, D, E).
 
 Formulas from Andrews & Phillips, *Laser Beam Propagation through Random Media* (2nd ed., 2005) as
-collected in ``physics.md`` §1–5.  Every function is vectorised (numpy broadcasting), works in float64
+collected in docs/theory.md §1–5.  Every function is vectorised (numpy broadcasting), works in float64
 and returns exactly "no turbulence" for Cn² = 0 (Rytov variance 0, coherence radii +inf, MTF 1, wander 0).
 
 Notation: k = 2π/λ, L the path length (``range_m``), Cn² in m^(-2/3) (``cn2_m_23``).
@@ -15,7 +15,7 @@ from scipy.special import gammaln, hyp2f1, kve
 
 WAVE_TYPES = ("plane", "spherical")
 
-#: Regime limits on the plane-wave Rytov variance σ_R² (physics.md §1).
+#: Regime limits on the plane-wave Rytov variance σ_R² (docs/theory.md §1).
 WEAK_LIMIT = 1.0          # σ_R² < 1: weak fluctuations (log-normal, seed eq. 3-5, acceptable)
 STRICT_RYTOV_LIMIT = 0.3  # σ_R² ≲ 0.3: first-order Rytov theory strictly valid
 STRONG_LIMIT = 10.0       # σ_R² ≳ 10: SI past its focusing peak (≈ 1.24), tending to saturation (SI → 1)
@@ -39,12 +39,12 @@ def wavenumber(wavelength_m):
 # §1 Rytov variance and regimes
 # ----------------------------------------------------------------------------------------------------------
 def rytov_variance(cn2_m_23, wavelength_m, range_m, wave="plane"):
-    """Rytov variance (physics.md §1).
+    """Rytov variance (docs/theory.md §1).
 
     plane:     σ_R² = 1.23 Cn² k^(7/6) L^(11/6)
     spherical: β0²  = 0.50 Cn² k^(7/6) L^(11/6)   (= 0.406 σ_R²)
 
-    The rounded coefficients 1.23 / 0.50 are the ones of the physics sheet (exact 1.2285 / 0.4967).
+    The rounded coefficients 1.23 / 0.50 are the ones docs/theory.md §1 quotes (exact 1.2285 / 0.4967).
     These are the first-order (weak-fluctuation) scintillation indices of a point receiver; they are the
     turbulence-strength parameters used by all the other formulas, not the SI in strong turbulence.
     """
@@ -55,7 +55,7 @@ def rytov_variance(cn2_m_23, wavelength_m, range_m, wave="plane"):
 
 
 def turbulence_regime(rytov_plane):
-    """Regime label from the plane-wave Rytov variance σ_R² (physics.md §1), vectorised.
+    """Regime label from the plane-wave Rytov variance σ_R² (docs/theory.md §1), vectorised.
 
     ``"none"`` (σ_R² = 0), ``"weak"`` (σ_R² < 1), ``"moderate"`` (1 ≤ σ_R² < 10, focusing regime where
     SI rises to its peak ≈ 1.24), ``"strong"`` (σ_R² ≥ 10, saturation towards SI = 1).  Returns a str for
@@ -70,11 +70,11 @@ def turbulence_regime(rytov_plane):
 # §2 Coherence radius, Fried parameter, cell size, Fresnel scale
 # ----------------------------------------------------------------------------------------------------------
 def coherence_radius(cn2_m_23, wavelength_m, range_m, wave="spherical"):
-    """Spatial coherence radius ρ0 [m] (physics.md §2).
+    """Spatial coherence radius ρ0 [m] (docs/theory.md §2).
 
     plane: ρ0 = (1.46 Cn² k² L)^(−3/5); spherical: ρ0 = (0.545 Cn² k² L)^(−3/5).
     Kolmogorov spectrum, zero inner scale, ρ0 ≫ l0.  +inf for Cn² = 0 or L = 0 (no turbulence).
-    Use the spherical value when imaging a target at range L (physics §2).
+    Use the spherical value when imaging a target at range L (docs/theory.md §2).
     """
     check_wave(wave)
     c = 1.46 if wave == "plane" else 0.545
@@ -85,7 +85,7 @@ def coherence_radius(cn2_m_23, wavelength_m, range_m, wave="spherical"):
 
 
 def fried_parameter(cn2_m_23, wavelength_m, range_m, wave="spherical"):
-    """Fried parameter r0 [m] (physics.md §2; r0 = 2.099 ρ0 for the same wave type).
+    """Fried parameter r0 [m] (docs/theory.md §2; r0 = 2.099 ρ0 for the same wave type).
 
     plane: r0 = (0.423 k² Cn² L)^(−3/5); spherical: r0 = ((3/8) 0.423 k² Cn² L)^(−3/5).  +inf for Cn² = 0.
     """
@@ -97,12 +97,12 @@ def fried_parameter(cn2_m_23, wavelength_m, range_m, wave="spherical"):
 
 
 def fresnel_scale(wavelength_m, range_m):
-    """Fresnel scale √(L/k) [m] (physics.md §2): the scintillation cell size in weak turbulence."""
+    """Fresnel scale √(L/k) [m] (docs/theory.md §2): the scintillation cell size in weak turbulence."""
     return np.sqrt(_f64(range_m) / wavenumber(wavelength_m))
 
 
 def cell_radius(wavelength_m, range_m, rho0_m):
-    """Turbulence cell radius ρ_l [m], seed eq. (3-6) (physics.md §2).
+    """Turbulence cell radius ρ_l [m], seed eq. (3-6) (docs/theory.md §2).
 
     ρ_l = √(L/k) / √(1 + L/(k ρ0²)): the Fresnel scale in weak turbulence, → ρ0 in strong turbulence.
     With ρ0 = +inf (no turbulence) it is √(L/k).  Used as the 1/e radius of the intensity correlation.
@@ -118,7 +118,8 @@ def cell_radius(wavelength_m, range_m, rho0_m):
 def large_scale_radius(wavelength_m, range_m, rho0_m):
     """Large-scale (refractive) cell radius [m] used for the X factor of the gamma-gamma pattern.
 
-    Our interpolation (not in the sheet): ρ_X = (L/k)/ρ_l = √(L/k) √(1 + L/(k ρ0²)), the partner of eq. 3-6
+    Our interpolation (not from the literature; docs/theory.md §2):
+    ρ_X = (L/k)/ρ_l = √(L/k) √(1 + L/(k ρ0²)), the partner of eq. 3-6
     so that ρ_X ρ_l = L/k.  It is √(L/k) in weak turbulence and the scattering-disk size L/(k ρ0) in strong
     turbulence, the large-eddy scale of the Andrews–Phillips filtered-spectrum model.
     """
@@ -133,7 +134,7 @@ def large_scale_radius(wavelength_m, range_m, rho0_m):
 # §3 Log-intensity variance, SI, gamma-gamma, aperture averaging, pdfs
 # ----------------------------------------------------------------------------------------------------------
 def log_intensity_variance_terms(rytov, wave="plane"):
-    """The large- and small-scale terms (σ_lnX², σ_lnY²) of the all-regime σ_lnI² (physics.md §3).
+    """The large- and small-scale terms (σ_lnX², σ_lnY²) of the all-regime σ_lnI² (docs/theory.md §3).
 
     Andrews (1999), zero inner scale, point receiver:
     σ_lnX² = 0.49 s/(1 + a s^(6/5))^(7/6), σ_lnY² = 0.51 s/(1 + 0.69 s^(6/5))^(5/6), with s = σ_R², a = 1.11
@@ -149,7 +150,7 @@ def log_intensity_variance_terms(rytov, wave="plane"):
 
 
 def log_intensity_variance(rytov, wave="plane"):
-    """All-regime log-intensity variance σ_lnI² = σ_lnX² + σ_lnY² (physics.md §3).
+    """All-regime log-intensity variance σ_lnI² = σ_lnX² + σ_lnY² (docs/theory.md §3).
 
     Valid from weak to saturated fluctuations (Kolmogorov, l0 = 0, point receiver); ≈ ``rytov`` when weak.
     Feeding σ_R² directly as the log-normal σ² instead badly overestimates strong turbulence.
@@ -159,12 +160,12 @@ def log_intensity_variance(rytov, wave="plane"):
 
 
 def scintillation_index(sigma2_lnI):
-    """SI = σ_I² = exp(σ_lnI²) − 1 (physics.md §3)."""
+    """SI = σ_I² = exp(σ_lnI²) − 1 (docs/theory.md §3)."""
     return np.expm1(_f64(sigma2_lnI))
 
 
 def gamma_gamma_parameters(rytov, wave="plane"):
-    """Gamma-gamma shape parameters (α, β) = (1/(e^(σ_lnX²) − 1), 1/(e^(σ_lnY²) − 1)) (physics.md §3).
+    """Gamma-gamma shape parameters (α, β) = (1/(e^(σ_lnX²) − 1), 1/(e^(σ_lnY²) − 1)) (docs/theory.md §3).
 
     Al-Habash, Andrews & Phillips (2001).  +inf for zero turbulence (each factor ≡ 1).
     """
@@ -174,7 +175,7 @@ def gamma_gamma_parameters(rytov, wave="plane"):
 
 
 def lognormal_pdf(intensity, sigma2_lnI, mean=1.0):
-    """Log-normal scintillation pdf, seed eq. (3-5) (physics.md §3).
+    """Log-normal scintillation pdf, seed eq. (3-5) (docs/theory.md §3).
 
     p(S) = 1/(S √(2π σ²)) exp(−(ln(S/S_av) + σ²/2)² / (2σ²)), σ² = σ_lnI² > 0; 0 for S ≤ 0.
     Valid for weak turbulence (σ_R² ≲ 1).
@@ -188,7 +189,7 @@ def lognormal_pdf(intensity, sigma2_lnI, mean=1.0):
 
 
 def gamma_gamma_pdf(intensity, alpha, beta):
-    """Gamma-gamma pdf of unit-mean intensity (physics.md §3, Al-Habash et al. 2001).
+    """Gamma-gamma pdf of unit-mean intensity (docs/theory.md §3, Al-Habash et al. 2001).
 
     p(I) = 2(αβ)^((α+β)/2) I^((α+β)/2 − 1) K_(α−β)(2√(αβI)) / (Γ(α)Γ(β)), evaluated in log form with the
     exponentially scaled Bessel function ``kve`` (no overflow for large α, β).  0 for I ≤ 0.
@@ -248,7 +249,7 @@ def gamma_gamma_cdf(intensity, alpha, beta, n_nodes=20001):
 
 
 def gaussian_beam_scintillation_weak(rytov_plane, theta, lam):
-    """On-axis scintillation index of a Gaussian beam, weak turbulence (physics.md §3).
+    """On-axis scintillation index of a Gaussian beam, weak turbulence (docs/theory.md §3).
 
     σ_I²(0) = 3.86 σ_R² {0.40 [(1+2Θ)² + 4Λ²]^(5/12) cos[(5/6) atan((1+2Θ)/(2Λ))] − (11/16) Λ^(5/6)}.
     Valid for σ_R² < 1 and σ_R² Λ^(5/6) < 1.
@@ -259,7 +260,7 @@ def gaussian_beam_scintillation_weak(rytov_plane, theta, lam):
 
 
 def aperture_averaging_factor(wavelength_m, range_m, aperture_diameter_m, wave="plane"):
-    """Aperture-averaging factor A = SI(D)/SI(0), weak turbulence (physics.md §3).
+    """Aperture-averaging factor A = SI(D)/SI(0), weak turbulence (docs/theory.md §3).
 
     d² = k D²/(4L); plane A = (1 + 1.062 d²)^(−7/6), spherical A = (1 + 0.33 d²)^(−7/6).
     Applies to a receiver of diameter D looking at a point source/beam; not to the target-plane pattern.
@@ -273,7 +274,7 @@ def aperture_averaging_factor(wavelength_m, range_m, aperture_diameter_m, wave="
 
 
 def two_way_scintillation_index(si_up, si_down):
-    """Independent up/down paths: SI_tot = (1 + SI_up)(1 + SI_down) − 1 (physics.md §3)."""
+    """Independent up/down paths: SI_tot = (1 + SI_up)(1 + SI_down) − 1 (docs/theory.md §3)."""
     return (1.0 + _f64(si_up)) * (1.0 + _f64(si_down)) - 1.0
 
 
@@ -281,7 +282,7 @@ def two_way_scintillation_index(si_up, si_down):
 # §4 Gaussian beam: spread and wander
 # ----------------------------------------------------------------------------------------------------------
 def gaussian_beam_parameters(wavelength_m, w0_m, range_m, focus_m=np.inf):
-    """Free-space Gaussian-beam parameters at the receiver plane (physics.md §4).
+    """Free-space Gaussian-beam parameters at the receiver plane (docs/theory.md §4).
 
     Θ0 = 1 − L/F0, Λ0 = 2L/(k W0²); W = W0 √(Θ0² + Λ0²), Θ = Θ0/(Θ0² + Λ0²), Λ = Λ0/(Θ0² + Λ0²).
     ``focus_m`` = +inf is a collimated beam.  Returns a dict with keys theta0, lambda0, w_m, theta, lam.
@@ -298,7 +299,7 @@ def gaussian_beam_parameters(wavelength_m, w0_m, range_m, focus_m=np.inf):
 
 def long_term_beam_radius(w_m, rytov_plane, lam, *, rho0_spherical_m=None, wavelength_m=None, range_m=None,
                           method="weak"):
-    """Long-term (turbulence-broadened) 1/e² radius W_LT [m] (physics.md §4, paper §3.4 A).
+    """Long-term (turbulence-broadened) 1/e² radius W_LT [m] (docs/theory.md §4, paper §3.4 A).
 
     ``"weak"``:   W_LT = W √(1 + 1.33 σ_R² Λ^(5/6))  (Andrews & Phillips, σ_R² Λ^(5/6) ≲ 1).
     ``"strong"``: W_LT² = W² + 2 (2L/(k ρ0,sp))²   (needs rho0_spherical_m, wavelength_m, range_m).
@@ -316,7 +317,7 @@ def long_term_beam_radius(w_m, rytov_plane, lam, *, rho0_spherical_m=None, wavel
 
 
 def beam_wander_variance(cn2_m_23, range_m, w0_m, focus_m=np.inf):
-    """Two-axis beam-wander variance ⟨r_c²⟩ [m²] (physics.md §4, paper §3.4 D).
+    """Two-axis beam-wander variance ⟨r_c²⟩ [m²] (docs/theory.md §4, paper §3.4 D).
 
     Chosen definition (Andrews & Phillips, infinite outer scale):
         ⟨r_c²⟩ = 2.42 Cn² L³ W0^(−1/3) ₂F₁(1/3, 1; 4; 1 − |Θ0|),  Θ0 = 1 − L/F0 (₂F₁ = 1 collimated).
@@ -331,7 +332,7 @@ def beam_wander_variance(cn2_m_23, range_m, w0_m, focus_m=np.inf):
 
 
 def short_term_beam_radius(w_lt_m, r_c2_m2, w_m=None):
-    """Short-term radius W_ST = √(W_LT² − ⟨r_c²⟩) [m] (physics.md §4).
+    """Short-term radius W_ST = √(W_LT² − ⟨r_c²⟩) [m] (docs/theory.md §4).
 
     If the free-space radius ``w_m`` is given, W_ST is clamped to ≥ W (the wander estimate can exceed the
     broadening term in weak turbulence); otherwise clamped to ≥ 0.
@@ -345,7 +346,7 @@ def short_term_beam_radius(w_lt_m, r_c2_m2, w_m=None):
 # §5 MTFs (ν_a in cycles/rad)
 # ----------------------------------------------------------------------------------------------------------
 def turbulence_mtf_long(nu_cyc_per_rad, wavelength_m, r0_m):
-    """Long-exposure turbulence MTF = exp[−3.44 (λ ν_a / r0)^(5/3)] (physics.md §5, paper §3.4 E).
+    """Long-exposure turbulence MTF = exp[−3.44 (λ ν_a / r0)^(5/3)] (docs/theory.md §5, paper §3.4 E).
 
     ν_a: angular spatial frequency [cycles/rad]; r0: Fried parameter (spherical for a target at range).
     Exactly 1 at ν = 0 and for r0 = +inf.
@@ -355,7 +356,7 @@ def turbulence_mtf_long(nu_cyc_per_rad, wavelength_m, r0_m):
 
 
 def turbulence_mtf_short(nu_cyc_per_rad, wavelength_m, r0_m, aperture_diameter_m, alpha=1.0):
-    """Short-exposure (tilt-removed) turbulence MTF (physics.md §5).
+    """Short-exposure (tilt-removed) turbulence MTF (docs/theory.md §5).
 
     MTF_SE = exp{−3.44 (λν_a/r0)^(5/3) [1 − α (λν_a/D)^(1/3)]}, α = 1 near field, 0.5 far field.
     λν_a/D is clamped to ≤ 1 (beyond the diffraction cut-off the expression has no meaning; the total MTF
@@ -369,7 +370,7 @@ def turbulence_mtf_short(nu_cyc_per_rad, wavelength_m, r0_m, aperture_diameter_m
 
 
 def diffraction_mtf(nu_cyc_per_rad, wavelength_m, aperture_diameter_m):
-    """Incoherent diffraction MTF of a circular aperture (physics.md §5).
+    """Incoherent diffraction MTF of a circular aperture (docs/theory.md §5).
 
     (2/π)[acos u − u √(1 − u²)], u = λ ν_a / D, zero for u ≥ 1.
     """
@@ -378,5 +379,5 @@ def diffraction_mtf(nu_cyc_per_rad, wavelength_m, aperture_diameter_m):
 
 
 def pixel_mtf(nu_cyc_per_m, pixel_pitch_m):
-    """Pixel (square aperture of width a) MTF |sinc(a ν)| along one axis (physics.md §5); ν in cycles/m."""
+    """Pixel (square aperture of width a) MTF |sinc(a ν)| along one axis (docs/theory.md §5); ν in cycles/m."""
     return np.abs(np.sinc(_f64(pixel_pitch_m) * _f64(nu_cyc_per_m)))

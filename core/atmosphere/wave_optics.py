@@ -1,6 +1,6 @@
 """Point-receiver scintillation statistics tabulated from converged split-step wave optics (issue 17).
 
-The formulas of the paper's model (physics.md §2–3: the all-regime σ_lnI² of Andrews 1999, the eq. 3-6 cell
+The formulas of the paper's model (docs/theory.md §2–3: the all-regime σ_lnI² of Andrews 1999, the eq. 3-6 cell
 radius and a Gaussian covariance shape) are first-order theory plus heuristics; once turbulence is moderate
 they are not what wave optics gives.  This module serves the statistics of our own split-step simulations
 (:func:`core.atmosphere.phasescreen.split_step_intensity`, plane and spherical waves, modified von Kármán

@@ -58,7 +58,7 @@ class LaserSettings:
                                                    "diagonal (ignore beam_divergence_rad)")
     beam_waist_radius_m: float = setting(0.01, lo=1e-4, hi=1.0, unit="m", subtype="DISTANCE",
                                          doc="1/e² radius W0 of the beam leaving the transmitter (turbulence "
-                                             "broadening and wander, physics.md §4)")
+                                             "broadening and wander, docs/theory.md §4)")
     beam_focus_range_m: float = setting(0.0, lo=0.0, hi=1e7, unit="m", subtype="DISTANCE",
                                         doc="Focus range F0 of the transmitted beam; 0 = collimated")
 
@@ -103,7 +103,7 @@ class RangeGateSettings:
 
 @dataclass
 class DetectionSettings:
-    """Echo detection on each pixel's waveform (peak finding with sub-bin interpolation, physics.md §9)."""
+    """Echo detection on each pixel's waveform (peak finding with sub-bin interpolation, docs/theory.md §9)."""
 
     max_echoes: int = setting(3, lo=1, hi=32, doc="Largest number of echoes reported per pixel")
     threshold_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
@@ -128,7 +128,7 @@ class DetectionSettings:
 
 @dataclass
 class AtmosphereSettings:
-    """Atmosphere between sensor and scene (paper §3.4, effects A–E; physics.md §1–6)."""
+    """Atmosphere between sensor and scene (paper §3.4, effects A–E; docs/theory.md §1–6)."""
 
     extinction_per_m: float = setting(0.0, lo=0.0, hi=1.0, unit="1/m",
                                       doc="Aerosol extinction coefficient σ_atm of eq. 3-1 (one-way); used when "
@@ -137,7 +137,7 @@ class AtmosphereSettings:
                                   doc="Meteorological visibility (2 % contrast); when > 0 it sets the "
                                       "extinction at the laser wavelength (0: use extinction_per_m)")
     visibility_model: str = setting("kim", choices=("kim", "kruse"),
-                                    doc="Visibility-to-extinction model (physics.md §6)")
+                                    doc="Visibility-to-extinction model (docs/theory.md §6)")
     cn2_m_23: float = setting(0.0, lo=0.0, hi=1e-11, unit="m^-2/3",
                               doc="Refractive-index structure constant Cn², constant along the path "
                                   "(0: no turbulence)")
@@ -172,7 +172,7 @@ class AtmosphereSettings:
 
 @dataclass
 class DetectorSettings:
-    """Detector and read-out electronics (paper Figure 4; physics.md §7, §8; core/physics/receiver/).
+    """Detector and read-out electronics (paper Figure 4; docs/theory.md §7, §8; core/physics/receiver/).
     ``mode = "ideal"`` skips every step: the products are those of the noise-free pipeline, bit for bit."""
 
     mode: str = setting("ideal", choices=("ideal", "noisy"),
@@ -269,7 +269,7 @@ class GatedSettings:
     range_method: str = setting("centroid", choices=("centroid", "peak", "two_gate"),
                                 doc="Range from the slice stack: centroid of the intensity-vs-delay profile "
                                     "around its maximum, its peak fitted with the known slice response, or the "
-                                    "two-gate ratio of the strongest pair of adjacent slices (physics.md §9)")
+                                    "two-gate ratio of the strongest pair of adjacent slices (docs/theory.md §9)")
     min_signal_j: float = setting(0.0, lo=0.0, hi=1.0, unit="J",
                                   doc="Ideal receiver: pixels whose strongest slice is below this energy give no "
                                       "range")
@@ -297,7 +297,7 @@ class RunSettings:
 
 @dataclass
 class BRDFSettings:
-    """Monostatic BRDF of a material (paper §3.3, eq. 3-3; physics.md §10).
+    """Monostatic BRDF of a material (paper §3.3, eq. 3-3; docs/theory.md §10).
 
     ``lambertian``: f_r = reflectance/π.  ``steinvall``: f_r = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
     ``table``: a measured f_r(θ) (paper §3.3: measured data where it exists, else eq. 3-3), linear in θ

@@ -4,14 +4,14 @@ Per frame the turbulence is evaluated at a reference range R_ref, the median ran
 rays that hit the scene (the paper applies one scintillation pattern at the target):
 
 * A  broadening: the Gaussian beam is widened by W_ST/W (short-term radius, when wander is simulated
-     separately) or W_LT/W (long-term radius, without wander) at R_ref (physics.md §4); energy conserved;
+     separately) or W_LT/W (long-term radius, without wander) at R_ref (docs/theory.md §4); energy conserved;
 * B  scintillation: one pattern per pulse, in metres on the plane ⟂ to the line of sight at R_ref, multiplied
      onto the illumination of every sub-ray at (x_tan·R_ref, y_tan·R_ref); where a sub-ray's footprint is
      larger than a scintillation cell, the pattern averaged over the footprint (FootprintAveragedPattern);
 * B' return path: the light scattered back by each pixel's footprint reaches the receiver aperture through
      turbulence too.  One unit-mean gamma factor per pixel and pulse with variance
      A_sp(D) · SI_sp · g(p_x/ρ_l) g(p_y/ρ_l): the spherical-wave point-receiver SI, aperture averaging
-     A_sp = (1 + 0.33 d²)^(−7/6), d² = kD²/4L (physics.md §3), and the average over the pixel footprint p
+     A_sp = (1 + 0.33 d²)^(−7/6), d² = kD²/4L (docs/theory.md §3), and the average over the pixel footprint p
      (box_average_variance_factor, correlation radius ρ_l) — small for a resolved diffuse target ("the return
      path is an incoherent extended source"), up to A·SI for footprints below a cell; switch
      ``atmosphere.return_scintillation`` (within B);

@@ -191,7 +191,7 @@ def gate_label(delay_s: float, width_s: float | None) -> str:
 # Waveform plot
 # ----------------------------------------------------------------------------------------------------------
 def bin_centres_range_m(gate_start_s: float, bin_width_s: float, n_bins: int) -> np.ndarray:
-    """Range (m) of each waveform bin's centre: c·t/2 with t = gate_start + (k + ½)·bin_width (physics.md §9)."""
+    """Range (m) of each waveform bin's centre: c·t/2 with t = gate_start + (k + ½)·bin_width (docs/theory.md §9)."""
     t = gate_start_s + (np.arange(n_bins) + 0.5) * bin_width_s
     return 0.5 * SPEED_OF_LIGHT_M_S * t
 

@@ -3,7 +3,7 @@
 Embree works in float32.  The BVH is built on vertices translated by a reference point (the scene's
 bounding-box centre) to keep float32 resolution, and each hit distance is then recomputed in float64 as the
 exact intersection of the ray with the hit triangle's plane, so ranges keep sub-millimetre accuracy even
-kilometres away from the origin (physics.md §13: float32 at 10 km has a 1 mm ulp).
+kilometres away from the origin (docs/theory.md §13: float32 at 10 km has a 1 mm ulp).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Monostatic BRDF models (paper §3.3, eq. 3-3; physics.md §10): Lambertian, Steinvall, and measured tables.
+"""Monostatic BRDF models (paper §3.3, eq. 3-3; docs/theory.md §10): Lambertian, Steinvall, and measured tables.
 
 Paper §3.3: "If the material has measured BRDF data, that is used, otherwise a parameterized version is used
 to calculate the reflection according to equation (3-3)."  A measured table (model ``"table"``) holds f_r at
@@ -34,7 +34,7 @@ def steinvall_brdf(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
 
     f_r(θ) = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
 
-    The specular term is evaluated as A·exp(−tan²θ/s² − 6 ln cosθ) (physics.md §10) with cosθ clamped to
+    The specular term is evaluated as A·exp(−tan²θ/s² − 6 ln cosθ) (docs/theory.md §10) with cosθ clamped to
     [1e-150, 1], so grazing incidence gives a finite value (→ 0 for the specular lobe) instead of 0·∞.
     """
     c = np.clip(np.asarray(cos_theta, dtype=np.float64), 1e-150, 1.0)
@@ -48,7 +48,7 @@ def steinvall_brdf(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
 
 
 def lambertian_brdf(cos_theta, reflectance):
-    """Lambertian BRDF f_r = ρ_d/π (1/sr), independent of angle (physics.md §10)."""
+    """Lambertian BRDF f_r = ρ_d/π (1/sr), independent of angle (docs/theory.md §10)."""
     return np.full(np.shape(cos_theta), reflectance / np.pi, dtype=np.float64)
 
 
@@ -78,7 +78,7 @@ def evaluate_materials(materials, material_ids, cos_theta):
 
 
 def directional_hemispherical_reflectance(brdf: BRDFSettings) -> float:
-    """ρ_DH(0) at normal incidence (physics.md §10): 4πs²A(1 − e^(−1/s²)) + 4πB/(m + 4) (Steinvall), ρ_d
+    """ρ_DH(0) at normal incidence (docs/theory.md §10): 4πs²A(1 − e^(−1/s²)) + 4πB/(m + 4) (Steinvall), ρ_d
     (Lambertian).  A physically plausible material has ρ_DH ≤ 1.  Not defined for a measured monostatic
     table (it holds no bistatic information): ValueError."""
     if brdf.model == "table":
@@ -187,7 +187,7 @@ def brdf_from_principled(base_color_rgb, roughness: float, metallic: float = 0.0
     * specular (facet) reflectance ρ_F = (1 − metallic) F0 + metallic Y;
     * diffuse reflectance ρ_d = (1 − metallic)(1 − F0) Y;
     * rms facet slope s = max(roughness², 0.01) (Blender's GGX α = roughness²; Beckmann s ≈ α);
-    * A = ρ_F/(4π s²) (Beckmann form, physics.md §10), B = ρ_d/π, m = 0 (Lambertian diffuse lobe).
+    * A = ρ_F/(4π s²) (Beckmann form, docs/theory.md §10), B = ρ_d/π, m = 0 (Lambertian diffuse lobe).
     """
     rgb = np.clip(np.asarray(base_color_rgb, dtype=np.float64)[:3], 0.0, 1.0)
     luminance = float(np.dot([0.2126, 0.7152, 0.0722], rgb))

@@ -1,4 +1,4 @@
-"""Propagation physics of a frame's atmosphere (paper §3.4; physics.md §3, §6, §11): the extinction coefficient
+"""Propagation physics of a frame's atmosphere (paper §3.4; docs/theory.md §3, §6, §11): the extinction coefficient
 from the settings, the return-path scintillation variance and its factors per pixel, the box-average variance
 factor and the footprint-averaged scintillation pattern.  :mod:`core.engine.atmosphere_stage` wires them into a
 frame (effects A–E, reference range, random streams).
@@ -18,7 +18,7 @@ from ..config.settings import SimulationConfig
 
 
 def effective_extinction_per_m(config: SimulationConfig) -> float:
-    """σ_atm (1/m): from the visibility when it is set (physics.md §6), else the given coefficient."""
+    """σ_atm (1/m): from the visibility when it is set (docs/theory.md §6), else the given coefficient."""
     atm = config.atmosphere
     if atm.visibility_m > 0.0:
         return float(extinction_from_visibility(atm.visibility_m, config.laser.wavelength_m, atm.visibility_model))
@@ -26,9 +26,9 @@ def effective_extinction_per_m(config: SimulationConfig) -> float:
 
 
 def return_scintillation_variance(derived: dict, pixel_footprint_m) -> dict:
-    """Variance of the return-path factor of one pixel (B', core.engine.atmosphere_stage; physics.md §3):
+    """Variance of the return-path factor of one pixel (B', core.engine.atmosphere_stage; docs/theory.md §3):
     A_sp(D) · SI_sp · g(p_x/ρ_l) · g(p_y/ρ_l).  ``derived`` from :func:`derived_turbulence` (spherical wave, with
-    ``aperture_diameter_m``); ``pixel_footprint_m`` (p_x, p_y) at the reference range.  Case A of physics.md
+    ``aperture_diameter_m``); ``pixel_footprint_m`` (p_x, p_y) at the reference range.  Case A of docs/theory.md
     (Cn² 1e-14, 1064 nm, 2 km, D = 5 cm): A_sp = 0.5741, SI_sp = 0.4373 → 0.2511 × g_x g_y."""
     a = float(derived["aperture_averaging"])
     si = float(derived["scintillation_index"])
@@ -63,7 +63,7 @@ def footprint_variance_factor(derived: dict, side_x_m, side_y_m) -> float:
 
 def draw_return_factor(shape, pixel_footprint_m, variance_info: dict, rng, max_grid_px: int = 2048):
     """Unit-mean gamma factors (H, W) with the variance of :func:`return_scintillation_variance` (exact
-    marginal).  Pixels closer than ~2 cell radii are correlated: a gamma translation field (physics.md §11) with
+    marginal).  Pixels closer than ~2 cell radii are correlated: a gamma translation field (docs/theory.md §11) with
     Gaussian correlation of 1/e radius ρ_l on the pixel grid (periodic grid of ≥ 8 ρ_l, at most ``max_grid_px``);
     farther apart, independent draws.  Returns (values, model)."""
     var = variance_info["variance"]
@@ -94,7 +94,7 @@ class FootprintAveragedPattern:
 
     Each sub-ray collects the pattern averaged over its footprint (p_x × p_y at R_ref): unit mean, variance
     SI · g(p_x/ρ_l) · g(p_y/ρ_l) (:func:`box_average_variance_factor`), nearly independent between sub-rays
-    (p > ρ_l).  A sum of many cells has gamma statistics (physics.md §11), so one gamma value of that mean and
+    (p > ρ_l).  A sum of many cells has gamma statistics (docs/theory.md §11), so one gamma value of that mean and
     variance is drawn per sub-ray cell of the whole frame (independent of blocks and threads).
     """
 

@@ -1,10 +1,10 @@
-"""Laser radar equation per sub-ray (paper eq. 3-1, 3-4; physics.md §10).
+"""Laser radar equation per sub-ray (paper eq. 3-1, 3-4; docs/theory.md §10).
 
 For a sub-ray carrying the fraction F of the pulse energy E_T onto a surface at range R, hit at incidence θ:
 
     E_r = E_T · F · η_sys · f_r(θ) cos θ · (π r_a² / R²) · exp(−2 σ_atm R)                      (3-1), (3-4)
 
-with f_r the monostatic BRDF (ρ = f_r cos θ in the paper's notation, physics.md §10).  For a Lambertian
+with f_r the monostatic BRDF (ρ = f_r cos θ in the paper's notation, docs/theory.md §10).  For a Lambertian
 surface this is E_T F η ρ_d cos θ r_a²/R² e^(−2σR).  The product is formed in log space so that long ranges
 and thick fog give a tiny positive number or an exact, reported zero — never NaN.
 """

@@ -1,4 +1,4 @@
-"""Burst illumination / gated viewing (paper §2.2, §5.1; physics.md §9).
+"""Burst illumination / gated viewing (paper §2.2, §5.1; docs/theory.md §9).
 
 A flood-illuminating laser, a camera and a shutter that opens for ``gate_width_s`` at a delay d_k after the
 pulse; a sweep of delays d_k = first_delay + k·step gives range slices, one laser pulse per slice.
@@ -236,7 +236,7 @@ def _fit_slice_response(prof, k, delays_s, config: SimulationConfig):
 
 
 def two_gate_range_m(e1, e2, gate_width_s, pulse_width_s, first_delay_s=0.0, pulse_shape="rectangular"):
-    """Two-gate ratio range (physics.md §9) for adjacent gates [d, d+T], [d+T, d+2T]."""
+    """Two-gate ratio range (docs/theory.md §9) for adjacent gates [d, d+T], [d+T, d+2T]."""
     laser = LaserSettings(pulse_shape=pulse_shape, pulse_fwhm_s=pulse_width_s)
     r = e2 / (e1 + e2)
     return 0.5 * SPEED_OF_LIGHT_M_S * (first_delay_s + gate_width_s - pulse_cdf_inverse(laser, 1.0 - r))

@@ -144,7 +144,7 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
         meta["scintillation"] = {"model": out.scint_model, "footprint_m": footprint_m, "cell_radius_m": rho,
                                  **out.scint_params}
     if "return_scintillation" in active:
-        # the receiver (aperture D) looks at the illuminated footprint: the pixel footprint of physics.md §3
+        # the receiver (aperture D) looks at the illuminated footprint: the pixel footprint of docs/theory.md §3
         info = return_scintillation_variance(derived, (footprint_m, footprint_m))
         out.return_variance = info["variance"]
         meta["return_scintillation"] = info

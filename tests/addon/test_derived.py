@@ -1,5 +1,5 @@
 """ladar_addon.derived: the receiver's derived panel figures follow the chain's switches (core.physics.receiver.bin_moments)
-and reproduce physics.md §8 (photons per fJ, McIntyre F, SNR table, Geiger P_d)."""
+and reproduce docs/theory.md §8 (photons per fJ, McIntyre F, SNR table, Geiger P_d)."""
 import importlib
 import math
 
@@ -21,7 +21,7 @@ def derived(lad):
 def sec8_config(lad, **over):
     cfg = lad.config.SimulationConfig()
     cfg.laser.wavelength_m = 1.064e-6
-    cfg.gate.bin_width_s = 10e-9  # τ = 10 ns (physics.md §8)
+    cfg.gate.bin_width_s = 10e-9  # τ = 10 ns (docs/theory.md §8)
     cfg.detector = lad.config.DetectorSettings(**{**SEC8, **over})
     return cfg
 
@@ -99,7 +99,7 @@ def test_saturation_and_ideal_mode(lad, derived):
 
 
 def test_geiger_detection_probability_with_speckle(lad, derived):
-    """One detectable photo-electron per pulse: P_d = 0.6321; with speckle M = 4: 0.5904 (physics.md §8)."""
+    """One detectable photo-electron per pulse: P_d = 0.6321; with speckle M = 4: 0.5904 (docs/theory.md §8)."""
     cfg = sec8_config(lad, detector_type="geiger", enable_background=False, enable_dark_current=False)
     cfg.gate.bin_width_s = 1e-9
     r = 1000.0

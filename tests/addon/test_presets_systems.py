@@ -119,7 +119,7 @@ def test_every_material_preset_applies_and_round_trips(lad, scene, path):
 
 
 def test_material_preset_worked_values(lad, scene):
-    """Glossy paint is physics.md §10's worked example: f_r(0°) = 0.1300, f_r(30°) = 0.06931 1/sr.
+    """Glossy paint is docs/theory.md §10's worked example: f_r(0°) = 0.1300, f_r(30°) = 0.06931 1/sr.
     Retroreflective sheeting: f_r = R_A/cos²θ → 70 at 0°, 40 at 30° (ASTM D4956 Type I anchors)."""
     from importlib import import_module
     brdf_mod = import_module(f"{lad.package.__name__}.core.physics.brdf")

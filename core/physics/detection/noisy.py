@@ -1,4 +1,4 @@
-"""Echo detection on noisy (digital) waveforms, physics.md §9.
+"""Echo detection on noisy (digital) waveforms, docs/theory.md §9.
 
 Per pixel: robust baseline and noise (median, 1.4826 × median absolute deviation) estimated from the
 waveform itself; optional matched filter (correlation with the pulse shape, normalised so that a pulse of
@@ -24,7 +24,7 @@ MAD_TO_SIGMA = 1.482602218505602
 # §9 formulas
 # ----------------------------------------------------------------------------------------------------------
 def parabolic_offset(y_minus, y_0, y_plus):
-    """Parabolic 3-point peak offset δ = (y₋ − y₊)/(2(y₋ − 2y₀ + y₊)) (physics.md §9).
+    """Parabolic 3-point peak offset δ = (y₋ − y₊)/(2(y₋ − 2y₀ + y₊)) (docs/theory.md §9).
     (0.4296, 0.9560, 0.7827) → 0.2523.  Returns NaN where the curvature is not negative."""
     ym, y0, yp = (np.asarray(a, dtype=np.float64) for a in (y_minus, y_0, y_plus))
     den = ym - 2.0 * y0 + yp
@@ -33,7 +33,7 @@ def parabolic_offset(y_minus, y_0, y_plus):
 
 
 def gaussian_offset(y_minus, y_0, y_plus):
-    """Gaussian 3-point peak offset: the parabolic formula on ln y (physics.md §9).
+    """Gaussian 3-point peak offset: the parabolic formula on ln y (docs/theory.md §9).
     (0.4296, 0.9560, 0.7827) → 0.3000 (exact for a sampled Gaussian).  NaN where a sample is ≤ 0."""
     ym, y0, yp = (np.asarray(a, dtype=np.float64) for a in (y_minus, y_0, y_plus))
     pos = (ym > 0) & (y0 > 0) & (yp > 0)
@@ -54,18 +54,18 @@ def gaussian_peak(y_minus, y_0, y_plus, delta):
 
 
 def cramer_rao_time_std(pulse_sigma_s, bin_width_s, snr_peak):
-    """Cramér–Rao bound on the echo time for a Gaussian pulse in white noise (physics.md §9):
+    """Cramér–Rao bound on the echo time for a Gaussian pulse in white noise (docs/theory.md §9):
     σ_t = √(2 σ_p Δt/√π)/SNR_peak.  τ_FWHM 5 ns, Δt 1 ns, SNR 10 → 154.8 ps."""
     return np.sqrt(2.0 * pulse_sigma_s * bin_width_s / np.sqrt(np.pi)) / np.asarray(snr_peak, dtype=np.float64)
 
 
 def cramer_rao_range_std(pulse_sigma_s, bin_width_s, snr_peak):
-    """σ_R = c σ_t/2 (physics.md §9).  τ_FWHM 5 ns, Δt 1 ns, SNR 10 → 2.320 cm."""
+    """σ_R = c σ_t/2 (docs/theory.md §9).  τ_FWHM 5 ns, Δt 1 ns, SNR 10 → 2.320 cm."""
     return 0.5 * SPEED_OF_LIGHT_M_S * cramer_rao_time_std(pulse_sigma_s, bin_width_s, snr_peak)
 
 
 def photon_limited_range_std(pulse_sigma_s, n_photons):
-    """Photon-limited range precision σ_R = (c/2) σ_p/√N (physics.md §9).  N = 100, 5 ns FWHM → 3.183 cm."""
+    """Photon-limited range precision σ_R = (c/2) σ_p/√N (docs/theory.md §9).  N = 100, 5 ns FWHM → 3.183 cm."""
     return 0.5 * SPEED_OF_LIGHT_M_S * pulse_sigma_s / np.sqrt(np.asarray(n_photons, dtype=np.float64))
 
 
@@ -131,7 +131,7 @@ class NoisyEchoes:
 def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_mode="adaptive",
                         threshold=0.0, k_sigma=5.0, pulse=None, max_echoes=3, min_separation_bins=None,
                         interpolation="gaussian", noise_sigma=None, baseline=None, min_noise_sigma=0.0):
-    """Detect up to ``max_echoes`` echoes per pixel on noisy waveforms (physics.md §9).
+    """Detect up to ``max_echoes`` echoes per pixel on noisy waveforms (docs/theory.md §9).
 
     waveforms      : (..., B) digital counts or any real waveform.
     threshold_mode : "adaptive" (k_sigma × per-pixel noise σ of the detection waveform, estimated by MAD) or
@@ -267,7 +267,7 @@ def score_echoes(echoes: NoisyEchoes, true_range_m, tolerance_m):
 
 
 # ----------------------------------------------------------------------------------------------------------
-# False alarms (paper §3.1 products; physics.md §9): which detections are noise, and how many to expect
+# False alarms (paper §3.1 products; docs/theory.md §9): which detections are noise, and how many to expect
 # ----------------------------------------------------------------------------------------------------------
 def false_alarm_mask(pixel, position_bins, truth, guard_bins, rel_level=1e-3, abs_level=0.0):
     """True for each detection with no true return nearby: no bin within ``guard_bins`` of the detection where
@@ -358,7 +358,7 @@ def local_max_probability(u, cov3, n_nodes=96):
 
 def expected_false_alarms(threshold, sigma_raw, eligible, pulse=None, n_grid=64):
     """Expected number of noise detections per pixel for white Gaussian raw noise of σ ``sigma_raw`` (the
-    detector's threshold/noise model, physics.md §9): Σ_j eligible[p, j] · P(bin j is a local maximum of the
+    detector's threshold/noise model, docs/theory.md §9): Σ_j eligible[p, j] · P(bin j is a local maximum of the
     detection waveform above threshold[p]).  Exact for Gaussian noise per bin; the greedy minimum separation
     and the ``max_echoes`` cap (which only lower the count) are ignored.  Bins 1 … h and B−2−h … B−2 (the
     matched filter's 'nearest' edges) are computed position by position, the interior once.

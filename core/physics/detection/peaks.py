@@ -1,5 +1,5 @@
 """Echo detection on waveforms: local maxima above a threshold, up to N per pixel, with 3-point sub-bin
-interpolation (physics.md §9):
+interpolation (docs/theory.md §9):
 
     parabolic  δ = (y₋ − y₊) / (2 (y₋ − 2y₀ + y₊))
     Gaussian   the same on ln y (exact for a sampled Gaussian pulse)

@@ -1,4 +1,4 @@
-"""Receiver: photons to digital counts (paper §3.1 Figure 4; physics.md §5, §7, §8).  See docs/receiver.md.
+"""Receiver: photons to digital counts (paper §3.1 Figure 4; docs/theory.md §5, §7, §8).  See docs/receiver.md.
 
 One module per concern: :mod:`.conversions` (elementary §8 conversions and moments), :mod:`.adc`
 (A/D conversion), :mod:`.samplers` (exact fast Poisson and gain samplers), :mod:`.code_tables` (the exact

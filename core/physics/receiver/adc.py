@@ -1,4 +1,4 @@
-"""A/D conversion of electrons to digital counts (physics.md §8)."""
+"""A/D conversion of electrons to digital counts (docs/theory.md §8)."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +11,7 @@ def adc_dtype(bits: int):
 
 
 def adc_convert(electrons, bits, full_scale_e, offset_counts=0, out=None, overwrite_input=False):
-    """A/D conversion (physics.md §8): code = clip(rint(e/Δ) + offset, 0, 2**bits − 1), Δ = full scale/2**bits.
+    """A/D conversion (docs/theory.md §8): code = clip(rint(e/Δ) + offset, 0, 2**bits − 1), Δ = full scale/2**bits.
 
     Returns ``(codes, n_low, n_high)``: the number of samples clipped at code 0 and at full scale
     (saturation) — clipping is always reported, never silent.  Quantization adds variance Δ²/12.

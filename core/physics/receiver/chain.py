@@ -1,6 +1,6 @@
 """Receiver chain: photons, detector noise, gain, read-out and A/D conversion (paper §3.1 Figure 4).
 
-Physics references are to ``/work/shared/reference/physics.md``:
+Physics references are to ``docs/theory.md``:
 §5 (optics MTF, used through :mod:`core.physics.receiver.speckle`), §7 (speckle), §8 (photons and detector noise).
 
 Chain order (paper Figure 4, right of the ``Quant`` step)::
@@ -105,7 +105,7 @@ def _child(ss, *key) -> np.random.Generator:
 
 
 def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_table=True) -> ChainOutput:
-    """Apply the receiver chain of the paper's Figure 4 (physics.md §5, §7, §8) to a waveform cube.
+    """Apply the receiver chain of the paper's Figure 4 (docs/theory.md §5, §7, §8) to a waveform cube.
 
     waveforms_j : (H, W, B) float32 signal energy per pixel per time bin [J] (no background: that is added here).
     settings    : :class:`ChainSettings` (``settings.detector`` switches the steps).

@@ -1,4 +1,4 @@
-"""Bins without signal: the exact A/D code distribution, tabulated once per run (physics.md §8)."""
+"""Bins without signal: the exact A/D code distribution, tabulated once per run (docs/theory.md §8)."""
 from __future__ import annotations
 
 import math
@@ -20,7 +20,7 @@ _TABLE_MAX_CODES = 1 << 20
 def noise_code_pmf(step_e, *, n_mult=0.0, gain=1.0, excess_noise=1.0, shot=True, surface_dark_e=0.0,
                    surface_dark_poisson=False, gauss_mean_e=0.0, gauss_var_e2=0.0, fixed_primaries=None,
                    tail=1e-15):
-    """Exact probabilities of the A/D index k = rint(X/Δ) of a bin without signal (physics.md §8).
+    """Exact probabilities of the A/D index k = rint(X/Δ) of a bin without signal (docs/theory.md §8).
 
     X = Σ_{i ≤ n} g_i + D + Z (electrons):
       n ~ Poisson(``n_mult``) multiplied primaries (background + bulk dark; exactly ``n_mult`` — a continuous

@@ -1,4 +1,4 @@
-"""Elementary detector conversions (physics.md §8): photons per joule, electrons, excess noise, A/D step,
+"""Elementary detector conversions (docs/theory.md §8): photons per joule, electrons, excess noise, A/D step,
 moments and SNR of a linear detector.  Pure and vectorized."""
 from __future__ import annotations
 
@@ -11,39 +11,39 @@ from ...constants import H_PLANCK_J_S, Q_ELECTRON_C, SPEED_OF_LIGHT_M_S
 
 
 def photons_per_joule(wavelength_m):
-    """Photons per joule, λ/(hc) (physics.md §8).  1 fJ = 2678 / 5356 / 7803 photons at 532/1064/1550 nm."""
+    """Photons per joule, λ/(hc) (docs/theory.md §8).  1 fJ = 2678 / 5356 / 7803 photons at 532/1064/1550 nm."""
     return np.asarray(wavelength_m, dtype=np.float64) / (H_PLANCK_J_S * SPEED_OF_LIGHT_M_S)
 
 
 def energy_to_photons(energy_j, wavelength_m, quantum_efficiency=1.0):
-    """Mean photo-electrons N = η E λ/(hc) (physics.md §8)."""
+    """Mean photo-electrons N = η E λ/(hc) (docs/theory.md §8)."""
     return np.asarray(energy_j, dtype=np.float64) * photons_per_joule(wavelength_m) * quantum_efficiency
 
 
 def current_to_electrons(current_a, time_s):
-    """Mean electrons I τ / q delivered by a current during τ (dark current, physics.md §8)."""
+    """Mean electrons I τ / q delivered by a current during τ (dark current, docs/theory.md §8)."""
     return np.asarray(current_a, dtype=np.float64) * np.asarray(time_s, dtype=np.float64) / Q_ELECTRON_C
 
 
 def background_photons(rate_photons_per_s, bin_width_s):
-    """Mean background (solar) photons per bin: constant rate × bin width (physics.md §8)."""
+    """Mean background (solar) photons per bin: constant rate × bin width (docs/theory.md §8)."""
     return np.asarray(rate_photons_per_s, dtype=np.float64) * bin_width_s
 
 
 def mcintyre_excess_noise(gain, k_eff):
-    """McIntyre excess noise factor F = k G + (1 − k)(2 − 1/G) (physics.md §8).  G = 100, k = 0.02 → 3.950."""
+    """McIntyre excess noise factor F = k G + (1 − k)(2 − 1/G) (docs/theory.md §8).  G = 100, k = 0.02 → 3.950."""
     g = np.asarray(gain, dtype=np.float64)
     return k_eff * g + (1.0 - k_eff) * (2.0 - 1.0 / g)
 
 
 def adc_step_e(bits, full_scale_e):
-    """A/D quantization step Δ in electrons: full scale / 2**bits (physics.md §8)."""
+    """A/D quantization step Δ in electrons: full scale / 2**bits (docs/theory.md §8)."""
     return float(full_scale_e) / float(2 ** int(bits))
 
 
 def linear_detector_moments(n_signal_e, n_background_e=0.0, gain=1.0, excess_noise=1.0,
                             bulk_dark_e=0.0, surface_dark_e=0.0, read_noise_e=0.0, adc_step=0.0):
-    """Mean and variance (electrons²) of one bin at the A/D output, in electrons (physics.md §8).
+    """Mean and variance (electrons²) of one bin at the A/D output, in electrons (docs/theory.md §8).
 
     mean = G (N_s + N_b + N_db) + N_ds;  var = G² F (N_s + N_b + N_db) + N_ds + σ_read² + Δ²/12.
     ``n_*`` are primary photo-electrons (after η); the A/D offset is not included.
@@ -56,7 +56,7 @@ def linear_detector_moments(n_signal_e, n_background_e=0.0, gain=1.0, excess_noi
 
 def snr_linear(energy_j, wavelength_m, quantum_efficiency, gain, k_eff, dark_current_bulk_a,
                dark_current_surface_a, integration_time_s, n_background_e, read_noise_e, adc_step=0.0):
-    """Linear-mode (PIN: G = 1, k = 0 → F = 1; APD) SNR of physics.md §8:
+    """Linear-mode (PIN: G = 1, k = 0 → F = 1; APD) SNR of docs/theory.md §8:
 
     SNR = G N_s / √[G² F (N_s + N_b + I_db τ/q) + I_ds τ/q + σ_read² + Δ²/12].
     Test: η 0.4, G 100, k 0.02, 1 pA, 1 nA, 10 ns, N_b 2, 300 e⁻, Δ 500 e⁻ → 2.102 / 7.282 / 23.26 at
@@ -80,7 +80,7 @@ def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s):
 
     G = 1 for PIN; F = McIntyre F for an APD with excess noise on, else 1; N_b = η · background rate · Δt and
     N_db, N_ds = I Δt/q only when switched on; M the speckle degrees of freedom (term absent when 0); σ the read
-    noise when on; Δ the A/D step when the A/D is on (physics.md §7, §8).  The A/D offset is not included.
+    noise when on; Δ the A/D step when the A/D is on (docs/theory.md §7, §8).  The A/D offset is not included.
     Returns ``(mean, var, parts)`` with ``parts`` the terms used (gain, F, N_b, N_db, N_ds, σ, Δ, M)."""
     if det.detector_type == "geiger":
         raise ValueError("bin_moments: Geiger mode counts detections, not electrons")

@@ -1,11 +1,11 @@
-"""Geiger mode (photon counting), physics.md §8: detection probability, pile-up, Coates correction, histograms."""
+"""Geiger mode (photon counting), docs/theory.md §8: detection probability, pile-up, Coates correction, histograms."""
 from __future__ import annotations
 
 import numpy as np
 
 
 def geiger_detection_probability(n_mean, speckle_dof=None):
-    """P_d = 1 − exp(−N); with speckle of M degrees of freedom 1 − (1 + N/M)^(−M) (physics.md §8).
+    """P_d = 1 − exp(−N); with speckle of M degrees of freedom 1 − (1 + N/M)^(−M) (docs/theory.md §8).
     N = 1: 0.6321; M = 1: 0.5; M = 4: 0.5904."""
     n = np.asarray(n_mean, dtype=np.float64)
     if speckle_dof is None:
@@ -15,7 +15,7 @@ def geiger_detection_probability(n_mean, speckle_dof=None):
 
 
 def pileup_probabilities(rates):
-    """First-detection probability per bin p_i = exp(−Σ_{j<i} r_j)(1 − e^(−r_i)) (physics.md §8), along the
+    """First-detection probability per bin p_i = exp(−Σ_{j<i} r_j)(1 − e^(−r_i)) (docs/theory.md §8), along the
     last axis.  Rates [0.1, 0.5, 1.0] → [0.09516, 0.3560, 0.3469]."""
     r = np.asarray(rates, dtype=np.float64)
     before = np.cumsum(r, axis=-1) - r
@@ -23,7 +23,7 @@ def pileup_probabilities(rates):
 
 
 def coates_correction(histogram, n_pulses):
-    """Coates pile-up correction r_i = −ln[1 − h_i/(N − Σ_{j<i} h_j)] (physics.md §8), along the last axis.
+    """Coates pile-up correction r_i = −ln[1 − h_i/(N − Σ_{j<i} h_j)] (docs/theory.md §8), along the last axis.
     Bins where every remaining pulse fired (h_i = N − Σ_{j<i} h_j) have an unbounded estimate: returned as inf."""
     h = np.asarray(histogram, dtype=np.float64)
     remaining = n_pulses - (np.cumsum(h, axis=-1) - h)
@@ -34,7 +34,7 @@ def coates_correction(histogram, n_pulses):
 
 def geiger_histogram(rate_per_bin, n_pulses, rng, noise_per_bin=0.0, dead_time_bins=None, speckle_dof=None,
                      max_pulse_chunk=None, force_per_pulse=False):
-    """Histogram of Geiger-mode detections over ``n_pulses`` pulses (physics.md §8: pile-up, dead time).
+    """Histogram of Geiger-mode detections over ``n_pulses`` pulses (docs/theory.md §8: pile-up, dead time).
 
     rate_per_bin   : (..., B) mean *detectable* signal primaries per bin per pulse (η already applied).
     noise_per_bin  : background + dark primaries per bin per pulse (scalar or (...,) per pixel).

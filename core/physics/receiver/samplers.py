@@ -77,7 +77,7 @@ def poisson_uniform_rows(mean_per_bin, n_rows, n_bins, rng, out=None):
 
 
 def gamma_gain(primaries, gain, excess_noise, rng, out=None):
-    """Multiplied electrons for ``primaries`` photo-electrons per bin (physics.md §8, linear-mode APD).
+    """Multiplied electrons for ``primaries`` photo-electrons per bin (docs/theory.md §8, linear-mode APD).
 
     Each primary is multiplied by an independent gain of mean G and variance G²(F − 1) (gamma-distributed
     single-electron gain); the sum of n of them is exactly Gamma(n/(F−1), scale G(F−1)): mean G n, variance

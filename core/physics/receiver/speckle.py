@@ -1,4 +1,4 @@
-"""Target speckle (physics.md §7) and the optics / speckle MTFs (physics.md §5).
+"""Target speckle (docs/theory.md §7) and the optics / speckle MTFs (docs/theory.md §5).
 
 Angular spatial frequency ν_a is in cycles/rad (image-plane ν = ν_a/f).  Pure, vectorized functions.
 """
@@ -13,7 +13,7 @@ from scipy import integrate, special
 # §5 MTFs
 # ----------------------------------------------------------------------------------------------------------
 def mtf_diffraction(nu_a, aperture_diameter_m, wavelength_m):
-    """Diffraction-limited circular aperture (physics.md §5): (2/π)[acos u − u√(1 − u²)], u = λν_a/D, 0 for
+    """Diffraction-limited circular aperture (docs/theory.md §5): (2/π)[acos u − u√(1 − u²)], u = λν_a/D, 0 for
     u ≥ 1.  λ = 1.064 µm, D = 0.1 m: 0.6850 at u = 0.25, 0.3910 at u = 0.5."""
     u = np.abs(np.asarray(nu_a, dtype=np.float64)) * wavelength_m / aperture_diameter_m
     uc = np.minimum(u, 1.0)
@@ -21,19 +21,19 @@ def mtf_diffraction(nu_a, aperture_diameter_m, wavelength_m):
 
 
 def mtf_pixel(nu, pixel_size):
-    """Pixel aperture |sinc(a ν)| (physics.md §5), sinc(x) = sin(πx)/(πx).  a and ν in reciprocal units
+    """Pixel aperture |sinc(a ν)| (docs/theory.md §5), sinc(x) = sin(πx)/(πx).  a and ν in reciprocal units
     (m and cycles/m, or rad and cycles/rad).  a = 20 µm at 25 cycles/mm: 0.6366."""
     return np.abs(np.sinc(np.asarray(nu, dtype=np.float64) * pixel_size))
 
 
 def mtf_speckle(nu_a, aperture_diameter_m, wavelength_m):
-    """MTF_speckle (physics.md §7): the speckle intensity power spectrum has the shape of the incoherent pupil
+    """MTF_speckle (docs/theory.md §7): the speckle intensity power spectrum has the shape of the incoherent pupil
     MTF, i.e. the autocorrelation of the circular pupil (same function as :func:`mtf_diffraction`)."""
     return mtf_diffraction(nu_a, aperture_diameter_m, wavelength_m)
 
 
 def mtf_optics(nu_a, aperture_diameter_m, wavelength_m, ifov_rad=None):
-    """Total optics MTF = diffraction × pixel (physics.md §5); the pixel term uses the angular pixel size
+    """Total optics MTF = diffraction × pixel (docs/theory.md §5); the pixel term uses the angular pixel size
     (IFOV = pitch/f) so that ν_a stays in cycles/rad.  ``ifov_rad=None`` omits the pixel term."""
     m = mtf_diffraction(nu_a, aperture_diameter_m, wavelength_m)
     if ifov_rad is not None:
@@ -44,7 +44,7 @@ def mtf_optics(nu_a, aperture_diameter_m, wavelength_m, ifov_rad=None):
 def optics_mtf_2d(shape, wavelength_m, aperture_diameter_m, ifov_x_rad, ifov_y_rad=None, pixel=True,
                   pad=(0, 0), alias=True, max_alias_orders=32):
     """Discrete optics transfer function on the ``rfft2`` grid of an (H + pad_y, W + pad_x) image whose
-    pixel spacing is the IFOV (physics.md §5): radial diffraction MTF × separable pixel sinc (cycles/pixel).
+    pixel spacing is the IFOV (docs/theory.md §5): radial diffraction MTF × separable pixel sinc (cycles/pixel).
 
     ``alias=True`` (default) sums the continuous OTF over all aliases, Σ_k OTF(f + k), using the signed pixel
     sinc: its inverse DFT is exactly the (pixel-integrated, if ``pixel``) PSF sampled at the pixel centres,
@@ -81,7 +81,7 @@ def optics_mtf_2d(shape, wavelength_m, aperture_diameter_m, ifov_x_rad, ifov_y_r
 
 
 def apply_mtf(image, mtf2d, axes=(0, 1), clamp_negative=False, workers=-1):
-    """Blur ``image`` along two ``axes`` by a real, even 2-D MTF given on the rfft2 grid of those axes (physics.md
+    """Blur ``image`` along two ``axes`` by a real, even 2-D MTF given on the rfft2 grid of those axes (docs/theory.md
     §5, paper §3.5: MTFs applied by convolution).  The FFT is periodic: pad the image first if wrap-around
     matters.  ``clamp_negative`` sets round-off negatives (ringing of a truncated MTF) to 0 and returns their
     count: ``(blurred, n_clamped)``; otherwise returns ``(blurred, 0)``.  Preserves float32."""
@@ -109,18 +109,18 @@ def apply_mtf(image, mtf2d, axes=(0, 1), clamp_negative=False, workers=-1):
 # ----------------------------------------------------------------------------------------------------------
 def coherence_area_m2(wavelength_m, range_m, spot_diameter_m):
     """Speckle coherence area at the receiver A_c = (λR)²/(π d²/4) for a uniformly lit spot of diameter d
-    (physics.md §7)."""
+    (docs/theory.md §7)."""
     return (wavelength_m * range_m) ** 2 / (np.pi * spot_diameter_m ** 2 / 4.0)
 
 
 def speckle_dof_approx(aperture_diameter_m, spot_diameter_m, wavelength_m, range_m):
-    """M ≈ 1 + A_R/A_c (physics.md §7).  S1: 341.5, S2: 2.027."""
+    """M ≈ 1 + A_R/A_c (docs/theory.md §7).  S1: 341.5, S2: 2.027."""
     a_r = np.pi * aperture_diameter_m ** 2 / 4.0
     return 1.0 + a_r / coherence_area_m2(wavelength_m, range_m, spot_diameter_m)
 
 
 def speckle_dof_exact(aperture_diameter_m, spot_diameter_m, wavelength_m, range_m):
-    """Exact speckle degrees of freedom (physics.md §7, Goodman):
+    """Exact speckle degrees of freedom (docs/theory.md §7, Goodman):
     M⁻¹ = (1/A_R) ∫₀^D (2/π)[acos u − u√(1−u²)] [2J₁(x)/x]² 2πΔ dΔ, u = Δ/D_R, x = πdΔ/(λR).
     S1 (0.1 m, 0.5 m, 1064 nm, 2 km): 363.1; S2 (0.05 m, 0.2 m, 1550 nm, 5 km): 2.263.  Scalar inputs."""
     D, d, lam, R = float(aperture_diameter_m), float(spot_diameter_m), float(wavelength_m), float(range_m)
@@ -142,7 +142,7 @@ def speckle_dof_exact(aperture_diameter_m, spot_diameter_m, wavelength_m, range_
 
 
 def speckle_gamma_pdf(w, dof, mean=1.0):
-    """Integrated speckle pdf (physics.md §7): gamma with M degrees of freedom,
+    """Integrated speckle pdf (docs/theory.md §7): gamma with M degrees of freedom,
     p(W) = (M/W̄)^M W^(M−1) exp(−M W/W̄)/Γ(M).  M = 4, W̄ = 1: p(0.5) 0.7218, p(1) 0.7815, p(2) 0.1145."""
     w = np.asarray(w, dtype=np.float64)
     m = float(dof)
@@ -152,19 +152,19 @@ def speckle_gamma_pdf(w, dof, mean=1.0):
 
 
 def speckle_contrast(dof):
-    """Speckle contrast σ_W/W̄ = 1/√M (physics.md §7)."""
+    """Speckle contrast σ_W/W̄ = 1/√M (docs/theory.md §7)."""
     return 1.0 / np.sqrt(np.asarray(dof, dtype=np.float64))
 
 
 def sample_speckle_gain(shape, dof, rng, dtype=np.float64):
-    """Independent multiplicative speckle factors with unit mean: Gamma(M, 1/M) (physics.md §7), contrast 1/√M."""
+    """Independent multiplicative speckle factors with unit mean: Gamma(M, 1/M) (docs/theory.md §7), contrast 1/√M."""
     return (rng.standard_gamma(float(dof), size=shape) / float(dof)).astype(dtype, copy=False)
 
 
 def speckle_gain_field(shape, dof, rng, correlated=False, wavelength_m=None, aperture_diameter_m=None,
                        ifov_rad=None):
     """Per-pixel, per-pulse multiplicative speckle factor (mean 1, gamma marginal with M degrees of freedom,
-    physics.md §7).
+    docs/theory.md §7).
 
     ``correlated=False``: independent pixels (speckle grain ≤ pixel).  ``correlated=True``: a circular complex
     Gaussian field is low-passed by the pupil (coherent cut-off D/(2λ) cycles/rad), so the intensity power
@@ -192,7 +192,7 @@ def speckle_gain_field(shape, dof, rng, correlated=False, wavelength_m=None, ape
 
 
 def negative_binomial_counts(mean_counts, dof, rng):
-    """Photon counts with speckle (physics.md §7): Poisson with a Gamma(M, N̄/M) mean, i.e. negative binomial
+    """Photon counts with speckle (docs/theory.md §7): Poisson with a Gamma(M, N̄/M) mean, i.e. negative binomial
     with mean N̄ and variance N̄ + N̄²/M (exact mixture)."""
     mean = np.asarray(mean_counts, dtype=np.float64)
     return rng.poisson(mean * sample_speckle_gain(mean.shape, dof, rng))

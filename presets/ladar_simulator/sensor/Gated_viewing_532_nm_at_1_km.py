@@ -1,6 +1,6 @@
 # Ladar Simulator sensor preset: burst-illumination / gated-viewing system at 532 nm, gates swept around 1 km.
 # Modelled on the published FOI range-gated imaging experiments (Andersson, Opt. Eng. 45, 034301, 2006;
-# physics.md §9): a frequency-doubled Nd:YAG laser at 532 nm flood-lighting the scene, a gated intensified
+# docs/theory.md §9): a frequency-doubled Nd:YAG laser at 532 nm flood-lighting the scene, a gated intensified
 # camera, a sweep of gate delays in ns steps.  The intensifier is represented by the APD model with a high gain
 # and k_eff = 0 (excess noise F ≈ 2, as a microchannel plate) and a photocathode-like quantum efficiency.
 # Pulse energy, aperture, pixel count and noise figures are representative of the class, not the data sheet of

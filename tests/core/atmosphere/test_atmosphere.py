@@ -1,4 +1,4 @@
-"""Deterministic atmosphere physics: the worked test vectors of physics.md §1–6, §11, §13 and the split-step
+"""Deterministic atmosphere physics: the worked test vectors of docs/theory.md §1–6, §11, §13 and the split-step
 reference of §12.  Sheet values have 4 significant digits; unless stated, rtol = 5e-4 (half a unit of the
 4th digit, relative)."""
 import math
@@ -10,7 +10,7 @@ from scipy.integrate import quad
 from core import atmosphere as atm
 
 RTOL = 5e-4
-CASES = {  # physics.md §1: Cn², λ, L
+CASES = {  # docs/theory.md §1: Cn², λ, L
     "A": (1e-14, 1064e-9, 2e3),
     "B": (1e-15, 1550e-9, 5e3),
     "C": (1e-13, 532e-9, 1e3),
@@ -46,7 +46,7 @@ def test_rytov_vectorised_and_regimes():
     ("C", 2.598e-3, 4.693e-3, 5.464e-3, 9.841e-3)])
 def test_coherence_radius_and_fried(case, rpl, rsp, r0pl, r0sp):
     """§2 table: ρ0 and r0, plane and spherical, rtol 5e-4.  r0/ρ0 = 2.099 holds for the exact coefficients;
-    with the sheet's rounded 1.46 and 0.423 it is (1.46/0.423)^(3/5) = 2.103, so rtol 2e-3 there."""
+    with the rounded 1.46 and 0.423 of docs/theory.md §2 it is (1.46/0.423)^(3/5) = 2.103, so rtol 2e-3 there."""
     c, lam, L = CASES[case]
     close(atm.coherence_radius(c, lam, L, "plane"), rpl)
     close(atm.coherence_radius(c, lam, L, "spherical"), rsp)
@@ -150,7 +150,8 @@ def test_two_way_si():
 def test_gaussian_beam_table(lam, w0, L, f0, cn2, W, theta, lam_, wlt, rc2, wst):
     """§4 table B1–B3: W, Θ, Λ, W_LT, ⟨r_c²⟩ (2.42 form), W_ST, rtol 5e-4.
 
-    W_ST of B1 computes to 0.044402 (sheet 0.04439, relative difference 2.7e-4, within rtol)."""
+    W_ST of B1 computes to 0.044402 (docs/theory.md §4 lists 0.04440;
+    the 0.04439 expected here is 2.7e-4 away, within rtol)."""
     p = atm.gaussian_beam_parameters(lam, w0, L, f0)
     close(p["w_m"], W)
     if theta is not None:
@@ -304,7 +305,7 @@ def test_sane_ranges_finite():
 
 # ---------------------------------------------------------------------------------------------------- §12 split step
 def test_split_step_reference_plane_wave():
-    """§12: plane wave, L = 1 km, 1064 nm, Cn² = 6.477e-15 (σ_R² = 0.2): sheet SI = 0.1989 ± 0.0008.
+    """§12: plane wave, L = 1 km, 1064 nm, Cn² = 6.477e-15 (σ_R² = 0.2): reference SI = 0.1989 ± 0.0008.
 
     Modest run for 2 cores: 512² grid, 2 mm spacing (Fresnel scale 13 mm ≈ 6.5 samples; unresolved
     eddies < 4 mm carry < 1 % of the log-amplitude variance), 5 screens (Rytov 0.04 each), 16 realisations,

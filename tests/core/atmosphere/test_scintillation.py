@@ -1,4 +1,4 @@
-"""Statistics of the random turbulence realisations (physics.md §3, §4, §5, §11): log-normal and gamma-gamma
+"""Statistics of the random turbulence realisations (docs/theory.md §3, §4, §5, §11): log-normal and gamma-gamma
 scintillation patterns, beam wander, turbulence blur.  Every statistical test uses a fixed seed; tolerances
 are stated in each docstring and are ≥ 3 standard errors of the estimate unless noted."""
 import math
@@ -80,7 +80,7 @@ def test_unit_variance_field_normalisation():
 def test_seed_speckle_method():
     """§11 seed generator (N = 1024, w = 40, intensity radius N/(πw) = 8.149 px): ln S exactly normal
     (KS on nodes decimated by 20 px, p > 0.01) and the 1/e radius of ln S = 0.926 × 8.149 px within 3 %
-    (sheet value; 4 realisations)."""
+    (docs/theory.md §11 value; 4 realisations)."""
     rng = np.random.default_rng(11)
     f = [np.log(atm.seed_speckle_lognormal_pattern(1024, 40, 0.3, rng)) for _ in range(4)]
     x = np.concatenate([a[::20, ::20].ravel() for a in f])

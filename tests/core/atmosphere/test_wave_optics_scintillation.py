@@ -182,7 +182,7 @@ def test_fast_gamma_translation_and_field_pair():
 
 
 def test_paper_model_is_still_available_and_named():
-    """statistics="paper" gives the formulas' numbers (physics.md case A spherical SI 0.4373), the default the
+    """statistics="paper" gives the formulas' numbers (docs/theory.md case A spherical SI 0.4373), the default the
     wave-optics ones (30 % or more above the formula at β0² = 2.8, issue 17); both say which ran."""
     p = derived_turbulence(1e-14, 1064e-9, 2e3, statistics="paper")
     w = derived_turbulence(1e-14, 1064e-9, 2e3)

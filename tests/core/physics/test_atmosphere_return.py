@@ -1,6 +1,6 @@
-"""B': scintillation of the return path through the receiver aperture (core/physics/propagation.py; physics.md §3):
+"""B': scintillation of the return path through the receiver aperture (core/physics/propagation.py; docs/theory.md §3):
 aperture averaging A_sp = (1 + 0.33 d²)^(−7/6) applied to the spherical-wave SI of the path target → receiver,
-averaged over each pixel's footprint.  Tolerances: formula values to 1e-3 (physics.md's 4 digits); the
+averaged over each pixel's footprint.  Tolerances: formula values to 1e-3 (docs/theory.md's 4 digits); the
 variance of the applied factor over ≥ 4e4 independent realizations within 5 % (its standard error is
 √((κ4 + 2)/n) ≤ 1.3 % for these gamma shapes)."""
 import copy
@@ -15,7 +15,7 @@ from scenes import config_for, plate
 
 
 def test_variance_formula_case_a():
-    """physics.md case A (Cn² 1e-14, 1064 nm, 2 km), D = 5 cm: A_sp = 0.5741, SI_sp = 0.4373, point footprint:
+    """docs/theory.md case A (Cn² 1e-14, 1064 nm, 2 km), D = 5 cm: A_sp = 0.5741, SI_sp = 0.4373, point footprint:
     variance 0.2511; a 5 cm footprint multiplies it by g(p/ρ_l)² with ρ_l = 0.01543 m (eq. 3-6, spherical)."""
     d = derived_turbulence(1e-14, 1.064e-6, 2000.0, aperture_diameter_m=0.05, statistics="paper")
     v = return_scintillation_variance(d, (1e-6, 1e-6))

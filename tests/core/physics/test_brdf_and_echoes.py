@@ -1,4 +1,4 @@
-"""BRDF (physics.md §10) and echo interpolation (physics.md §9) against the sheet's worked values."""
+"""BRDF (docs/theory.md §10) and echo interpolation (docs/theory.md §9) against the worked values of docs/theory.md."""
 import numpy as np
 import pytest
 
@@ -9,13 +9,13 @@ from core.physics.detection.peaks import detect_echoes, interpolate_peak
 
 @pytest.mark.parametrize("deg,expected", [(0, 0.1300), (10, 0.1040), (30, 0.06931), (60, 0.04000)])
 def test_steinvall_values(deg, expected):
-    """f_r(θ) for A = 0.05, s = 0.2, B = 0.08, m = 1 (physics.md §10), to 4 significant digits."""
+    """f_r(θ) for A = 0.05, s = 0.2, B = 0.08, m = 1 (docs/theory.md §10), to 4 significant digits."""
     value = steinvall_brdf(np.cos(np.radians(deg)), 0.05, 0.2, 0.08, 1.0)
     assert float(value) == pytest.approx(expected, rel=5e-4)
 
 
 def test_steinvall_directional_hemispherical_reflectance():
-    """ρ_DH(0) = 0.2262 for the same parameters (physics.md §10)."""
+    """ρ_DH(0) = 0.2262 for the same parameters (docs/theory.md §10)."""
     b = BRDFSettings(model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08, diffuse_m=1.0)
     assert directional_hemispherical_reflectance(b) == pytest.approx(0.2262, rel=5e-4)
 
@@ -37,7 +37,7 @@ def test_lambertian_is_reflectance_over_pi():
 
 def test_interpolation_worked_values():
     """Samples (0.4296, 0.9560, 0.7827) of a σ = 1 sampled Gaussian at t0 = 0.3: parabolic δ = 0.2523,
-    Gaussian δ = 0.3000 (physics.md §9)."""
+    Gaussian δ = 0.3000 (docs/theory.md §9)."""
     y = (0.4296, 0.9560, 0.7827)
     d_par, _ = interpolate_peak(*y, method="parabolic")
     d_gau, peak = interpolate_peak(*y, method="gaussian")

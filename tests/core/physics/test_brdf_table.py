@@ -55,7 +55,7 @@ def test_materials_mix_table_and_models():
     ids = np.array([0, 1, 1, 2, 2])
     f = evaluate_materials([lam, tab, ste], ids, cos)
     assert np.allclose(f[:3], 0.4 / math.pi, rtol=1e-12)
-    assert f[3] == pytest.approx(0.1300, rel=5e-4) and f[4] == pytest.approx(0.1040, rel=5e-4)  # physics.md §10
+    assert f[3] == pytest.approx(0.1300, rel=5e-4) and f[4] == pytest.approx(0.1040, rel=5e-4)  # docs/theory.md §10
     laser, rx = LaserSettings(), ReceiverSettings()
     rng = np.array([100.0, 250.0, 400.0])
     e_lam = received_energy(laser, rx, 0.0, [lam], np.zeros(3, int), cos[:3], rng, 1.0)

@@ -68,7 +68,7 @@ def test_pulse_cdf_integral_derivative_is_the_cdf():
 
 
 def test_two_gate_ratio_worked_example():
-    """physics.md §9: T = 20 ns, τ = 10 ns, E1 = 8, E2 = 2 → R = 2.548 m."""
+    """docs/theory.md §9: T = 20 ns, τ = 10 ns, E1 = 8, E2 = 2 → R = 2.548 m."""
     assert two_gate_range_m(8.0, 2.0, 20e-9, 10e-9) == pytest.approx(2.548, abs=5e-4)
 
 

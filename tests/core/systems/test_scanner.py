@@ -137,7 +137,7 @@ def test_two_planes_half_covering_the_footprint_give_two_echoes():
     assert len(p["range_m"]) == 2
     assert list(p["echo_index"]) == [1, 2] and list(p["n_echoes"]) == [2, 2]
     np.testing.assert_allclose(p["range_m"], [30.0, 31.5], atol=0.005)
-    # the echo energies split as the sub-rays do, each scaled by 1/R² (physics.md §10): amplitude ratio within 2 %
+    # the echo energies split as the sub-rays do, each scaled by 1/R² (docs/theory.md §10): amplitude ratio within 2 %
     rho, phi, w = beam_subrays(4, "gaussian")
     x_at_front = 30.0 * np.tan(rho * 2e-3) * np.cos(phi)
     on_front = x_at_front < -1e-4
@@ -217,7 +217,7 @@ def test_on_axis_pulse_energy_follows_the_radar_equation():
     cfg.laser.beam_divergence_rad = 1e-5
     res = simulate(plate(50.0, 5.0), np.eye(4), cfg)
     rho, eta, r_a = 0.3, cfg.receiver.system_efficiency, cfg.receiver.aperture_diameter_m / 2
-    expected = cfg.laser.pulse_energy_j * eta * rho * r_a ** 2 / 50.0 ** 2  # Lambertian, physics.md §10
+    expected = cfg.laser.pulse_energy_j * eta * rho * r_a ** 2 / 50.0 ** 2  # Lambertian, docs/theory.md §10
     assert res.pulses["received_energy_j"][0] == pytest.approx(expected, rel=1e-6)
 
 

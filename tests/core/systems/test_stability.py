@@ -1,4 +1,4 @@
-"""Numerical stability of the flash pipeline over and past the sane ranges of physics.md §13 (hypothesis)."""
+"""Numerical stability of the flash pipeline over and past the sane ranges of docs/theory.md §13 (hypothesis)."""
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings

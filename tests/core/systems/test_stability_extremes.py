@@ -1,4 +1,4 @@
-"""Numerical stability past physics.md §13 (issue 7), with every sub-ray pattern and the cell range spread:
+"""Numerical stability past docs/theory.md §13 (issue 7), with every sub-ray pattern and the cell range spread:
 property-based (hypothesis, few examples each so the suite stays fast) and worked extremes.
 
 Extends tests/core/test_stability.py (NaN/Inf over ranges, incidence, energies, extinction, pulses; extinction
@@ -72,7 +72,7 @@ def test_radar_equation_holds_noise_free(range_m, log_energy, reflectance, extin
 @given(cn2=st.sampled_from([0.0, 1e-17, 1e-15, 1e-13, 1e-12, 1e-11]), range_m=st.floats(100.0, 20_000.0),
        pattern=PATTERNS, seed=st.integers(0, 2 ** 32))
 def test_turbulence_from_none_to_past_strong_stays_finite(cn2, range_m, pattern, seed):
-    """Cn² 0 – 1e-11 (past the sheet's 1e-12), every turbulence effect on: no NaN/Inf, energies ≥ 0."""
+    """Cn² 0 – 1e-11 (past the 1e-12 of docs/theory.md §13), every turbulence effect on: no NaN/Inf, energies ≥ 0."""
     cfg = config_for(range_m, pixels=8, subsamples=2, fov_rad=2e-3, bins=96, margin_bins=40)
     cfg.laser.divergence_fills_fov = False
     cfg.laser.beam_divergence_rad = 1e-3
@@ -85,8 +85,8 @@ def test_turbulence_from_none_to_past_strong_stays_finite(cn2, range_m, pattern,
 @FEW
 @given(range_m=st.floats(10.0, 20_000.0), vis_lo=st.floats(50.0, 1e6), factor=st.floats(1.0, 100.0))
 def test_lower_visibility_never_gives_more_energy(range_m, vis_lo, factor):
-    """Visibility 50 m – 1000 km (physics.md §6 models, far past the sheet's 0.2–50 km): finite products, and
-    the received energy never grows when the visibility drops."""
+    """Visibility 50 m – 1000 km (docs/theory.md §6 models, far past the 0.2–50 km of §13):
+    finite products, and the received energy never grows when the visibility drops."""
     cfg = config_for(range_m, pixels=2, subsamples=2, fov_rad=1e-3)
     scene = plate(range_m, range_m * 0.01)
     energies = []
@@ -182,7 +182,7 @@ def test_every_pattern_carries_the_exact_pixel_energy(pattern, s, seed, offset, 
 def test_far_from_the_origin_keeps_millimetre_range_with_every_pattern(offset_km, distance_m, pattern, tilt_deg):
     """The same tilted plate and sensor at the origin and moved up to 10 km away, any pattern (jittered rays
     evaluated at their cell centre on the hit plane), FOV culling on: every echo range agrees within 1 mm and
-    the energies within 1e-9 (float64 refinement of the float32 BVH hit; physics.md §13)."""
+    the energies within 1e-9 (float64 refinement of the float32 BVH hit; docs/theory.md §13)."""
     shift = np.array([offset_km * 1000.0, -offset_km * 700.0, offset_km * 300.0])
     base = plate(distance_m, distance_m * 0.05, tilt_rad=np.radians(tilt_deg))
     cfg = config_for(distance_m, pixels=4, subsamples=2, fov_rad=0.002, bin_s=0.5e-9)

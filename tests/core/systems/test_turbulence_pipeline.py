@@ -43,7 +43,7 @@ def test_cn2_zero_is_bit_identical_and_skips_every_turbulence_stage():
 
 
 def test_visibility_sets_extinction():
-    """visibility 5 km at 1064 nm (Kim) gives σ = 0.3687/km (physics.md §6) in the radar equation."""
+    """visibility 5 km at 1064 nm (Kim) gives σ = 0.3687/km (docs/theory.md §6) in the radar equation."""
     cfg = config_for(R, pixels=4, fov_rad=2e-3)
     cfg.laser.beam_profile = "uniform"
     clear = simulate_frame(plate(R, 30.0), np.eye(4), cfg).energy_image.sum()

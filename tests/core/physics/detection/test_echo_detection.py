@@ -1,4 +1,4 @@
-"""Echo detection on noisy waveforms (physics.md §9): interpolation formulas, Cramér–Rao range precision,
+"""Echo detection on noisy waveforms (docs/theory.md §9): interpolation formulas, Cramér–Rao range precision,
 thresholds, multi-echo separation, false-alarm counting, end-to-end with the receiver chain.
 
 Tolerances: §9 reference values at 4 significant digits; range precision within 30 % of the Cramér–Rao bound

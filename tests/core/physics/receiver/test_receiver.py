@@ -1,4 +1,4 @@
-"""Receiver chain (paper Figure 4; physics.md §8): photons, detector noise, gain, A/D, Geiger mode.
+"""Receiver chain (paper Figure 4; docs/theory.md §8): photons, detector noise, gain, A/D, Geiger mode.
 
 Tolerances: reference values at 4 significant digits (rel 5e-4); sampled means/variances within 2 % over
 ≥ 2.6e5 samples (statistical error of a variance ≈ √((κ4 + 2)/n) < 0.7 % here).
@@ -20,7 +20,7 @@ from core.physics.receiver.samplers import gamma_gain, poisson_sparse_counts, po
 
 REL4 = 5e-4  # "4 significant digits"
 
-# physics.md §8 test detector: η 0.4, G 100, k 0.02, 1 pA / 1 nA, τ 10 ns, N_b 2, 300 e⁻, Δ 500 e⁻ (12 bit)
+# docs/theory.md §8 test detector: η 0.4, G 100, k 0.02, 1 pA / 1 nA, τ 10 ns, N_b 2, 300 e⁻, Δ 500 e⁻ (12 bit)
 SEC8 = dict(quantum_efficiency=0.4, apd_gain=100.0, apd_k_eff=0.02, dark_current_bulk_a=1e-12,
             dark_current_surface_a=1e-9, background_rate_photons_per_s=2 / (0.4 * 10e-9), read_noise_e=300.0,
             adc_bits=12, adc_full_scale_e=500.0 * 4096, adc_offset_counts=16)

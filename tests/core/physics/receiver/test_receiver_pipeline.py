@@ -34,7 +34,7 @@ def test_ideal_receiver_skips_every_noise_stage_exactly():
 def test_noisy_receiver_ranges_a_plate_with_high_snr():
     """A bright plate through the §8 APD chain (η 0.4, G 100, k 0.02, 300 e⁻ read noise, 12-bit A/D): every
     pixel detects its echo; the range error is unbiased (|mean| < 5 mm) and its rms follows the photon-limited
-    precision with APD excess noise, σ_R = (c/2) σ_p √(F/N) (physics.md §8, §9), within a factor 2; the mean
+    precision with APD excess noise, σ_R = (c/2) σ_p √(F/N) (docs/theory.md §8, §9), within a factor 2; the mean
     digital signal above the pedestal is η N G / Δ within 5 %."""
     cfg = noisy_config()
     res = simulate_frame(plate(R, 20.0), np.eye(4), cfg)

@@ -1,5 +1,5 @@
 """core.physics.receiver.bin_moments follows every switch of the chain (the panel's derived figures use it): sampled
-mean and variance of the chain output within 2 % of it over 262144 samples (physics.md §7, §8)."""
+mean and variance of the chain output within 2 % of it over 262144 samples (docs/theory.md §7, §8)."""
 import numpy as np
 import pytest
 

@@ -1,5 +1,5 @@
 """The tabulated code distribution of signal-free bins (core/physics/receiver/: noise_code_pmf, CodeTable), the fast
-route of the receiver chain (physics.md §8).
+route of the receiver chain (docs/theory.md §8).
 
 Tolerances: the pmf against closed forms to 1e-12 (float64 FFT round-off); quantization moments within 1e-4
 (the rounding bias of rint(X/Δ) is periodic with amplitude ~exp(−2π²σ²/Δ²) < 1e-5 here); sampled
@@ -33,11 +33,11 @@ def test_pmf_matches_closed_form_for_a_lattice_signal():
     assert p.sum() == pytest.approx(1.0, abs=1e-14)
 
 
-@pytest.mark.parametrize("b,G,F,sigma,step", [(2.0, 100.0, F_SEC8, 300.0, 100.0),   # physics §8 detector
+@pytest.mark.parametrize("b,G,F,sigma,step", [(2.0, 100.0, F_SEC8, 300.0, 100.0),   # docs/theory.md §8 detector
                                               (0.02, 100.0, F_SEC8, 300.0, 100.0),  # faint background
                                               (30.0, 50.0, 2.0, 80.0, 40.0)])       # bright, fine A/D
 def test_pmf_moments_match_the_compound_poisson_gamma_formula(b, G, F, sigma, step):
-    """Mean and variance of the A/D index: E[kΔ] = G b + d, Var[kΔ] = G²F b + d + σ² + Δ²/12 (physics.md §8).
+    """Mean and variance of the A/D index: E[kΔ] = G b + d, Var[kΔ] = G²F b + d + σ² + Δ²/12 (docs/theory.md §8).
     With σ ≥ 2Δ Sheppard's correction is exact to exp(−2π²σ²/Δ²) < 1e-30 relative, so 1e-6 tests the pmf."""
     k0, p = noise_code_pmf(step, n_mult=b, gain=G, excess_noise=F, surface_dark_e=DS_SEC8,
                            surface_dark_poisson=True, gauss_var_e2=sigma ** 2)

@@ -1,4 +1,4 @@
-"""Speckle statistics (physics.md §7) and optics MTFs (physics.md §5).
+"""Speckle statistics (docs/theory.md §7) and optics MTFs (docs/theory.md §5).
 
 Reference values at 4 significant digits (rel 5e-4); sampled contrast within 5 %; MTF measured from a
 simulated edge within 5 % of the formula.
