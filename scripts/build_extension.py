@@ -46,9 +46,10 @@ from blender_env import EXTENSION_ID, package_files  # noqa: E402
 
 #: Packages bundled as wheels (distribution names); versions come from requirements.txt.  The simulator's own:
 #: scipy, embreex, OpenEXR, and matplotlib, which draws the previews (title, axes, colour bar), with its
-#: dependencies (packaging: Blender lacks it).
+#: dependencies (packaging: Blender lacks it), and numba with llvmlite, which compile the signal chain's kernels
+#: (core/jit.py).
 SIMULATOR = ("scipy", "embreex", "OpenEXR", "matplotlib", "contourpy", "cycler", "fonttools", "kiwisolver", "pillow",
-             "pyparsing", "python-dateutil", "tzdata", "packaging")
+             "pyparsing", "python-dateutil", "tzdata", "packaging", "numba", "llvmlite")
 #: Then Dask with every dependency it has (requirements-worker.txt lists the same; packaging is above): a sweep
 #: started from Blender (``blender -c ladar sweep``, ``ladar.sweep``) runs on dask.distributed.
 DASK = ("dask", "distributed", "cloudpickle", "msgpack", "psutil", "tornado", "toolz", "partd", "fsspec", "PyYAML",

@@ -28,9 +28,10 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 from ..config.settings import LaserSettings, RangeGateSettings
-from .laser import (boxes_cdf, gaussian_box_cdf, gaussian_box_terms, pulse_box_cdf, pulse_cdf, pulse_half_support_s,
-                    pulse_sigma_s, sorted_spreads)
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..jit import kernel
+from .laser import (boxes_cdf, gaussian_box_cdf_at, gaussian_box_terms, pulse_box_cdf, pulse_cdf,
+                    pulse_half_support_s, pulse_sigma_s, sorted_spreads)
 
 #: Largest number of (ray, bin) terms evaluated at once by the exact method (bounds memory, ~100 MB).
 MAX_TERMS = 4_000_000
@@ -141,14 +142,62 @@ def accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser: 
     n_out = gate.n_bins if method == "exact" else gate.n_bins + 2 * _splat_pad(laser, gate)
     win = _windows_for(pixel_local, lo, hi, n_pixels, n_out)
     if method == "exact":
-        _add_impulses_exact(win, pixel_local[impulse], u[impulse], energy_j[impulse], imp, laser, gate)
-    else:
-        _add_impulses_splat(win, pixel_local[impulse], energy_j[impulse], imp)
+        # one compiled pass over the rays in pixel order: impulses, and the Gaussian pulse's boxed returns
+        gaussian = laser.pulse_shape == "gaussian"
+        sel = np.ones(len(u), bool) if gaussian else impulse
+        sigma = np.full(len(u), pulse_sigma_s(laser) if gaussian else 0.0)
+        box_a, box_b, kind = np.zeros(len(u)), np.zeros(len(u)), np.zeros(len(u), np.int64)
+        r_lo, r_hi = lo.copy(), hi.copy()
+        half = imp["half"]
+        outside = np.flatnonzero(impulse)[~((u[impulse] + half >= 0) & (u[impulse] - half < gate.n_bins))]
+        r_hi[outside] = r_lo[outside] - 1  # impulses outside the gate add nothing
+        if box is not None and gaussian:
+            sigma[boxed], box_a[boxed], box_b[boxed], kind[boxed] = box["sigma"], box["a"], box["b"], box["kind"]
+        _bin_returns(pixel_local[sel], u[sel], energy_j[sel], sigma[sel], box_a[sel], box_b[sel], kind[sel],
+                     r_lo[sel], r_hi[sel], win.start, win.offset, win.values, gate.bin_width_s,
+                     0.0 if gaussian else laser.pulse_fwhm_s)
+        if box is not None and not gaussian:
+            _add_spread(win, pixel_local[boxed], energy_j[boxed], box, laser, gate, method)
+        return win
+    _add_impulses_splat(win, pixel_local[impulse], energy_j[impulse], imp)
     if box is not None:
         _add_spread(win, pixel_local[boxed], energy_j[boxed], box, laser, gate, method)
-    if method == "exact":
-        return win
     return _splat_convolve(win, laser, gate)
+
+
+@kernel
+def _bin_returns(pixel, u, energy, sigma, box_a, box_b, kind, lo, hi, start, offset, values, dt, rect_width):
+    """The exact method: each return's pulse CDF differences over its bins [lo, hi], added to its pixel's
+    window in ray order (rays sorted by pixel, so a pixel's sum never depends on the caller's blocks).  A
+    Gaussian pulse (``rect_width`` 0) ⊛ the return's boxes (:func:`core.laser.gaussian_box_cdf_at`), or a
+    rectangular pulse of full width ``rect_width`` (impulses only).  Bins whose weight is not positive are
+    skipped."""
+    for i in range(u.shape[0]):
+        b0, b1 = lo[i], hi[i]
+        if b1 < b0:
+            continue
+        base = offset[pixel[i]] - start[pixel[i]]
+        c, e = u[i], energy[i]
+        s, a, b, k = sigma[i], box_a[i], box_b[i], kind[i]
+        inv_s = 1.0 / s if s > 0 else 0.0
+        inv_a = 1.0 / a if a > 0 else 0.0
+        inv_ab = 1.0 / (a * b) if b > 0 else 0.0
+        inv_w = 1.0 / rect_width if rect_width > 0 else 0.0
+        t = (b0 - c) * dt
+        if rect_width > 0:
+            prev = min(max(t * inv_w + 0.5, 0.0), 1.0)
+        else:
+            prev = gaussian_box_cdf_at(t, s, inv_s, a, inv_a, b, inv_ab, k)
+        for j in range(b0, b1 + 1):
+            t = (j + 1 - c) * dt
+            if rect_width > 0:
+                cur = min(max(t * inv_w + 0.5, 0.0), 1.0)
+            else:
+                cur = gaussian_box_cdf_at(t, s, inv_s, a, inv_a, b, inv_ab, k)
+            w = (cur - prev) * e
+            if w > 0:
+                values[base + j] += w
+            prev = cur
 
 
 def _ragged_add(win, pixel, col, weight, valid):
@@ -173,25 +222,6 @@ def _impulse_terms(u, laser, gate, method):
     c = u - 0.5 + pad  # impulse at position u (bin units, bin centres at j + 0.5) in the padded index space
     j0 = np.floor(c).astype(np.int64)
     return {"c": c, "j0": j0, "lo": np.maximum(j0, 0), "hi": np.minimum(j0 + 1, n_ext - 1)}
-
-
-def _add_impulses_exact(win, pixel_local, u, energy_j, terms, laser, gate):
-    """Impulse returns: pulse CDF differences over the bins within the pulse's support."""
-    n_bins, k, half = gate.n_bins, terms["k"], terms["half"]
-    inside = (u + half >= 0) & (u - half < n_bins)
-    pixel_local, u, energy_j, first = pixel_local[inside], u[inside], energy_j[inside], terms["first"][inside]
-    offsets = np.arange(k)
-    # sub-chunks end on pixel boundaries so every pixel's sum runs over the same rays in the same order,
-    # whatever the block size: products do not depend on chunking
-    for a, b in _pixel_chunks(pixel_local, k, whole_pixels=True):
-        uu = u[a:b]
-        bins = first[a:b, None] + offsets[None, :]
-        # bin j spans [j, j+1) in bin units; the pulse CDF is evaluated at the edges relative to the return
-        lower = (bins - uu[:, None]) * gate.bin_width_s
-        cdf = pulse_cdf(laser, np.concatenate([lower, lower[:, -1:] + gate.bin_width_s], axis=1))
-        weight = np.diff(cdf, axis=1) * energy_j[a:b, None]
-        valid = (bins >= 0) & (bins < n_bins) & (weight > 0)
-        _ragged_add(win, pixel_local[a:b], bins, weight, valid)
 
 
 def _splat_pad(laser, gate) -> int:
@@ -297,10 +327,9 @@ def _spread_terms(u, spread_s, laser, gate, method):
 
 
 def _add_spread(win, pixel_local, energy_j, terms, laser, gate, method):
-    """Returns whose cell spans a range interval: the pulse ⊛ trapezoid integrated over each bin (exact), or
-    the trapezoid ⊛ U(Δ) over each bin of the padded histogram (splat, convolved with the pulse afterwards)."""
+    """Returns whose cell spans a range interval: the rectangular pulse ⊛ trapezoid integrated over each bin
+    (exact), or the trapezoid ⊛ U(Δ) over each bin of the padded histogram (splat, convolved with the pulse afterwards)."""
     dt = gate.bin_width_s
-    gaussian_exact = method == "exact" and laser.pulse_shape == "gaussian"
     lo, hi, c, kind = terms["lo"], terms["hi"], terms["c"], terms["kind"]
     size = bucket_size(hi - lo + 1)
     inside = hi >= lo
@@ -312,10 +341,7 @@ def _add_spread(win, pixel_local, energy_j, terms, laser, gate, method):
             for a, b in _pixel_chunks(pixel_local[sel], kb + 1):
                 idx = sel[a:b]
                 edges = lo[idx, None] + offsets[None, :]  # bin edges j (bins span [j, j + 1) in this index space)
-                if gaussian_exact:
-                    cdf = gaussian_box_cdf((edges - c[idx, None]) * dt, terms["sigma"][idx, None],
-                                           terms["a"][idx, None], terms["b"][idx, None], int(kd))
-                elif method == "exact":
+                if method == "exact":  # rectangular pulse (the Gaussian one is binned by _bin_returns)
                     cdf = pulse_box_cdf(laser, (edges - c[idx, None]) * dt, terms["spread"][idx])
                 else:
                     # the splat's linear split between centres is a box of one bin: widths (a, b, Δ) in bins

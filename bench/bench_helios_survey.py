@@ -1,0 +1,228 @@
+"""The HELIOS++ airborne survey (issue 16): this simulator against HELIOS++ on HELIOS++'s own benchmark survey.
+
+Scene and survey, as HELIOS++ v2.0.1 (C++, Release build) ran them on this kind of machine:
+
+* terrain: 1000 × 1000 vertices, z = sin(x)·cos(y) over x, y ∈ [−50, 50] m (1,996,002 triangles);
+* scanner: an oscillating mirror, 500 kHz, ±20° (40° full width) at 100 Hz, 0.5 mrad divergence, 4 ns pulse,
+  1064 nm, 19 sub-rays per pulse (two rings); full waveform computed at 0.25 ns bins, not written;
+* platform: 100.7 m up, flying +X at 30 m/s from x = −45 to +45 m (3 s, 1.5M pulses), sweeping across track.
+
+Measured in one run (one process): the scene load (terrain built and its BVH), the whole survey
+(``simulate_scan``, BVH built beforehand) at 1 and 2 threads, pulses/s, the thread scaling, peak resident
+memory of the survey runs, the bare embreex cast of as many rays along the same scan lines (the very same
+sub-rays, generated outside the timing, cast in the pipeline's blocks on 1 and 2 threads) and the ratio of the
+pipeline to it.  The first call's latency (JIT compilation, or loading the compiled kernels from the per-user
+cache) is measured separately, in fresh processes, on a 4096-pulse scan: with an empty kernel cache and with
+the cache filled.  HELIOS++'s figures are the stated reference: 37.4k pulses/s on 2 threads, 20.1k on 1,
+4.4 GB peak memory, 18 s scene load.  Writes JSON (default bench/results/helios_survey.json).
+
+    python bench/bench_helios_survey.py [--duration 3.0] [--grid 1000] [--repeat 1] [--out ...]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+C = 299_792_458.0
+HELIOS = {"version": "HELIOS++ v2.0.1 (C++, Release build)", "pulses_per_s_2_threads": 37_400.0,
+          "pulses_per_s_1_thread": 20_100.0, "peak_memory_bytes": 4.4e9, "scene_load_s": 18.0}
+
+
+def terrain(n_vertices: int = 1000):
+    """z = sin(x)·cos(y) on an n × n vertex grid over [−50, 50]² m: 2(n − 1)² triangles."""
+    from core.config import BRDFSettings
+    from core.scene import SceneGeometry
+
+    x = np.linspace(-50.0, 50.0, n_vertices)
+    gx, gy = np.meshgrid(x, x)
+    verts = np.stack([gx.ravel(), gy.ravel(), (np.sin(gx) * np.cos(gy)).ravel()], axis=1)
+    n = n_vertices - 1
+    i = np.arange(n)
+    a = (i[:, None] * n_vertices + i[None, :]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n_vertices + 1], 1),
+                           np.stack([a, a + n_vertices + 1, a + n_vertices], 1)])
+    return SceneGeometry(verts, tris, np.zeros(len(tris), int), [BRDFSettings(reflectance=0.3)], ["terrain"])
+
+
+def survey(duration_s: float = 3.0, threads: int = 1):
+    """(config, trajectory): the oscillating scanner flying +X at 30 m/s, 100.7 m up, centred on x = 0."""
+    from core.config import SimulationConfig
+    from core.motion import Trajectory
+
+    cfg = SimulationConfig(system_type="scanner")
+    s = cfg.scanner
+    s.pattern, s.pulse_rate_hz, s.scan_rate_hz = "oscillating", 500e3, 100.0
+    s.scan_width_rad, s.duration_s, s.beam_subray_rings = np.deg2rad(40.0), duration_s, 2  # 19 sub-rays
+    cfg.laser.beam_divergence_rad, cfg.laser.pulse_fwhm_s, cfg.laser.wavelength_m = 0.5e-3, 4e-9, 1.064e-6
+    cfg.laser.divergence_fills_fov = False
+    # ranges 99.7 m (nadir, a crest) to 108 m (20° off nadir, a trough): a gate 95–119 m at 0.25 ns
+    cfg.gate.gate_start_s, cfg.gate.bin_width_s, cfg.gate.n_bins = 2 * 95.0 / C, 0.25e-9, 640
+    cfg.run.save_waveforms = False  # computed, not written
+    cfg.run.threads = threads
+    # sensor −Z down, sensor +X across track (world +Y): the mirror sweeps across the flight line
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    x0 = -0.5 * 30.0 * duration_s
+    mats = np.repeat(np.eye(4)[None], 2, axis=0)
+    mats[:, :3, :3] = rot
+    mats[:, :3, 3] = [[x0, 0.0, 100.7], [-x0, 0.0, 100.7]]
+    return cfg, Trajectory(np.array([0.0, duration_s]), mats)
+
+
+def peak_rss_bytes() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def run_survey(scene, tracer, duration_s, threads):
+    from core.scanner import simulate_scan
+
+    cfg, traj = survey(duration_s, threads)
+    t0 = time.perf_counter()
+    res = simulate_scan(scene, np.eye(4), cfg, tracer=tracer, trajectory=traj)
+    return time.perf_counter() - t0, res
+
+
+def bare_cast(tracer, duration_s, per_block, threads_list):
+    """The bare embreex cast of the survey's sub-rays (generated first, outside the timing) in the pipeline's
+    blocks, on each thread count: seconds per thread count, rays, hits."""
+    from core.scanner import n_scan_pulses, scan_rays
+
+    cfg, traj = survey(duration_s)
+    n = n_scan_pulses(cfg)
+    blocks = []
+    for a in range(0, n, per_block):
+        *_, o_world, d_world = scan_rays(cfg, traj, a, min(a + per_block, n))
+        blocks.append((np.ascontiguousarray(o_world - tracer.reference_m, dtype=np.float32),
+                       np.ascontiguousarray(d_world, dtype=np.float32)))
+    n_rays = sum(len(d) for _, d in blocks)
+
+    def cast(block):
+        return int((np.asarray(tracer._embree.run(block[0], block[1], query="INTERSECT")) >= 0).sum())
+
+    out = {}
+    hits = 0
+    for threads in threads_list:
+        t0 = time.perf_counter()
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            hits = sum(pool.map(cast, blocks))
+        out[threads] = time.perf_counter() - t0
+    return out, n_rays, hits
+
+
+_FIRST_CALL = r"""
+import json, sys, time
+sys.path.insert(0, {root!r}); sys.path.insert(0, {bench!r})
+t0 = time.perf_counter()
+import numpy as np
+import bench_helios_survey as b
+import core.scanner  # noqa: F401  (imports the compiled-kernel module)
+t_import = time.perf_counter() - t0
+from core.scene import SceneGeometry
+from core.config import BRDFSettings
+from core.trace import SceneTracer
+scene = b.terrain(101)
+tracer = SceneTracer(scene)
+times = []
+for _ in range(2):
+    t0 = time.perf_counter()
+    b.run_survey(scene, tracer, 4096 / 500e3, 1)
+    times.append(time.perf_counter() - t0)
+print("RESULT " + json.dumps({{"import_s": t_import, "first_call_s": times[0], "second_call_s": times[1]}}))
+"""
+
+
+def first_call_latency():
+    """A 4096-pulse scan in fresh processes: an empty kernel cache (compiles), then the filled cache (loads)."""
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for label in ("empty_cache", "filled_cache"):
+            code = _FIRST_CALL.format(root=str(ROOT), bench=str(ROOT / "bench"))
+            proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+            if proc.returncode != 0:
+                raise RuntimeError(proc.stderr[-3000:])
+            line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+            r = json.loads(line[len("RESULT "):])
+            r["first_call_extra_s"] = r["first_call_s"] - r["second_call_s"]
+            out[label] = r
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--duration", type=float, default=3.0, help="survey duration (s); 3 s = 1.5M pulses")
+    ap.add_argument("--grid", type=int, default=1000, help="terrain vertices per side")
+    ap.add_argument("--repeat", type=int, default=1, help="survey runs per thread count (best taken)")
+    ap.add_argument("--no-first-call", action="store_true", help="skip the fresh-process first-call latency")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "helios_survey.json")
+    args = ap.parse_args(argv)
+
+    from core.runio import software_versions
+    from core.trace import SceneTracer
+
+    first = None if args.no_first_call else first_call_latency()
+    rss0 = peak_rss_bytes()
+    t0 = time.perf_counter()
+    scene = terrain(args.grid)
+    tracer = SceneTracer(scene)
+    load_s = time.perf_counter() - t0
+    # warm-up: a short scan so compilation or kernel loading is not in the timings
+    run_survey(scene, tracer, 0.01, 1)
+    runs = {}
+    for threads in (1, 2):
+        best, res = np.inf, None
+        for _ in range(args.repeat):
+            s, res = run_survey(scene, tracer, args.duration, threads)
+            best = min(best, s)
+        runs[threads] = (best, res)
+    peak = peak_rss_bytes()
+    res1 = runs[1][1]
+    n_pulses = res1.stats["n_pulses"]
+    bare, n_rays, bare_hits = bare_cast(tracer, args.duration, res1.stats["pulses_per_block"], (1, 2))
+    pps = {t: n_pulses / runs[t][0] for t in (1, 2)}
+    report = {
+        "benchmark": "HELIOS++ airborne survey (issue 16)",
+        "scene": {"vertices": int(scene.vertices_m.shape[0]), "n_triangles": scene.n_triangles,
+                  "load_s (terrain built + BVH)": load_s},
+        "survey": {"n_pulses": n_pulses, "subrays_per_pulse": res1.stats["subrays_per_pulse"], "n_rays": n_rays,
+                   "bin_width_s": 0.25e-9, "n_bins": 640, "pulses_per_block": res1.stats["pulses_per_block"],
+                   "n_hits": res1.stats["n_hits"], "n_hits_bare": bare_hits, "n_points": res1.stats["n_points"],
+                   "pulses_without_echo": res1.stats["pulses_without_echo"]},
+        "pipeline_s": {str(t): runs[t][0] for t in (1, 2)},
+        "pulses_per_s": {str(t): pps[t] for t in (1, 2)},
+        "thread_scaling_1_to_2": runs[1][0] / runs[2][0],
+        "bare_cast_s": {str(t): bare[t] for t in (1, 2)},
+        "bare_rays_per_s_per_thread": n_rays / bare[1],
+        "ratio_pipeline_to_bare_cast": {str(t): runs[t][0] / bare[t] for t in (1, 2)},
+        "peak_rss_bytes (survey runs)": peak, "rss_before_load_bytes": rss0,
+        "stage_times_s (1 thread)": runs[1][1].stats["stage_times_s"],
+        "stage_times_s (2 threads, summed over threads)": runs[2][1].stats["stage_times_s"],
+        "first_call_latency": first,
+        "helios_reference": HELIOS,
+        "vs_helios": {"pulses_per_s_2_threads": pps[2] / HELIOS["pulses_per_s_2_threads"],
+                      "pulses_per_s_1_thread": pps[1] / HELIOS["pulses_per_s_1_thread"],
+                      "peak_memory": peak / HELIOS["peak_memory_bytes"],
+                      "scene_load": load_s / HELIOS["scene_load_s"]},
+        "cpu_count": os.cpu_count(),
+        "software": software_versions(),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2))
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""The compiled signal chain (issue 16) against the NumPy implementation it replaced.
+
+``tests/data/signal_chain_reference.npz`` holds the products of the last NumPy-only version (commit 7344fa1)
+on small frames and a scan: flash frames with the cell range spread (Gaussian and rectangular pulses), point
+sub-rays with a pulse narrower than a bin, and an oscillating scan.  The compiled kernels change the order of
+the floating-point sums (each return is added to its pixel's bins in ray order) and evaluate the same
+formulas with libm's erfc/exp instead of SciPy's, so products agree within rounding, not bit for bit:
+
+* waveforms: relative L2 of the whole cube ≤ 1e-5, energy of every pixel within 1e-6 (relative);
+* echoes: the same number per pixel, ranges within 1 µm, amplitudes within 1e-6 (relative);
+* the energy image (radiometry, not recompiled) bit for bit.
+
+Regenerate the file with the NumPy version on the path: ``PYTHONPATH=<old checkout> python
+tests/core/test_signal_chain_reference.py`` (writes tests/data/signal_chain_reference.npz).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "signal_chain_reference.npz"
+
+
+def scene():
+    from core.config import BRDFSettings
+    from core.scene import SceneGeometry
+
+    n = 48
+    gx, gy = np.meshgrid(np.linspace(-150, 150, n + 1), np.linspace(100, 700, n + 1))
+    gz = 0.8 * np.sin(gx / 7.0) * np.cos(gy / 5.0)
+    verts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+    i = np.arange(n)
+    a = (i[:, None] * (n + 1) + i[None, :]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
+    box = np.array([[-4, 296, 0], [4, 296, 0], [4, 304, 0], [-4, 304, 0],
+                    [-4, 296, 5], [4, 296, 5], [4, 304, 5], [-4, 304, 5]], float)
+    box_tris = np.array([[0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7],
+                         [4, 5, 6], [4, 6, 7]]) + len(verts)
+    return SceneGeometry(np.concatenate([verts, box]), np.concatenate([tris, box_tris]),
+                         np.concatenate([np.zeros(len(tris)), np.ones(len(box_tris))]),
+                         [BRDFSettings(reflectance=0.25),
+                          BRDFSettings(model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08)],
+                         ["ground", "paint"])
+
+
+def pose():
+    target, eye = np.array([0.0, 300.0, 2.0]), np.array([0.0, 0.0, 40.0])
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    m = np.eye(4)
+    m[:3, :3] = np.stack([right, np.cross(right, fwd), -fwd], axis=1)
+    m[:3, 3] = eye
+    return m
+
+
+def flash_config(case: str):
+    from core.config import SimulationConfig
+
+    cfg = SimulationConfig()
+    cfg.receiver.width_px = cfg.receiver.height_px = 32
+    cfg.receiver.subsamples = 4
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(6.0)
+    cfg.gate.n_bins, cfg.gate.bin_width_s, cfg.gate.gate_start_s = 1024, 1e-9, 2 * 200.0 / 299_792_458.0
+    cfg.run.threads = 1
+    if case == "rectangular":
+        cfg.laser.pulse_shape = "rectangular"
+    elif case == "narrow_points":
+        cfg.laser.pulse_fwhm_s = 0.6e-9
+        cfg.receiver.cell_range_spread = False
+    return cfg
+
+
+def scan_case():
+    from core.config import SimulationConfig
+    from core.motion import Trajectory
+
+    cfg = SimulationConfig(system_type="scanner")
+    s = cfg.scanner
+    s.pattern, s.pulse_rate_hz, s.scan_rate_hz = "oscillating", 200e3, 100.0
+    s.scan_width_rad, s.duration_s, s.beam_subray_rings = np.deg2rad(40.0), 0.02, 2
+    cfg.laser.beam_divergence_rad, cfg.laser.pulse_fwhm_s, cfg.laser.divergence_fills_fov = 0.5e-3, 4e-9, False
+    cfg.gate.gate_start_s, cfg.gate.bin_width_s, cfg.gate.n_bins = 2 * 55.0 / 299_792_458.0, 0.25e-9, 640
+    cfg.run.save_waveforms = False
+    cfg.run.threads = 1
+    mats = np.repeat(np.eye(4)[None], 2, axis=0)
+    mats[:, :3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    mats[:, :3, 3] = [[-0.3, 300.0, 60.0], [0.3, 300.0, 60.0]]
+    return cfg, Trajectory(np.array([0.0, s.duration_s]), mats)
+
+
+FLASH_CASES = ("gaussian", "rectangular", "narrow_points")
+
+
+def products():
+    """Every case's products (what the reference file holds)."""
+    from core.pipeline import simulate_frame
+    from core.scanner import simulate_scan
+
+    out = {}
+    sc = scene()
+    for case in FLASH_CASES:
+        r = simulate_frame(sc, pose(), flash_config(case))
+        out[f"{case}/waveforms"] = r.waveforms
+        out[f"{case}/energy_image"] = r.energy_image
+        out[f"{case}/range_echoes"] = r.range_echoes
+        out[f"{case}/intensity_echoes"] = r.intensity_echoes
+    cfg, traj = scan_case()
+    r = simulate_scan(sc, np.eye(4), cfg, trajectory=traj)
+    for k in ("pulse_index", "range_m", "intensity", "echo_index"):
+        out[f"scan/{k}"] = r.points[k]
+    out["scan/received_energy_j"] = r.pulses["received_energy_j"]
+    return out
+
+
+def test_compiled_chain_matches_the_numpy_reference():
+    ref = np.load(DATA)
+    new = products()
+    for case in FLASH_CASES:
+        w_ref, w_new = ref[f"{case}/waveforms"].astype(np.float64), new[f"{case}/waveforms"].astype(np.float64)
+        assert np.abs(w_ref).sum() > 0
+        assert np.linalg.norm(w_new - w_ref) <= 1e-5 * np.linalg.norm(w_ref), case
+        e_ref, e_new = w_ref.sum(axis=2), w_new.sum(axis=2)
+        lit = e_ref > 0
+        assert np.all(e_new[~lit] == 0), case
+        assert np.max(np.abs(e_new[lit] - e_ref[lit]) / e_ref[lit]) <= 1e-6, case
+        assert np.array_equal(new[f"{case}/energy_image"], ref[f"{case}/energy_image"]), case
+        r_ref, r_new = ref[f"{case}/range_echoes"], new[f"{case}/range_echoes"]
+        assert np.array_equal(np.isnan(r_ref), np.isnan(r_new)), case
+        ok = ~np.isnan(r_ref)
+        assert np.max(np.abs(r_new[ok].astype(np.float64) - r_ref[ok])) <= 1e-6 * 300, case  # float32 ranges
+        i_ref, i_new = ref[f"{case}/intensity_echoes"], new[f"{case}/intensity_echoes"]
+        assert np.allclose(i_new, i_ref, rtol=1e-6, atol=0), case
+    assert np.array_equal(new["scan/pulse_index"], ref["scan/pulse_index"])
+    assert np.array_equal(new["scan/echo_index"], ref["scan/echo_index"])
+    assert np.max(np.abs(new["scan/range_m"] - ref["scan/range_m"])) <= 1e-6
+    assert np.allclose(new["scan/intensity"], ref["scan/intensity"], rtol=1e-6, atol=0)
+    assert np.array_equal(new["scan/received_energy_j"], ref["scan/received_energy_j"])
+
+
+if __name__ == "__main__":
+    DATA.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(DATA, **products())
+    print(f"wrote {DATA} ({DATA.stat().st_size} bytes)")
