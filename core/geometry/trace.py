@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .jit import kernel
 from .scene import SceneGeometry
 
 
@@ -86,28 +87,47 @@ class SceneTracer:
         the cosine of the incidence angle, |d·n|, 0 on a miss).
         """
         origin_m = np.asarray(origin_m, dtype=np.float64)
-        o32 = np.ascontiguousarray(np.broadcast_to((origin_m - self.reference_m).astype(np.float32),
-                                                   directions.shape))
-        prim = self._cast(o32, np.ascontiguousarray(directions, dtype=np.float32))
-        hit = prim >= 0
-        if hit.any():
-            hit &= ~self.degenerate[np.where(hit, prim, 0)]
-        range_m = np.full(len(prim), np.nan)
-        cos_theta = np.zeros(len(prim))
-        if hit.any():
-            p = prim[hit]
-            n = self.unit_normal[p]
-            d = directions[hit]
-            dn = np.einsum("ij,ij->i", d, n)
-            o = origin_m if origin_m.ndim == 1 else origin_m[hit]
-            t = np.einsum("ij,ij->i", self.v0[p] - o, n) / np.where(dn == 0.0, np.inf, dn)
-            range_m[hit] = t
-            cos_theta[hit] = np.abs(dn)
-            bad = ~(t > 0)
-            if bad.any():
-                idx = np.flatnonzero(hit)[bad]
-                hit[idx] = False
-                range_m[idx] = np.nan
-                cos_theta[idx] = 0.0
-        prim = np.where(hit, prim, -1).astype(np.int32)
+        directions = np.ascontiguousarray(directions, dtype=np.float64)
+        origins = np.ascontiguousarray(origin_m.reshape(-1, 3))
+        n = len(directions)
+        o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        _rays_float32(origins, np.asarray(self.reference_m, np.float64), directions, o32, d32)
+        prim = self._cast(o32, d32)
+        range_m, cos_theta = np.empty(n), np.empty(n)
+        _refine_hits(prim, origins, directions, self.unit_normal, self.v0, self.degenerate, range_m, cos_theta)
         return prim, range_m, cos_theta
+
+
+@kernel
+def _rays_float32(origins, reference, directions, o32, d32):
+    """The float32 rays Embree traces: origins relative to the BVH's reference point (one origin or one per ray)."""
+    single = origins.shape[0] == 1
+    for i in range(directions.shape[0]):
+        r = 0 if single else i
+        for c in range(3):
+            o32[i, c] = origins[r, c] - reference[c]
+            d32[i, c] = directions[i, c]
+
+
+@kernel
+def _refine_hits(prim, origins, directions, unit_normal, v0, degenerate, range_m, cos_theta):
+    """Each hit's float64 distance: the exact intersection of the ray with its triangle's plane,
+    t = ((v₀ − o)·n)/(d·n), and cos θ = |d·n|; misses, degenerate triangles and t ≤ 0 become misses (prim −1,
+    range NaN, cos 0).  ``prim`` is updated in place."""
+    single = origins.shape[0] == 1
+    for i in range(prim.shape[0]):
+        p = prim[i]
+        if p < 0 or degenerate[p]:
+            prim[i], range_m[i], cos_theta[i] = -1, np.nan, 0.0
+            continue
+        r = 0 if single else i
+        dn = directions[i, 0] * unit_normal[p, 0] + directions[i, 1] * unit_normal[p, 1] \
+            + directions[i, 2] * unit_normal[p, 2]
+        num = (v0[p, 0] - origins[r, 0]) * unit_normal[p, 0] + (v0[p, 1] - origins[r, 1]) * unit_normal[p, 1] \
+            + (v0[p, 2] - origins[r, 2]) * unit_normal[p, 2]
+        t = num / (dn if dn != 0.0 else np.inf)
+        if not t > 0:
+            prim[i], range_m[i], cos_theta[i] = -1, np.nan, 0.0
+            continue
+        range_m[i] = t
+        cos_theta[i] = abs(dn)

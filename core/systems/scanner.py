@@ -33,12 +33,12 @@ from ..engine.rng import stage_rng, stage_seed
 from ..errors import ConfigError
 from ..geometry.motion import Trajectory
 from ..physics.detection.peaks import Echoes, detect_echoes
-from ..physics.laser import pulse_cdf, pulse_half_support_s
+from ..physics.laser import pulse_half_support_s
 from ..physics.propagation import (effective_extinction_per_m, footprint_variance_factor, return_scintillation_variance,
                                    turbulence_model_settings)
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
-from ..physics.waveform import accumulate_waveforms, binning_method, round_trip_time_s
+from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
 from .scan_patterns import beam_subrays, pulse_schedule, scan_rays
 
 
@@ -155,59 +155,17 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
 # ----------------------------------------------------------------------------------------------------------
 # Waveforms per pulse
 # ----------------------------------------------------------------------------------------------------------
-class PulseTable:
-    """The bin-integrated Gaussian pulse tabulated against the return's position inside its bin.
-
-    A return at u = j + f bins (0 ≤ f < 1) puts w_m(f) = P((m + 1 − f)Δ) − P((m − f)Δ) into bin j + m,
-    m = −K … K (K covers the pulse's ±6.1σ support).  Rows are tabulated at f = i/N (N = 512) and interpolated
-    linearly in f: each row sums to the same energy, so energy is kept exactly, and the interpolation error is
-    ≈ (1/N)²/8 · |∂²w/∂f²| ≈ 5·10⁻⁷/σ² (σ in bins) of the bin value — far below the waveform's own precision,
-    at a fraction of the cost of evaluating the CDF for every ray and bin (scanners fire millions of pulses).
-    """
-
-    N = 512
-
-    def __init__(self, laser, bin_width_s):
-        half = pulse_half_support_s(laser) / bin_width_s
-        self.k = int(np.ceil(half)) + 1
-        m = np.arange(-self.k, self.k + 1)
-        f = np.arange(self.N + 1) / self.N
-        edges = (m[None, :] - f[:, None]) * bin_width_s
-        self.rows = np.diff(pulse_cdf(laser, np.concatenate([edges, edges[:, -1:] + bin_width_s], axis=1)), axis=1)
-        self.offsets = m
-
-    def waveforms(self, pulse_local, u, energy_j, n_pulses, n_bins, rays_per_chunk: int = 16384):
-        """(n_pulses, n_bins) float64 J per bin; u in bins of the (window) gate; pulse_local sorted ascending.
-        Rays are processed in chunks of whole pulses so the temporaries stay small (cache-sized)."""
-        out = np.zeros((n_pulses, n_bins))
-        a = 0
-        while a < len(u):
-            b = min(a + rays_per_chunk, len(u))
-            if b < len(u):  # end the chunk on a pulse boundary
-                b = int(np.searchsorted(pulse_local, pulse_local[b - 1], side="right")) if \
-                    pulse_local[b] == pulse_local[b - 1] else b
-            p0, p1 = int(pulse_local[a]), int(pulse_local[b - 1]) + 1
-            j = np.floor(u[a:b])
-            x = (u[a:b] - j) * self.N
-            i = np.minimum(x.astype(np.int64), self.N - 1)
-            w = x - i
-            w = (self.rows[i] * (1.0 - w)[:, None] + self.rows[i + 1] * w[:, None]) * energy_j[a:b, None]
-            bins = j.astype(np.int64)[:, None] + self.offsets[None, :]
-            ok = (bins >= 0) & (bins < n_bins)
-            flat = (pulse_local[a:b].astype(np.int64) - p0)[:, None] * n_bins + bins
-            out[p0:p1] += np.bincount(flat[ok], weights=w[ok], minlength=(p1 - p0) * n_bins).reshape(-1, n_bins)
-            a = b
-        return out
-
-
 def windowed_echoes(pulse_local, time_s, energy_j, n_pulses, config: SimulationConfig, method: str,
                     table: PulseTable | None = None) -> Echoes:
     """Echoes of n_pulses pulses from their sub-ray returns (pulse_local sorted ascending), each pulse's waveform
     built over a window of the gate just wide enough for its returns.  Positions are in gate bins.  With a
-    ``table`` (Gaussian pulse) the waveforms come from the tabulated pulse (:class:`PulseTable`)."""
+    ``table`` (Gaussian pulse) each pulse's waveform is built from the tabulated pulse and its echoes detected
+    in one compiled pass (:meth:`PulseTable.echoes`)."""
     gate = config.gate
     half = pulse_half_support_s(config.laser) / gate.bin_width_s
     u = (time_s - gate.gate_start_s) / gate.bin_width_s
+    if table is not None:
+        return table.echoes(pulse_local, u, energy_j, gate.n_bins, config.detection)
     keep = (energy_j > 0) & (u + half >= 0) & (u - half < gate.n_bins)
     pulse_local, u, energy_j, time_s = pulse_local[keep], u[keep], energy_j[keep], time_s[keep]
     parts = []
@@ -228,13 +186,10 @@ def windowed_echoes(pulse_local, time_s, energy_j, n_pulses, config: SimulationC
         pulses = np.flatnonzero(length == win)
         sel = np.isin(pulse_local, pulses)
         local = np.searchsorted(pulses, pulse_local[sel])
-        if table is not None:
-            wf = table.waveforms(local, u[sel] - start[pulses][local], energy_j[sel], len(pulses), int(win))
-        else:
-            shift_s = start[pulses][local] * gate.bin_width_s
-            wgate = dataclasses.replace(gate, n_bins=int(win))
-            wf = accumulate_waveforms(local, time_s[sel] - shift_s, energy_j[sel], len(pulses), config.laser,
-                                      wgate, method)
+        shift_s = start[pulses][local] * gate.bin_width_s
+        wgate = dataclasses.replace(gate, n_bins=int(win))
+        wf = accumulate_waveforms(local, time_s[sel] - shift_s, energy_j[sel], len(pulses), config.laser,
+                                  wgate, method)
         ech = detect_echoes(wf, config.detection)
         ech.position_bins = ech.position_bins + start[pulses][ech.pixel]
         ech.pixel = pulses[ech.pixel]

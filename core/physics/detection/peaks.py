@@ -4,16 +4,17 @@ interpolation (docs/theory.md §9):
     parabolic  δ = (y₋ − y₊) / (2 (y₋ − 2y₀ + y₊))
     Gaussian   the same on ln y (exact for a sampled Gaussian pulse)
 
-Vectorized over pixels: candidates are found on the whole block at once, ranked per pixel by amplitude.
+One compiled pass per waveform row (:func:`detect_row`), on dense rows or on the windows of core/waveform.py.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ...config.settings import DetectionSettings
-from ..waveform import bucket_size
+from ...jit import kernel
 
 #: Two bins closer than this (relative) count as one flat top (rounding in the bin integrals).
 _FLAT_RTOL = 1e-7
@@ -31,160 +32,193 @@ class Echoes:
     snr: np.ndarray | None = None  # (K,) detection SNR (noisy receiver only)
 
 
+#: Interpolation setting → the kernels' mode number.
+INTERPOLATION = {"none": 0, "parabolic": 1, "gaussian": 2}
+
+
+@kernel
+def interpolate_at(ym, y0, yp, mode):
+    """(δ, peak) of :func:`interpolate_peak` for one maximum (mode 0: none, 1: parabolic, 2: Gaussian)."""
+    if mode == 0:
+        return 0.0, y0
+    delta, peak = 0.0, y0
+    denom = ym - 2 * y0 + yp
+    if denom < 0:
+        delta = 0.5 * (ym - yp) / denom
+        peak = y0 - 0.25 * (ym - yp) * delta
+    if mode == 2 and ym > 0 and y0 > 0 and yp > 0:
+        lm, l0, lp = math.log(ym), math.log(y0), math.log(yp)
+        dl = lm - 2 * l0 + lp
+        if dl < 0:
+            delta = 0.5 * (lm - lp) / dl
+            peak = math.exp(l0 - 0.25 * (lm - lp) * delta)
+    return min(max(delta, -0.5), 0.5), peak
+
+
+@kernel
+def _interpolate_many(ym, y0, yp, mode, delta, peak):
+    for i in range(ym.shape[0]):
+        delta[i], peak[i] = interpolate_at(ym[i], y0[i], yp[i], mode)
+
+
 def interpolate_peak(y_minus, y_0, y_plus, method: str = "gaussian"):
-    """Sub-bin offset δ ∈ [−0.5, 0.5] and interpolated peak value for 3 samples around a maximum.
-
-    Gaussian interpolation falls back to parabolic where a neighbour is not positive.
-    """
-    y_minus, y_0, y_plus = (np.asarray(a, dtype=np.float64) for a in (y_minus, y_0, y_plus))
-    delta = np.zeros(np.broadcast(y_minus, y_0, y_plus).shape)
-    peak = np.array(np.broadcast_to(y_0, delta.shape), dtype=np.float64)
-    if method == "none":
-        return delta, peak
-    denom = y_minus - 2 * y_0 + y_plus
-    ok = denom < 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d_par = np.where(ok, 0.5 * (y_minus - y_plus) / np.where(ok, denom, -1.0), 0.0)
-        p_par = y_0 - 0.25 * (y_minus - y_plus) * d_par
-        delta, peak = d_par, np.where(ok, p_par, peak)
-        if method == "gaussian":
-            pos = (y_minus > 0) & (y_0 > 0) & (y_plus > 0)
-            lm = np.log(np.where(pos, y_minus, 1.0))
-            l0 = np.log(np.where(pos, y_0, 1.0))
-            lp = np.log(np.where(pos, y_plus, 1.0))
-            dl = lm - 2 * l0 + lp
-            okg = pos & (dl < 0)
-            d_g = np.where(okg, 0.5 * (lm - lp) / np.where(okg, dl, -1.0), 0.0)
-            p_g = np.exp(l0 - 0.25 * (lm - lp) * d_g)
-            delta = np.where(okg, d_g, delta)
-            peak = np.where(okg, p_g, peak)
-    return np.clip(delta, -0.5, 0.5), peak
+    """Sub-bin offset δ ∈ [−0.5, 0.5] and interpolated peak value for 3 samples around a maximum (arrays
+    broadcast together; :func:`interpolate_at`).  Gaussian interpolation falls back to parabolic where a
+    neighbour is not positive."""
+    ym, y0, yp = (np.array(a, dtype=np.float64, order="C") for a in np.broadcast_arrays(y_minus, y_0, y_plus))
+    delta, peak = np.empty(ym.shape), np.empty(ym.shape)
+    _interpolate_many(ym.reshape(-1), y0.reshape(-1), yp.reshape(-1), INTERPOLATION[method], delta.reshape(-1),
+                      peak.reshape(-1))
+    return delta, peak
 
 
-def _merge_shallow(w, pix, j, min_dip):
-    """Drop candidate peaks not resolved from a neighbour: two time-adjacent peaks of a pixel are separate
-    echoes only if the waveform between them falls below (1 − min_dip) × the smaller peak; otherwise the
-    smaller one is part of the larger echo (a plateau's wiggles, a shoulder).  Candidates sorted by (pixel, bin).
+@kernel
+def detect_row(y, lo, n, bin0, threshold_j, relative_threshold, min_dip, max_echoes, mode, cand, out_pix, row,
+               out_pos, out_amp, out_idx, out_n, k0):
+    """Echoes of one waveform ``y[lo:lo + n]`` (zero outside) whose first value is gate bin ``bin0``, written
+    from slot ``k0`` of the output arrays (pixel ``row``); returns the next free slot.  ``cand`` is scratch of
+    at least n int64.  The rules of :func:`detect_echoes`: local maxima strictly above max(threshold_j,
+    relative_threshold × peak, 0) with a rise on the left and none on the right (differences below _FLAT_RTOL
+    are rounding: one candidate per flat top); peaks not resolved by a dip of ``min_dip`` merged into the
+    larger; the ``max_echoes`` strongest kept in time order; 3-point interpolation; flat tops located at their
+    centre corrected by the partial edge bins."""
+    if n <= 0:
+        return k0
+    peak_max = y[lo]
+    for j in range(1, n):
+        peak_max = max(peak_max, y[lo + j])
+    thr = max(max(threshold_j, relative_threshold * peak_max), 0.0)
+    nc = 0
+    for j in range(n):
+        v = y[lo + j]
+        if not v > thr:
+            continue
+        if j > 0 and not (v - y[lo + j - 1]) > _FLAT_RTOL * abs(v):
+            continue
+        if j < n - 1 and not (y[lo + j + 1] - v) <= _FLAT_RTOL * abs(v):
+            continue
+        cand[nc] = j
+        nc += 1
+    if nc == 0:
+        return k0
+    if min_dip > 0 and nc > 1:
+        # valley[k]: min of y over [cand[k], cand[k + 1]); drop the smaller peak of every unresolved pair of
+        # consecutive survivors at once, until all pairs are resolved
+        valley = np.empty(nc - 1)
+        for k in range(nc - 1):
+            m = y[lo + cand[k]]
+            for j in range(cand[k] + 1, cand[k + 1]):
+                m = min(m, y[lo + j])
+            valley[k] = m
+        keep = np.ones(nc, np.bool_)
+        while True:
+            prev = -1
+            n_alive = 0
+            changed = False
+            drop = np.zeros(nc, np.bool_)
+            v = np.inf
+            for k in range(nc):
+                if not keep[k]:
+                    continue
+                n_alive += 1
+                if prev >= 0:
+                    v = valley[prev]
+                    for q in range(prev + 1, k):
+                        v = min(v, valley[q])
+                    left, right = y[lo + cand[prev]], y[lo + cand[k]]
+                    if v >= (1.0 - min_dip) * min(left, right):
+                        drop[prev if left < right else k] = True
+                        changed = True
+                prev = k
+            if n_alive < 2 or not changed:
+                break
+            for k in range(nc):
+                if drop[k]:
+                    keep[k] = False
+        m = 0
+        for k in range(nc):
+            if keep[k]:
+                cand[m] = cand[k]
+                m += 1
+        nc = m
+    # the max_echoes strongest (ties: the earlier bin), then in time order
+    n_keep = min(nc, max_echoes)
+    if nc > n_keep:
+        chosen = np.zeros(nc, np.bool_)
+        for r in range(n_keep):
+            best = -1
+            for k in range(nc):
+                if not chosen[k] and (best < 0 or y[lo + cand[k]] > y[lo + cand[best]]):
+                    best = k
+            chosen[best] = True
+        m = 0
+        for k in range(nc):
+            if chosen[k]:
+                cand[m] = cand[k]
+                m += 1
+    for r in range(n_keep):
+        j = cand[r]
+        y0 = y[lo + j]
+        ym = y[lo + j - 1] if j > 0 else 0.0
+        yp = y[lo + j + 1] if j < n - 1 else 0.0
+        delta, amp = interpolate_at(ym, y0, yp, mode)
+        jg = j + bin0
+        position = jg + 0.5 + delta
+        if mode != 0 and j < n - 1 and abs(yp - y0) <= _FLAT_RTOL * y0:
+            end = j
+            while end < n - 1 and abs(y[lo + end + 1] - y0) <= _FLAT_RTOL * y0:
+                end += 1
+            y_right = y[lo + end + 1] if end < n - 1 else 0.0
+            position = 0.5 * (jg - ym / y0 + (end + bin0) + 1 + y_right / y0)
+            amp = y0
+        out_pix[k0 + r] = row
+        out_pos[k0 + r] = position
+        out_amp[k0 + r] = amp
+        out_idx[k0 + r] = r
+        out_n[k0 + r] = n_keep
+    return k0 + n_keep
 
-    Each round drops the smaller peak of every unresolved pair at once (never a group's maximum); the valley
-    between the survivors is the lowest of the valleys they enclosed."""
-    n_bins = w.shape[1]
-    flat = np.ascontiguousarray(w).reshape(-1)
-    pos = pix.astype(np.int64) * n_bins + j
-    peak = flat[pos]
-    same = pix[1:] == pix[:-1]
-    valley = np.full(len(pos) - 1, -np.inf)
-    if same.any():
-        # min over [pos_k, pos_k+1) of every consecutive pair (pairs across pixels are masked)
-        mins = np.minimum.reduceat(flat, pos)[:-1] if len(pos) > 1 else np.zeros(0)
-        valley = np.where(same, mins, -np.inf)
-    keep = np.ones(len(pos), bool)
-    idx = np.arange(len(pos))
-    while True:
-        k = idx[keep]
-        if len(k) < 2:
-            break
-        # valley between consecutive survivors: min of the valleys in between
-        v = np.minimum.reduceat(valley[:k[-1]], k[:-1])
-        v = np.where(pix[k[1:]] == pix[k[:-1]], v, -np.inf)
-        left, right = peak[k[:-1]], peak[k[1:]]
-        unresolved = v >= (1.0 - min_dip) * np.minimum(left, right)
-        if not unresolved.any():
-            break
-        victim = np.where(left < right, k[:-1], k[1:])[unresolved]
-        keep[victim] = False
-    return pix[keep], j[keep]
+
+@kernel
+def _detect_rows(values, offset, length, bin0, threshold_j, relative_threshold, min_dip, max_echoes, mode,
+                 out_pix, out_pos, out_amp, out_idx, out_n):
+    cand = np.empty(max(1, int(length.max()) if length.shape[0] else 1), np.int64)
+    k = 0
+    for i in range(length.shape[0]):
+        k = detect_row(values, offset[i], length[i], bin0[i], threshold_j, relative_threshold, min_dip,
+                       max_echoes, mode, cand, out_pix, i, out_pos, out_amp, out_idx, out_n, k)
+    return k
+
+
+def detect_rows(values, offset, length, bin0, settings: DetectionSettings) -> Echoes:
+    """Echoes of waveform rows stored flat: row i is ``values[offset[i]:offset[i] + length[i]]`` (zero outside),
+    its first value at gate bin ``bin0[i]`` (positions are in gate bins)."""
+    n_rows = len(length)
+    cap = n_rows * settings.max_echoes
+    pix, pos, amp = np.empty(cap, np.int64), np.empty(cap), np.empty(cap)
+    idx, cnt = np.empty(cap, np.int16), np.empty(cap, np.int16)
+    k = _detect_rows(np.ascontiguousarray(values, dtype=np.float64), np.asarray(offset, np.int64),
+                     np.asarray(length, np.int64), np.asarray(bin0, np.int64), float(settings.threshold_j),
+                     float(settings.relative_threshold), float(settings.min_dip), int(settings.max_echoes),
+                     INTERPOLATION[settings.interpolation], pix, pos, amp, idx, cnt)
+    return Echoes(pixel=pix[:k], position_bins=pos[:k], amplitude=amp[:k], echo_index=idx[:k], n_echoes=cnt[:k])
 
 
 def detect_echoes(waveforms, settings: DetectionSettings, *, bin_offset=None) -> Echoes:
-    """Find up to ``settings.max_echoes`` echoes per waveform row (n_pixels, n_bins).
+    """Find up to ``settings.max_echoes`` echoes per waveform row (n_pixels, n_bins) (:func:`detect_row`).
 
     ``bin_offset`` (n_pixels,) int, optional: the gate bin of each row's first column (rows that are windows
     of longer waveforms, zero outside); positions are then in gate bins."""
-    w = np.asarray(waveforms)
+    w = np.ascontiguousarray(waveforms, dtype=np.float64)
     n_pix, n_bins = w.shape
-    peak_max = w.max(axis=1)
-    threshold = np.maximum(settings.threshold_j, settings.relative_threshold * peak_max)
-    # a rise on the left, no rise on the right (one candidate per flat top; differences below _FLAT_RTOL
-    # are rounding, not structure), strictly above threshold; the waveform is zero outside the gate.
-    cand = np.zeros((n_pix, n_bins), dtype=bool)
-    if n_bins == 1:
-        cand[:, 0] = True
-    else:
-        rise = w[:, 1:] - w[:, :-1]
-        cand[:, 1:] = rise > _FLAT_RTOL * np.abs(w[:, 1:])
-        cand[:, 0] = True
-        cand[:, :-1] &= rise <= _FLAT_RTOL * np.abs(w[:, :-1])
-        del rise
-    cand &= w > np.maximum(threshold, 0.0)[:, None]
-    pix, j = np.nonzero(cand)
-    if settings.min_dip > 0 and len(pix) > 1:
-        pix, j = _merge_shallow(w, pix, j, settings.min_dip)
-    amp = w[pix, j]
-    # rank per pixel by amplitude (strongest first) and keep max_echoes
-    order = np.lexsort((-amp, pix))
-    pix, j, amp = pix[order], j[order], amp[order]
-    start = np.searchsorted(pix, pix, side="left")
-    rank = np.arange(len(pix)) - start
-    keep = rank < settings.max_echoes
-    pix, j = pix[keep], j[keep]
-    # time order within each pixel
-    order = np.lexsort((j, pix))
-    pix, j = pix[order], j[order]
-    y0 = w[pix, j].astype(np.float64)
-    ym = np.where(j > 0, w[pix, np.maximum(j - 1, 0)], 0.0).astype(np.float64)
-    yp = np.where(j < n_bins - 1, w[pix, np.minimum(j + 1, n_bins - 1)], 0.0).astype(np.float64)
-    delta, peak = interpolate_peak(ym, y0, yp, settings.interpolation)
-    jg = j if bin_offset is None else j + np.asarray(bin_offset, dtype=np.int64)[pix]  # gate bins
-    position = jg + 0.5 + delta
-    # flat tops (a rectangular pulse spanning several bins): the centre of the pulse is the plateau's centre
-    # corrected by the partial edge bins, exact for a rectangular pulse: (j − y₋/y₀ + end + 1 + y₊/y₀)/2
-    flat = (j < n_bins - 1) & (np.abs(yp - y0) <= _FLAT_RTOL * y0)
-    if flat.any() and settings.interpolation != "none":
-        end = j.copy()
-        grow = flat.copy()
-        while grow.any():
-            end[grow] += 1
-            grow &= (end < n_bins - 1) & (np.abs(w[pix, np.minimum(end + 1, n_bins - 1)] - y0) <= _FLAT_RTOL * y0)
-        y_right = np.where(end < n_bins - 1, w[pix, np.minimum(end + 1, n_bins - 1)], 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            centre = 0.5 * (jg - ym / y0 + (end + (jg - j)) + 1 + y_right / y0)
-        position = np.where(flat, centre, position)
-        peak = np.where(flat, y0, peak)
-    start = np.searchsorted(pix, pix, side="left")
-    stop = np.searchsorted(pix, pix, side="right")
-    return Echoes(pixel=pix.astype(np.int64), position_bins=position, amplitude=peak,
-                  echo_index=(np.arange(len(pix)) - start).astype(np.int16),
-                  n_echoes=(stop - start).astype(np.int16))
+    bin0 = np.zeros(n_pix, np.int64) if bin_offset is None else np.asarray(bin_offset, np.int64)
+    return detect_rows(w.reshape(-1), np.arange(n_pix, dtype=np.int64) * n_bins, np.full(n_pix, n_bins, np.int64),
+                       bin0, settings)
 
 
 def detect_echoes_windows(windows, settings: DetectionSettings) -> Echoes:
     """:func:`detect_echoes` on waveforms stored as windows (core.physics.waveform.WaveformWindows): the same echoes.
 
     Every bin outside a pixel's window is exactly zero, which is what the detector assumes beyond the gate,
-    so each window is detected on its own (pixels grouped by window length, zero padding to the right) and the
-    positions are shifted back by the window's first bin."""
-
-    parts = []
-    has = windows.length > 0
-    size = bucket_size(np.maximum(windows.length, 1))
-    for lb in np.unique(size[has]):
-        rows = np.flatnonzero(has & (size == lb))
-        lengths = windows.length[rows]
-        dense = np.zeros((len(rows), int(lb)))
-        rr = np.repeat(np.arange(len(rows)), lengths)
-        col = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-        src = windows.offset[rows][rr] + col
-        dense[rr, col] = windows.values[src]
-        found = detect_echoes(dense, settings, bin_offset=windows.start[rows])
-        found.pixel = rows[found.pixel]
-        parts.append(found)
-    if not parts:
-        empty = np.zeros(0)
-        return Echoes(np.zeros(0, np.int64), empty, empty, np.zeros(0, np.int16), np.zeros(0, np.int16))
-    pixel = np.concatenate([p.pixel for p in parts])
-    order = np.argsort(pixel, kind="stable")
-    return Echoes(pixel=pixel[order], position_bins=np.concatenate([p.position_bins for p in parts])[order],
-                  amplitude=np.concatenate([p.amplitude for p in parts])[order],
-                  echo_index=np.concatenate([p.echo_index for p in parts])[order],
-                  n_echoes=np.concatenate([p.n_echoes for p in parts])[order])
+    so each window is detected on its own and positions are in gate bins."""
+    return detect_rows(windows.values, windows.offset[:-1], windows.length, windows.start, settings)
