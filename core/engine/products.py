@@ -18,6 +18,7 @@ from ..physics.detection.noisy import (FALSE_ALARM_ABS_PRIMARIES, classify_false
                                        gaussian_pulse_kernel)
 from ..physics.detection.peaks import Echoes
 from ..physics.receiver.conversions import photons_per_joule
+from .blocks import worker_threads
 from .result import FrameResult
 
 
@@ -38,7 +39,8 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     found = detect_echoes_noisy(digital.reshape(h * w, n_bins).astype(np.float32), g.bin_width_s, g.gate_start_s,
                                 threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
                                 k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
-                                interpolation=d.interpolation, min_noise_sigma=noise_floor)
+                                interpolation=d.interpolation, min_noise_sigma=noise_floor,
+                                threads=worker_threads(config.run.threads))
     pix, slot = np.nonzero(found.detected)
     echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
                     amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
