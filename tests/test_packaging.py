@@ -25,11 +25,14 @@ WHEELS = {
                   "contourpy-1.3.2-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl",
                   "fonttools-4.68.0-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
                   "kiwisolver-1.5.1-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
-                  "pillow-13.0.0-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl"] + PURE,
+                  "pillow-13.0.0-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl",
+                  "numba-0.61.2-cp311-cp311-manylinux2014_x86_64.manylinux_2_17_x86_64.whl",
+                  "llvmlite-0.44.0-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"] + PURE,
     "windows-x64": ["scipy-1.15.3-cp311-cp311-win_amd64.whl", "embreex-4.4.0.post1-cp311-cp311-win_amd64.whl",
                     "openexr-3.5.3-cp311-cp311-win_amd64.whl", "matplotlib-3.10.9-cp311-cp311-win_amd64.whl",
                     "contourpy-1.3.2-cp311-cp311-win_amd64.whl", "fonttools-4.68.0-cp311-cp311-win_amd64.whl",
-                    "kiwisolver-1.5.1-cp311-cp311-win_amd64.whl", "pillow-13.0.0-cp311-cp311-win_amd64.whl"] + PURE,
+                    "kiwisolver-1.5.1-cp311-cp311-win_amd64.whl", "pillow-13.0.0-cp311-cp311-win_amd64.whl",
+                    "numba-0.61.2-cp311-cp311-win_amd64.whl", "llvmlite-0.44.0-cp311-cp311-win_amd64.whl"] + PURE,
 }
 
 
@@ -62,12 +65,14 @@ def _fake_wheels(root: Path, platforms=("linux-x64", "windows-x64")):
 
 def test_pins_come_from_requirements():
     """scipy 1.15.3, matplotlib 3.10.9 and contourpy 1.3.2: the newest that still support the numpy 1.24.3 of
-    Blender 4.2 LTS; matplotlib's dependencies bundled with it (Blender has none of them)."""
+    Blender 4.2 LTS; matplotlib's dependencies bundled with it (Blender has none of them); numba 0.61.2 (llvmlite
+    0.44.0) supports numpy 1.24–2.2, i.e. Blender 4.2 … 5.0 (the compiled signal-chain kernels)."""
     pins = be.pinned_versions()
     assert {k: pins[k] for k in be.SIMULATOR} == {
         "scipy": "1.15.3", "embreex": "4.4.0.post1", "OpenEXR": "3.5.3", "matplotlib": "3.10.9", "contourpy": "1.3.2",
         "cycler": "0.12.1", "fonttools": "4.68.0", "kiwisolver": "1.5.1", "pillow": "13.0.0", "pyparsing": "3.3.3",
-        "python-dateutil": "4.0.0", "tzdata": "2026.6", "packaging": "26.3"}
+        "python-dateutil": "4.0.0", "tzdata": "2026.6", "packaging": "26.3", "numba": "0.61.2",
+        "llvmlite": "0.44.0"}
     assert pins["dask"] == pins["distributed"] == "2026.8.0"  # sweeps from Blender (docs/sweeps.md)
     text = (REPO / "requirements.txt").read_text()
     assert all(f"{k}=={v}" in text for k, v in pins.items())
@@ -110,7 +115,7 @@ def test_offline_build_splits_the_platforms(tmp_path, capsys):
             manifest = tomllib.loads(z.read("blender_manifest.toml").decode())
         assert sorted(n for n in names if n.endswith(".whl")) == sorted(f"wheels/{w}" for w in WHEELS[platform])
         assert manifest["build"]["generated"]["platforms"] == [platform]
-        assert len(manifest["wheels"]) == 2 * (8 + 5) + len(PURE) + len(DASK_PURE)
+        assert len(manifest["wheels"]) == 2 * (10 + 5) + len(PURE) + len(DASK_PURE)
         assert manifest["platforms"] == ["linux-x64", "windows-x64"]
         for required in ("__init__.py", "core/fileio/las.py", "core/physics/brdf.py", "ladar_addon/materials.py",
                          "presets/ladar_simulator/sensor/Airborne_1064_nm_full_waveform.py",

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import kernel
+from ..jit import kernel
 from .scene import SceneGeometry
 
 
@@ -93,8 +93,20 @@ class SceneTracer:
         o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         _rays_float32(origins, np.asarray(self.reference_m, np.float64), directions, o32, d32)
         prim = self._cast(o32, d32)
-        range_m, cos_theta = np.empty(n), np.empty(n)
-        _refine_hits(prim, origins, directions, self.unit_normal, self.v0, self.degenerate, range_m, cos_theta)
+        range_m, cos_theta = np.full(n, np.nan), np.zeros(n)
+        # the hits' rays, plane normals and v₀ − o gathered in one pass; the dot products stay NumPy's einsum,
+        # whose summation order the products depend on
+        n_hit = _drop_degenerate(prim, self.degenerate)
+        idx = np.empty(n_hit, np.int64)
+        d, nrm, w = np.empty((n_hit, 3)), np.empty((n_hit, 3)), np.empty((n_hit, 3))  # NumPy's allocator, as before
+        _gather_hits(prim, origins, directions, self.unit_normal, self.v0, idx, d, nrm, w)
+        if n_hit:
+            dn = np.einsum("ij,ij->i", d, nrm)
+            t = np.einsum("ij,ij->i", w, nrm) / np.where(dn == 0.0, np.inf, dn)
+            ok = t > 0
+            range_m[idx[ok]] = t[ok]
+            cos_theta[idx[ok]] = np.abs(dn[ok])
+            prim[idx[~ok]] = -1
         return prim, range_m, cos_theta
 
 
@@ -110,24 +122,30 @@ def _rays_float32(origins, reference, directions, o32, d32):
 
 
 @kernel
-def _refine_hits(prim, origins, directions, unit_normal, v0, degenerate, range_m, cos_theta):
-    """Each hit's float64 distance: the exact intersection of the ray with its triangle's plane,
-    t = ((v₀ − o)·n)/(d·n), and cos θ = |d·n|; misses, degenerate triangles and t ≤ 0 become misses (prim −1,
-    range NaN, cos 0).  ``prim`` is updated in place."""
+def _drop_degenerate(prim, degenerate):
+    """Hits on degenerate triangles become misses (prim −1, in place); returns the number of hits left."""
+    n_hit = 0
+    for i in range(prim.shape[0]):
+        if prim[i] >= 0 and degenerate[prim[i]]:
+            prim[i] = -1
+        if prim[i] >= 0:
+            n_hit += 1
+    return n_hit
+
+
+@kernel
+def _gather_hits(prim, origins, directions, unit_normal, v0, idx, d, nrm, w):
+    """The hits' ray indices, directions, the triangles' unit normals and v₀ − origin."""
     single = origins.shape[0] == 1
+    k = 0
     for i in range(prim.shape[0]):
         p = prim[i]
-        if p < 0 or degenerate[p]:
-            prim[i], range_m[i], cos_theta[i] = -1, np.nan, 0.0
+        if p < 0:
             continue
         r = 0 if single else i
-        dn = directions[i, 0] * unit_normal[p, 0] + directions[i, 1] * unit_normal[p, 1] \
-            + directions[i, 2] * unit_normal[p, 2]
-        num = (v0[p, 0] - origins[r, 0]) * unit_normal[p, 0] + (v0[p, 1] - origins[r, 1]) * unit_normal[p, 1] \
-            + (v0[p, 2] - origins[r, 2]) * unit_normal[p, 2]
-        t = num / (dn if dn != 0.0 else np.inf)
-        if not t > 0:
-            prim[i], range_m[i], cos_theta[i] = -1, np.nan, 0.0
-            continue
-        range_m[i] = t
-        cos_theta[i] = abs(dn)
+        idx[k] = i
+        for c in range(3):
+            d[k, c] = directions[i, c]
+            nrm[k, c] = unit_normal[p, c]
+            w[k, c] = v0[p, c] - origins[r, c]
+        k += 1

@@ -91,6 +91,29 @@ def scan_case():
 
 
 FLASH_CASES = ("gaussian", "rectangular", "narrow_points")
+NOISY_FIELDS = ("time_s", "amplitude", "snr", "detected", "n_echoes", "baseline", "noise_sigma", "threshold")
+
+
+def noisy_detection(digital, truth, noise_sigma, threads=1):
+    """Noisy echo detection and false-alarm classification on a stored digital cube (matched filter, adaptive
+    threshold, as the pipeline runs them)."""
+    from core.echoes_noisy import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms, detect_echoes_noisy, \
+        gaussian_pulse_kernel
+    from core.receiver import photons_per_joule
+
+    cfg = flash_config("gaussian")
+    pulse = gaussian_pulse_kernel(cfg.laser.pulse_fwhm_s, cfg.gate.bin_width_s)
+    n_bins = digital.shape[-1]
+    found = detect_echoes_noisy(digital.reshape(-1, n_bins).astype(np.float32), cfg.gate.bin_width_s,
+                                cfg.gate.gate_start_s, pulse=pulse, threads=threads)
+    per_j = float(photons_per_joule(cfg.laser.wavelength_m)) * cfg.detector.quantum_efficiency
+    fa, summary = classify_false_alarms(found, truth.reshape(-1, n_bins), cfg.laser.pulse_fwhm_s / cfg.gate.bin_width_s,
+                                        noise_sigma=noise_sigma, pulse=pulse, abs_level=FALSE_ALARM_ABS_PRIMARIES / per_j)
+    out = {f"noisy/{f}": getattr(found, f) for f in NOISY_FIELDS}
+    out["noisy/false_alarm"] = fa
+    out["noisy/expected_false_alarms"] = np.array(summary["expected_false_alarms_gaussian"])
+    out["noisy/n_interp_fallback"] = np.array(found.n_interp_fallback)
+    return out
 
 
 def products():
@@ -111,7 +134,26 @@ def products():
     for k in ("pulse_index", "range_m", "intensity", "echo_index"):
         out[f"scan/{k}"] = r.points[k]
     out["scan/received_energy_j"] = r.pulses["received_energy_j"]
+    cfg = flash_config("gaussian")
+    cfg.detector.mode = "noisy"
+    cfg.receiver.width_px = cfg.receiver.height_px = 16
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(3.0)
+    r = simulate_frame(sc, pose(), cfg)
+    out["noisy/digital"], out["noisy/truth"] = r.digital_waveforms, r.waveforms
+    out["noisy/noise_sigma_raw"] = np.array(r.stats["receiver"]["noise_sigma"])
+    out.update(noisy_detection(r.digital_waveforms, r.waveforms, r.stats["receiver"]["noise_sigma"]))
     return out
+
+
+def test_noisy_detection_is_bit_identical_to_the_numpy_version_on_any_thread_count():
+    """The same algorithm compiled (robust baseline and noise, matched filter, threshold, greedy maxima,
+    interpolation, false alarms) on the stored digital cube: bit for bit, on 1 and 3 threads."""
+    ref = np.load(DATA)
+    for threads in (1, 3):
+        new = noisy_detection(ref["noisy/digital"], ref["noisy/truth"], float(ref["noisy/noise_sigma_raw"]), threads)
+        assert new["noisy/detected"].any()
+        for k, v in new.items():
+            assert np.array_equal(v, ref[k], equal_nan=True), (k, threads)
 
 
 def test_compiled_chain_matches_the_numpy_reference():
@@ -136,7 +178,8 @@ def test_compiled_chain_matches_the_numpy_reference():
     assert np.array_equal(new["scan/echo_index"], ref["scan/echo_index"])
     assert np.max(np.abs(new["scan/range_m"] - ref["scan/range_m"])) <= 1e-6
     assert np.allclose(new["scan/intensity"], ref["scan/intensity"], rtol=1e-6, atol=0)
-    assert np.array_equal(new["scan/received_energy_j"], ref["scan/received_energy_j"])
+    # (scan ray directions go through a BLAS matrix product whose last bit is not reproducible run to run)
+    assert np.allclose(new["scan/received_energy_j"], ref["scan/received_energy_j"], rtol=1e-12, atol=0)
 
 
 if __name__ == "__main__":
