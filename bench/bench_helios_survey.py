@@ -43,8 +43,8 @@ HELIOS = {"version": "HELIOS++ v2.0.1 (C++, Release build)", "pulses_per_s_2_thr
 
 def terrain(n_vertices: int = 1000):
     """z = sin(x)·cos(y) on an n × n vertex grid over [−50, 50]² m: 2(n − 1)² triangles."""
-    from core.config import BRDFSettings
-    from core.scene import SceneGeometry
+    from core.config.settings import BRDFSettings
+    from core.geometry.scene import SceneGeometry
 
     x = np.linspace(-50.0, 50.0, n_vertices)
     gx, gy = np.meshgrid(x, x)
@@ -59,8 +59,8 @@ def terrain(n_vertices: int = 1000):
 
 def survey(duration_s: float = 3.0, threads: int = 1):
     """(config, trajectory): the oscillating scanner flying +X at 30 m/s, 100.7 m up, centred on x = 0."""
-    from core.config import SimulationConfig
-    from core.motion import Trajectory
+    from core.config.settings import SimulationConfig
+    from core.geometry.motion import Trajectory
 
     cfg = SimulationConfig(system_type="scanner")
     s = cfg.scanner
@@ -86,7 +86,7 @@ def peak_rss_bytes() -> int:
 
 
 def run_survey(scene, tracer, duration_s, threads):
-    from core.scanner import simulate_scan
+    from core.systems.scanner import simulate_scan
 
     cfg, traj = survey(duration_s, threads)
     t0 = time.perf_counter()
@@ -97,7 +97,8 @@ def run_survey(scene, tracer, duration_s, threads):
 def bare_cast(tracer, duration_s, per_block, threads_list):
     """The bare embreex cast of the survey's sub-rays (generated first, outside the timing) in the pipeline's
     blocks, on each thread count: seconds per thread count, rays, hits."""
-    from core.scanner import n_scan_pulses, scan_rays
+    from core.config.derived import n_scan_pulses
+    from core.systems.scanner import scan_rays
 
     cfg, traj = survey(duration_s)
     n = n_scan_pulses(cfg)
@@ -127,11 +128,11 @@ sys.path.insert(0, {root!r}); sys.path.insert(0, {bench!r})
 t0 = time.perf_counter()
 import numpy as np
 import bench_helios_survey as b
-import core.scanner  # noqa: F401  (imports the compiled-kernel module)
+import core.systems.scanner  # noqa: F401  (imports the compiled-kernel module)
 t_import = time.perf_counter() - t0
-from core.scene import SceneGeometry
-from core.config import BRDFSettings
-from core.trace import SceneTracer
+from core.geometry.scene import SceneGeometry
+from core.config.settings import BRDFSettings
+from core.geometry.trace import SceneTracer
 scene = b.terrain(101)
 tracer = SceneTracer(scene)
 times = []
@@ -169,8 +170,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "helios_survey.json")
     args = ap.parse_args(argv)
 
-    from core.runio import software_versions
-    from core.trace import SceneTracer
+    from core.fileio.run_folder import software_versions
+    from core.geometry.trace import SceneTracer
 
     first = None if args.no_first_call else first_call_latency()
     rss0 = peak_rss_bytes()

@@ -16,8 +16,8 @@ import sys
 {pre}
 sys.path.insert(0, {pkg!r})
 import numpy as np
-from core.config import DetectionSettings
-from core.echoes import detect_echoes
+from core.config.settings import DetectionSettings
+from core.physics.detection.peaks import detect_echoes
 import core.jit
 w = np.zeros((1, 16)); w[0, 5:8] = (1.0, 3.0, 1.0)
 e = detect_echoes(w, DetectionSettings())

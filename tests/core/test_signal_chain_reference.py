@@ -23,8 +23,8 @@ DATA = Path(__file__).resolve().parents[1] / "data" / "signal_chain_reference.np
 
 
 def scene():
-    from core.config import BRDFSettings
-    from core.scene import SceneGeometry
+    from core.config.settings import BRDFSettings
+    from core.geometry.scene import SceneGeometry
 
     n = 48
     gx, gy = np.meshgrid(np.linspace(-150, 150, n + 1), np.linspace(100, 700, n + 1))
@@ -56,7 +56,7 @@ def pose():
 
 
 def flash_config(case: str):
-    from core.config import SimulationConfig
+    from core.config.settings import SimulationConfig
 
     cfg = SimulationConfig()
     cfg.receiver.width_px = cfg.receiver.height_px = 32
@@ -73,8 +73,8 @@ def flash_config(case: str):
 
 
 def scan_case():
-    from core.config import SimulationConfig
-    from core.motion import Trajectory
+    from core.config.settings import SimulationConfig
+    from core.geometry.motion import Trajectory
 
     cfg = SimulationConfig(system_type="scanner")
     s = cfg.scanner
@@ -97,9 +97,9 @@ NOISY_FIELDS = ("time_s", "amplitude", "snr", "detected", "n_echoes", "baseline"
 def noisy_detection(digital, truth, noise_sigma, threads=1):
     """Noisy echo detection and false-alarm classification on a stored digital cube (matched filter, adaptive
     threshold, as the pipeline runs them)."""
-    from core.echoes_noisy import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms, detect_echoes_noisy, \
+    from core.physics.detection.noisy import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms, detect_echoes_noisy, \
         gaussian_pulse_kernel
-    from core.receiver import photons_per_joule
+    from core.physics.receiver.conversions import photons_per_joule
 
     cfg = flash_config("gaussian")
     pulse = gaussian_pulse_kernel(cfg.laser.pulse_fwhm_s, cfg.gate.bin_width_s)
@@ -118,8 +118,8 @@ def noisy_detection(digital, truth, noise_sigma, threads=1):
 
 def products():
     """Every case's products (what the reference file holds)."""
-    from core.pipeline import simulate_frame
-    from core.scanner import simulate_scan
+    from core.systems.flash import simulate_frame
+    from core.systems.scanner import simulate_scan
 
     out = {}
     sc = scene()
