@@ -98,7 +98,7 @@ def bare_cast(tracer, duration_s, per_block, threads_list):
     """The bare embreex cast of the survey's sub-rays (generated first, outside the timing) in the pipeline's
     blocks, on each thread count: seconds per thread count, rays, hits."""
     from core.config.derived import n_scan_pulses
-    from core.systems.scanner import scan_rays
+    from core.systems.scan_patterns import scan_rays
 
     cfg, traj = survey(duration_s)
     n = n_scan_pulses(cfg)
