@@ -94,19 +94,7 @@ class SceneTracer:
         _rays_float32(origins, np.asarray(self.reference_m, np.float64), directions, o32, d32)
         prim = self._cast(o32, d32)
         range_m, cos_theta = np.full(n, np.nan), np.zeros(n)
-        # the hits' rays, plane normals and v₀ − o gathered in one pass; the dot products stay NumPy's einsum,
-        # whose summation order the products depend on
-        n_hit = _drop_degenerate(prim, self.degenerate)
-        idx = np.empty(n_hit, np.int64)
-        d, nrm, w = np.empty((n_hit, 3)), np.empty((n_hit, 3)), np.empty((n_hit, 3))  # NumPy's allocator, as before
-        _gather_hits(prim, origins, directions, self.unit_normal, self.v0, idx, d, nrm, w)
-        if n_hit:
-            dn = np.einsum("ij,ij->i", d, nrm)
-            t = np.einsum("ij,ij->i", w, nrm) / np.where(dn == 0.0, np.inf, dn)
-            ok = t > 0
-            range_m[idx[ok]] = t[ok]
-            cos_theta[idx[ok]] = np.abs(dn[ok])
-            prim[idx[~ok]] = -1
+        _refine_hits(prim, self.degenerate, origins, directions, self.unit_normal, self.v0, range_m, cos_theta)
         return prim, range_m, cos_theta
 
 
@@ -122,30 +110,26 @@ def _rays_float32(origins, reference, directions, o32, d32):
 
 
 @kernel
-def _drop_degenerate(prim, degenerate):
-    """Hits on degenerate triangles become misses (prim −1, in place); returns the number of hits left."""
-    n_hit = 0
-    for i in range(prim.shape[0]):
-        if prim[i] >= 0 and degenerate[prim[i]]:
-            prim[i] = -1
-        if prim[i] >= 0:
-            n_hit += 1
-    return n_hit
-
-
-@kernel
-def _gather_hits(prim, origins, directions, unit_normal, v0, idx, d, nrm, w):
-    """The hits' ray indices, directions, the triangles' unit normals and v₀ − origin."""
+def _refine_hits(prim, degenerate, origins, directions, unit_normal, v0, range_m, cos_theta):
+    """The float64 refinement of Embree's hits, in place: a hit on a degenerate triangle, or whose plane lies
+    behind the origin, becomes a miss (prim −1); otherwise range t = ((v₀ − o)·n)/(d·n) along the ray and
+    cos θ = |d·n| on the hit triangle's plane (unit normal n).  Each dot product is summed as
+    (x₀y₀ + x₂y₂) + x₁y₁, the order of NumPy's einsum over three components."""
     single = origins.shape[0] == 1
-    k = 0
     for i in range(prim.shape[0]):
         p = prim[i]
         if p < 0:
             continue
+        if degenerate[p]:
+            prim[i] = -1
+            continue
         r = 0 if single else i
-        idx[k] = i
-        for c in range(3):
-            d[k, c] = directions[i, c]
-            nrm[k, c] = unit_normal[p, c]
-            w[k, c] = v0[p, c] - origins[r, c]
-        k += 1
+        n0, n1, n2 = unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2]
+        dn = (directions[i, 0] * n0 + directions[i, 2] * n2) + directions[i, 1] * n1
+        wn = ((v0[p, 0] - origins[r, 0]) * n0 + (v0[p, 2] - origins[r, 2]) * n2) + (v0[p, 1] - origins[r, 1]) * n1
+        t = wn / (dn if dn != 0.0 else np.inf)
+        if t > 0:
+            range_m[i] = t
+            cos_theta[i] = abs(dn)
+        else:
+            prim[i] = -1

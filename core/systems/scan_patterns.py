@@ -24,6 +24,7 @@ import numpy as np
 from ..config.derived import n_pulse_times
 from ..config.settings import SimulationConfig
 from ..geometry.motion import Trajectory
+from ..jit import kernel
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -147,6 +148,38 @@ def _perpendicular_axes(d):
     return u, v
 
 
+@kernel
+def _subray_directions(centre, rot, cos_rho, sin_rho, cos_phi, sin_phi, out):
+    """World directions (n·m, 3) of the m sub-rays of n beams: sub-ray j of beam i is
+    cos ρ_j c + sin ρ_j (cos φ_j u + sin φ_j v) for the beam centre c (sensor frame) and the unit axes
+    u = c × ŷ/|c × ŷ| (x̂ when c ∥ ŷ), v = u × c of :func:`_perpendicular_axes`, turned into the world by
+    ``rot`` (one (3, 3) rotation, or one per beam).  One beam (m = 1): the centre itself."""
+    n, m = centre.shape[0], cos_rho.shape[0]
+    per_beam = rot.shape[0] > 1
+    for i in range(n):
+        cx, cy, cz = centre[i, 0], centre[i, 1], centre[i, 2]
+        ux, uy, uz = -cz, 0.0, cx  # c × ŷ
+        norm = np.sqrt(ux * ux + uz * uz)
+        if norm < 1e-9:
+            ux, uy, uz, norm = 1.0, 0.0, 0.0, 1.0
+        ux, uz = ux / norm, uz / norm
+        vx, vy, vz = uy * cz - uz * cy, uz * cx - ux * cz, ux * cy - uy * cx  # u × c
+        r = rot[i] if per_beam else rot[0]
+        for j in range(m):
+            if m == 1:
+                dx, dy, dz = cx, cy, cz
+            else:
+                ox = cos_phi[j] * ux + sin_phi[j] * vx
+                oy = cos_phi[j] * uy + sin_phi[j] * vy
+                oz = cos_phi[j] * uz + sin_phi[j] * vz
+                dx = cos_rho[j] * cx + sin_rho[j] * ox
+                dy = cos_rho[j] * cy + sin_rho[j] * oy
+                dz = cos_rho[j] * cz + sin_rho[j] * oz
+            k = i * m + j
+            for a in range(3):
+                out[k, a] = r[a, 0] * dx + r[a, 1] * dy + r[a, 2] * dz
+
+
 def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
               width_scale: float = 1.0):
     """The sub-rays of pulses [start, stop): (time_s, channel, scan_angle, origin (n, 3), nominal axis (n, 3)
@@ -170,15 +203,8 @@ def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop
         u, v = _perpendicular_axes(d_sensor)
         centre = d_sensor + wander_rad[:, :1] * u + wander_rad[:, 1:] * v
         centre /= np.linalg.norm(centre, axis=1, keepdims=True)
-    if m > 1:
-        uc, vc = _perpendicular_axes(centre)
-        rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
-        off = np.cos(phi)[None, :, None] * uc[:, None, :] + np.sin(phi)[None, :, None] * vc[:, None, :]
-        d_sub = np.cos(rho)[None, :, None] * centre[:, None, :] + np.sin(rho)[None, :, None] * off
-    else:
-        d_sub = centre[:, None, :]
-    if rot.ndim == 2:
-        d_world = d_sub.reshape(-1, 3) @ rot.T
-    else:
-        d_world = np.einsum("nij,nmj->nmi", rot, d_sub).reshape(-1, 3)
+    rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
+    d_world = np.empty((n * m, 3))
+    _subray_directions(np.ascontiguousarray(centre), np.ascontiguousarray(rot.reshape(-1, 3, 3)), np.cos(rho),
+                       np.sin(rho), np.cos(phi), np.sin(phi), d_world)
     return t_s, channel, angle, origin, axis_world, np.repeat(origin, m, axis=0), d_world
