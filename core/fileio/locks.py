@@ -109,6 +109,8 @@ def _abandoned(folder: Path):
     try:
         fd = os.open(path, os.O_RDONLY)
     except FileNotFoundError:
+        if REMOVING in folder.name:  # a removal cut short after the owner file went: nobody claims this name
+            return None, {}
         try:
             young = time.time() - folder.stat().st_mtime < OWNERLESS_GRACE_S
         except OSError:
@@ -144,6 +146,19 @@ def _abandoned(folder: Path):
         raise
 
 
+REMOVING = ".removing-"
+
+
+def removal_path(folder) -> Path:
+    """The name ``folder`` is renamed to before it is removed: same prefix and suffix (so the sweep that finds
+    ``folder`` finds it too), marked as being removed (so a removal cut short is recognised even without its
+    owner file)."""
+    folder = Path(folder)
+    stem, dot, suffix = folder.name.rpartition(".")
+    return folder.with_name(f"{stem or suffix}{REMOVING}{os.getpid()}-{time.monotonic_ns() % 10**9}"
+                            + (f".{suffix}" if dot else ""))
+
+
 def remove_if_abandoned(folder, restore=None) -> bool:
     """Remove ``folder`` if it holds an owner file of this tool whose process is gone.  Returns True if removed.
 
@@ -157,9 +172,7 @@ def remove_if_abandoned(folder, restore=None) -> bool:
     try:
         # renamed first (atomic: one remover); the new name keeps the folder's prefix and suffix, so what an
         # interrupted removal leaves is found again by the same sweep
-        stem, dot, suffix = folder.name.rpartition(".")
-        trash = folder.with_name(f"{stem or suffix}.removing-{os.getpid()}-{time.monotonic_ns() % 10**9}"
-                                 + (f".{suffix}" if dot else ""))
+        trash = removal_path(folder)
         try:
             if restore is not None:
                 restore(folder, record)

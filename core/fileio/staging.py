@@ -34,7 +34,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..process import deferred
-from .locks import OWNER_FILE, FolderLock, lock_new_folder, remove_if_abandoned
+from .locks import OWNER_FILE, FolderLock, lock_new_folder, remove_if_abandoned, removal_path
 
 STAGING_SUFFIX = ".ladar-staging"
 #: Longest file name (bytes) where the file system does not say.
@@ -265,9 +265,16 @@ class RunClaim:
         if self._lock is None:
             return
         with deferred():
+            # renamed while still locked: a process killed from here on leaves a folder that the next sweep
+            # removes at once (unlocked owner file, or none under the removal name), never an ownerless claim
+            trash = removal_path(self.staging)
+            try:
+                os.rename(self.staging, trash)
+            except OSError:
+                trash = self.staging
             self._lock.release()
             self._lock = None
-            shutil.rmtree(self.staging, ignore_errors=True)
+            shutil.rmtree(trash, ignore_errors=True)
             if not self.committed:
                 for folder in self._created:  # deepest first; only while empty
                     try:

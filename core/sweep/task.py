@@ -20,7 +20,9 @@ from ..config.files import config_from_dict
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..errors import ConfigError
+from ..fileio.locks import OWNERLESS_GRACE_S
 from ..fileio.run_folder import write_run
+from ..fileio.staging import staging_path
 from ..geometry.motion import Trajectory
 from ..geometry.trace import SceneTracer
 from ..physics.detection.peaks import detect_echoes
@@ -182,14 +184,21 @@ def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
         row.update(status="done", run_time_s=time.perf_counter() - t0)
         meta = run_metadata(cfg, result, frame, {"sweep": {"task": task["name"], "point": task["point"],
                                                            "values": task["values"], "row": row}})
-        try:
-            write_run(out, result, meta)  # claimed, built hidden, renamed into place (fileio.staging)
-        except ConfigError:  # the folder appeared meanwhile: another attempt of this task finished first
-            existing = finished_row(out, task["name"])
-            if existing is None:
-                raise
-            return existing
-        return row
+        deadline = time.monotonic() + OWNERLESS_GRACE_S + 10.0
+        while True:
+            try:
+                write_run(out, result, meta)  # claimed, built hidden, renamed into place (fileio.staging)
+                return row
+            except ConfigError:
+                # the folder appeared meanwhile (another attempt of this task finished first), or its name is
+                # held: by another attempt still running, or by one killed so early that its claim has no owner
+                # file yet (removed once OWNERLESS_GRACE_S old): wait for either
+                existing = finished_row(out, task["name"])
+                if existing is not None:
+                    return existing
+                if not staging_path(out).exists() or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
     except Exception as exc:  # recorded in the table; the other tasks go on
         row.update(status="failed", error=_one_line(exc))
         return row

@@ -209,6 +209,34 @@ def test_only_abandoned_staging_folders_of_this_tool_are_removed(tmp_path, monke
     assert _names(tmp_path) == sorted([foreign.name, legacy.name, "r", "s"])
 
 
+def test_a_run_killed_while_removing_its_staging_leaves_nothing_the_next_claim_keeps(tmp_path):
+    """A claim is removed by renaming it to its removal name while still locked, then unlocking and deleting it.
+    A process killed after its owner file was deleted (seen in a sweep whose worker was killed) leaves an
+    empty folder under the removal name: removed by the next claim at once, not after the owner-less grace."""
+    claim = claim_run_dir(tmp_path / "r")
+    renamed = []
+    real_rename = os.rename
+
+    def spy(src, dst):
+        renamed.append((Path(src).name, Path(dst).name))
+        return real_rename(src, dst)
+
+    import core.fileio.staging as staging
+    staging.os.rename = spy
+    try:
+        claim.release()
+    finally:
+        staging.os.rename = real_rename
+    assert renamed and renamed[0][0] == staging_path(tmp_path / "r").name and ".removing-" in renamed[0][1]
+    assert _names(tmp_path) == []
+    cut_short = tmp_path / renamed[0][1]  # what a kill between deleting the owner file and the folder leaves
+    cut_short.mkdir()
+    young = tmp_path / ".young.0123456789abcdef.ladar-staging"  # an owner-less claim being made: kept
+    young.mkdir()
+    _run(tmp_path / "s")
+    assert _names(tmp_path) == sorted([young.name, "s"])
+
+
 # ------------------------------------------------------------------------------------------------------------
 # names up to the file system's limit
 # ------------------------------------------------------------------------------------------------------------

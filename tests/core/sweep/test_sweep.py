@@ -350,7 +350,8 @@ def test_killing_a_worker_mid_sweep_loses_no_finished_point(client, tmp_path):
     out = run_sweep(spec, scene(), tmp_path / "sw", base=base_config(), client=client, progress=progress,
                     plots=False)
     assert killed
-    assert (out.n_tasks, out.n_done, out.n_failed) == (16, 16, 0)
+    assert (out.n_tasks, out.n_done, out.n_failed) == (16, 16, 0), [
+        (r["task"], r["error"]) for r in read_table(tmp_path / "sw" / "results.csv") if r["status"] != "done"]
     runs = sorted(p.name for p in (tmp_path / "sw" / "runs").iterdir())
     assert len(runs) == 16 and not [r for r in runs if r.startswith(".")]  # no partial folder left
     client.wait_for_workers(2, timeout=60)  # the nanny restarted it
