@@ -14,8 +14,8 @@ from ..geometry.groundtruth import surface_material_ids
 from ..geometry.motion import split_pose
 from ..geometry.rays import tan_to_unit_direction
 from ..geometry.scene import SceneGeometry
-from ..physics.detection.noisy import (FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms, detect_echoes_noisy,
-                                       gaussian_pulse_kernel)
+from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
+from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
 from ..physics.receiver.conversions import photons_per_joule
 from .blocks import worker_threads
@@ -28,7 +28,7 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     core/physics/detection/noisy.py), in the per-echo layout of :class:`Echoes`, with the detection SNR.
 
     With ``truth`` (the noise-free waveforms the chain saw, (pixels, bins) J) every echo is classified as a
-    true return or a false alarm (core.physics.detection.noisy.classify_false_alarms): the returned Echoes carries a
+    true return or a false alarm (core.physics.detection.false_alarms.classify_false_alarms): the returned Echoes carries a
     per-echo bool ``false_alarm`` attribute and ``info`` (a dict) receives the counts, rates and the Gaussian
     expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report).  ``noise_floor``:
     the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``)."""

@@ -97,8 +97,8 @@ NOISY_FIELDS = ("time_s", "amplitude", "snr", "detected", "n_echoes", "baseline"
 def noisy_detection(digital, truth, noise_sigma, threads=1):
     """Noisy echo detection and false-alarm classification on a stored digital cube (matched filter, adaptive
     threshold, as the pipeline runs them)."""
-    from core.physics.detection.noisy import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms, detect_echoes_noisy, \
-        gaussian_pulse_kernel
+    from core.physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
+    from core.physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
     from core.physics.receiver.conversions import photons_per_joule
 
     cfg = flash_config("gaussian")
