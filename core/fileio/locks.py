@@ -68,12 +68,21 @@ class FolderLock:
 
     def __init__(self, folder: Path, **info):
         self.folder = Path(folder)
+        # written and locked under a temporary name, then renamed: the owner file appears whole and locked (a
+        # process killed before the rename leaves an owner-less folder, removed after OWNERLESS_GRACE_S)
         path = self.folder / OWNER_FILE
-        self.fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
-        self.locked = _try_lock(self.fd)
-        record = {"tool": "ladar-simulator", "pid": os.getpid(), "host": socket.gethostname(),
-                  "process_start": _process_start(os.getpid()), "started_unix_s": time.time(), **info}
-        os.write(self.fd, json.dumps(record).encode("utf-8"))
+        partial = self.folder / f".{OWNER_FILE}.{os.getpid()}.partial"
+        self.fd = os.open(partial, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+        try:
+            self.locked = _try_lock(self.fd)
+            record = {"tool": "ladar-simulator", "pid": os.getpid(), "host": socket.gethostname(),
+                      "process_start": _process_start(os.getpid()), "started_unix_s": time.time(), **info}
+            os.write(self.fd, json.dumps(record).encode("utf-8"))
+            os.rename(partial, path)
+        except BaseException:
+            os.close(self.fd)
+            self.fd = None
+            raise
 
     def release(self) -> None:
         if self.fd is not None:

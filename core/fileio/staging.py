@@ -290,6 +290,10 @@ class RunClaim:
         return False
 
 
+#: The words of the error when another run holds a name.
+BUSY = "another run is writing this one"
+
+
 def _busy(out: Path, staging: Path) -> str:
     try:
         record = json.loads((staging / OWNER_FILE).read_text(encoding="utf-8"))
@@ -297,7 +301,7 @@ def _busy(out: Path, staging: Path) -> str:
               f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(record.get('started_unix_s', 0)))})"
     except (OSError, ValueError, TypeError, UnicodeDecodeError, OverflowError):
         who = ""
-    return f"a run folder no other run is writing: another run is writing this one{who}"
+    return f"a run folder no other run is writing: {BUSY}{who}"
 
 
 def _try_claim(out: Path, replace: bool, created: list[Path]) -> RunClaim | None:

@@ -22,7 +22,7 @@ from ..constants import SPEED_OF_LIGHT_M_S
 from ..errors import ConfigError
 from ..fileio.locks import OWNERLESS_GRACE_S
 from ..fileio.run_folder import write_run
-from ..fileio.staging import staging_path
+from ..fileio.staging import BUSY
 from ..geometry.motion import Trajectory
 from ..geometry.trace import SceneTracer
 from ..physics.detection.peaks import detect_echoes
@@ -189,14 +189,14 @@ def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
             try:
                 write_run(out, result, meta)  # claimed, built hidden, renamed into place (fileio.staging)
                 return row
-            except ConfigError:
+            except ConfigError as exc:
                 # the folder appeared meanwhile (another attempt of this task finished first), or its name is
                 # held: by another attempt still running, or by one killed so early that its claim has no owner
                 # file yet (removed once OWNERLESS_GRACE_S old): wait for either
                 existing = finished_row(out, task["name"])
                 if existing is not None:
                     return existing
-                if not staging_path(out).exists() or time.monotonic() > deadline:
+                if BUSY not in str(exc) or time.monotonic() > deadline:
                     raise
                 time.sleep(0.5)
     except Exception as exc:  # recorded in the table; the other tasks go on
