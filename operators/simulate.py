@@ -25,7 +25,61 @@ def tag_redraw(context):
                 area.tag_redraw()
 
 
-class LADAR_OT_simulate(bpy.types.Operator):
+class JobModal:
+    """The modal part the simulation and sweep operators share: watch a threaded job from a timer, pass ESC to
+    it, report its end, stop it when Blender aborts the operator.  Subclasses set ``FINISHED_PREFIX`` and
+    ``CANCEL_WAIT_S`` and say what a cancelled job keeps (``cancelled_text``)."""
+
+    FINISHED_PREFIX = "Ladar: "
+    CANCEL_WAIT_S = 10.0
+
+    def cancelled_text(self, job) -> str:
+        raise NotImplementedError
+
+    def _watch(self, context, job, interval_s):
+        set_current_job(job)
+        self._job_ref = job
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(interval_s, window=context.window)
+        wm.modal_handler_add(self)
+        tag_redraw(context)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        job = self._job_ref
+        outcome = handle_modal_event(job, event.type, event.value)
+        if outcome in ("PASS_THROUGH", "RUNNING_MODAL"):
+            if event.type == "TIMER":
+                tag_redraw(context)
+            return {outcome}
+        self._end(context)
+        if outcome == "FINISHED":
+            self.report({"INFO"}, f"{self.FINISHED_PREFIX}{job.summary()}")
+            return {"FINISHED"}
+        if job.state == "failed":
+            self.report({"ERROR"}, job.summary())
+        else:
+            self.report({"WARNING"}, self.cancelled_text(job))
+        return {"CANCELLED"}
+
+    def cancel(self, context):
+        """Blender aborts the operator (a file is loaded, the window closes): stop the worker and clean up."""
+        job = getattr(self, "_job_ref", None)
+        if job is not None and not job.finished:
+            job.cancel()
+            job.wait(timeout_s=self.CANCEL_WAIT_S)
+        self._end(context)
+
+    def _end(self, context):
+        timer = getattr(self, "_timer", None)
+        if timer is not None:
+            context.window_manager.event_timer_remove(timer)
+            self._timer = None
+        set_current_job(None)
+        tag_redraw(context)
+
+
+class LADAR_OT_simulate(JobModal, bpy.types.Operator):
     """Simulate the ladar sensor (the current frame, or a frame range): write a run folder and import its point \
 cloud and images.  ESC cancels"""
 
@@ -82,46 +136,10 @@ cloud and images.  ESC cancels"""
         except _USER_ERRORS as exc:
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
-        set_current_job(job)
-        self._job_ref = job
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.modal_handler_add(self)
-        tag_redraw(context)
-        return {"RUNNING_MODAL"}
+        return self._watch(context, job, 0.1)
 
-    def modal(self, context, event):
-        job = self._job_ref
-        outcome = handle_modal_event(job, event.type, event.value)
-        if outcome in ("PASS_THROUGH", "RUNNING_MODAL"):
-            if event.type == "TIMER":
-                tag_redraw(context)
-            return {outcome}
-        self._end(context)
-        if outcome == "FINISHED":
-            self.report({"INFO"}, f"Ladar: {job.summary()}")
-            return {"FINISHED"}
-        if job.state == "failed":
-            self.report({"ERROR"}, job.summary())
-        else:
-            self.report({"WARNING"}, f"Ladar: {job.run_name} cancelled, nothing written")
-        return {"CANCELLED"}
-
-    def cancel(self, context):
-        """Blender aborts the operator (a file is loaded, the window closes): stop the worker and clean up."""
-        job = getattr(self, "_job_ref", None)
-        if job is not None and not job.finished:
-            job.cancel()
-            job.wait(timeout_s=10.0)
-        self._end(context)
-
-    def _end(self, context):
-        timer = getattr(self, "_timer", None)
-        if timer is not None:
-            context.window_manager.event_timer_remove(timer)
-            self._timer = None
-        set_current_job(None)
-        tag_redraw(context)
+    def cancelled_text(self, job) -> str:
+        return f"Ladar: {job.run_name} cancelled, nothing written"
 
 
 class LADAR_OT_simulate_cancel(bpy.types.Operator):

@@ -12,15 +12,15 @@ from bpy_extras.io_utils import ImportHelper
 from ..core.errors import ConfigError
 from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.job import current_job, handle_modal_event, set_current_job
+from ..ladar_addon.job import current_job
 from ..ladar_addon.run_inputs import progress_printer
 from ..ladar_addon.sweep import SweepJob
-from .simulate import tag_redraw
+from .simulate import JobModal
 
 _USER_ERRORS = (ConfigError, LadarError, Cancelled, OSError, RuntimeError)
 
 
-class LADAR_OT_sweep(bpy.types.Operator, ImportHelper):
+class LADAR_OT_sweep(JobModal, bpy.types.Operator, ImportHelper):
     """Run a parameter sweep (a TOML sweep file) of the ladar sensor on Dask into a sweep folder: a results table \
 and plots.  ESC cancels (finished points are kept; the same sweep resumes)"""
 
@@ -71,46 +71,13 @@ and plots.  ESC cancels (finished points are kept; the same sweep resumes)"""
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
         job.start(threaded=True)
-        set_current_job(job)
-        self._job_ref = job
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.2, window=context.window)
-        wm.modal_handler_add(self)
-        tag_redraw(context)
-        return {"RUNNING_MODAL"}
+        return self._watch(context, job, 0.2)
 
-    def modal(self, context, event):
-        job = self._job_ref
-        outcome = handle_modal_event(job, event.type, event.value)
-        if outcome in ("PASS_THROUGH", "RUNNING_MODAL"):
-            if event.type == "TIMER":
-                tag_redraw(context)
-            return {outcome}
-        self._end(context)
-        if outcome == "FINISHED":
-            self.report({"INFO"}, f"Ladar {job.summary()}")
-            return {"FINISHED"}
-        if job.state == "failed":
-            self.report({"ERROR"}, job.summary())
-        else:
-            self.report({"WARNING"}, f"Ladar sweep {job.run_name} cancelled: finished points kept (run it again "
-                                     f"to resume)")
-        return {"CANCELLED"}
+    FINISHED_PREFIX = "Ladar "
+    CANCEL_WAIT_S = 30.0
 
-    def cancel(self, context):
-        job = getattr(self, "_job_ref", None)
-        if job is not None and not job.finished:
-            job.cancel()
-            job.wait(timeout_s=30.0)
-        self._end(context)
-
-    def _end(self, context):
-        timer = getattr(self, "_timer", None)
-        if timer is not None:
-            context.window_manager.event_timer_remove(timer)
-            self._timer = None
-        set_current_job(None)
-        tag_redraw(context)
+    def cancelled_text(self, job) -> str:
+        return f"Ladar sweep {job.run_name} cancelled: finished points kept (run it again to resume)"
 
 
 CLASSES = (LADAR_OT_sweep,)

@@ -123,7 +123,9 @@ def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
     assert not op_cls.poll(types.SimpleNamespace(scene=scene))  # one run at a time
     reports = []
     op = types.SimpleNamespace(_job_ref=job, _timer="timer", report=lambda kind, msg: reports.append((kind, msg)))
-    op._end = types.MethodType(op_cls._end, op)
+    for name in ("_end", "cancelled_text"):  # the stand-in gets the operator's own methods and texts
+        setattr(op, name, types.MethodType(getattr(op_cls, name), op))
+    op.FINISHED_PREFIX = op_cls.FINISHED_PREFIX
     timer = types.SimpleNamespace(type="TIMER", value="NOTHING")
     result = {"PASS_THROUGH"}
     for _ in range(6000):
@@ -160,8 +162,9 @@ def test_invoke_runs_modally_with_a_window(lad, scene, tmp_path, monkeypatch):
     ctx = types.SimpleNamespace(scene=scene, window="W", window_manager=wm)
     reports = []
     op = types.SimpleNamespace(sensor="", frames="1-2", report=lambda kind, msg: reports.append((kind, msg)))
-    for name in ("_job", "_end"):
+    for name in ("_job", "_end", "_watch", "cancelled_text"):
         setattr(op, name, types.MethodType(getattr(op_module.LADAR_OT_simulate, name), op))
+    op.FINISHED_PREFIX = op_module.LADAR_OT_simulate.FINISHED_PREFIX
     assert op_module.LADAR_OT_simulate.invoke(op, ctx, None) == {"RUNNING_MODAL"}
     assert calls[:2] == [("timer", 0.1), ("modal", op)]
     job = lad.job.current_job()
