@@ -19,6 +19,7 @@ from ..core.config.files import config_to_dict
 from ..core.errors import Cancelled
 from ..core.run import run_simulation
 from ..core.fileio.staging import check_run_dir, claim_run_dir, free_run_path
+from .background import BackgroundJob
 from .errors import LadarError
 from .blend_config import check_sensor, unit_scale
 from .results import check_result_names, existing_results, import_run
@@ -40,7 +41,7 @@ class _Request:
 # ------------------------------------------------------------------------------------------------------------
 # The job
 # ------------------------------------------------------------------------------------------------------------
-class SimulationJob:
+class SimulationJob(BackgroundJob):
     """One simulation run (a frame or a frame sequence) from set-up to imported results.
 
     The constructor checks everything that can be checked without simulating (sensor, settings, run folder,
@@ -50,6 +51,8 @@ class SimulationJob:
 
     States: "ready" → "running" → "done" | "failed" (``error``) | "cancelled".
     """
+
+    POLL_S = 0.02
 
     def __init__(self, scene, *, frames=None, frame=None, out_dir=None, seed=None, config_path=None,
                  if_exists=None, overwrite=None, sensor=None, import_results=None, clouds=None, previews=None,
@@ -141,10 +144,6 @@ class SimulationJob:
         return {"blender": blender, "settings": config_to_dict(self.cfg)}
 
     # -- state --------------------------------------------------------------------------------------------------
-    @property
-    def finished(self) -> bool:
-        return self.state in ("done", "failed", "cancelled")
-
     def cancel(self) -> None:
         """Ask the run to stop: the core raises Cancelled at its next block; nothing is written or imported."""
         if not self._cancel.is_set():
@@ -194,11 +193,7 @@ class SimulationJob:
         except BaseException:
             self.cancel()
             raise
-        if self.state == "failed":
-            raise self.error
-        if self.state == "cancelled":
-            raise Cancelled()
-        return self
+        return self.raise_outcome()
 
     def step(self) -> bool:
         """One main-thread step of a threaded run: serve the worker's request for a frame's inputs, and when the
@@ -211,15 +206,6 @@ class SimulationJob:
             self._thread.join()
             self._finish()
         self.max_step_s = max(self.max_step_s, time.perf_counter() - t0)
-        return self.finished
-
-    def wait(self, timeout_s: float | None = None, poll_s: float = 0.02) -> bool:
-        """Call :meth:`step` until the job finishes (tests and scripts); returns :attr:`finished`."""
-        t_end = None if timeout_s is None else time.perf_counter() + timeout_s
-        while not self.step():
-            if t_end is not None and time.perf_counter() > t_end:
-                break
-            time.sleep(poll_s)
         return self.finished
 
     def _serve_request(self):

@@ -25,6 +25,7 @@ from ..core.errors import Cancelled
 from ..core.sweep.runner import plan_sweep, run_sweep
 from ..core.sweep.scene import SweepScene
 from ..core.sweep.spec import load_sweep
+from .background import BackgroundJob
 from .errors import LadarError
 from .blend_config import unit_scale
 from .frames import FrameSource
@@ -57,7 +58,7 @@ def export_sweep_scene(scene, sensor, cfg, blender_materials, frames) -> SweepSc
     return SweepScene(geometries, list(frames), geometry_of_frame, poses, trajs, starts, info)
 
 
-class SweepJob:
+class SweepJob(BackgroundJob):
     """One sweep from set-up to the results table.  The constructor reads the sweep file, the settings and the
     scene and validates every point (raising ConfigError/LadarError before anything is written); then
     :meth:`run` (blocking) or :meth:`start` ``(threaded=True)`` + :meth:`step` from the main thread, the
@@ -98,10 +99,6 @@ class SweepJob:
         self._done = threading.Event()
         self._worker_error = None
 
-    @property
-    def finished(self) -> bool:
-        return self.state in ("done", "failed", "cancelled")
-
     def cancel(self) -> None:
         """Stop submitting and cancel the running tasks; finished tasks stay (run the sweep again to resume)."""
         self._cancel.set()
@@ -138,11 +135,7 @@ class SweepJob:
     def run(self):
         """Run to the end in the calling thread.  Raises the sweep's error (Cancelled if cancelled)."""
         self.start(threaded=False)
-        if self.state == "failed":
-            raise self.error
-        if self.state == "cancelled":
-            raise Cancelled()
-        return self
+        return self.raise_outcome()
 
     def step(self) -> bool:
         if self.finished:
@@ -150,14 +143,6 @@ class SweepJob:
         if self._done.is_set():
             self._thread.join()
             self._finish()
-        return self.finished
-
-    def wait(self, timeout_s: float | None = None, poll_s: float = 0.05) -> bool:
-        t_end = None if timeout_s is None else time.perf_counter() + timeout_s
-        while not self.step():
-            if t_end is not None and time.perf_counter() > t_end:
-                break
-            time.sleep(poll_s)
         return self.finished
 
     def _finish(self):
