@@ -6,12 +6,14 @@ new folder and locked (``flock``: the kernel releases it when the process ends, 
 *abandoned* when its owner file's lock is free — or, on a file system without locks, when it was written on
 this host by a pid that is no longer running (or now belongs to a process started later).  A folder of this
 tool without an owner file is abandoned once it is older than :data:`OWNERLESS_GRACE_S` (its creator died
-between ``mkdir`` and writing the owner file).  Standard library only (``scripts/blender_env.py`` uses it
+between ``mkdir`` and writing the owner file) — at once if the owner file it was writing (named after its host and
+pid) shows a process of this host that is no longer running.  Standard library only (``scripts/blender_env.py`` uses it
 before Blender starts).
 """
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
 import shutil
@@ -71,7 +73,7 @@ class FolderLock:
         # written and locked under a temporary name, then renamed: the owner file appears whole and locked (a
         # process killed before the rename leaves an owner-less folder, removed after OWNERLESS_GRACE_S)
         path = self.folder / OWNER_FILE
-        partial = self.folder / f".{OWNER_FILE}.{os.getpid()}.partial"
+        partial = self.folder / partial_owner_name(os.getpid())
         self.fd = os.open(partial, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
         try:
             self.locked = _try_lock(self.fd)
@@ -88,6 +90,35 @@ class FolderLock:
         if self.fd is not None:
             os.close(self.fd)
             self.fd = None
+
+
+def _host_tag() -> str:
+    return hashlib.sha256(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:12]
+
+
+def partial_owner_name(pid: int) -> str:
+    """The name an owner file is written under before it takes its own: it says which host and pid write it, so
+    a folder whose creator died before the rename is known to be abandoned without waiting."""
+    return f".{OWNER_FILE}.{_host_tag()}.{pid}.partial"
+
+
+def _partial_owner_gone(folder: Path) -> bool:
+    """``folder`` holds an owner file being written by a process of this host that is no longer running."""
+    if os.name != "posix":  # os.kill(pid, 0) is not a liveness probe on Windows (signal 0 is CTRL_C_EVENT there)
+        return False
+    head, tail = f".{OWNER_FILE}.{_host_tag()}.", ".partial"
+    try:
+        names = [n for n in os.listdir(folder) if n.startswith(head) and n.endswith(tail)]
+    except OSError:
+        return False
+    for name in names:
+        try:
+            os.kill(int(name[len(head):-len(tail)]), 0)
+        except ProcessLookupError:
+            return True
+        except (ValueError, OSError):
+            continue
+    return False
 
 
 def _pid_alive(record: dict) -> bool:
@@ -119,6 +150,8 @@ def _abandoned(folder: Path):
         fd = os.open(path, os.O_RDONLY)
     except FileNotFoundError:
         if REMOVING in folder.name:  # a removal cut short after the owner file went: nobody claims this name
+            return None, {}
+        if _partial_owner_gone(folder):  # its creator died while writing the owner file
             return None, {}
         try:
             young = time.time() - folder.stat().st_mtime < OWNERLESS_GRACE_S

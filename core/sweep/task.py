@@ -192,7 +192,8 @@ def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
             except ConfigError as exc:
                 # the folder appeared meanwhile (another attempt of this task finished first), or its name is
                 # held: by another attempt still running, or by one killed so early that its claim has no owner
-                # file yet (removed once OWNERLESS_GRACE_S old): wait for either
+                # file yet (taken at once when the writer was of this host, else once OWNERLESS_GRACE_S old):
+                # wait for either
                 existing = finished_row(out, task["name"])
                 if existing is not None:
                     return existing

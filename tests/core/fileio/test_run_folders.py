@@ -367,3 +367,34 @@ def test_single_file_write_is_complete_or_absent(tmp_path):
     write_file_atomically(path, lambda f: f.write(b"four"))
     assert path.read_bytes() == b"four"
     assert _names(tmp_path) == ["a.txt"]
+
+
+@pytest.mark.skipif(os.name != "posix", reason="pid liveness probe is POSIX only")
+def test_a_claim_whose_creator_died_writing_its_owner_file_is_taken_at_once(tmp_path):
+    """A sweep worker killed right after it made a claim's folder, while writing the owner file under its
+    temporary name (host and pid in that name), left an owner-less claim that made the task's retry wait the
+    full owner-less grace.  The retry now sees that writer is gone and takes the name at once; a claim whose
+    writer is alive (or of another host) is still left alone."""
+    import subprocess
+    import sys
+
+    from core.fileio.locks import partial_owner_name
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True)
+    dead_pid = int(dead.stdout)
+    staging = staging_path(tmp_path / "r")
+    staging.mkdir()
+    (staging / partial_owner_name(dead_pid)).write_bytes(b"")
+    alive = staging_path(tmp_path / "s")
+    alive.mkdir()
+    (alive / partial_owner_name(os.getpid())).write_bytes(b"")
+    other_host = staging_path(tmp_path / "t")
+    other_host.mkdir()
+    (other_host / f".{OWNER_FILE}.000000000000.{dead_pid}.partial").write_bytes(b"")
+    t0 = time.monotonic()
+    path, _ = _run(tmp_path / "r")  # would have refused ('another run is writing') for OWNERLESS_GRACE_S
+    assert time.monotonic() - t0 < 30 and is_run_folder(path)
+    assert _names(tmp_path) == sorted(["r", alive.name, other_host.name])
+    with pytest.raises(ConfigError, match="no other run is writing"):
+        _run(tmp_path / "s")
