@@ -7,6 +7,8 @@ kilometres away from the origin (docs/theory.md §13: float32 at 10 km has a 1 m
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..jit import kernel
@@ -33,7 +35,6 @@ class SceneTracer:
 
         self.scene = scene
         v = scene.vertices_m
-        m = scene.n_triangles
         self.triangle_ids = None if keep is None else np.flatnonzero(np.asarray(keep, dtype=bool))
         tris = scene.triangles if self.triangle_ids is None else scene.triangles[self.triangle_ids]
         self.n_traced = len(tris)
@@ -43,30 +44,17 @@ class SceneTracer:
         if len(tris):
             self._embree = EmbreeScene()
             TriangleMesh(self._embree, (v - self.reference_m).astype(np.float32), tris)
-        # plane of each traced triangle in float64 world coordinates: unit normal and v0 (scene-indexed)
-        tri = v[tris]
-        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        norm = np.linalg.norm(normal, axis=1)
-        if self.triangle_ids is None:
-            self.degenerate = norm == 0.0
-            self.unit_normal = normal / np.where(self.degenerate, 1.0, norm)[:, None]
-            self.v0 = tri[:, 0]
-        else:
-            self.degenerate = np.ones(m, bool)
-            self.unit_normal = np.zeros((m, 3))
-            self.v0 = np.zeros((m, 3))
-            self.degenerate[self.triangle_ids] = norm == 0.0
-            self.unit_normal[self.triangle_ids] = normal / np.where(norm == 0.0, 1.0, norm)[:, None]
-            self.v0[self.triangle_ids] = tri[:, 0]
-
-    def _cast(self, o32, d32):
-        """Scene triangle index of the first hit of each ray (−1 on a miss)."""
-        if self._embree is None:
-            return np.full(len(d32), -1, np.int32)
-        prim = np.asarray(self._embree.run(o32, d32, query="INTERSECT"), dtype=np.int32)
-        if self.triangle_ids is not None:
-            prim = np.where(prim >= 0, self.triangle_ids[np.maximum(prim, 0)], -1).astype(np.int32)
-        return prim
+            # embreex builds the BVH at the scene's first query: build it now, so the BVH is ready (and its
+            # time counted) when the tracer is
+            self._embree.run(np.zeros((1, 3), np.float32), np.array([[0.0, 0.0, 1.0]], np.float32),
+                             query="INTERSECT")
+        # plane of each traced triangle in float64 world coordinates (scene-indexed): its unit normal, and
+        # whether it is degenerate (untraced triangles count as degenerate); its vertex v₀ is read from the scene
+        m = scene.n_triangles
+        ids = np.arange(m, dtype=np.int64) if self.triangle_ids is None else self.triangle_ids.astype(np.int64)
+        self.unit_normal = np.zeros((m, 3))
+        self.degenerate = np.ones(m, bool)
+        _triangle_planes(v, scene.triangles, ids, self.unit_normal, self.degenerate)
 
     def serves(self, scene: SceneGeometry) -> bool:
         """True if this BVH was built on ``scene``'s geometry (the same vertex and triangle arrays): material
@@ -75,61 +63,110 @@ class SceneTracer:
                 and _same_view(self.scene.triangles, scene.triangles))
 
     def bare_cast(self, origin_m, directions):
-        """Primitive ids only: the bare embreex ray cast (used as the benchmark floor)."""
+        """The bare embreex ray cast (the benchmarks' floor): Embree's primitive ids (−1 on a miss; indices into
+        the traced subset when the BVH holds one), no refinement."""
         o = np.broadcast_to((np.asarray(origin_m) - self.reference_m).astype(np.float32), directions.shape)
-        return self._cast(np.ascontiguousarray(o), np.ascontiguousarray(directions, dtype=np.float32))
+        if self._embree is None:
+            return np.full(len(directions), -1, np.int32)
+        return np.asarray(self._embree.run(np.ascontiguousarray(o), np.ascontiguousarray(directions, np.float32),
+                                           query="INTERSECT"), dtype=np.int32)
 
     def intersect(self, origin_m, directions):
-        """Trace rays from one origin (3,) or one origin per ray (n, 3) (world, float64) along unit directions
-        (n, 3) float64.
+        """Trace rays along unit directions (n, 3) float64 from one origin (3,), one origin per ray (n, 3), or one
+        origin per group of consecutive rays (n/k, 3) — the k sub-rays of a beam — (world, float64).
 
         Returns (prim (n,) int32, −1 on a miss; range_m (n,) float64, NaN on a miss; cos_theta (n,) float64,
         the cosine of the incidence angle, |d·n|, 0 on a miss).
         """
-        origin_m = np.asarray(origin_m, dtype=np.float64)
         directions = np.ascontiguousarray(directions, dtype=np.float64)
-        origins = np.ascontiguousarray(origin_m.reshape(-1, 3))
+        origins = np.ascontiguousarray(np.asarray(origin_m, dtype=np.float64).reshape(-1, 3))
         n = len(directions)
+        if len(origins) == 0 or n % len(origins):
+            raise ValueError(f"{len(origins)} ray origins for {n} rays: one origin, one per ray, or one per group "
+                             "of consecutive rays")
+        k = n // len(origins)
         o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
-        _rays_float32(origins, np.asarray(self.reference_m, np.float64), directions, o32, d32)
-        prim = self._cast(o32, d32)
-        range_m, cos_theta = np.full(n, np.nan), np.zeros(n)
-        _refine_hits(prim, self.degenerate, origins, directions, self.unit_normal, self.v0, range_m, cos_theta)
+        _rays_float32(origins, k, np.asarray(self.reference_m, np.float64), directions, o32, d32)
+        if self._embree is None:
+            prim = np.full(n, -1, np.int32)
+        else:
+            prim = np.asarray(self._embree.run(o32, d32, query="INTERSECT"), dtype=np.int32)
+        del o32, d32
+        range_m, cos_theta = np.empty(n), np.empty(n)
+        ids = self.triangle_ids if self.triangle_ids is not None else np.zeros(0, np.int64)
+        _refine_hits(prim, ids, self.degenerate, self.unit_normal, self.scene.vertices_m, self.scene.triangles,
+                     origins, k, directions, range_m, cos_theta)
         return prim, range_m, cos_theta
 
 
 @kernel
-def _rays_float32(origins, reference, directions, o32, d32):
-    """The float32 rays Embree traces: origins relative to the BVH's reference point (one origin or one per ray)."""
-    single = origins.shape[0] == 1
-    for i in range(directions.shape[0]):
-        r = 0 if single else i
-        for c in range(3):
-            o32[i, c] = origins[r, c] - reference[c]
-            d32[i, c] = directions[i, c]
+def _rays_float32(origins, k, reference, directions, o32, d32):
+    """The float32 rays Embree traces: origins (one per group of k consecutive rays) relative to the BVH's
+    reference point."""
+    for g in range(origins.shape[0]):
+        for i in range(g * k, (g + 1) * k):
+            for c in range(3):
+                o32[i, c] = origins[g, c] - reference[c]
+                d32[i, c] = directions[i, c]
 
 
 @kernel
-def _refine_hits(prim, degenerate, origins, directions, unit_normal, v0, range_m, cos_theta):
-    """The float64 refinement of Embree's hits, in place: a hit on a degenerate triangle, or whose plane lies
-    behind the origin, becomes a miss (prim −1); otherwise range t = ((v₀ − o)·n)/(d·n) along the ray and
-    cos θ = |d·n| on the hit triangle's plane (unit normal n).  Each dot product is summed as
-    (x₀y₀ + x₂y₂) + x₁y₁, the order of NumPy's einsum over three components."""
-    single = origins.shape[0] == 1
-    for i in range(prim.shape[0]):
-        p = prim[i]
-        if p < 0:
-            continue
-        if degenerate[p]:
-            prim[i] = -1
-            continue
-        r = 0 if single else i
-        n0, n1, n2 = unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2]
-        dn = (directions[i, 0] * n0 + directions[i, 2] * n2) + directions[i, 1] * n1
-        wn = ((v0[p, 0] - origins[r, 0]) * n0 + (v0[p, 2] - origins[r, 2]) * n2) + (v0[p, 1] - origins[r, 1]) * n1
-        t = wn / (dn if dn != 0.0 else np.inf)
-        if t > 0:
-            range_m[i] = t
-            cos_theta[i] = abs(dn)
-        else:
-            prim[i] = -1
+def _triangle_planes(vertices, triangles, ids, unit_normal, degenerate):
+    """Unit normal n = (v₁ − v₀) × (v₂ − v₀) / |…| of the triangles ``ids`` (float64 world coordinates) and
+    whether each is degenerate (|…| = 0; its cross product is then left unscaled), each term rounded as NumPy's
+    ``cross``, ``linalg.norm`` ((x² + y²) + z²) and division round it (no whole-scene temporaries)."""
+    for i in range(ids.shape[0]):
+        p = ids[i]
+        i0, i1, i2 = triangles[p, 0], triangles[p, 1], triangles[p, 2]
+        x0, y0, z0 = vertices[i0, 0], vertices[i0, 1], vertices[i0, 2]
+        ax, ay, az = vertices[i1, 0] - x0, vertices[i1, 1] - y0, vertices[i1, 2] - z0
+        bx, by, bz = vertices[i2, 0] - x0, vertices[i2, 1] - y0, vertices[i2, 2] - z0
+        nx = ay * bz - az * by
+        ny = az * bx - ax * bz
+        nz = ax * by - ay * bx
+        norm = math.sqrt((nx * nx + ny * ny) + nz * nz)
+        degenerate[p] = norm == 0.0
+        d = norm if norm != 0.0 else 1.0
+        unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2] = nx / d, ny / d, nz / d
+
+
+@kernel
+def _refine_hits(prim, triangle_ids, degenerate, unit_normal, vertices, triangles, origins, k, directions, range_m,
+                 cos_theta):
+    """The float64 refinement of Embree's hits, in place (``prim``: Embree's primitive ids, turned into the
+    scene's triangle indices through ``triangle_ids`` when the BVH holds a subset): a hit on a degenerate
+    triangle, or whose plane lies behind the origin, becomes a miss (prim −1); otherwise range
+    t = ((v₀ − o)·n)/(d·n) along the ray and cos θ = |d·n| on the hit triangle's plane (unit normal n, first
+    vertex v₀), o the origin of the ray's group of k.  Each dot product is summed as (x₀y₀ + x₂y₂) + x₁y₁, the
+    order of NumPy's einsum over three components."""
+    mapped = triangle_ids.shape[0] > 0
+    for g in range(origins.shape[0]):
+        for i in range(g * k, (g + 1) * k):
+            _refine_hit(prim, i, g, mapped, triangle_ids, degenerate, unit_normal, vertices, triangles, origins,
+                        directions, range_m, cos_theta)
+
+
+@kernel
+def _refine_hit(prim, i, r, mapped, triangle_ids, degenerate, unit_normal, vertices, triangles, origins,
+                directions, range_m, cos_theta):
+    range_m[i], cos_theta[i] = np.nan, 0.0
+    p = prim[i]
+    if p < 0:
+        return
+    if mapped:
+        p = triangle_ids[p]
+        prim[i] = p
+    if degenerate[p]:
+        prim[i] = -1
+        return
+    n0, n1, n2 = unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2]
+    v = triangles[p, 0]
+    dn = (directions[i, 0] * n0 + directions[i, 2] * n2) + directions[i, 1] * n1
+    wn = (((vertices[v, 0] - origins[r, 0]) * n0 + (vertices[v, 2] - origins[r, 2]) * n2)
+          + (vertices[v, 1] - origins[r, 1]) * n1)
+    t = wn / (dn if dn != 0.0 else np.inf)
+    if t > 0:
+        range_m[i] = t
+        cos_theta[i] = abs(dn)
+    else:
+        prim[i] = -1

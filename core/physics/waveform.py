@@ -388,12 +388,12 @@ class PulseTable:
                          np.asarray(energy_j, np.float64), self.rows, self.k, out)
         return out
 
-    def echoes(self, pulse_local, u, energy_j, n_bins, detection) -> Echoes:
-        """Echoes of each pulse's waveform over the gate's ``n_bins`` bins (returns at u bins, pulse_local sorted
-        ascending; returns outside the gate or without energy add nothing), built over the bins its returns
-        touch and detected there (:func:`core.echoes.detect_row`: zero outside, as beyond the gate)."""
-        n = len(u)
-        cap = n * detection.max_echoes
+    def echoes(self, pulse_local, u, energy_j, n_pulses, n_bins, detection) -> Echoes:
+        """Echoes of each pulse's waveform over the gate's ``n_bins`` bins (returns at u bins, pulse_local in
+        [0, n_pulses) sorted ascending; returns outside the gate or without energy add nothing), built over the
+        bins its returns touch and detected there (:func:`core.echoes.detect_row`: zero outside, as beyond the
+        gate).  The echo arrays are sized for the echoes found (a pulse has at most ``max_echoes``)."""
+        cap = min(len(u), n_pulses) * detection.max_echoes
         pix, pos, amp = np.empty(cap, np.int64), np.empty(cap), np.empty(cap)
         idx, cnt = np.empty(cap, np.int16), np.empty(cap, np.int16)
         k = _table_echoes(np.asarray(pulse_local, np.int64), np.asarray(u, np.float64),
@@ -401,8 +401,8 @@ class PulseTable:
                           float(detection.threshold_j), float(detection.relative_threshold),
                           float(detection.min_dip), int(detection.max_echoes), INTERPOLATION[detection.interpolation],
                           pix, pos, amp, idx, cnt)
-        return Echoes(pixel=pix[:k], position_bins=pos[:k], amplitude=amp[:k], echo_index=idx[:k],
-                      n_echoes=cnt[:k])
+        return Echoes(pixel=pix[:k].copy(), position_bins=pos[:k].copy(), amplitude=amp[:k].copy(),
+                      echo_index=idx[:k].copy(), n_echoes=cnt[:k].copy())
 
 
 @kernel

@@ -180,10 +180,11 @@ def _subray_directions(centre, rot, cos_rho, sin_rho, cos_phi, sin_phi, out):
                 out[k, a] = r[a, 0] * dx + r[a, 1] * dy + r[a, 2] * dz
 
 
-def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
-              width_scale: float = 1.0):
-    """The sub-rays of pulses [start, stop): (time_s, channel, scan_angle, origin (n, 3), nominal axis (n, 3)
-    in world coordinates, ray origins (n·m, 3), ray directions (n·m, 3)), sub-rays of a pulse consecutive.
+def scan_beams(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
+               width_scale: float = 1.0):
+    """The beams of pulses [start, stop): (time_s, channel, scan_angle, origin (n, 3), nominal axis (n, 3)
+    in world coordinates, sub-ray directions (n·m, 3)), the m sub-rays of a pulse consecutive (all from the
+    pulse's origin).
 
     ``wander_rad`` (n, 2) displaces each beam's centre (beam wander, turbulence), ``width_scale`` widens the
     beam (turbulent broadening); the nominal axis is what the sensor believes it fired along."""
@@ -207,4 +208,14 @@ def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop
     d_world = np.empty((n * m, 3))
     _subray_directions(np.ascontiguousarray(centre), np.ascontiguousarray(rot.reshape(-1, 3, 3)), np.cos(rho),
                        np.sin(rho), np.cos(phi), np.sin(phi), d_world)
+    return t_s, channel, angle, origin, axis_world, d_world
+
+
+def scan_rays(config: SimulationConfig, trajectory: Trajectory, start: int, stop: int, *, wander_rad=None,
+              width_scale: float = 1.0):
+    """:func:`scan_beams` with one origin per sub-ray: (time_s, channel, scan_angle, origin (n, 3), nominal axis
+    (n, 3), ray origins (n·m, 3), ray directions (n·m, 3))."""
+    t_s, channel, angle, origin, axis_world, d_world = scan_beams(config, trajectory, start, stop,
+                                                                  wander_rad=wander_rad, width_scale=width_scale)
+    m = len(d_world) // max(len(t_s), 1)
     return t_s, channel, angle, origin, axis_world, np.repeat(origin, m, axis=0), d_world

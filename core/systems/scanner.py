@@ -32,6 +32,7 @@ from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_rng, stage_seed
 from ..errors import ConfigError
 from ..geometry.motion import Trajectory
+from ..jit import kernel
 from ..physics.detection.peaks import Echoes, detect_echoes
 from ..physics.laser import pulse_half_support_s
 from ..physics.propagation import (effective_extinction_per_m, footprint_variance_factor, return_scintillation_variance,
@@ -39,7 +40,7 @@ from ..physics.propagation import (effective_extinction_per_m, footprint_varianc
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
-from .scan_patterns import beam_subrays, pulse_schedule, scan_rays
+from .scan_patterns import beam_subrays, pulse_schedule, scan_beams
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -165,7 +166,7 @@ def windowed_echoes(pulse_local, time_s, energy_j, n_pulses, config: SimulationC
     half = pulse_half_support_s(config.laser) / gate.bin_width_s
     u = (time_s - gate.gate_start_s) / gate.bin_width_s
     if table is not None:
-        return table.echoes(pulse_local, u, energy_j, gate.n_bins, config.detection)
+        return table.echoes(pulse_local, u, energy_j, n_pulses, gate.n_bins, config.detection)
     keep = (energy_j > 0) & (u + half >= 0) & (u - half < gate.n_bins)
     pulse_local, u, energy_j, time_s = pulse_local[keep], u[keep], energy_j[keep], time_s[keep]
     parts = []
@@ -214,6 +215,60 @@ def _merge_echoes(parts) -> Echoes:
     if all(getattr(p, "false_alarm", None) is not None for p in parts):
         merged.false_alarm = np.concatenate([p.false_alarm for p in parts])[order]
     return merged
+
+
+def _block_points(echoes: Echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame) -> dict:
+    """The points of one block's echoes (pulse ``a + echoes.pixel``), in the products' types: each echo placed
+    along its pulse's nominal axis at the echo range."""
+    p = echoes.pixel
+    time_s = gate.gate_start_s + echoes.position_bins * gate.bin_width_s
+    range_m = 0.5 * SPEED_OF_LIGHT_M_S * time_s
+    points = {"position_world": origin[p] + axis_world[p] * range_m[:, None],
+              "intensity": echoes.amplitude.astype(np.float32), "range_m": range_m,
+              "echo_index": (echoes.echo_index + 1).astype(np.int16), "n_echoes": echoes.n_echoes.astype(np.int16),
+              "time_s": time_s, "gps_time_s": start_time_s + t_s[p], "pulse_index": (p + a).astype(np.int64),
+              "channel": channel[p], "scan_angle_rad": angle[p].astype(np.float32),
+              "frame": np.full(len(p), frame, np.int32)}
+    if echoes.snr is not None:
+        points["snr"] = echoes.snr.astype(np.float32)
+    if getattr(echoes, "false_alarm", None) is not None:
+        points["false_alarm"] = echoes.false_alarm.astype(np.uint8)
+    return points
+
+
+@kernel
+def _gather_hits(prim, range_m, cos_theta, weight, material_ids, p_hit, mat_hit, cos_hit, range_hit, frac_hit):
+    """The hits of a block's rays (m = len(weight) consecutive sub-rays per pulse), in ray order: pulse, material,
+    cos θ, range and the sub-ray's energy fraction of each."""
+    m = weight.shape[0]
+    k = 0
+    for q in range(prim.shape[0] // m):
+        for j in range(m):
+            i = q * m + j
+            if prim[i] >= 0:
+                p_hit[k], mat_hit[k] = q, material_ids[prim[i]]
+                cos_hit[k], range_hit[k], frac_hit[k] = cos_theta[i], range_m[i], weight[j]
+                k += 1
+
+
+@kernel
+def _pulse_energy(p_hit, scint, energy, pulse_energy):
+    """Each hit's energy times its pulse's scintillation factor, in place, and summed per pulse in hit order
+    (``pulse_energy`` starts at zero)."""
+    for k in range(p_hit.shape[0]):
+        energy[k] *= scint[p_hit[k]]
+        pulse_energy[p_hit[k]] += energy[k]
+
+
+def _concatenate_points(parts: list) -> dict:
+    """The blocks' points joined field by field in block order (pulse order), each block's copy of a field
+    released once joined: the scan's points plus one field at a time, never two copies of them all."""
+    out = {}
+    for name in [f for f in parts[0] if all(f in part for part in parts)] if parts else []:
+        out[name] = np.concatenate([part[name] for part in parts])
+        for part in parts:
+            del part[name]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -267,16 +322,14 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         per_block = max(tile, min(per_block, (64 * 2**20 // (8 * gate.n_bins)) // tile * tile))
     blocks = item_blocks(n_pulses, per_block)
     waveforms = np.zeros((n_pulses, gate.n_bins), np.float32) if save else None
-    digital = [] if noisy else None
     chain_settings = ChainSettings.from_config(config)
     chain_settings = dataclasses.replace(chain_settings, ifov_x_rad=laser.beam_divergence_rad,
                                          ifov_y_rad=laser.beam_divergence_rad)
-    pulse_energy = np.zeros(n_pulses)
-    pulse_origin = np.zeros((n_pulses, 3))
-    pulse_axis = np.zeros((n_pulses, 3))
-    pulse_time = np.zeros(n_pulses)
-    pulse_channel = np.zeros(n_pulses, np.int16)
-    pulse_angle = np.zeros(n_pulses)
+    # the pulse records, written by the blocks in place (their final types: no whole-scan temporaries)
+    pulses = {"time_s": np.zeros(n_pulses), "gps_time_s": np.zeros(n_pulses), "origin_world": np.zeros((n_pulses, 3)),
+              "direction_world": np.zeros((n_pulses, 3), np.float32), "channel": np.zeros(n_pulses, np.int16),
+              "scan_angle_rad": np.zeros(n_pulses, np.float32), "n_echoes": np.zeros(n_pulses, np.int16),
+              "received_energy_j": np.zeros(n_pulses)}
 
     def process(block):
         a, b = block
@@ -289,26 +342,27 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             tb = min(ta + tile, b)
             w_t, s_t = atm.draw(config, frame, ta // tile, tb - ta)
             wander[ta - a:tb - a], scint[ta - a:tb - a] = w_t, s_t
-        t_s, channel, angle, origin, axis_world, o_world, d_world = scan_rays(
+        t_s, channel, angle, origin, axis_world, d_world = scan_beams(
             config, trajectory, a, b, wander_rad=wander, width_scale=atm.width_scale)
         local["rays"] = time.perf_counter() - t
         t = time.perf_counter()
-        prim, range_m, cos_theta = tracer.intersect(o_world, d_world)
+        prim, range_m, cos_theta = tracer.intersect(origin, d_world)
+        del d_world
         local["trace"] = time.perf_counter() - t
         t = time.perf_counter()
-        hit = prim >= 0
-        pulse_of_ray = np.repeat(np.arange(n), m)
-        frac = np.tile(weight, n)
-        e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials,
-                            scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], frac[hit])
-        p_hit = pulse_of_ray[hit]
-        e *= scint[p_hit]
-        pulse_energy[a:b] = np.bincount(p_hit, weights=e, minlength=n)
-        pulse_origin[a:b], pulse_axis[a:b], pulse_time[a:b] = origin, axis_world, t_s
-        pulse_channel[a:b], pulse_angle[a:b] = channel, angle
+        n_hit = int(np.count_nonzero(prim >= 0))
+        p_hit, mat_hit = np.empty(n_hit, np.int64), np.empty(n_hit, scene.material_ids.dtype)
+        cos_hit, range_hit, frac_hit = np.empty(n_hit), np.empty(n_hit), np.empty(n_hit)
+        _gather_hits(prim, range_m, cos_theta, weight, scene.material_ids, p_hit, mat_hit, cos_hit, range_hit,
+                     frac_hit)
+        del prim, range_m, cos_theta
+        e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
+                            range_hit, frac_hit)
+        _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
-        t_rt = round_trip_time_s(range_m[hit])
+        t_rt = round_trip_time_s(range_hit)
+        dig = None
         if save or noisy:
             wf = accumulate_waveforms(p_hit, t_rt, e, n, laser, gate, method)
             if save:
@@ -316,7 +370,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             local["waveform"] = time.perf_counter() - t
             if noisy:
                 t = time.perf_counter()
-                parts, dig = [], []
+                parts = []
                 for ta in range(0, n, tile):
                     tb = min(ta + tile, n)
                     chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], chain_settings,
@@ -326,56 +380,45 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                                         noise_floor=chain.report.get("noise_sigma_floor", 0.0))
                     ech.pixel = ech.pixel + ta
                     parts.append(ech)
-                    dig.append(chain.report)
+                    if dig is None:
+                        dig = chain.report
                 local["receiver_chain"] = time.perf_counter() - t
                 echoes = _merge_echoes(parts)
-                return echoes, int(hit.sum()), local, dig[0]
-            t = time.perf_counter()
-            echoes = detect_echoes(wf, config.detection)
+            else:
+                t = time.perf_counter()
+                echoes = detect_echoes(wf, config.detection)
+                local["echoes"] = time.perf_counter() - t
         else:
             echoes = windowed_echoes(p_hit, t_rt, e, n, config, method, table)
             local["waveform"] = time.perf_counter() - t  # waveform windows and echo detection together
-            t = time.perf_counter()
-        local["echoes"] = time.perf_counter() - t
-        return echoes, int(hit.sum()), local, None
+        t = time.perf_counter()
+        pts = _block_points(echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame)
+        pulses["time_s"][a:b], pulses["gps_time_s"][a:b] = t_s, start_time_s + t_s
+        pulses["origin_world"][a:b], pulses["direction_world"][a:b] = origin, axis_world
+        pulses["channel"][a:b], pulses["scan_angle_rad"][a:b] = channel, angle
+        first = echoes.echo_index == 0
+        pulses["n_echoes"][a:b][echoes.pixel[first]] = echoes.n_echoes[first]
+        local["products"] = time.perf_counter() - t
+        return pts, n_hit, local, dig
 
     threads = worker_threads(config.run.threads)
     results = run_blocks(process, blocks, threads, progress, label="pulse block", cancel=cancel)
-    for (a, _), res in zip(blocks, results):
-        res[0].pixel = res[0].pixel + a
     n_hits = sum(r[1] for r in results)
     for r in results:
         log.add_times(r[2])
+    digitizer = results[0][3] if results else None
     t0 = time.perf_counter()
-    echoes = _merge_echoes([r[0] for r in results])
-    p = echoes.pixel
-    time_s = gate.gate_start_s + echoes.position_bins * gate.bin_width_s
-    range_m = 0.5 * SPEED_OF_LIGHT_M_S * time_s
-    pos_world = pulse_origin[p] + pulse_axis[p] * range_m[:, None]
-    points = {"position_world": pos_world,
-              "intensity": echoes.amplitude.astype(np.float32), "range_m": range_m,
-              "echo_index": (echoes.echo_index + 1).astype(np.int16), "n_echoes": echoes.n_echoes.astype(np.int16),
-              "time_s": time_s, "gps_time_s": start_time_s + pulse_time[p], "pulse_index": p.astype(np.int64),
-              "channel": pulse_channel[p], "scan_angle_rad": pulse_angle[p].astype(np.float32),
-              "frame": np.full(len(p), frame, np.int32)}
-    if echoes.snr is not None:
-        points["snr"] = echoes.snr.astype(np.float32)
-    if getattr(echoes, "false_alarm", None) is not None:
-        points["false_alarm"] = echoes.false_alarm.astype(np.uint8)
-    n_echo_per_pulse = np.zeros(n_pulses, np.int16)
-    first = echoes.echo_index == 0
-    n_echo_per_pulse[p[first]] = echoes.n_echoes[first]
-    pulses = {"time_s": pulse_time, "gps_time_s": start_time_s + pulse_time, "origin_world": pulse_origin,
-              "direction_world": pulse_axis.astype(np.float32), "channel": pulse_channel,
-              "scan_angle_rad": pulse_angle.astype(np.float32), "n_echoes": n_echo_per_pulse,
-              "received_energy_j": pulse_energy}
-    times["products"] = time.perf_counter() - t0
+    points = _concatenate_points([r[0] for r in results])
+    del results
+    n_echo_per_pulse = pulses["n_echoes"]
+    times["products"] += time.perf_counter() - t0
     stats = {"n_pulses": n_pulses, "subrays_per_pulse": m, "n_rays": n_pulses * m, "n_hits": n_hits,
-             "n_points": int(len(range_m)), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
+             "n_points": int(len(points["range_m"])), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
              "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
              "scan_duration_s": scan_duration_s(config), "stage_times_s": log.times,
-             "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(pulse_energy.sum()),
+             "wall_time_s": time.perf_counter() - fr.t_wall,
+             "received_energy_j": float(pulses["received_energy_j"].sum()),
              "stages_run": log.ran, "stages_skipped": log.skipped, "memory_estimate_bytes": fr.memory["total"],
              "work_estimate_samples": fr.memory["work"],
              "notes": {"divergence_fills_fov": "ignored by the scanner: the beam is laser.beam_divergence_rad",
@@ -383,7 +426,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
     if noisy:
-        stats["receiver"] = dict(results[0][3])
+        stats["receiver"] = dict(digitizer)
         if "false_alarm" in points:
             n_fa = int(points["false_alarm"].sum())
             stats["receiver"]["false_alarms"] = {
