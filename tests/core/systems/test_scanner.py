@@ -442,3 +442,108 @@ def test_subray_directions_follow_the_beam_geometry(rings, moving):
     sin_off_axis = np.linalg.norm(np.cross(d_world.reshape(n, m, 3), axis_world[:, None, :]), axis=2)
     assert np.max(np.abs(sin_off_axis - np.sin(rho)[None, :])) <= 1e-12
     np.testing.assert_array_equal(o_world, np.repeat(origin, m, axis=0))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Issue 16: the survey's memory (streamed products, the trace's shared beam origins)
+# --------------------------------------------------------------------------------------------------------------
+def _soup(rng, n_tri=4000, n_degenerate=40):
+    """Random triangles far from the origin (float32 alone would lose millimetres), some degenerate."""
+    v = rng.normal(size=(3000, 3)) * 5.0 + np.array([1e4, -2e4, 300.0])
+    tris = rng.integers(0, 3000, size=(n_tri, 3))
+    tris[:n_degenerate, 2] = tris[:n_degenerate, 1]
+    return SceneGeometry(v, tris, np.zeros(n_tri, int))
+
+
+def test_trace_planes_and_ranges_are_the_numpy_formulas_bit_for_bit():
+    """The tracer's plane table (computed by a kernel, without whole-scene temporaries) is NumPy's
+    cross / linalg.norm bit for bit; each hit's range is ((v₀ − o)·n)/(d·n) and cos θ = |d·n| (einsum's
+    summation order) bit for bit; hits on degenerate triangles are misses; with the BVH on a subset (culling)
+    the hits are the same, with the scene's triangle numbers."""
+    from core.geometry.trace import SceneTracer
+
+    rng = np.random.default_rng(7)
+    scene = _soup(rng)
+    tri = scene.vertices_m[scene.triangles]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(normal, axis=1)
+    unit = normal / np.where(norm == 0.0, 1.0, norm)[:, None]
+    tracer = SceneTracer(scene)
+    assert np.array_equal(tracer.unit_normal, unit) and np.array_equal(tracer.degenerate, norm == 0.0)
+    origin = scene.vertices_m.mean(axis=0) + rng.normal(size=(50_000, 3)) * 8.0
+    d = rng.normal(size=(50_000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    prim, range_m, cos_theta = tracer.intersect(origin, d)
+    hit = prim >= 0
+    assert hit.sum() > 5000 and not tracer.degenerate[prim[hit]].any()
+    n_hit = unit[prim[hit]]
+    dn = np.einsum("ij,ij->i", d[hit], n_hit)
+    wn = np.einsum("ij,ij->i", tri[prim[hit], 0] - origin[hit], n_hit)
+    assert np.array_equal(range_m[hit], wn / dn) and np.array_equal(cos_theta[hit], np.abs(dn))
+    assert np.isnan(range_m[~hit]).all() and (cos_theta[~hit] == 0).all()
+    keep = rng.random(scene.n_triangles) < 0.5
+    keep[np.unique(prim[hit])] = True
+    culled = SceneTracer(scene, keep=keep).intersect(origin, d)
+    for got, want in zip(culled, (prim, range_m, cos_theta)):
+        assert np.array_equal(got, want, equal_nan=True)
+
+
+def test_trace_shares_one_origin_among_a_group_of_rays():
+    """One origin per group of k consecutive rays (a beam's sub-rays) traces exactly as the origin repeated
+    per ray; one origin for all rays as well; an origin count that divides no group is refused."""
+    from core.geometry.trace import SceneTracer
+
+    rng = np.random.default_rng(8)
+    scene = _soup(rng)
+    tracer = SceneTracer(scene)
+    origin = scene.vertices_m.mean(axis=0) + rng.normal(size=(2000, 3)) * 8.0
+    d = rng.normal(size=(2000 * 7, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    grouped = tracer.intersect(origin, d)
+    per_ray = tracer.intersect(np.repeat(origin, 7, axis=0), d)
+    assert (grouped[0] >= 0).sum() > 1000
+    for got, want in zip(grouped, per_ray):
+        assert np.array_equal(got, want, equal_nan=True)
+    for got, want in zip(tracer.intersect(origin[0], d), tracer.intersect(np.repeat(origin[:1], len(d), 0), d)):
+        assert np.array_equal(got, want, equal_nan=True)
+    with pytest.raises(ValueError, match="3 ray origins for 14000 rays"):
+        tracer.intersect(origin[:3], d)
+
+
+def test_scan_products_are_streamed_and_the_same_for_any_threads_and_blocks():
+    """The blocks write the pulse records in place and build their own points: the products are the same bit
+    for bit for 1 or 2 threads and any block size, and every product array owns exactly its data (no view
+    keeping a larger buffer alive: the echo arrays of each block used to hold n_hits × max_echoes slots until the
+    end of the scan)."""
+    cfg = scanner_config("oscillating", pulse_rate_hz=200e3, scan_rate_hz=100.0, scan_width_rad=0.6,
+                         duration_s=0.05, beam_subray_rings=2)
+    cfg.laser.beam_divergence_rad = 5e-3
+    cfg.gate.gate_start_s = 2 * 20.0 / C
+    cfg.gate.n_bins = 1024
+    mats = np.repeat(np.eye(4)[None], 2, axis=0)
+    mats[:, :3, 3] = [[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
+    traj = Trajectory(np.array([0.0, 0.05]), mats)
+    scene = merge(plate(40.0, 30.0), plate(30.0, 4.0, offset=(2.0, 0.0, 0.0)))
+    runs = []
+    for threads, chunk in ((1, 262_144), (2, 4096 * 19), (2, 8192 * 19)):
+        cfg.run.threads, cfg.run.chunk_rays = threads, chunk
+        runs.append(simulate(scene, np.eye(4), cfg, trajectory=traj))
+    ref = runs[0]
+    assert [r.stats["n_blocks"] for r in runs] == [1, 3, 2]
+    assert ref.stats["n_points"] > ref.stats["n_pulses"]  # the small plate gives second echoes
+    for res in runs:
+        for group, ref_group in ((res.points, ref.points), (res.pulses, ref.pulses)):
+            assert list(group) == list(ref_group)
+            for name, arr in group.items():
+                assert arr.dtype == ref_group[name].dtype and np.array_equal(arr, ref_group[name]), name
+                assert arr.base is None or arr.base.nbytes == arr.nbytes, name
+    # the tabulated pulse's echoes of one block own exactly their data
+    from core.physics.waveform import PulseTable
+
+    rng = np.random.default_rng(4)
+    pulse = np.sort(rng.integers(0, 500, 9500))
+    ech = windowed_echoes(pulse, cfg.gate.gate_start_s + rng.uniform(0, 200e-9, 9500), np.ones(9500), 500, cfg,
+                          "exact", PulseTable(cfg.laser, cfg.gate.bin_width_s))
+    assert 500 <= len(ech.pixel) <= 500 * cfg.detection.max_echoes
+    for name in ("pixel", "position_bins", "amplitude", "echo_index", "n_echoes"):
+        assert getattr(ech, name).base is None, name
