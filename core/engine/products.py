@@ -36,11 +36,12 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     h, w, n_bins = digital.shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
         if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
-    found = detect_echoes_noisy(digital.reshape(h * w, n_bins).astype(np.float32), g.bin_width_s, g.gate_start_s,
+    threads = worker_threads(config.run.threads)
+    found = detect_echoes_noisy(digital.reshape(h * w, n_bins), g.bin_width_s, g.gate_start_s,
                                 threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
                                 k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
                                 interpolation=d.interpolation, min_noise_sigma=noise_floor,
-                                threads=worker_threads(config.run.threads))
+                                threads=threads)
     pix, slot = np.nonzero(found.detected)
     echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
                     amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
@@ -51,7 +52,7 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
         fa, summary = classify_false_alarms(
             found, np.asarray(truth).reshape(h * w, n_bins), config.laser.pulse_fwhm_s / g.bin_width_s,
             noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
-            abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j)
+            abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j, threads=threads)
         echoes.false_alarm = fa[pix, slot]
         summary["threshold_mode"] = d.noisy_threshold_mode
         summary["n_pixels"] = h * w

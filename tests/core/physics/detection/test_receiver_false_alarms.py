@@ -125,3 +125,60 @@ def test_matched_filter_is_scipys_correlation_bit_for_bit(n_bins):
     w = (k / np.sum(k * k)).astype(np.float32)
     expect = ndimage.correlate1d(y, w, axis=-1, mode="nearest", output=np.float32)
     assert np.array_equal(matched_filter(y, PULSE), expect)
+
+
+def _eligible_by_definition(truth, guard, rel, lvl):
+    """The definition of eligible_bins, bin by bin (slow): no bin within ±guard with t > max(rel·peak, lvl), t > 0."""
+    t = np.asarray(truth, dtype=np.float64)
+    el = np.ones(t.shape, bool)
+    for p in range(t.shape[0]):
+        if np.isnan(t[p]).any():
+            continue
+        level = max(rel * t[p].max(), lvl)
+        for j in np.flatnonzero((t[p] > level) & (t[p] > 0)):
+            el[p, max(0, j - guard):j + guard + 1] = False
+    return el
+
+
+@pytest.mark.parametrize("n_bins", [1, 5, 63, 64, 65, 200])
+def test_eligible_bins_compiled_pass_equals_the_definition(n_bins):
+    """Random sparse signal (runs, isolated bins, block edges of the compiled 64-bin test, both row ends), rows
+    with a NaN, all-zero and negative rows, guard 0 … 12, float32, float64 and integer waveforms, 1 and 3
+    threads: the compiled pass gives the definition's bins exactly."""
+    rng = np.random.default_rng(n_bins)
+    P = 700
+    t = np.where(rng.random((P, n_bins)) < 0.03, rng.exponential(1.0, (P, n_bins)), 0.0)
+    t[::7, -1] = 5.0
+    t[::11, 0] = 5.0
+    t[3] = np.nan
+    t[4] = 0.0
+    t[5] = -1.0
+    t[6, n_bins // 2] = 1e-9
+    for guard in (0, 1, 12):
+        for dtype in (np.float32, np.float64, np.int64):
+            x = (t * 10 if dtype is np.int64 else t)
+            x = np.nan_to_num(x).astype(dtype) if dtype is np.int64 else x.astype(dtype)
+            want = _eligible_by_definition(x, guard, 0.05, 1e-6)
+            for threads in (1, 3):
+                assert np.array_equal(eligible_bins(x, guard, 0.05, 1e-6, threads=threads), want), (guard, dtype)
+
+
+def test_local_max_probability_of_a_stack_equals_single_calls_bit_for_bit():
+    """A stack of covariances (the matched filter's edge positions and the interior) in one call: each row is
+    the single call's result bit for bit."""
+    B = 300
+    covs = np.array([(r := _filter_rows(B, PULSE, [j - 1, j, j + 1])) @ r.T * 2.5 for j in (1, 2, 5, 150, 298)])
+    u = np.linspace(0.3, 4.0, 17)
+    stack = local_max_probability(u, covs)
+    for c, row in zip(covs, stack):
+        assert np.array_equal(local_max_probability(u, c), row)
+
+
+def test_expected_false_alarms_independent_of_threads():
+    rng = np.random.default_rng(5)
+    el = rng.random((900, 500)) < 0.9
+    thr = rng.uniform(1.0, 3.0, 900)
+    thr[::50] = np.inf
+    one = expected_false_alarms(thr, 1.3, el, PULSE, threads=1)
+    assert np.array_equal(one, expected_false_alarms(thr, 1.3, el, PULSE, threads=3))
+    assert np.all(one[::50] == 0) and np.all(one[1::50] > 0)
