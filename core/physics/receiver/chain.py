@@ -28,11 +28,13 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
 from ...config.settings import DetectorSettings
 from ...config.validate import validate
+from ...jit import kernel
 from .adc import adc_convert, adc_dtype
 from .code_tables import (CAUGHT_TABLES, P_BITS, TABLE_MIN_SIGMA_STEPS, CaughtCodeTables, CodeTable, noise_code_pmf,
                           uniform_uint32)
@@ -220,18 +222,10 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     # output) and a Gaussian read noise of at least 0.002 Δ; otherwise the per-bin route below.
     table = None
     if noise_table and use_adc and sigma_r >= TABLE_MIN_SIGMA_STEPS * step:
-        try:
-            k0, pmf = noise_code_pmf(step, n_mult=b_mult, gain=gain, excess_noise=F, shot=shot,
-                                     surface_dark_e=ds, surface_dark_poisson=shot and ds > 0,
-                                     gauss_mean_e=0.0 if shot else ds, gauss_var_e2=sigma_r ** 2)
-            table = CodeTable(k0, pmf, det.adc_offset_counts, 2 ** int(det.adc_bits) - 1, out_dtype)
-            if shot:  # bins that caught 1 … 16 signal photo-electrons: their own tables, built on first use
-                table.caught = CaughtCodeTables(
-                    CAUGHT_TABLES, step, dict(n_mult=b_mult, gain=gain, excess_noise=F, surface_dark_e=ds,
-                                               surface_dark_poisson=ds > 0, gauss_var_e2=sigma_r ** 2),
-                    det.adc_offset_counts, 2 ** int(det.adc_bits) - 1, out_dtype)
-        except ValueError as exc:  # too many codes: per-bin route
-            report["noise_table_refused"] = str(exc)
+        table, refused = _noise_tables(step, b_mult, gain, F, shot, ds, sigma_r, det.adc_offset_counts,
+                                       int(det.adc_bits), np.dtype(out_dtype).str)
+        if refused:  # too many codes: per-bin route
+            report["noise_table_refused"] = refused
     report["noise_sampling"] = "table" if table is not None else "per-bin"
     if table is not None:
         report["noise_table"] = {"codes": table.n_entries, "ambiguous_cells": table.n_ambiguous_cells,
@@ -308,6 +302,29 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     return ChainOutput(out.reshape(H, W, B), report)
 
 
+@lru_cache(maxsize=4)
+def _noise_tables(step, b_mult, gain, F, shot, ds, sigma_r, offset, bits, dtype):
+    """The code tables of signal-free bins (and of bins that caught 1 … 16 signal photo-electrons, built on
+    first use) for these detector numbers: ``(CodeTable, None)``, or ``(None, reason)`` when the distribution
+    spans too many codes.  Kept for the next frames of a run (a few detectors at most: bounded cache); the
+    tables depend on nothing else, so a kept table gives the same codes as a new one."""
+    top = 2 ** bits - 1
+    try:
+        k0, pmf = noise_code_pmf(step, n_mult=b_mult, gain=gain, excess_noise=F, shot=shot,
+                                 surface_dark_e=ds, surface_dark_poisson=shot and ds > 0,
+                                 gauss_mean_e=0.0 if shot else ds, gauss_var_e2=sigma_r ** 2)
+    except ValueError as exc:
+        return None, str(exc)
+    table = CodeTable(k0, pmf, offset, top, np.dtype(dtype))
+    table.caught = None
+    if shot:  # bins that caught 1 … 16 signal photo-electrons: their own tables, built on first use
+        table.caught = CaughtCodeTables(
+            CAUGHT_TABLES, step, dict(n_mult=b_mult, gain=gain, excess_noise=F, surface_dark_e=ds,
+                                       surface_dark_poisson=ds > 0, gauss_var_e2=sigma_r ** 2),
+            offset, top, np.dtype(dtype))
+    return table, None
+
+
 def _buf(ws, name, n, dtype):
     a = ws.get(name)
     if a is None or a.size < n or a.dtype != dtype:
@@ -333,12 +350,12 @@ def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
     r = uniform_uint32(rng, N)
     stats["n_adc_low"], stats["n_adc_high"] = table.sample(r, of, _buf(ws, "cell", N, np.uint32))
     Ef = E.reshape(-1)
-    mask = Ef != 0  # boolean mask: much faster than a float scan
-    nnz = int(np.count_nonzero(mask))
+    nz = _buf(ws, "nz", N, np.int64)
+    nnz = _nonzero_index(Ef, nz)  # the bins with signal (compiled: signal-free stretches skipped by SIMD tests)
     if not nnz:
         return stats
     dense = nnz * 2 > N  # most bins hold signal: work on the whole block (no index array)
-    nz = None if dense else np.flatnonzero(mask)
+    nz = None if dense else nz[:nnz]
     with np.errstate(over="ignore"):
         s = Ef.astype(np.float64) if dense else Ef[nz].astype(np.float64)
         s *= p["k_sig"]
@@ -400,6 +417,27 @@ def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
     stats["n_adc_high"] += hi
     of[sig] = codes
     return stats
+
+
+@kernel
+def _nonzero_index(x, idx):
+    """The indices of the non-zero elements of the 1-D ``x`` into ``idx`` (as np.flatnonzero); returns how
+    many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch."""
+    n = x.size
+    m = 0
+    for q in range(n // 64 + 1):
+        j0 = q * 64
+        if j0 + 64 <= n:
+            c = 0
+            for k in range(64):  # fixed trip count: compiled to SIMD compares
+                c += x[j0 + k] != 0
+            if c == 0:
+                continue
+        for j in range(j0, min(j0 + 64, n)):
+            if x[j] != 0:
+                idx[m] = j
+                m += 1
+    return m
 
 
 def _process_block(E, out, rng, spk, p, ws, table=None) -> dict:

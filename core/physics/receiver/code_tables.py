@@ -6,6 +6,8 @@ import threading
 
 import numpy as np
 
+from ...jit import kernel
+
 #: Probabilities of the tabulated code sampler are multiples of 2**-32 (one 32-bit uniform per sample).
 P_BITS = 32
 #: The table route needs a Gaussian part σ ≥ this × Δ (otherwise the characteristic function decays too
@@ -131,6 +133,7 @@ class CodeTable:
         T = np.floor(cum * 2.0 ** P_BITS + 0.5).astype(np.uint64)
         T[-1] = np.uint64(1 << P_BITS)
         self.T, self.code = T, code
+        self.T_int = T.astype(np.int64)  # (≤ 2³²: the compiled sampler compares in int64)
         self.t_low = int(T[0])        # r < t_low: clipped at code 0
         self.t_high = int(T[-2])      # r ≥ t_high: clipped at full scale
         p_q = np.diff(np.concatenate([[0], T.astype(np.int64)]))
@@ -157,20 +160,44 @@ class CodeTable:
 
     def sample(self, r, out, scratch=None):
         """Codes for the uniform uint32 ``r`` into ``out`` (1-D, table dtype).  Returns (n_low, n_high):
-        how many were clipped at code 0 and at full scale."""
-        shift = np.uint32(P_BITS - self.CELL_BITS)
-        cell = np.right_shift(r, shift, out=scratch)
-        np.take(self.table, cell, out=out)
-        if self.n_ambiguous_cells:
-            amb = np.flatnonzero(self.amb_cells[cell] if self.amb_cells is not None else out == self.sentinel)
-            if amb.size:
-                out[amb] = self.code[np.searchsorted(self.T, r[amb].astype(np.uint64), side="right")]
-        return self.clipped(r)
+        how many were clipped at code 0 and at full scale.  One compiled pass (:func:`_sample_codes`)."""
+        amb = self.amb_cells if self.amb_cells is not None else np.zeros(1, dtype=bool)
+        return _sample_codes(r, self.table, P_BITS - self.CELL_BITS, -1 if self.sentinel is None else self.sentinel,
+                             amb, self.T_int, self.code, self.t_low, self.t_high, out)
 
     def clipped(self, r):
         n_low = int(np.count_nonzero(r < np.uint32(self.t_low))) if self.t_low > 0 else 0
         n_high = int(np.count_nonzero(r >= np.uint32(self.t_high))) if self.t_high < (1 << P_BITS) else 0
         return n_low, n_high
+
+
+@kernel
+def _sample_codes(r, table, shift, sentinel, amb_cells, T, code, t_low, t_high, out):
+    """out[i] = the code of the entry holding r[i]: the level-1 cell's code, or for an ambiguous cell (the
+    ``sentinel``; ``amb_cells`` when there is none, sentinel < 0) the binary search of r[i] on the cumulative
+    T (first T_k > r).  Returns the number of r below ``t_low`` and at or above ``t_high`` (clipped)."""
+    n_low = 0
+    n_high = 0
+    n_t = T.size
+    for i in range(r.size):
+        ri = np.int64(r[i])
+        cell = ri >> shift
+        c = table[cell]
+        if (sentinel >= 0 and c == sentinel) or (sentinel < 0 and amb_cells[cell]):
+            lo, hi = 0, n_t
+            while lo < hi:  # first k with T[k] > ri (searchsorted, side="right")
+                mid = (lo + hi) >> 1
+                if T[mid] > ri:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            c = code[lo]
+        out[i] = c
+        if ri < t_low:
+            n_low += 1
+        elif ri >= t_high:
+            n_high += 1
+    return n_low, n_high
 
 
 class CaughtCodeTables:

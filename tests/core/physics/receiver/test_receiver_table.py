@@ -222,3 +222,35 @@ def test_per_bin_route_where_the_table_does_not_apply():
     cube = sparse_returns_cube()[:8, :8]
     assert chain(cube, 1, enable_adc=False).report["noise_sampling"] == "per-bin"
     assert chain(cube, 1, enable_read_noise=False).report["noise_sampling"] == "per-bin"
+
+
+def test_tables_kept_for_the_next_frames_give_the_same_codes():
+    """The code tables are kept between frames of a run (bounded cache): a frame drawn with kept tables (their
+    caught-count tables already built) is bit for bit the frame drawn with tables built afresh."""
+    from core.physics.receiver.chain import _noise_tables
+
+    cube = sparse_returns_cube()
+    _noise_tables.cache_clear()
+    fresh = chain(cube, 4)
+    assert _noise_tables.cache_info().currsize == 1
+    again = chain(cube, 4)
+    assert _noise_tables.cache_info().hits >= 1
+    assert np.array_equal(fresh.data, again.data) and fresh.report == again.report
+    _noise_tables.cache_clear()
+    assert np.array_equal(chain(cube, 4).data, fresh.data)
+
+
+@pytest.mark.parametrize("n", [0, 1, 63, 64, 65, 1000])
+def test_nonzero_index_equals_flatnonzero(n):
+    """The compiled compaction of the chain (64-element SIMD tests, then the element loop): np.flatnonzero on
+    sparse, dense, signed-zero and NaN data."""
+    from core.physics.receiver.chain import _nonzero_index
+
+    rng = np.random.default_rng(n)
+    for frac in (0.0, 0.01, 0.5, 1.0):
+        x = np.where(rng.random(n) < frac, rng.standard_normal(n), 0.0).astype(np.float32)
+        if n > 10:
+            x[3], x[7] = -0.0, np.nan
+        idx = np.empty(n, np.int64)
+        m = _nonzero_index(x, idx)
+        assert np.array_equal(idx[:m], np.flatnonzero(x))
