@@ -182,3 +182,27 @@ def test_expected_false_alarms_independent_of_threads():
     one = expected_false_alarms(thr, 1.3, el, PULSE, threads=1)
     assert np.array_equal(one, expected_false_alarms(thr, 1.3, el, PULSE, threads=3))
     assert np.all(one[::50] == 0) and np.all(one[1::50] > 0)
+
+
+def test_interpolation_of_every_position_is_numpys_interp_bit_for_bit():
+    """The compiled interpolation of the log-rates (all positions in one pass) against np.interp row by row:
+    grids of 2 … 79 points (also nearly degenerate ones), thresholds on the grid points, beyond both ends,
+    ±inf and NaN, rows with inf, NaN and constant values."""
+    from core.physics.detection.false_alarms import _interp_rows
+
+    rng = np.random.default_rng(2)
+    with np.errstate(all="ignore"):
+        for trial in range(200):
+            G = int(rng.integers(2, 80))
+            lo = rng.uniform(0.1, 3)
+            xp = np.linspace(lo, lo + (rng.uniform(1e-9, 3) if trial % 5 else 1e-15), G)
+            fp = np.log(rng.uniform(1e-30, 1, (6, G)))
+            if trial % 7 == 0:
+                fp[3, G // 2], fp[4], fp[5, 0] = np.inf, 1.0, np.nan
+            x = rng.uniform(xp[0] - 0.1, xp[-1] + 0.1, 500)
+            x[:G] = xp
+            x[G:G + 5] = [np.nan, np.inf, -np.inf, xp[0], xp[-1]]
+            got = np.empty((6, x.size))
+            _interp_rows(x, xp, fp, np.diff(fp, axis=1) / np.diff(xp), got)
+            for s in range(6):
+                assert np.array_equal(got[s], np.interp(x, xp, fp[s]), equal_nan=True), (trial, s)
