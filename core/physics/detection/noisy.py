@@ -84,43 +84,51 @@ def gaussian_pulse_kernel(fwhm_s, bin_width_s, half_width_sigmas=4.0):
 # Noise estimation and matched filter
 # ----------------------------------------------------------------------------------------------------------
 @kernel
-def _select(a, lo, hi, k):
-    """Partially sort a[lo:hi] in place so that a[k] is its k-th smallest element (quickselect, median of three
-    pivots); everything before k is ≤ a[k], everything after ≥."""
-    while hi - lo > 1:
-        mid = (lo + hi - 1) // 2
-        x, y, z = a[lo], a[mid], a[hi - 1]
-        pivot = max(min(x, y), min(max(x, y), z))
-        i, j = lo, hi - 1
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while a[j] > pivot:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j + 1
-        elif k >= i:
-            lo = i
-        else:
-            return
+def _select(a, b, n, k):
+    """(k-th, (k−1)-th) smallest of a[:n] (0-based; the second is meaningless for k = 0), exact: quickselect
+    whose partition is branch-free (three-way, into the other buffer: a and b are both overwritten), so that
+    noise-like data costs no mispredicted branches.  Terminates on any input (the pivot is an element of the
+    current part, which always leaves the part; NaN compares as equal to everything)."""
+    src, dst = a, b
+    lo, m = 0, n
+    below = a[0]  # the largest element known to lie below the current part (set before it is ever needed)
+    while True:
+        x, y, z = src[lo], src[lo + m // 2], src[lo + m - 1]
+        p = max(min(x, y), min(max(x, y), z))
+        nl, ng = 0, 0
+        for i in range(lo, lo + m):
+            v = src[i]
+            dst[nl] = v
+            dst[m - 1 - ng] = v
+            nl += v < p
+            ng += v > p
+        if k < nl:
+            lo, m = 0, nl
+        elif k >= m - ng:
+            k -= m - ng
+            lo, m = m - ng, ng
+            below = p
+        else:  # k falls on the elements equal to the pivot
+            if k > nl:
+                return p, p
+            if nl == 0:
+                return p, below
+            mx = dst[0]
+            for i in range(1, nl):
+                mx = max(mx, dst[i])
+            return p, mx
+        src, dst = dst, src
 
 
 @kernel
-def _median32(a, n):
-    """The median of a[:n] (float32, reordered in place) as NumPy computes it: the middle element, or the mean
-    of the two middle ones rounded to float32."""
+def _median32(a, b, n):
+    """The median of a[:n] (float32; a and b are overwritten) as NumPy computes it: the middle element, or the
+    mean of the two middle ones rounded to float32."""
     k = n // 2
-    _select(a, 0, n, k)
+    hi, below = _select(a, b, n, k)
     if n % 2:
-        return a[k]
-    below = a[0]
-    for i in range(1, k):
-        below = max(below, a[i])
-    return np.float32(a[k] + below) * np.float32(0.5)
+        return hi
+    return np.float32(hi + below) * np.float32(0.5)
 
 
 @kernel
@@ -188,6 +196,10 @@ def pairwise_sum(a, lo, n):
 
 #: Integer-valued rows (A/D counts) spanning fewer values than this take the counting median.
 _COUNTING_RANGE = 1 << 16
+#: ... and, when their MAD is 0, the counting quiet-90 % rms, where every deviation, square and partial sum is
+#: exact in float64 (so that any summation order is NumPy's pairwise sum bit for bit): |values| < 2²², rows
+#: shorter than 2¹⁹ bins.
+_EXACT_VALUE, _EXACT_BINS = float(1 << 22), 1 << 19
 
 
 @kernel
@@ -202,24 +214,14 @@ def _kth_from_counts(counts, span, k):
 
 
 @kernel
-def _counting_median_mad(y, lo, span, counts):
-    """(median, MAD) as float32 of a row of integer values in [lo, lo + span): the same order statistics as
-    sorting, in O(n + span).  The deviations |y − median| (exact: small integers or half-integers) are walked
-    outward from the median in increasing order."""
-    n = y.shape[0]
-    counts[:span] = 0
-    for i in range(n):
-        counts[int(y[i] - lo)] += 1
-    k = n // 2
-    vk = np.float32(lo + _kth_from_counts(counts, span, k))
-    if n % 2:
-        base = vk
-    else:
-        base = np.float32(np.float32(lo + _kth_from_counts(counts, span, k - 1)) + vk) * np.float32(0.5)
+def _deviation_ranks(counts, lo, span, base, k1, k2):
+    """The k1-th and k2-th smallest (0-based, k1 ≤ k2; k1 may be −1: then 0) of the deviations
+    |lo + i − base| (float32) of the values lo + i repeated counts[i] times: walked outward from the median in
+    increasing order."""
     i_dn = int(math.floor(base - lo))
     i_up = i_dn + 1
     taken = 0
-    d_km1, d_k = np.float32(0.0), np.float32(0.0)
+    d1, d2 = np.float32(0.0), np.float32(0.0)
     while True:
         while i_dn >= 0 and counts[i_dn] == 0:
             i_dn -= 1
@@ -233,77 +235,123 @@ def _counting_median_mad(y, lo, span, counts):
         else:
             d, c = d_up, counts[i_up]
             i_up += 1
-        if taken <= k - 1 < taken + c:
-            d_km1 = d
-        if k < taken + c:
-            d_k = d
-            break
+        if taken <= k1 < taken + c:
+            d1 = d
+        if k2 < taken + c:
+            d2 = d
+            return d1, d2
         taken += c
+
+
+@kernel
+def _counting_median_mad(y, lo, span, counts):
+    """(median, MAD) as float32 of a row of integer values in [lo, lo + span): the same order statistics as
+    sorting, in O(n + span); ``counts`` is left holding the histogram."""
+    n = y.shape[0]
+    counts[:span] = 0
+    for i in range(n):
+        counts[int(y[i] - lo)] += 1
+    k = n // 2
+    vk = np.float32(lo + _kth_from_counts(counts, span, k))
+    if n % 2:
+        base = vk
+    else:
+        base = np.float32(np.float32(lo + _kth_from_counts(counts, span, k - 1)) + vk) * np.float32(0.5)
+    d_km1, d_k = _deviation_ranks(counts, lo, span, base, k - 1, k)
     if n % 2:
         return base, d_k
     return base, np.float32(d_km1 + d_k) * np.float32(0.5)
 
 
 @kernel
-def _baseline_noise_row(y, scratch, dev, d64, counts):
+def _quiet_quantile(n):
+    """NumPy's linear quantile 0.9 of n values: the ranks (prev, nxt) of the two order statistics around it and
+    the weight γ (then :func:`_lerp_quantile`)."""
+    virtual = n * 0.9 + (1.0 + 0.9 * (1.0 - 1.0 - 1.0)) - 1.0
+    prev = int(math.floor(virtual))
+    gamma = virtual - prev
+    prev = min(max(prev, 0), n - 1)
+    return prev, min(prev + 1, n - 1), gamma
+
+
+@kernel
+def _lerp_quantile(a, b, gamma):
+    """NumPy's linear quantile between the order statistics a ≤ b with weight γ."""
+    diff = b - a
+    return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
+
+
+@kernel
+def _baseline_noise_row(y, s1, s2, dev, d1, d2, counts):
     """(median, σ) of one float32 row: σ = 1.4826 × MAD, or where the MAD is 0 the rms deviation of the quietest
-    90 % of the samples (NumPy's linear quantile, its pairwise sum)."""
+    90 % of the samples (NumPy's linear quantile, its pairwise sum).  s1, s2, dev (float32), d1, d2 (float64)
+    and counts are scratch."""
     n = y.shape[0]
     lo, hi, integral = y[0], y[0], True
     for i in range(n):
         v = y[i]
+        if v != math.floor(v):  # (most float rows stop at once)
+            integral = False
+            break
         lo, hi = min(lo, v), max(hi, v)
-        integral = integral and v == math.floor(v)
-    if integral and hi - lo < _COUNTING_RANGE:  # A/D counts: the median and MAD by counting
-        base, mad = _counting_median_mad(y, lo, int(hi - lo) + 1, counts)
-        for i in range(n):
-            dev[i] = abs(y[i] - base)
+    counted = integral and hi - lo < _COUNTING_RANGE
+    span = 0
+    if counted:  # A/D counts: the median and MAD by counting
+        span = int(hi - lo) + 1
+        base, mad = _counting_median_mad(y, lo, span, counts)
     else:
-        scratch[:n] = y
-        base = _median32(scratch, n)
+        s1[:n] = y
+        base = _median32(s1, s2, n)
         for i in range(n):
             dev[i] = abs(y[i] - base)
-        scratch[:n] = dev[:n]
-        mad = _median32(scratch, n)
+        s1[:n] = dev[:n]
+        mad = _median32(s1, s2, n)
     sigma = np.float64(mad) * MAD_TO_SIGMA
-    if sigma == 0:
-        # A/D-quantized noise below one count: fall back to the rms deviation of the quietest 90 % of the
-        # samples (np.quantile(d, 0.9), method "linear")
+    if sigma != 0:
+        return base, sigma
+    # A/D-quantized noise below one count: the rms deviation of the quietest 90 % of the samples
+    # (np.quantile(d, 0.9), method "linear"; the squares below it summed as np.sum does)
+    prev, nxt, gamma = _quiet_quantile(n)
+    if counted and n < _EXACT_BINS and max(-lo, hi) < _EXACT_VALUE:
+        # from the histogram: deviations are exact half-integers, squares and sums exact in any order
+        da, db = _deviation_ranks(counts, lo, span, base, prev, nxt)
+        q = _lerp_quantile(np.float64(da if prev != nxt else db), np.float64(db), gamma)
+        count, total = 0, 0.0
+        for i in range(span):
+            c = counts[i]
+            d = np.float64(abs(np.float32(lo + i) - base))
+            if c and d <= q:
+                count += c
+                total += c * (d * d)
+        return base, math.sqrt(total / max(count, 1))
+    if counted:
         for i in range(n):
-            d64[i] = dev[i]
-        virtual = n * 0.9 + (1.0 + 0.9 * (1.0 - 1.0 - 1.0)) - 1.0
-        prev = int(math.floor(virtual))
-        gamma = virtual - prev
-        prev = min(max(prev, 0), n - 1)
-        nxt = min(prev + 1, n - 1)
-        srt = np.empty(n)
-        srt[:] = d64[:n]
-        _select(srt, 0, n, nxt)
-        b = srt[nxt]
-        a = srt[prev] if prev == nxt else srt[0]
-        if prev != nxt:
-            for i in range(1, nxt):
-                a = max(a, srt[i])
-        diff = b - a
-        q = b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
-        count = 0
-        for i in range(n):
-            if d64[i] <= q:
-                count += 1
-                srt[i] = d64[i] * d64[i] * 1.0
-            else:
-                srt[i] = d64[i] * d64[i] * 0.0
-        sigma = math.sqrt(pairwise_sum(srt, 0, n) / max(count, 1))
-    return base, sigma
+            dev[i] = abs(y[i] - base)
+    for i in range(n):
+        d1[i] = dev[i]
+    b, a = _select(d1, d2, n, nxt)
+    if prev == nxt:
+        a = b
+    q = _lerp_quantile(a, b, gamma)
+    count = 0
+    for i in range(n):
+        d = np.float64(dev[i])
+        if d <= q:
+            count += 1
+            d1[i] = d * d * 1.0
+        else:
+            d1[i] = d * d * 0.0
+    return base, math.sqrt(pairwise_sum(d1, 0, n) / max(count, 1))
 
 
 @kernel
 def _baseline_noise_rows(y, base, sigma):
     n = y.shape[1]
-    scratch, dev, d64 = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n)
+    s1, s2, dev, d1, d2 = (np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32),
+                           np.empty(n), np.empty(n))
     counts = np.empty(_COUNTING_RANGE, np.int64)
     for r in range(y.shape[0]):
-        base[r], sigma[r] = _baseline_noise_row(y[r], scratch, dev, d64, counts)
+        base[r], sigma[r] = _baseline_noise_row(y[r], s1, s2, dev, d1, d2, counts)
 
 
 def robust_baseline_noise(waveforms):
@@ -318,28 +366,45 @@ def robust_baseline_noise(waveforms):
     return base.astype(np.float64).reshape(y.shape[:-1]), sigma.reshape(y.shape[:-1])
 
 
+#: Outputs of the matched filter summed together, tap by tap (their float64 sums stay in L1 / registers).
+_FILTER_BLOCK = 128
+
+
 @kernel
-def _correlate_row(y, w, out):
-    """SciPy's correlate1d of one row with a symmetric odd kernel ``w`` (float64), 'nearest' edges, summed in
-    float64 in SciPy's order and rounded to float32."""
+def _correlate_row(y, b32, w, ypad, acc, out):
+    """out = SciPy's correlate1d of y − b32 (float32) with a symmetric odd kernel ``w`` (float64), 'nearest'
+    edges: each output summed in float64 in SciPy's order (centre tap, then the folded pairs from the outermost
+    in) and rounded to float32.  The tap loop runs outside a block of outputs, which keeps every output's
+    order and lets the compiler vectorise across outputs.  ypad (n + len(w) − 1) and acc (_FILTER_BLOCK) are
+    float64 scratch."""
     n, h = y.shape[0], w.shape[0] // 2
+    for i in range(h):  # the row with its edges clamped ('nearest'), in float64
+        ypad[i] = np.float64(y[0] - b32)
+        ypad[n + h + i] = np.float64(y[n - 1] - b32)
+    body = ypad[h:h + n]
     for i in range(n):
-        acc = np.float64(y[i]) * w[h]
-        if h <= i < n - h:  # interior: no edge clamping
-            for jj in range(-h, 0):
-                acc += (np.float64(y[i + jj]) + np.float64(y[i - jj])) * w[h + jj]
-        else:
-            for jj in range(-h, 0):
-                lo = min(max(i + jj, 0), n - 1)
-                hi = min(max(i - jj, 0), n - 1)
-                acc += (np.float64(y[lo]) + np.float64(y[hi])) * w[h + jj]
-        out[i] = acc
+        body[i] = np.float64(y[i] - b32)
+    wc = w[h]
+    for s in range(0, n, _FILTER_BLOCK):  # (slices, indexed from 0: the compiler vectorises these loops)
+        m = min(_FILTER_BLOCK, n - s)
+        c = s + h
+        centre, dst = ypad[c:c + m], out[s:s + m]
+        for i in range(m):
+            acc[i] = centre[i] * wc
+        for jj in range(-h, 0):
+            wj = w[h + jj]
+            left, right = ypad[c + jj:c + jj + m], ypad[c - jj:c - jj + m]
+            for i in range(m):
+                acc[i] += (left[i] + right[i]) * wj
+        for i in range(m):
+            dst[i] = acc[i]
 
 
 @kernel
 def _correlate_rows(y, w, out):
+    ypad, acc = np.empty(y.shape[1] + w.shape[0] - 1), np.empty(_FILTER_BLOCK)
     for r in range(y.shape[0]):
-        _correlate_row(y[r], w, out[r])
+        _correlate_row(y[r], np.float32(0.0), w, ypad, acc, out[r])
 
 
 def matched_filter(waveforms, pulse):
@@ -361,32 +426,34 @@ def matched_filter(waveforms, pulse):
 # ----------------------------------------------------------------------------------------------------------
 @kernel
 def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered, w, norm, adaptive, k_sigma,
-                threshold, min_sep, min_sig, yd, base, sig, thr, pos):
+                threshold, min_sep, min_sig, base, sig, thr, pos, samples):
     """Per row: baseline and raw noise (robust estimates unless given), the detection waveform yd = y − baseline
     (float32) correlated with the pulse ``w`` when ``filtered``, its noise, the threshold, and up to
     pos.shape[1] echoes: the strongest local maximum above the threshold (interior bins; ties: the earliest),
-    then the next outside ``min_sep`` bins of those taken, …; positions in time order, −1 for none.  The raw
-    noise σ is at least ``min_sig``, the filtered one's estimate at least ``min_sig``/``norm``."""
+    then the next outside ``min_sep`` bins of those taken, …; positions in time order, −1 for none, and the
+    three detection-waveform samples around each (``samples``, for the interpolation).  The raw noise σ is at
+    least ``min_sig``, the filtered one's estimate at least ``min_sig``/``norm``.  One row's scratch buffers
+    serve all rows of the call."""
     n_rows, n = y.shape
-    scratch, dev, d64 = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n)
+    s1, s2, dev = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
+    d1, d2 = np.empty(n), np.empty(n)
     counts = np.empty(_COUNTING_RANGE, np.int64)
-    raw = np.empty(n, np.float32)
+    ypad, acc = np.empty(n + w.shape[0] - 1), np.empty(_FILTER_BLOCK)
+    yd = np.empty(n, np.float32)
     cj, alive = np.empty(n, np.int64), np.empty(n, np.bool_)
     n_slots = pos.shape[1]
     for r in range(n_rows):
         b_est, s_est = np.float32(0.0), 0.0
         if estimate_base or estimate_sig:
-            b_est, s_est = _baseline_noise_row(y[r], scratch, dev, d64, counts)
+            b_est, s_est = _baseline_noise_row(y[r], s1, s2, dev, d1, d2, counts)
         base[r] = np.float64(b_est) if estimate_base else given_base[r]
         s_raw = s_est if estimate_sig else given_sig[r]
         sig[r] = min_sig if s_raw < min_sig else s_raw  # NaN stays NaN, as np.maximum
         b32 = np.float32(base[r])
         if filtered:
-            for i in range(n):
-                raw[i] = y[r, i] - b32
-            _correlate_row(raw, w, yd[r])
+            _correlate_row(y[r], b32, w, ypad, acc, yd)
             if estimate_sig:
-                sig_det = _baseline_noise_row(yd[r], scratch, dev, d64, counts)[1]
+                sig_det = _baseline_noise_row(yd, s1, s2, dev, d1, d2, counts)[1]
                 floor = min_sig / norm
                 if sig_det < floor:
                     sig_det = floor
@@ -394,14 +461,14 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
                 sig_det = sig[r] / norm
         else:
             for i in range(n):
-                yd[r, i] = y[r, i] - b32
+                yd[i] = y[r, i] - b32
             sig_det = sig[r]
         thr[r] = k_sigma * sig_det if adaptive else threshold
         t32 = np.float32(thr[r])
         nc = 0
         for j in range(1, n - 1):
-            c = yd[r, j]
-            if c > yd[r, j - 1] and c >= yd[r, j + 1] and c > t32:
+            c = yd[j]
+            if c > t32 and c > yd[j - 1] and c >= yd[j + 1]:  # (the threshold first: rarely passed)
                 cj[nc] = j
                 alive[nc] = True
                 nc += 1
@@ -409,7 +476,7 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
         for k in range(n_slots):
             best = -1
             for q in range(nc):
-                if alive[q] and (best < 0 or yd[r, cj[q]] > yd[r, cj[best]]):
+                if alive[q] and (best < 0 or yd[cj[q]] > yd[cj[best]]):
                     best = q
             if best < 0:
                 break
@@ -426,6 +493,9 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
                 pos[r, q + 1] = pos[r, q]
                 q -= 1
             pos[r, q + 1] = v
+        for k in range(n_found):
+            j = pos[r, k]
+            samples[r, k, 0], samples[r, k, 1], samples[r, k, 2] = yd[j - 1], yd[j], yd[j + 1]
 
 
 @dataclass
@@ -490,14 +560,15 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
         w = w.astype(np.float64)
         norm = float(np.sqrt(np.sum(k * k)))
     K = int(max_echoes)
-    yd = np.empty((P, B), np.float32)
     base, sig, thr = np.empty(P), np.empty(P), np.empty(P)
     pos = np.full((P, K), -1, dtype=np.int64)
+    samples = np.zeros((P, K, 3), np.float32)  # detection waveform at j − 1, j, j + 1 of each echo
 
     def run(a, b):
         _noisy_rows(y[a:b], given_base[a:b], given_sig[a:b], baseline is None, noise_sigma is None,
                     pulse is not None, w, norm, threshold_mode == "adaptive", float(k_sigma), float(threshold),
-                    int(min_separation_bins), float(min_noise_sigma), yd[a:b], base[a:b], sig[a:b], thr[a:b], pos[a:b])
+                    int(min_separation_bins), float(min_noise_sigma), base[a:b], sig[a:b], thr[a:b], pos[a:b],
+                    samples[a:b])
 
     step = max(256, -(-P // (4 * max(1, threads))))
     chunks = [(a, min(a + step, P)) for a in range(0, P, step)]
@@ -507,14 +578,10 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     else:
         for c in chunks:
             run(*c)
-    rows = np.arange(P)
 
     detected = pos >= 0
     jj = np.where(detected, pos, 1)
-    r2 = rows[:, None]
-    ym = yd[r2, jj - 1].astype(np.float64)
-    y0 = yd[r2, jj].astype(np.float64)
-    yp = yd[r2, jj + 1].astype(np.float64)
+    ym, y0, yp = (samples[:, :, i].astype(np.float64) for i in range(3))
     n_fallback = 0
     if interpolation == "none":
         delta = np.zeros_like(y0)
