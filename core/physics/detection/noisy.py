@@ -120,15 +120,111 @@ def _select(a, b, n, k):
         src, dst = dst, src
 
 
+#: Bits of float32 → order keys (int32 whose order is the float order: −0 just below +0); NaN keys lie
+#: beyond those of ±inf.
+_KEY_POS_INF, _KEY_NEG_INF = 0x7F800000, -0x7F800001
+#: Order statistics of float32 rows: a strided sample of this many values brackets the wanted rank, ...
+_SAMPLE = 32
+#: ... then the bracket is halved (counting passes, vectorised) until it holds at most this many values.
+_BRACKET = 64
+
+
 @kernel
-def _median32(a, b, n):
-    """The median of a[:n] (float32; a and b are overwritten) as NumPy computes it: the middle element, or the
-    mean of the two middle ones rounded to float32."""
+def _key32(b):
+    """The order key of float32 bits b (int32), and back (the map is its own inverse)."""
+    return b ^ ((b >> 31) & 0x7FFFFFFF)
+
+
+@kernel
+def _order_stats32(x, k_lo, k_hi, keys, s1, s2, cast):
+    """(x₍k_lo₎, x₍k_hi₎): order statistics (0-based ranks, k_lo ≤ k_hi ≤ k_lo + 1) of the float32 row x,
+    exact; NaN if x holds a NaN (as np.median).  On the order keys of the values: two ranks of a strided
+    sample propose a bracket, which is narrowed by bisection in value (each step one vectorised counting pass)
+    until it holds ≤ _BRACKET values; those are gathered and selected (:func:`_select`).  Equal values
+    −0.0 and +0.0 are ordered −0.0 first.  keys, s1, s2 (int32, len(x)) and cast (int32, ≥ 1) are scratch."""
+    n = x.shape[0]
+    bits = x.view(np.int32)
+    mn, mx = np.int32(0x7FFFFFFF), np.int32(-0x7FFFFFFF - 1)
+    for i in range(n):
+        kk = _key32(bits[i])
+        keys[i] = kk
+        mn, mx = min(mn, kk), max(mx, kk)
+    if mx > _KEY_POS_INF or mn < _KEY_NEG_INF:
+        return np.float32(np.nan), np.float32(np.nan)
+    vals = cast.view(np.float32)
+    # invariant: #(keys ≤ lo) = n_lo ≤ k_lo and #(keys ≤ hi) = n_hi > k_hi
+    lo, hi, n_lo, n_hi = np.int64(mn) - 1, np.int64(mx), 0, n
+    n_proposed = 0
+    p1, p2 = np.int64(0), np.int64(0)
+    if n >= 8 * _SAMPLE:
+        stride, r = n // _SAMPLE, (k_hi * _SAMPLE) // n
+        for j in range(_SAMPLE):
+            s1[j] = keys[j * stride]
+        p1 = np.int64(_select(s1, s2, _SAMPLE, max(r - 6, 0))[0])
+        for j in range(_SAMPLE):
+            s1[j] = keys[j * stride]
+        p2 = np.int64(_select(s1, s2, _SAMPLE, min(r + 6, _SAMPLE - 1))[0])
+    while n_hi - n_lo > _BRACKET and hi - lo > 1:
+        t = lo
+        if n_proposed == 0 and n >= 8 * _SAMPLE:
+            t, n_proposed = p1, 1
+            if not lo < t < hi:
+                t, n_proposed = p2, 2
+        elif n_proposed == 1:
+            t, n_proposed = p2, 2
+        if not lo < t < hi:  # halve the bracket in value (in key order if that does not split it)
+            cast[0] = _key32(np.int32(max(lo, mn)))
+            v_lo = np.float64(vals[0])
+            cast[0] = _key32(np.int32(hi))
+            vals[0] = np.float32(0.5 * v_lo + 0.5 * np.float64(vals[0]))
+            t = np.int64(_key32(cast[0]))
+            if not lo < t < hi:
+                t = (lo + hi) >> 1
+        t32 = np.int32(t)
+        c = 0
+        for i in range(n):
+            c += keys[i] <= t32
+        if c > k_hi:
+            hi, n_hi = t, c
+        elif c <= k_lo:
+            lo, n_lo = t, c
+        else:  # c = k_hi = k_lo + 1: the largest key ≤ t and the smallest above
+            a, b = np.int32(-0x7FFFFFFF - 1), np.int32(0x7FFFFFFF)
+            for i in range(n):
+                kk = keys[i]
+                a = max(a, kk if kk <= t32 else np.int32(-0x7FFFFFFF - 1))
+                b = min(b, kk if kk > t32 else np.int32(0x7FFFFFFF))
+            cast[0] = _key32(a)
+            va = vals[0]
+            cast[0] = _key32(b)
+            return va, vals[0]
+    if hi - lo <= 1:  # every value in the bracket is the key hi
+        cast[0] = _key32(np.int32(hi))
+        return vals[0], vals[0]
+    lo32, hi32, m = np.int32(lo), np.int32(hi), 0
+    for i in range(n):  # gather the bracket (branch-free)
+        kk = keys[i]
+        s1[m] = kk
+        m += (kk > lo32) & (kk <= hi32)
+    b, a = _select(s1, s2, m, k_hi - n_lo)
+    if k_lo == k_hi:
+        a = b
+    cast[0] = _key32(a)
+    va = vals[0]
+    cast[0] = _key32(b)
+    return va, vals[0]
+
+
+@kernel
+def _median32(x, keys, s1, s2, cast):
+    """The median of the float32 row x as NumPy computes it: the middle element, or the mean of the two middle
+    ones rounded to float32 (NaN if x holds a NaN)."""
+    n = x.shape[0]
     k = n // 2
-    hi, below = _select(a, b, n, k)
+    below, mid = _order_stats32(x, k - 1 + n % 2, k, keys, s1, s2, cast)
     if n % 2:
-        return hi
-    return np.float32(hi + below) * np.float32(0.5)
+        return mid
+    return np.float32(mid + below) * np.float32(0.5)
 
 
 @kernel
@@ -282,10 +378,10 @@ def _lerp_quantile(a, b, gamma):
 
 
 @kernel
-def _baseline_noise_row(y, s1, s2, dev, d1, d2, counts):
+def _baseline_noise_row(y, keys, s1, s2, cast, dev, d1, d2, counts):
     """(median, σ) of one float32 row: σ = 1.4826 × MAD, or where the MAD is 0 the rms deviation of the quietest
-    90 % of the samples (NumPy's linear quantile, its pairwise sum).  s1, s2, dev (float32), d1, d2 (float64)
-    and counts are scratch."""
+    90 % of the samples (NumPy's linear quantile, its pairwise sum).  keys, s1, s2, cast (int32), dev (float32),
+    d1, d2 (float64) and counts are scratch (:func:`_scratch`)."""
     n = y.shape[0]
     lo, hi, integral = y[0], y[0], True
     for i in range(n):
@@ -300,12 +396,10 @@ def _baseline_noise_row(y, s1, s2, dev, d1, d2, counts):
         span = int(hi - lo) + 1
         base, mad = _counting_median_mad(y, lo, span, counts)
     else:
-        s1[:n] = y
-        base = _median32(s1, s2, n)
+        base = _median32(y, keys, s1, s2, cast)
         for i in range(n):
             dev[i] = abs(y[i] - base)
-        s1[:n] = dev[:n]
-        mad = _median32(s1, s2, n)
+        mad = _median32(dev, keys, s1, s2, cast)
     sigma = np.float64(mad) * MAD_TO_SIGMA
     if sigma != 0:
         return base, sigma
@@ -345,13 +439,17 @@ def _baseline_noise_row(y, s1, s2, dev, d1, d2, counts):
 
 
 @kernel
+def _scratch(n):
+    """Scratch of :func:`_baseline_noise_row` for rows of n values (one set per thread, reused row after row)."""
+    return (np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(2, np.int32),
+            np.empty(n, np.float32), np.empty(n), np.empty(n), np.empty(_COUNTING_RANGE, np.int64))
+
+
+@kernel
 def _baseline_noise_rows(y, base, sigma):
-    n = y.shape[1]
-    s1, s2, dev, d1, d2 = (np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32),
-                           np.empty(n), np.empty(n))
-    counts = np.empty(_COUNTING_RANGE, np.int64)
+    keys, s1, s2, cast, dev, d1, d2, counts = _scratch(y.shape[1])
     for r in range(y.shape[0]):
-        base[r], sigma[r] = _baseline_noise_row(y[r], s1, s2, dev, d1, d2, counts)
+        base[r], sigma[r] = _baseline_noise_row(y[r], keys, s1, s2, cast, dev, d1, d2, counts)
 
 
 def robust_baseline_noise(waveforms):
@@ -435,9 +533,7 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
     least ``min_sig``, the filtered one's estimate at least ``min_sig``/``norm``.  One row's scratch buffers
     serve all rows of the call."""
     n_rows, n = y.shape
-    s1, s2, dev = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
-    d1, d2 = np.empty(n), np.empty(n)
-    counts = np.empty(_COUNTING_RANGE, np.int64)
+    keys, s1, s2, cast, dev, d1, d2, counts = _scratch(n)
     ypad, acc = np.empty(n + w.shape[0] - 1), np.empty(_FILTER_BLOCK)
     yd = np.empty(n, np.float32)
     cj, alive = np.empty(n, np.int64), np.empty(n, np.bool_)
@@ -445,7 +541,7 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
     for r in range(n_rows):
         b_est, s_est = np.float32(0.0), 0.0
         if estimate_base or estimate_sig:
-            b_est, s_est = _baseline_noise_row(y[r], s1, s2, dev, d1, d2, counts)
+            b_est, s_est = _baseline_noise_row(y[r], keys, s1, s2, cast, dev, d1, d2, counts)
         base[r] = np.float64(b_est) if estimate_base else given_base[r]
         s_raw = s_est if estimate_sig else given_sig[r]
         sig[r] = min_sig if s_raw < min_sig else s_raw  # NaN stays NaN, as np.maximum
@@ -453,7 +549,7 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
         if filtered:
             _correlate_row(y[r], b32, w, ypad, acc, yd)
             if estimate_sig:
-                sig_det = _baseline_noise_row(yd, s1, s2, dev, d1, d2, counts)[1]
+                sig_det = _baseline_noise_row(yd, keys, s1, s2, cast, dev, d1, d2, counts)[1]
                 floor = min_sig / norm
                 if sig_det < floor:
                     sig_det = floor
