@@ -342,11 +342,19 @@ def _deviation_ranks(counts, lo, span, base, k1, k2):
 @kernel
 def _counting_median_mad(y, lo, span, counts):
     """(median, MAD) as float32 of a row of integer values in [lo, lo + span): the same order statistics as
-    sorting, in O(n + span); ``counts`` is left holding the histogram."""
+    sorting, in O(n + span); ``counts`` (≥ 4 span) is left holding the histogram in counts[:span]."""
     n = y.shape[0]
-    counts[:span] = 0
-    for i in range(n):
+    counts[:4 * span] = 0
+    n4 = n - n % 4
+    for i in range(0, n4, 4):  # four partial histograms: consecutive equal values do not wait on each other
         counts[int(y[i] - lo)] += 1
+        counts[span + int(y[i + 1] - lo)] += 1
+        counts[2 * span + int(y[i + 2] - lo)] += 1
+        counts[3 * span + int(y[i + 3] - lo)] += 1
+    for i in range(n4, n):
+        counts[int(y[i] - lo)] += 1
+    for i in range(span):
+        counts[i] += counts[span + i] + counts[2 * span + i] + counts[3 * span + i]
     k = n // 2
     vk = np.float32(lo + _kth_from_counts(counts, span, k))
     if n % 2:
@@ -442,7 +450,7 @@ def _baseline_noise_row(y, keys, s1, s2, cast, dev, d1, d2, counts):
 def _scratch(n):
     """Scratch of :func:`_baseline_noise_row` for rows of n values (one set per thread, reused row after row)."""
     return (np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(2, np.int32),
-            np.empty(n, np.float32), np.empty(n), np.empty(n), np.empty(_COUNTING_RANGE, np.int64))
+            np.empty(n, np.float32), np.empty(n), np.empty(n), np.empty(4 * _COUNTING_RANGE, np.int64))
 
 
 @kernel
@@ -465,7 +473,7 @@ def robust_baseline_noise(waveforms):
 
 
 #: Outputs of the matched filter summed together, tap by tap (their float64 sums stay in L1 / registers).
-_FILTER_BLOCK = 128
+_FILTER_BLOCK = 256
 
 
 @kernel
@@ -489,11 +497,25 @@ def _correlate_row(y, b32, w, ypad, acc, out):
         centre, dst = ypad[c:c + m], out[s:s + m]
         for i in range(m):
             acc[i] = centre[i] * wc
-        for jj in range(-h, 0):
+        jj = -h
+        while jj + 4 <= 0:  # four taps per pass over the block, each added in turn
+            w1, w2, w3, w4 = w[h + jj], w[h + jj + 1], w[h + jj + 2], w[h + jj + 3]
+            l1, r1 = ypad[c + jj:c + jj + m], ypad[c - jj:c - jj + m]
+            l2, r2 = ypad[c + jj + 1:c + jj + 1 + m], ypad[c - jj - 1:c - jj - 1 + m]
+            l3, r3 = ypad[c + jj + 2:c + jj + 2 + m], ypad[c - jj - 2:c - jj - 2 + m]
+            l4, r4 = ypad[c + jj + 3:c + jj + 3 + m], ypad[c - jj - 3:c - jj - 3 + m]
+            for i in range(m):
+                a = acc[i] + (l1[i] + r1[i]) * w1
+                a += (l2[i] + r2[i]) * w2
+                a += (l3[i] + r3[i]) * w3
+                acc[i] = a + (l4[i] + r4[i]) * w4
+            jj += 4
+        while jj < 0:
             wj = w[h + jj]
             left, right = ypad[c + jj:c + jj + m], ypad[c - jj:c - jj + m]
             for i in range(m):
                 acc[i] += (left[i] + right[i]) * wj
+            jj += 1
         for i in range(m):
             dst[i] = acc[i]
 
