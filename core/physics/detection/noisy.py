@@ -4,9 +4,9 @@ Per pixel: robust baseline and noise (median, 1.4826 × median absolute deviatio
 waveform itself; optional matched filter (correlation with the pulse shape, normalised so that a pulse of
 amplitude A gives a filtered peak of A); fixed or noise-adaptive threshold (k σ); local maxima above the
 threshold, taken greedily by amplitude with a minimum separation (multi-echo); 3-point sub-bin interpolation
-(parabolic or Gaussian, the exact §9 formulas).  Vectorized over pixels; the only Python loop is over the
-echo index (≤ max_echoes).  Bin j is centred at j + 0.5 bin widths after the gate opening (as in
-``core/physics/waveform.py``).
+(parabolic or Gaussian, the exact §9 formulas).  One compiled pass per row (threads split the rows); the
+interpolation is vectorised over the (pixels, echoes) slots.  Bin j is centred at j + 0.5 bin widths after the
+gate opening (as in ``core/physics/waveform.py``).
 """
 from __future__ import annotations
 
