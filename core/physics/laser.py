@@ -14,6 +14,8 @@ avoids point-sampling a pulse narrower than a bin.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.special import erf, ndtr
 
@@ -159,7 +161,10 @@ def _tail_table(h, m_max):
 #: derivatives (absolute error < 1e-13, tested against SciPy); beyond 10σ all three are < 1e-22 and taken as 0.
 _TAIL_H = 1.0 / 32.0
 _TAIL_MAX = 10.0
-_TAIL = _tail_table(_TAIL_H, _TAIL_MAX)
+#: (3 functions, intervals + 1, 6): one function's coefficients contiguous, and a last row of zeros that every
+#: m beyond the table lands on (no branch in the binning loops)
+_TAIL = np.ascontiguousarray(np.concatenate([_tail_table(_TAIL_H, _TAIL_MAX), np.zeros((1, 3, 6))]).transpose(1, 0, 2))
+_TAIL_LAST = _TAIL.shape[1] - 1
 _TAIL_INV_H = 1.0 / _TAIL_H
 
 
@@ -167,12 +172,10 @@ _TAIL_INV_H = 1.0 / _TAIL_H
 def _tail_interp(m, fn):
     """Function ``fn`` (0: Φ(−m), 1: g₁, 2: g) of the tail table at m ≥ 0; 0 beyond the table."""
     x = m * _TAIL_INV_H
-    if x >= _TAIL.shape[0]:
-        return 0.0
-    k = int(x)
+    k = min(int(x), _TAIL_LAST)
     s = x - k
-    return _TAIL[k, fn, 0] + s * (_TAIL[k, fn, 1] + s * (_TAIL[k, fn, 2] + s * (_TAIL[k, fn, 3] + s * (
-        _TAIL[k, fn, 4] + s * _TAIL[k, fn, 5]))))
+    return _TAIL[fn, k, 0] + s * (_TAIL[fn, k, 1] + s * (_TAIL[fn, k, 2] + s * (_TAIL[fn, k, 3] + s * (
+        _TAIL[fn, k, 4] + s * _TAIL[fn, k, 5]))))
 
 
 @kernel
@@ -199,16 +202,12 @@ def gauss_e2(u, sigma, inv_sigma):
 @kernel
 def trapezoid_cdf_at(x, a, b):
     """CDF of U(a) ⊛ U(b) (a ≥ b > 0 full widths) at x measured from the left end of its support [0, a + b]
-    (the scalar form of :func:`_trapezoid_cdf`)."""
-    if x <= 0.0:
-        return 0.0
-    if x >= a + b:
-        return 1.0
-    if x <= b:
-        return x * x / (2 * a * b)
-    if x <= a:
-        return (x - 0.5 * b) / a
-    return 1.0 - (a + b - x) ** 2 / (2 * a * b)
+    (the scalar form of :func:`_trapezoid_cdf`; every piece evaluated and selected, no branch)."""
+    out = x * x / (2 * a * b)
+    out = (x - 0.5 * b) / a if x > b else out
+    out = 1.0 - (a + b - x) ** 2 / (2 * a * b) if x > a else out
+    out = 1.0 if x >= a + b else out
+    return 0.0 if x <= 0.0 else out
 
 
 @kernel
@@ -251,15 +250,53 @@ GAUSS_BOX_FOLD = 0.3
 RECT_BOX_DROP = 1e-6
 
 
+@kernel
+def sorted_spread_pair(s0, s1, drop):
+    """One cell's two time spreads as (a, b): |s0|, |s1| sorted widest first, each set to 0 below ``drop``
+    (:func:`sorted_spreads`)."""
+    a, b = abs(s0), abs(s1)
+    if b > a:
+        a, b = b, a
+    return (0.0 if a < drop else a), (0.0 if b < drop else b)
+
+
+@kernel
+def gaussian_box_params(a, b, sigma, fold):
+    """(σ_eff, a, b, kind) of one return of a Gaussian pulse (σ) with sorted spreads a ≥ b: boxes narrower than
+    ``fold`` folded into the pulse, σ_eff² = σ² + (a² + b²)/12 over the folded ones (:func:`gaussian_box_terms`)."""
+    fa, fb = a < fold, b < fold
+    var = sigma * sigma + ((a * a if fa else 0.0) + (b * b if fb else 0.0)) / 12.0
+    a_left, b_left = (0.0 if fa else a), (0.0 if fb else b)
+    return math.sqrt(var), a_left, b_left, (1 if a_left > 0 else 0) + (1 if b_left > 0 else 0)
+
+
+@kernel
+def _sorted_spreads_array(spread, drop, out):
+    for i in range(spread.shape[0]):
+        out[i, 0], out[i, 1] = sorted_spread_pair(spread[i, 0], spread[i, 1], drop)
+
+
+@kernel
+def _gaussian_box_terms_array(spread, sigma, fold, sigma_eff, a, b, kind):
+    for i in range(spread.shape[0]):
+        sigma_eff[i], a[i], b[i], kind[i] = gaussian_box_params(spread[i, 0], spread[i, 1], sigma, fold)
+
+
+def spread_drop_s(laser: LaserSettings) -> float:
+    """Cell spreads narrower than this are dropped (``GAUSS_BOX_DROP``·σ for the Gaussian pulse,
+    ``RECT_BOX_DROP``·width for the rectangular one)."""
+    if laser.pulse_shape == "gaussian":
+        return GAUSS_BOX_DROP * pulse_sigma_s(laser)
+    return RECT_BOX_DROP * max(laser.pulse_fwhm_s, 1e-300)
+
+
 def sorted_spreads(laser: LaserSettings, spread_s):
     """Time spreads (n, 2) of sub-ray cells, sorted widest first, with boxes too narrow to matter set to 0
-    (``GAUSS_BOX_DROP``·σ for the Gaussian pulse, ``RECT_BOX_DROP``·width for the rectangular one)."""
-    s = np.sort(np.abs(np.asarray(spread_s, dtype=np.float64)), axis=1)[:, ::-1]
-    if laser.pulse_shape == "gaussian":
-        s[s < GAUSS_BOX_DROP * pulse_sigma_s(laser)] = 0.0
-    else:
-        s[s < RECT_BOX_DROP * max(laser.pulse_fwhm_s, 1e-300)] = 0.0
-    return np.ascontiguousarray(s)
+    (:func:`spread_drop_s`)."""
+    s = np.ascontiguousarray(np.asarray(spread_s, dtype=np.float64).reshape(-1, 2))
+    out = np.empty(s.shape)
+    _sorted_spreads_array(s, spread_drop_s(laser), out)
+    return out
 
 
 def gaussian_box_terms(laser: LaserSettings, spread_s):
@@ -268,13 +305,12 @@ def gaussian_box_terms(laser: LaserSettings, spread_s):
     A box narrower than ``GAUSS_BOX_FOLD``·σ is folded into the pulse as a wider Gaussian,
     σ_eff² = σ² + w²/12 (same energy, centroid and variance; the shape differs by the box's fourth cumulant,
     w⁴/(960σ⁴) per box, below 2e-5 of the peak).  kind = number of boxes left (0, 1 or 2)."""
-    s = np.asarray(spread_s, dtype=np.float64)
+    s = np.ascontiguousarray(np.asarray(spread_s, dtype=np.float64).reshape(-1, 2))
     sigma = pulse_sigma_s(laser)
-    fold = s < GAUSS_BOX_FOLD * sigma
-    var = sigma * sigma + np.sum(np.where(fold, s * s, 0.0), axis=1) / 12.0
-    boxes = np.where(fold, 0.0, s)
-    kind = (boxes > 0).sum(axis=1)
-    return np.sqrt(var), boxes[:, 0], boxes[:, 1], kind
+    n = len(s)
+    out = np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.int64)
+    _gaussian_box_terms_array(s, sigma, GAUSS_BOX_FOLD * sigma, *out)
+    return out
 
 
 def gaussian_box_cdf(t_s, sigma_s, a_s, b_s, kind):

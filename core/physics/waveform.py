@@ -32,8 +32,8 @@ from ..config.settings import LaserSettings, RangeGateSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..jit import kernel
 from .detection.peaks import INTERPOLATION, Echoes, detect_row
-from .laser import (boxes_cdf, gaussian_box_cdf_at, gaussian_box_terms, pulse_box_cdf, pulse_cdf,
-                    pulse_half_support_s, pulse_sigma_s, sorted_spreads)
+from .laser import (GAUSS_BOX_FOLD, boxes_cdf, gaussian_box_cdf_at, gaussian_box_params, pulse_box_cdf, pulse_cdf,
+                    pulse_half_support_s, pulse_sigma_s, sorted_spread_pair, spread_drop_s)
 
 #: Largest number of (ray, bin) terms evaluated at once by the exact method (bounds memory, ~100 MB).
 MAX_TERMS = 4_000_000
@@ -120,86 +120,159 @@ def accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser: 
     for bit, without the (n_pixels × n_bins) array."""
     method = method or binning_method(laser, gate)
     pixel_local = np.asarray(pixel_local, dtype=np.int64)
+    if method == "exact":
+        return _exact_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, spread_s)
     keep = energy_j > 0
     pixel_local, time_s, energy_j = pixel_local[keep], time_s[keep], energy_j[keep]
     # position of each return in bin units, relative to the gate opening
     u = (time_s - gate.gate_start_s) / gate.bin_width_s
     spread = None
-    if spread_s is not None:
-        spread_s = np.asarray(spread_s, dtype=np.float64)[keep]
-        if method == "exact":
-            spread = sorted_spreads(laser, spread_s)
-        else:  # splat: boxes narrower than 1 % of a bin are below the method's own O(Δ²) error
-            spread = np.sort(np.abs(spread_s), axis=1)[:, ::-1].copy()
-            spread[spread < 1e-2 * gate.bin_width_s] = 0.0
+    if spread_s is not None:  # boxes narrower than 1 % of a bin are below the method's own O(Δ²) error
+        spread = np.sort(np.abs(np.asarray(spread_s, dtype=np.float64)[keep]), axis=1)[:, ::-1].copy()
+        spread[spread < 1e-2 * gate.bin_width_s] = 0.0
     boxed = np.zeros(len(u), bool) if spread is None else spread[:, 0] > 0
     impulse = ~boxed
-    imp = _impulse_terms(u[impulse], laser, gate, method)
-    box = _spread_terms(u[boxed], spread[boxed], laser, gate, method) if boxed.any() else None
+    imp = _splat_impulse_terms(u[impulse], laser, gate)
+    box = _splat_spread_terms(u[boxed], spread[boxed], laser, gate) if boxed.any() else None
     lo = np.empty(len(u), np.int64)
     hi = np.empty(len(u), np.int64)
     lo[impulse], hi[impulse] = imp["lo"], imp["hi"]
     if box is not None:
         lo[boxed], hi[boxed] = box["lo"], box["hi"]
-    n_out = gate.n_bins if method == "exact" else gate.n_bins + 2 * _splat_pad(laser, gate)
-    win = _windows_for(pixel_local, lo, hi, n_pixels, n_out)
-    if method == "exact":
-        # one compiled pass over the rays in pixel order: impulses, and the Gaussian pulse's boxed returns
-        gaussian = laser.pulse_shape == "gaussian"
-        sel = np.ones(len(u), bool) if gaussian else impulse
-        sigma = np.full(len(u), pulse_sigma_s(laser) if gaussian else 0.0)
-        box_a, box_b, kind = np.zeros(len(u)), np.zeros(len(u)), np.zeros(len(u), np.int64)
-        r_lo, r_hi = lo.copy(), hi.copy()
-        half = imp["half"]
-        outside = np.flatnonzero(impulse)[~((u[impulse] + half >= 0) & (u[impulse] - half < gate.n_bins))]
-        r_hi[outside] = r_lo[outside] - 1  # impulses outside the gate add nothing
-        if box is not None and gaussian:
-            sigma[boxed], box_a[boxed], box_b[boxed], kind[boxed] = box["sigma"], box["a"], box["b"], box["kind"]
-        _bin_returns(pixel_local[sel], u[sel], energy_j[sel], sigma[sel], box_a[sel], box_b[sel], kind[sel],
-                     r_lo[sel], r_hi[sel], win.start, win.offset, win.values, gate.bin_width_s,
-                     0.0 if gaussian else laser.pulse_fwhm_s)
-        if box is not None and not gaussian:
-            _add_spread(win, pixel_local[boxed], energy_j[boxed], box, laser, gate, method)
-        return win
+    win = _windows_for(pixel_local, lo, hi, n_pixels, gate.n_bins + 2 * _splat_pad(laser, gate))
     _add_impulses_splat(win, pixel_local[impulse], energy_j[impulse], imp)
     if box is not None:
         _add_spread(win, pixel_local[boxed], energy_j[boxed], box, laser, gate, method)
     return _splat_convolve(win, laser, gate)
 
 
+def _exact_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, spread_s) -> WaveformWindows:
+    """The exact method in one compiled pass (:func:`_exact_kernel`); only the rectangular pulse's boxed returns
+    are binned afterwards (:func:`_add_spread`)."""
+    gaussian = laser.pulse_shape == "gaussian"
+    sigma = pulse_sigma_s(laser) if gaussian else 0.0
+    dt = gate.bin_width_s
+    half_s = pulse_half_support_s(laser)
+    spread = (np.zeros((0, 2)) if spread_s is None
+              else np.ascontiguousarray(np.asarray(spread_s, dtype=np.float64).reshape(-1, 2)))
+    time_s = np.ascontiguousarray(time_s, dtype=np.float64)
+    energy_j = np.ascontiguousarray(energy_j, dtype=np.float64)
+    start, length, offset, values, u, lo, hi, box_a, box_b, rect_boxed = _exact_kernel(
+        np.ascontiguousarray(pixel_local), time_s, energy_j, spread, n_pixels, gate.gate_start_s, dt,
+        gate.n_bins, sigma, half_s / sigma if gaussian else 0.0, GAUSS_BOX_FOLD * sigma, half_s,
+        spread_drop_s(laser), 0.0 if gaussian else laser.pulse_fwhm_s)
+    win = WaveformWindows(start, length, offset, values, gate.n_bins)
+    if rect_boxed.any():  # rectangular pulse ⊛ boxes, after the impulses (as they always were)
+        sel = np.flatnonzero(rect_boxed)
+        terms = {"lo": lo[sel], "hi": hi[sel], "c": u[sel], "kind": np.zeros(len(sel), np.int64),
+                 "spread": np.stack([box_a[sel], box_b[sel]], axis=1)}
+        _add_spread(win, pixel_local[sel], energy_j[sel], terms, laser, gate, "exact")
+    return win
+
+
 @kernel
-def _bin_returns(pixel, u, energy, sigma, box_a, box_b, kind, lo, hi, start, offset, values, dt, rect_width):
-    """The exact method: each return's pulse CDF differences over its bins [lo, hi], added to its pixel's
-    window in ray order (rays sorted by pixel, so a pixel's sum never depends on the caller's blocks).  A
-    Gaussian pulse (``rect_width`` 0) ⊛ the return's boxes (:func:`core.laser.gaussian_box_cdf_at`), or a
-    rectangular pulse of full width ``rect_width`` (impulses only).  Bins whose weight is not positive are
-    skipped."""
-    for i in range(u.shape[0]):
-        b0, b1 = lo[i], hi[i]
+def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold,
+                  half_s, drop, rect_width):
+    """The exact method's windows and values: per return (energy > 0; rays sorted by pixel) its position u in
+    bins, its boxes (:func:`core.physics.laser.sorted_spread_pair`, :func:`~core.physics.laser.gaussian_box_params`)
+    and its bins [lo, hi] within the pulse's support; per pixel the window covering its returns; then each
+    return's CDF differences added in ray order (:func:`_bin_return`).  Impulses with a rectangular pulse of
+    full width ``rect_width`` are binned here; its boxed returns are flagged (``rect_boxed``) and left."""
+    n = time_s.shape[0]
+    u = np.empty(n)
+    lo = np.zeros(n, np.int64)
+    hi = np.full(n, -1, np.int64)
+    binned_hi = np.full(n, -1, np.int64)
+    sig = np.empty(n)
+    box_a = np.zeros(n)
+    box_b = np.zeros(n)
+    kind = np.zeros(n, np.int64)
+    rect_boxed = np.zeros(n, np.bool_)
+    start = np.zeros(n_pixels, np.int64)
+    stop = np.zeros(n_pixels, np.int64)
+    imp_half = half_s / dt
+    imp_k = int(math.ceil(2 * imp_half)) + 2  # bins touched by one impulse
+    has_spread = spread.shape[0] > 0
+    for i in range(n):
+        if not energy[i] > 0:
+            continue
+        c = (time_s[i] - gate_start_s) / dt
+        u[i] = c
+        a, b = 0.0, 0.0
+        if has_spread:
+            a, b = sorted_spread_pair(spread[i, 0], spread[i, 1], drop)
+        if a > 0:
+            if rect_width > 0:
+                half = (half_s + 0.5 * (a + b)) / dt
+                rect_boxed[i] = True
+            else:
+                sig[i], a, b, kind[i] = gaussian_box_params(a, b, sigma, fold)
+                half = (half_ratio * sig[i] + 0.5 * (a + b)) / dt
+            box_a[i], box_b[i] = a, b
+            lo[i] = int(max(math.floor(c - half), 0.0))
+            hi[i] = int(min(math.floor(c + half), n_bins - 1.0))
+            if not rect_boxed[i]:
+                binned_hi[i] = hi[i]
+        else:
+            sig[i] = sigma
+            first = int(math.floor(c - imp_half))
+            lo[i] = max(first, 0)
+            hi[i] = min(first + imp_k - 1, n_bins - 1)
+            if c + imp_half >= 0 and c - imp_half < n_bins:  # impulses outside the gate add nothing
+                binned_hi[i] = hi[i]
+            else:
+                binned_hi[i] = lo[i] - 1
+        if hi[i] >= lo[i]:
+            p = pixel[i]
+            if stop[p] == 0:
+                start[p], stop[p] = lo[i], hi[i] + 1
+            else:
+                start[p], stop[p] = min(start[p], lo[i]), max(stop[p], hi[i] + 1)
+    length = stop - start
+    offset = np.zeros(n_pixels + 1, np.int64)
+    for p in range(n_pixels):
+        offset[p + 1] = offset[p] + length[p]
+    values = np.zeros(offset[n_pixels])
+    buf = np.empty(64)
+    for i in range(n):
+        b0, b1 = lo[i], binned_hi[i]
         if b1 < b0:
             continue
-        base = offset[pixel[i]] - start[pixel[i]]
-        c, e = u[i], energy[i]
-        s, a, b, k = sigma[i], box_a[i], box_b[i], kind[i]
-        inv_s = 1.0 / s if s > 0 else 0.0
-        inv_a = 1.0 / a if a > 0 else 0.0
-        inv_ab = 1.0 / (a * b) if b > 0 else 0.0
-        inv_w = 1.0 / rect_width if rect_width > 0 else 0.0
-        t = (b0 - c) * dt
-        if rect_width > 0:
-            prev = min(max(t * inv_w + 0.5, 0.0), 1.0)
-        else:
-            prev = gaussian_box_cdf_at(t, s, inv_s, a, inv_a, b, inv_ab, k)
-        for j in range(b0, b1 + 1):
-            t = (j + 1 - c) * dt
-            if rect_width > 0:
-                cur = min(max(t * inv_w + 0.5, 0.0), 1.0)
-            else:
-                cur = gaussian_box_cdf_at(t, s, inv_s, a, inv_a, b, inv_ab, k)
-            w = (cur - prev) * e
-            if w > 0:
-                values[base + j] += w
-            prev = cur
+        if b1 - b0 + 2 > buf.shape[0]:
+            buf = np.empty(2 * (b1 - b0 + 2))
+        _bin_return(values, offset[pixel[i]] - start[pixel[i]], b0, b1, u[i], energy[i], sig[i], box_a[i],
+                    box_b[i], kind[i], dt, rect_width, buf)
+    return start, length, offset, values, u, lo, hi, box_a, box_b, rect_boxed
+
+
+@kernel
+def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
+    """One return's pulse CDF differences over its bins [b0, b1] added at ``values[base + j]``: the CDF at the
+    b1 − b0 + 2 edges into ``buf``, one loop per kind (no branch inside), then the differences.  A Gaussian
+    pulse (``rect_width`` 0) ⊛ the return's boxes (:func:`core.physics.laser.gaussian_box_cdf_at`), or a
+    rectangular pulse of full width ``rect_width`` (impulses only).  Bins whose weight is not positive are
+    skipped."""
+    n = b1 - b0 + 2
+    inv_s = 1.0 / s if s > 0 else 0.0
+    inv_a = 1.0 / a if a > 0 else 0.0
+    inv_ab = 1.0 / (a * b) if b > 0 else 0.0
+    if rect_width > 0:
+        inv_w = 1.0 / rect_width
+        for j in range(n):
+            buf[j] = min(max((b0 + j - c) * dt * inv_w + 0.5, 0.0), 1.0)
+    elif k == 0:  # the literal kinds let the compiler drop the other kinds' code from each loop
+        for j in range(n):
+            buf[j] = gaussian_box_cdf_at((b0 + j - c) * dt, s, inv_s, a, inv_a, b, inv_ab, 0)
+    elif k == 1:
+        for j in range(n):
+            buf[j] = gaussian_box_cdf_at((b0 + j - c) * dt, s, inv_s, a, inv_a, b, inv_ab, 1)
+    else:
+        for j in range(n):
+            buf[j] = gaussian_box_cdf_at((b0 + j - c) * dt, s, inv_s, a, inv_a, b, inv_ab, 2)
+    for j in range(n - 1):
+        w = (buf[j + 1] - buf[j]) * e
+        if w > 0:
+            values[base + b0 + j] += w
 
 
 def _ragged_add(win, pixel, col, weight, valid):
@@ -211,14 +284,8 @@ def _ragged_add(win, pixel, col, weight, valid):
                                                    minlength=int(win.offset[p1] - base))
 
 
-def _impulse_terms(u, laser, gate, method):
-    """Bins touched by impulse returns: [lo, hi] per ray (gate bins, exact; padded histogram, splat)."""
-    if method == "exact":
-        half = pulse_half_support_s(laser) / gate.bin_width_s
-        k = int(np.ceil(2 * half)) + 2  # bins touched by one pulse
-        first = np.floor(u - half).astype(np.int64)
-        return {"k": k, "half": half, "first": first, "lo": np.maximum(first, 0),
-                "hi": np.minimum(first + k - 1, gate.n_bins - 1)}
+def _splat_impulse_terms(u, laser, gate):
+    """Bins of the padded splat histogram touched by impulse returns: [lo, hi] per ray."""
     pad = _splat_pad(laser, gate)
     n_ext = gate.n_bins + 2 * pad
     c = u - 0.5 + pad  # impulse at position u (bin units, bin centres at j + 0.5) in the padded index space
@@ -305,27 +372,14 @@ def _pixel_chunks(pixel_local, n_terms_per_ray, budget=MAX_TERMS, whole_pixels=F
     return chunks
 
 
-def _spread_terms(u, spread_s, laser, gate, method):
-    """Bins touched by returns spread over a box of times: per ray [lo, hi], the CDF's parameters."""
-    dt = gate.bin_width_s
-    out = {"kind": np.zeros(len(u), np.int64), "spread": spread_s}
-    if method == "exact" and laser.pulse_shape == "gaussian":  # narrow boxes folded into a per-ray σ
-        sigma, box_a, box_b, kind = gaussian_box_terms(laser, spread_s)
-        half = (pulse_half_support_s(laser) / pulse_sigma_s(laser) * sigma + 0.5 * (box_a + box_b)) / dt
-        out.update(sigma=sigma, a=box_a, b=box_b, kind=kind)
-        n_out, offset = gate.n_bins, 0.0
-    elif method == "exact":
-        half = (pulse_half_support_s(laser) + 0.5 * (spread_s[:, 0] + spread_s[:, 1])) / dt
-        n_out, offset = gate.n_bins, 0.0
-    else:
-        pad = _splat_pad(laser, gate)
-        half = 1.0 + 0.5 * (spread_s[:, 0] + spread_s[:, 1]) / dt  # trapezoid ⊛ U(1) plus the bin's half
-        n_out, offset = gate.n_bins + 2 * pad, pad - 0.5  # centre index space of the splat histogram
-    c = u + offset
-    out["c"] = c
-    out["lo"] = np.maximum(np.floor(c - half), 0).astype(np.int64)
-    out["hi"] = np.minimum(np.floor(c + half), n_out - 1).astype(np.int64)
-    return out
+def _splat_spread_terms(u, spread_s, laser, gate):
+    """Bins of the padded splat histogram touched by returns spread over a box of times: per ray [lo, hi]."""
+    pad = _splat_pad(laser, gate)
+    half = 1.0 + 0.5 * (spread_s[:, 0] + spread_s[:, 1]) / gate.bin_width_s  # trapezoid ⊛ U(1) + the bin's half
+    c = u + (pad - 0.5)  # centre index space of the splat histogram
+    return {"kind": np.zeros(len(u), np.int64), "spread": spread_s, "c": c,
+            "lo": np.maximum(np.floor(c - half), 0).astype(np.int64),
+            "hi": np.minimum(np.floor(c + half), gate.n_bins + 2 * pad - 1).astype(np.int64)}
 
 
 def _add_spread(win, pixel_local, energy_j, terms, laser, gate, method):
@@ -343,7 +397,7 @@ def _add_spread(win, pixel_local, energy_j, terms, laser, gate, method):
             for a, b in _pixel_chunks(pixel_local[sel], kb + 1):
                 idx = sel[a:b]
                 edges = lo[idx, None] + offsets[None, :]  # bin edges j (bins span [j, j + 1) in this index space)
-                if method == "exact":  # rectangular pulse (the Gaussian one is binned by _bin_returns)
+                if method == "exact":  # rectangular pulse (the Gaussian one is binned by _exact_kernel)
                     cdf = pulse_box_cdf(laser, (edges - c[idx, None]) * dt, terms["spread"][idx])
                 else:
                     # the splat's linear split between centres is a box of one bin: widths (a, b, Δ) in bins
