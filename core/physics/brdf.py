@@ -71,7 +71,10 @@ def evaluate_brdf(brdf: BRDFSettings, cos_theta):
 def evaluate_materials(materials, material_ids, cos_theta):
     """f_r per ray for rays hitting triangles of the given material indices (vectorized per material)."""
     out = np.zeros(np.shape(cos_theta), dtype=np.float64)
-    for index in np.unique(material_ids):
+    ids = np.asarray(material_ids)
+    # the materials present, in increasing order (a count per material: O(n), where np.unique sorts)
+    present = np.flatnonzero(np.bincount(ids.reshape(-1), minlength=len(materials))) if ids.size else []
+    for index in present:
         sel = material_ids == index
         out[sel] = evaluate_brdf(materials[int(index)], cos_theta[sel])
     return out

@@ -80,9 +80,17 @@ class WaveformWindows:
         return out
 
     def scatter_into(self, cube, rows) -> None:
-        """Write the windows into rows ``rows`` (n,) of a zeroed (pixels, n_bins) cube (any float dtype)."""
-        row, col = self.bins()
-        cube[np.asarray(rows)[row], col] = self.values
+        """Write the windows into rows ``rows`` (n,) of a zeroed (pixels, n_bins) cube (float32 or float64)."""
+        _scatter_windows(self.start, self.length, self.offset, self.values,
+                         np.ascontiguousarray(rows, dtype=np.int64), cube)
+
+
+@kernel
+def _scatter_windows(start, length, offset, values, rows, cube):
+    for k in range(start.shape[0]):
+        row = cube[rows[k]]
+        for m in range(length[k]):
+            row[start[k] + m] = values[offset[k] + m]
 
 
 def _windows_for(pixel_local, lo, hi, n_pixels, n_bins):

@@ -142,19 +142,18 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
-        # only pixels with returns get a waveform row (the others stay zero)
-        active = np.unique(pix_local)
-        # one window of bins per pixel: a short return in a long gate costs its window only
-        wf = accumulate_waveform_windows(np.searchsorted(active, pix_local), round_trip_time_s(range_hit), e,
-                                         len(active), config.laser, gate, method, spread_s=spread)
+        # one window of bins per pixel: a short return in a long gate costs its window only, a pixel without
+        # returns nothing (its row of the cube stays zero)
+        wf = accumulate_waveform_windows(pix_local, round_trip_time_s(range_hit), e, b - a, config.laser, gate,
+                                         method, spread_s=spread)
         if waveforms is not None:
-            wf.scatter_into(waveforms, a + active)
+            wf.scatter_into(waveforms, np.arange(a, b))
         local["waveform"] = time.perf_counter() - t
         if whole_cube:  # echoes are detected after the whole-cube stages
             return None, int(hit.sum()), local
         t = time.perf_counter()
         echoes = detect_echoes_windows(wf, config.detection)
-        echoes.pixel = active[echoes.pixel] + a
+        echoes.pixel += a
         local["echoes"] = time.perf_counter() - t
         return echoes, int(hit.sum()), local
 
