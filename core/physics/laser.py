@@ -211,26 +211,52 @@ def trapezoid_cdf_at(x, a, b):
 
 
 @kernel
+def gaussian_cdf_left(t, inv_sigma):
+    """Kind 0 of :func:`gaussian_box_cdf_at` at t ≤ 0: Φ(t/σ)."""
+    return gaussian_tail(-t * inv_sigma)
+
+
+@kernel
+def gaussian_box1_cdf_left(t, sigma, inv_sigma, a, inv_a):
+    """Kind 1 of :func:`gaussian_box_cdf_at` at t ≤ 0: the Gaussian ⊛ U(a)."""
+    box = min(max(t * inv_a + 0.5, 0.0), 1.0)
+    return box + (gauss_e1(t + 0.5 * a, sigma, inv_sigma) - gauss_e1(t - 0.5 * a, sigma, inv_sigma)) * inv_a
+
+
+@kernel
+def gaussian_box2_cdf_left(t, sigma, inv_sigma, a, b, inv_ab):
+    """Kind 2 of :func:`gaussian_box_cdf_at` at t ≤ 0: the Gaussian ⊛ U(a) ⊛ U(b)."""
+    ha, hb = 0.5 * a, 0.5 * b
+    box = trapezoid_cdf_at(t + ha + hb, a, b)
+    return box + (gauss_e2(t + ha + hb, sigma, inv_sigma) - gauss_e2(t + ha - hb, sigma, inv_sigma)
+                  - gauss_e2(t - ha + hb, sigma, inv_sigma) + gauss_e2(t - ha - hb, sigma, inv_sigma)) * inv_ab
+
+
+@kernel
+def symmetric_cdf(left, t_signed):
+    """The CDF at t from ``left`` = its value at −|t| (a distribution symmetric about 0): clipped to [0, ½],
+    1 − left on the right, so the far tails are exactly 0 and 1."""
+    out = min(max(left, 0.0), 0.5)
+    return 1.0 - out if t_signed > 0 else out
+
+
+@kernel
 def gaussian_box_cdf_at(t_signed, sigma, inv_sigma, a, inv_a, b, inv_ab, kind):
     """CDF at t of a Gaussian pulse (σ) ⊛ U(a) ⊛ U(b) for one return of ``kind`` (0: no box, 1: a only, 2: both,
     a ≥ b), with the reciprocals 1/σ, 1/a, 1/(ab) — the compiled kernel of :func:`gaussian_box_cdf`.
 
     P = Φ(t/σ) = H + (P − H): the box part is exact (trapezoid) and the smooth rest enters through its bounded
     integrals e₁, e₂ (one box: Δ_a e₁/a; two: Δ_a Δ_b e₂/(ab)).  Symmetric: evaluated on the left half,
-    F(t) = 1 − F(−t) on the right, so the tails are exact."""
+    F(t) = 1 − F(−t) on the right, so the tails are exact (:func:`symmetric_cdf`).  The binning loops call the
+    kinds' functions directly (one loop per kind, no branch inside)."""
     t = -abs(t_signed)
     if kind == 0:
-        out = gaussian_tail(-t * inv_sigma)
+        out = gaussian_cdf_left(t, inv_sigma)
     elif kind == 1:
-        box = min(max(t * inv_a + 0.5, 0.0), 1.0)
-        out = box + (gauss_e1(t + 0.5 * a, sigma, inv_sigma) - gauss_e1(t - 0.5 * a, sigma, inv_sigma)) * inv_a
+        out = gaussian_box1_cdf_left(t, sigma, inv_sigma, a, inv_a)
     else:
-        ha, hb = 0.5 * a, 0.5 * b
-        box = trapezoid_cdf_at(t + ha + hb, a, b)
-        out = box + (gauss_e2(t + ha + hb, sigma, inv_sigma) - gauss_e2(t + ha - hb, sigma, inv_sigma)
-                     - gauss_e2(t - ha + hb, sigma, inv_sigma) + gauss_e2(t - ha - hb, sigma, inv_sigma)) * inv_ab
-    out = min(max(out, 0.0), 0.5)
-    return 1.0 - out if t_signed > 0 else out
+        out = gaussian_box2_cdf_left(t, sigma, inv_sigma, a, b, inv_ab)
+    return symmetric_cdf(out, t_signed)
 
 
 @kernel

@@ -32,8 +32,9 @@ from ..config.settings import LaserSettings, RangeGateSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..jit import kernel
 from .detection.peaks import INTERPOLATION, Echoes, detect_row
-from .laser import (GAUSS_BOX_FOLD, boxes_cdf, gaussian_box_cdf_at, gaussian_box_params, pulse_box_cdf, pulse_cdf,
-                    pulse_half_support_s, pulse_sigma_s, sorted_spread_pair, spread_drop_s)
+from .laser import (GAUSS_BOX_FOLD, boxes_cdf, gaussian_box1_cdf_left, gaussian_box2_cdf_left, gaussian_box_params,
+                    gaussian_cdf_left, pulse_box_cdf, pulse_cdf, pulse_half_support_s, pulse_sigma_s,
+                    sorted_spread_pair, spread_drop_s, symmetric_cdf)
 
 #: Largest number of (ray, bin) terms evaluated at once by the exact method (bounds memory, ~100 MB).
 MAX_TERMS = 4_000_000
@@ -79,18 +80,23 @@ class WaveformWindows:
         out[row, col] = self.values
         return out
 
-    def scatter_into(self, cube, rows) -> None:
-        """Write the windows into rows ``rows`` (n,) of a zeroed (pixels, n_bins) cube (float32 or float64)."""
-        _scatter_windows(self.start, self.length, self.offset, self.values,
-                         np.ascontiguousarray(rows, dtype=np.int64), cube)
+    def write_rows(self, cube, rows) -> None:
+        """Write the waveforms into rows ``rows`` (n,) of a (pixels, n_bins) cube (float32 or float64), whole
+        rows: zeros outside the windows (the cube may be uninitialised memory, np.empty: a zeroed cube would
+        be paid again in page faults when its rows are first written)."""
+        _write_rows(self.start, self.length, self.offset, self.values, np.ascontiguousarray(rows, dtype=np.int64),
+                    cube)
 
 
 @kernel
-def _scatter_windows(start, length, offset, values, rows, cube):
+def _write_rows(start, length, offset, values, rows, cube):
     for k in range(start.shape[0]):
         row = cube[rows[k]]
-        for m in range(length[k]):
-            row[start[k] + m] = values[offset[k] + m]
+        s, n = start[k], length[k]
+        row[:s] = 0.0
+        for m in range(n):
+            row[s + m] = values[offset[k] + m]
+        row[s + n:] = 0.0
 
 
 def _windows_for(pixel_local, lo, hi, n_pixels, n_bins):
@@ -257,7 +263,7 @@ def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
 def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
     """One return's pulse CDF differences over its bins [b0, b1] added at ``values[base + j]``: the CDF at the
     b1 − b0 + 2 edges into ``buf``, one loop per kind (no branch inside), then the differences.  A Gaussian
-    pulse (``rect_width`` 0) ⊛ the return's boxes (:func:`core.physics.laser.gaussian_box_cdf_at`), or a
+    pulse (``rect_width`` 0) ⊛ the return's boxes (the kinds of :func:`core.physics.laser.gaussian_box_cdf_at`), or a
     rectangular pulse of full width ``rect_width`` (impulses only).  Bins whose weight is not positive are
     skipped."""
     n = b1 - b0 + 2
@@ -268,15 +274,18 @@ def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
         inv_w = 1.0 / rect_width
         for j in range(n):
             buf[j] = min(max((b0 + j - c) * dt * inv_w + 0.5, 0.0), 1.0)
-    elif k == 0:  # the literal kinds let the compiler drop the other kinds' code from each loop
+    elif k == 0:
         for j in range(n):
-            buf[j] = gaussian_box_cdf_at((b0 + j - c) * dt, s, inv_s, a, inv_a, b, inv_ab, 0)
+            t = (b0 + j - c) * dt
+            buf[j] = symmetric_cdf(gaussian_cdf_left(-abs(t), inv_s), t)
     elif k == 1:
         for j in range(n):
-            buf[j] = gaussian_box_cdf_at((b0 + j - c) * dt, s, inv_s, a, inv_a, b, inv_ab, 1)
+            t = (b0 + j - c) * dt
+            buf[j] = symmetric_cdf(gaussian_box1_cdf_left(-abs(t), s, inv_s, a, inv_a), t)
     else:
         for j in range(n):
-            buf[j] = gaussian_box_cdf_at((b0 + j - c) * dt, s, inv_s, a, inv_a, b, inv_ab, 2)
+            t = (b0 + j - c) * dt
+            buf[j] = symmetric_cdf(gaussian_box2_cdf_left(-abs(t), s, inv_s, a, b, inv_ab), t)
     for j in range(n - 1):
         w = (buf[j + 1] - buf[j]) * e
         if w > 0:

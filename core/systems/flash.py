@@ -95,7 +95,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     per_block = balanced_block_size(per_block, det.n_pixels, threads, -(-8192 // s2))
     blocks = item_blocks(det.n_pixels, per_block)
     keep_cube = config.run.save_waveforms or whole_cube
-    waveforms = np.zeros((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
+    # every block writes its pixels' whole rows (WaveformWindows.write_rows)
+    waveforms = np.empty((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
     energy = np.zeros(det.n_pixels)
     max_spread_s = 1000.0 * gate.n_bins * gate.bin_width_s
     rx = config.receiver
@@ -147,7 +148,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         wf = accumulate_waveform_windows(pix_local, round_trip_time_s(range_hit), e, b - a, config.laser, gate,
                                          method, spread_s=spread)
         if waveforms is not None:
-            wf.scatter_into(waveforms, np.arange(a, b))
+            wf.write_rows(waveforms, np.arange(a, b))
         local["waveform"] = time.perf_counter() - t
         if whole_cube:  # echoes are detected after the whole-cube stages
             return None, int(hit.sum()), local

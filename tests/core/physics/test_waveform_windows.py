@@ -42,9 +42,9 @@ def test_windows_hold_the_whole_waveform(shape, fwhm_s):
     assert np.all(dense[~mask] == 0)
     if fwhm_s < 20e-9:  # (the 40 ns pulse spans ±100 bins: its windows are most of this gate)
         assert win.length.sum() < 0.5 * dense.size
-    cube = np.zeros((50, gate.n_bins), np.float32)
-    win.scatter_into(cube, np.arange(40) + 10)
-    assert np.array_equal(cube[10:], dense.astype(np.float32)) and not cube[:10].any()
+    cube = np.full((50, gate.n_bins), np.nan, np.float32)  # whole rows written: zeros outside the windows
+    win.write_rows(cube, np.arange(40) + 10)
+    assert np.array_equal(cube[10:], dense.astype(np.float32)) and np.isnan(cube[:10]).all()
 
 
 @pytest.mark.parametrize("settings", [DetectionSettings(), DetectionSettings(interpolation="parabolic", max_echoes=1),
