@@ -20,25 +20,71 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, fields
 
+import math
+
 import numpy as np
+
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..jit import kernel
 from .laser import beam_half_angle_tan
 
+
+
+@kernel
+def range_gradient_at(x, y, r, n0, n1, n2):
+    """(∂R/∂x, ∂R/∂y) of one sub-ray (module docstring): the scalar form of :func:`range_gradient_tan`."""
+    p2 = x * x + y * y + 1.0
+    n_dot_p = n0 * x + n1 * y - n2
+    inv = 1.0 / n_dot_p if n_dot_p != 0.0 else np.inf
+    return r * (x / p2 - n0 * inv), r * (y / p2 - n1 * inv)
+
+
+#: 2/c: round-trip seconds per metre of range.
+_ROUND_TRIP_S_PER_M = 2.0 / SPEED_OF_LIGHT_M_S
+_HALF_C = 0.5 * SPEED_OF_LIGHT_M_S
+
+
+@kernel
+def cell_box_at(x, y, r, n0, n1, n2, cell_x, cell_y, off_x, off_y, max_spread_s):
+    """(a, b, shift) of one sub-ray cell: the scalar form of :func:`cell_time_box_s`."""
+    gx, gy = range_gradient_at(x, y, r, n0, n1, n2)
+    a = _ROUND_TRIP_S_PER_M * abs(gx) * cell_x
+    b = _ROUND_TRIP_S_PER_M * abs(gy) * cell_y
+    bad = not (np.isfinite(a) and np.isfinite(b))
+    if bad:
+        a, b = max_spread_s, max_spread_s
+    a, b = min(a, max_spread_s), min(b, max_spread_s)
+    shift = _ROUND_TRIP_S_PER_M * (gx * off_x + gy * off_y)
+    if bad or not np.isfinite(shift):
+        shift = 0.0
+    half = 0.5 * (a + b)
+    return a, b, min(max(shift, -half), half)
+
+
+@kernel
+def _range_gradient_array(x, y, r, n, gx, gy):
+    for i in range(x.shape[0]):
+        gx[i], gy[i] = range_gradient_at(x[i], y[i], r[i], n[i, 0], n[i, 1], n[i, 2])
+
+
+@kernel
+def _cell_box_array(x, y, r, n, cell_x, cell_y, off_x, off_y, max_spread_s, out, shift):
+    for i in range(x.shape[0]):
+        out[i, 0], out[i, 1], shift[i] = cell_box_at(x[i], y[i], r[i], n[i, 0], n[i, 1], n[i, 2], cell_x[i],
+                                                      cell_y[i], off_x[i], off_y[i], max_spread_s)
+
+
+def _float_columns(n_rows, *values):
+    return [np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n_rows,))) for v in values]
 
 
 def range_gradient_tan(x_tan, y_tan, range_m, normal_sensor):
     """(∂R/∂x, ∂R/∂y) in metres per tan-plane unit at sub-rays hitting planes of unit normal ``normal_sensor``
     (n, 3) (sensor frame, either orientation)."""
-    x = np.asarray(x_tan, dtype=np.float64)
-    y = np.asarray(y_tan, dtype=np.float64)
-    r = np.asarray(range_m, dtype=np.float64)
-    n = np.asarray(normal_sensor, dtype=np.float64)
-    p2 = x * x + y * y + 1.0
-    n_dot_p = n[:, 0] * x + n[:, 1] * y - n[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(n_dot_p != 0.0, 1.0 / n_dot_p, np.inf)
-        gx = r * (x / p2 - n[:, 0] * inv)
-        gy = r * (y / p2 - n[:, 1] * inv)
+    n = np.ascontiguousarray(np.asarray(normal_sensor, dtype=np.float64).reshape(-1, 3))
+    x, y, r = _float_columns(len(n), x_tan, y_tan, range_m)
+    gx, gy = np.empty(len(n)), np.empty(len(n))
+    _range_gradient_array(x, y, r, n, gx, gy)
     return gx, gy
 
 
@@ -57,19 +103,12 @@ def cell_time_box_s(x_tan, y_tan, range_m, normal_sensor, cell_x_tan, cell_y_tan
     round-trip time), the centre being the cell centre's range on the sample's plane,
     (2/c)(∂R/∂x·δx + ∂R/∂y·δy) with (δx, δy) = cell centre − sample.  Centred boxes of the cells of a pixel tile
     its range extent whatever the sample positions."""
-    gx, gy = range_gradient_tan(x_tan, y_tan, range_m, normal_sensor)
-    k = 2.0 / SPEED_OF_LIGHT_M_S
-    a = k * np.abs(gx) * np.asarray(cell_x_tan, dtype=np.float64)
-    b = k * np.abs(gy) * np.asarray(cell_y_tan, dtype=np.float64)
-    out = np.stack([a, b], axis=1)
-    bad = ~np.all(np.isfinite(out), axis=1)
-    out[bad] = max_spread_s
-    out = np.minimum(out, max_spread_s)
-    with np.errstate(invalid="ignore"):
-        shift = k * (gx * np.asarray(offset_x_tan, dtype=np.float64) + gy * np.asarray(offset_y_tan, dtype=np.float64))
-    shift = np.where(bad | ~np.isfinite(shift), 0.0, shift)
-    half = 0.5 * (out[:, 0] + out[:, 1])
-    return out, np.clip(shift, -half, half)
+    n = np.ascontiguousarray(np.asarray(normal_sensor, dtype=np.float64).reshape(-1, 3))
+    cols = _float_columns(len(n), x_tan, y_tan, range_m)
+    cells = _float_columns(len(n), cell_x_tan, cell_y_tan, offset_x_tan, offset_y_tan)
+    out, shift = np.empty((len(n), 2)), np.empty(len(n))
+    _cell_box_array(*cols, n, *cells, float(max_spread_s), out, shift)
+    return out, shift
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -320,21 +359,35 @@ def adaptive_tolerance_m(laser, gate) -> float:
     return 0.25 * 0.5 * SPEED_OF_LIGHT_M_S * max(laser.pulse_fwhm_s, gate.bin_width_s)
 
 
-def cell_returns(smp: Samples, range_m, cos_theta, normal_sensor, max_spread_s=np.inf):
-    """The cell model of the hits ``smp`` (already restricted to hits) for the radiometry and the waveform:
-    (spread (n, 2) s, range_m and cos θ at the cell centre on the hit plane).
+def cell_returns(smp: Samples, index, range_m, cos_theta, normal_sensor, max_spread_s=np.inf):
+    """The cell model of the hits ``smp[index]`` for the radiometry and the waveform: (spread (n, 2) s, range_m
+    and cos θ at the cell centre on the hit plane) of the n hits; ``range_m``, ``cos_theta`` are the block's
+    (all of ``smp``), ``normal_sensor`` (n, 3) the hits' unit normals.
 
     A ray off its cell's centre (jittered patterns) stands for the whole cell: the cell's return is evaluated
     where the cell centre's ray meets the plane the ray hit, R_c = R + ∂R/∂x·δx + ∂R/∂y·δy and
     cos θ_c = |n·p_c|/|p_c|; its round-trip times span the centred box (:func:`cell_time_box_s`).  Rays at their
-    cell centre (the grid) keep their own range and cos θ bit for bit."""
-    spread, shift_s = cell_time_box_s(smp.x_tan, smp.y_tan, range_m, normal_sensor, smp.cell_x_tan, smp.cell_y_tan,
-                                      smp.offset_x_tan, smp.offset_y_tan, max_spread_s)
-    off = (smp.offset_x_tan != 0) | (smp.offset_y_tan != 0)
-    if not off.any():
-        return spread, range_m, cos_theta
-    range_c = np.where(off, range_m + 0.5 * SPEED_OF_LIGHT_M_S * shift_s, range_m)
-    xc, yc = smp.x_tan + smp.offset_x_tan, smp.y_tan + smp.offset_y_tan
-    n = np.asarray(normal_sensor, dtype=np.float64)
-    cos_c = np.abs(n[:, 0] * xc + n[:, 1] * yc - n[:, 2]) / np.sqrt(xc * xc + yc * yc + 1.0)
-    return spread, range_c, np.where(off, np.minimum(cos_c, 1.0), cos_theta)
+    cell centre (the grid) keep their own range and cos θ bit for bit.  One compiled pass over the hits."""
+    index = np.ascontiguousarray(index, dtype=np.int64)
+    k = len(index)
+    spread, range_c, cos_c = np.empty((k, 2)), np.empty(k), np.empty(k)
+    _cell_returns(index, smp.x_tan, smp.y_tan, np.asarray(range_m, np.float64), np.asarray(cos_theta, np.float64),
+                  np.ascontiguousarray(normal_sensor, dtype=np.float64), smp.cell_x_tan, smp.cell_y_tan,
+                  smp.offset_x_tan, smp.offset_y_tan, float(max_spread_s), spread, range_c, cos_c)
+    return spread, range_c, cos_c
+
+
+@kernel
+def _cell_returns(index, x, y, range_m, cos_theta, n, cell_x, cell_y, off_x, off_y, max_spread_s, spread, range_c,
+                  cos_c):
+    for k in range(index.shape[0]):
+        i = index[k]
+        r = range_m[i]
+        spread[k, 0], spread[k, 1], shift = cell_box_at(x[i], y[i], r, n[k, 0], n[k, 1], n[k, 2], cell_x[i],
+                                                        cell_y[i], off_x[i], off_y[i], max_spread_s)
+        if off_x[i] != 0 or off_y[i] != 0:
+            range_c[k] = r + _HALF_C * shift
+            xc, yc = x[i] + off_x[i], y[i] + off_y[i]
+            cos_c[k] = min(abs(n[k, 0] * xc + n[k, 1] * yc - n[k, 2]) / math.sqrt(xc * xc + yc * yc + 1.0), 1.0)
+        else:
+            range_c[k], cos_c[k] = r, cos_theta[i]

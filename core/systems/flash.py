@@ -131,10 +131,12 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         x_tan, y_tan, pixel, sub_x, sub_y, fraction = smp.x_tan, smp.y_tan, smp.pixel, smp.sub_x, smp.sub_y, smp.weight
         t = time.perf_counter()
         hit = prim >= 0
-        spread, range_hit, cos_hit = None, range_m[hit], cos_theta[hit]
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
-            spread, range_hit, cos_hit = cell_returns(smp.take(hit), range_hit, cos_hit,
-                                                      tracer.unit_normal[prim[hit]] @ rot, max_spread_s)
+            index = np.flatnonzero(hit)
+            spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta,
+                                                      tracer.unit_normal[prim[index]] @ rot, max_spread_s)
+        else:
+            spread, range_hit, cos_hit = None, range_m[hit], cos_theta[hit]
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials,
                             scene.material_ids[prim[hit]], cos_hit, range_hit, fraction[hit])
         if atm.pattern is not None:
