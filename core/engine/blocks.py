@@ -9,7 +9,13 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
+
 from ..errors import Cancelled
+
+#: Rows of one BLAS product in :func:`rows_matmul`: (16384 × 3)·(3 × 3) is below OpenBLAS's threading threshold
+#: (m·n·k ≤ 4·65536), so the product runs on the calling thread.
+MATMUL_ROWS = 16384
 
 
 def worker_threads(run_threads: int) -> int:
@@ -48,3 +54,22 @@ def run_blocks(process, blocks, threads: int, progress=None, label: str = "block
             if progress is not None:
                 progress((i + 1) / len(blocks), f"{label} {i + 1}/{len(blocks)}")
     return results
+
+
+def rows_matmul(a, b):
+    """``a @ b`` for many rows ``a`` (n, k) and a small ``b`` (k, m), as BLAS products of at most
+    ``MATMUL_ROWS`` (+1) rows: one big product makes OpenBLAS spread it over its own threads, which on the
+    pipeline's busy threads cost 20-30 ms instead of 0.5 ms for 131k directions.  Bit for bit the one product:
+    a row's result does not depend on the other rows (no chunk of a single row, which NumPy computes without
+    BLAS, unless ``a`` has one row)."""
+    a = np.asarray(a)
+    n = len(a)
+    if n <= MATMUL_ROWS + 1:
+        return a @ b
+    out = np.empty((n, b.shape[1]), np.result_type(a, b))
+    starts = list(range(0, n, MATMUL_ROWS))
+    if n - starts[-1] == 1:  # no one-row chunk: the last row joins the previous chunk
+        starts.pop()
+    for s, e in zip(starts, starts[1:] + [n]):
+        np.matmul(a[s:e], b, out=out[s:e])
+    return out

@@ -17,7 +17,7 @@ from ..config.settings import SimulationConfig
 from ..config.validate import validate_config
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
-from ..engine.blocks import balanced_block_size, item_blocks, run_blocks, worker_threads
+from ..engine.blocks import balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import BLOCK_WAVEFORM_BYTES
 from ..engine.products import noisy_echoes, points_along_rays, reference_range_m
@@ -110,7 +110,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     refined = []  # (refined pixels, rays) per block, adaptive pattern
 
     def trace_tan(x_tan, y_tan):
-        return tracer.intersect(origin, tan_to_unit_direction(x_tan, y_tan) @ rot.T)
+        return tracer.intersect(origin, rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T))
 
     def process(block):
         a, b = block
@@ -124,7 +124,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         if sampler.adaptive:  # second pass over the pixels whose rays disagree
             t = time.perf_counter()
             smp, (prim, range_m, cos_theta), bad = sampler.refine_pass(
-                smp, (prim, range_m, cos_theta), trace_tan, lambda p: tracer.unit_normal[p] @ rot,
+                smp, (prim, range_m, cos_theta), trace_tan, lambda p: rows_matmul(tracer.unit_normal[p], rot),
                 scene.material_ids, adaptive_tolerance_m(config.laser, gate))
             refined.append((len(bad), (b - a) * s2 + len(bad) * (det.subsamples * rx.subray_refine) ** 2))
             local["refine"] = time.perf_counter() - t
@@ -134,7 +134,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
             index = np.flatnonzero(hit)
             spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta,
-                                                      tracer.unit_normal[prim[index]] @ rot, max_spread_s)
+                                                      rows_matmul(tracer.unit_normal[prim[index]], rot),
+                                                      max_spread_s)
         else:
             spread, range_hit, cos_hit = None, range_m[hit], cos_theta[hit]
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials,
