@@ -8,7 +8,7 @@ import pytest
 
 from core.config.settings import BRDFSettings, SimulationConfig
 from core.engine import frame as frame_engine
-from core.engine.blocks import balanced_block_size, item_blocks, run_blocks, worker_threads
+from core.engine.blocks import MATMUL_ROWS, balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
 from core.engine.frame import StageLog, open_frame
 from core.engine.rng import RNG_STAGE, stage_rng, stage_seed
 from core.errors import Cancelled, ConfigError
@@ -33,6 +33,18 @@ def test_balanced_block_size_gives_each_thread_four_blocks_when_it_can():
     assert balanced_block_size(1000, 4000, 2, 800) == 800          # never below the minimum block
     assert balanced_block_size(100, 4000, 2, 10) == 100            # never above the asked size
     assert worker_threads(3) == 3 and worker_threads(0) >= 1
+
+
+@pytest.mark.parametrize("n", [1, 2, 1000, MATMUL_ROWS + 1, 2 * MATMUL_ROWS, 2 * MATMUL_ROWS + 1, 3 * MATMUL_ROWS + 7])
+def test_rows_matmul_is_the_one_product_bit_for_bit(n):
+    """Unit directions rotated in row chunks (no one-row chunk, which NumPy computes without BLAS): every bit of
+    the single product a @ b, for a rotation and its transpose."""
+    rng = np.random.default_rng(n)
+    a = rng.normal(size=(n, 3))
+    a /= np.linalg.norm(a, axis=1)[:, None]
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    for b in (rot, rot.T):
+        assert np.array_equal(rows_matmul(a, b), a @ b)
 
 
 @pytest.mark.parametrize("threads", [1, 3])
