@@ -8,11 +8,13 @@ quadratic grid); the flash pipeline's other patterns (jittered, Sobol, adaptive)
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config.settings import ReceiverSettings
+from ..jit import kernel
 
 
 @dataclass(frozen=True)
@@ -58,10 +60,19 @@ class Detector:
 
 
 def tan_to_unit_direction(x_tan, y_tan):
-    """Unit direction vectors (n, 3) in the sensor frame for tan-plane coordinates."""
-    d = np.stack([x_tan, y_tan, -np.ones_like(x_tan)], axis=-1)
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    """Unit direction vectors (..., 3) in the sensor frame for tan-plane coordinates: (x, y, −1)/√(x² + y² + 1),
+    float64 (one compiled pass; NumPy's norm over the short last axis cost 7 ms per 262k rays)."""
+    x, y = np.broadcast_arrays(np.asarray(x_tan, dtype=np.float64), np.asarray(y_tan, dtype=np.float64))
+    d = np.empty(x.shape + (3,))
+    _unit_directions(np.ascontiguousarray(x).reshape(-1), np.ascontiguousarray(y).reshape(-1), d.reshape(-1, 3))
     return d
+
+
+@kernel
+def _unit_directions(x, y, d):
+    for i in range(x.shape[0]):
+        norm = math.sqrt(x[i] * x[i] + y[i] * y[i] + 1.0)  # the sum in NumPy's order: (x² + y²) + 1
+        d[i, 0], d[i, 1], d[i, 2] = x[i] / norm, y[i] / norm, -1.0 / norm
 
 
 def block_subray_tan(det: Detector, pixel_start: int, pixel_stop: int):

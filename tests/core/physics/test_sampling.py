@@ -9,7 +9,7 @@ from core.config.settings import BRDFSettings, DetectionSettings, LaserSettings
 from core.physics.detection.peaks import detect_echoes
 from core.physics.laser import cell_energy_fractions
 from core.systems.flash import simulate_frame
-from core.geometry.rays import Detector
+from core.geometry.rays import Detector, tan_to_unit_direction
 from core.physics.sampling import SubraySampler, hash_uniform
 from core.geometry.scene import SceneGeometry, merge_meshes
 from scenes import config_for, plate
@@ -22,6 +22,20 @@ def _sampler(pattern, s=4, seed=3, laser=None, offset=(0.0, 0.0), scale=1.0, w=6
     fine = cell_energy_fractions(laser, dataclasses.replace(det, subsamples=s * refine), offset, scale)
     return det, fr, SubraySampler(det, pattern, fr, seed, laser=laser, beam_offset_tan=offset,
                                   beam_width_scale=scale, refine=refine, fine_fractions=fine)
+
+
+def test_unit_directions_are_the_normalised_tan_plane_vectors():
+    """(x, y, −1)/√(x² + y² + 1): unit length within 3e-16, the tan-plane point recovered within 1e-15, and bit
+    for bit NumPy's stack-and-norm of the vectors (the compiled pass sums (x² + y²) + 1 in its order)."""
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-2.0, 2.0, (3, 1001)), rng.uniform(-2.0, 2.0, (3, 1001))
+    d = tan_to_unit_direction(x, y)
+    assert d.shape == (3, 1001, 3) and d.dtype == np.float64
+    assert np.abs(np.linalg.norm(d, axis=-1) - 1.0).max() <= 3e-16
+    assert np.allclose(d[..., 0] / -d[..., 2], x, rtol=1e-15, atol=0) and np.all(d[..., 2] < 0)
+    v = np.stack([x, y, -np.ones_like(x)], axis=-1)
+    assert np.array_equal(d, v / np.linalg.norm(v, axis=-1, keepdims=True))
+    assert np.array_equal(tan_to_unit_direction(0.0, 0.0), [0.0, 0.0, -1.0])
 
 
 @pytest.mark.parametrize("pattern,s", [("grid", 4), ("stratified", 4), ("sobol", 4), ("sobol", 3),
