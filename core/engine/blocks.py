@@ -64,6 +64,9 @@ def rows_matmul(a, b):
     BLAS, unless ``a`` has one row)."""
     a = np.asarray(a)
     n = len(a)
+    if n < 2:  # (one row: NumPy's own loop, whose result depends on b's layout)
+        return a @ b
+    b = np.ascontiguousarray(b)  # BLAS on a transposed view costs 3× more, for the same products
     if n <= MATMUL_ROWS + 1:
         return a @ b
     out = np.empty((n, b.shape[1]), np.result_type(a, b))
