@@ -13,6 +13,8 @@ import numpy as np
 
 from ..errors import Cancelled
 
+#: Blocks each thread gets at least, when the frame allows (:func:`balanced_block_size`).
+BLOCKS_PER_THREAD = 8
 #: Rows of one BLAS product in :func:`rows_matmul`: (16384 × 3)·(3 × 3) is below OpenBLAS's threading threshold
 #: (m·n·k ≤ 4·65536), so the product runs on the calling thread.
 MATMUL_ROWS = 16384
@@ -29,11 +31,12 @@ def item_blocks(n_items: int, per_block: int) -> list[tuple[int, int]]:
 
 
 def balanced_block_size(per_block: int, n_items: int, threads: int, min_items: int) -> int:
-    """With several threads, at least 4 blocks each when the frame allows (blocks of ≥ ``min_items``): blocks
-    differ in cost (sky, near ground), so a few big ones leave a thread idle (bench_scaling: 2 threads
-    1.0× → 1.6×)."""
+    """With several threads, at least ``BLOCKS_PER_THREAD`` blocks each when the frame allows (blocks of
+    ≥ ``min_items``): blocks differ in cost (sky, near ground), so a few big ones leave a thread idle
+    (bench_scaling: 2 threads 1.0× → 1.6× with 4 a thread; bench_flash's 8 blocks of 2048 px ranged 4-44 ms, the
+    costly ones last: 8 a thread cut the frame ≈ 8 %)."""
     if threads > 1:
-        per_block = min(per_block, max(-(-n_items // (4 * threads)), min_items))
+        per_block = min(per_block, max(-(-n_items // (BLOCKS_PER_THREAD * threads)), min_items))
     return per_block
 
 

@@ -90,7 +90,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     method = binning_method(config.laser, gate)
     s2 = det.rays_per_pixel
     per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
-    # several threads: at least 4 blocks each when the frame allows (≥ 8192 rays a block)
+    # several threads: at least 8 blocks each when the frame allows (≥ 8192 rays a block)
     threads = worker_threads(config.run.threads)
     per_block = balanced_block_size(per_block, det.n_pixels, threads, -(-8192 // s2))
     blocks = item_blocks(det.n_pixels, per_block)

@@ -8,7 +8,8 @@ import pytest
 
 from core.config.settings import BRDFSettings, SimulationConfig
 from core.engine import frame as frame_engine
-from core.engine.blocks import MATMUL_ROWS, balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
+from core.engine.blocks import (BLOCKS_PER_THREAD, MATMUL_ROWS, balanced_block_size, item_blocks, rows_matmul,
+                                run_blocks, worker_threads)
 from core.engine.frame import StageLog, open_frame
 from core.engine.rng import RNG_STAGE, stage_rng, stage_seed
 from core.errors import Cancelled, ConfigError
@@ -27,9 +28,11 @@ def test_item_blocks_cover_the_items_once_in_order(n, per):
     assert all(0 < b - a <= per for a, b in blocks)
 
 
-def test_balanced_block_size_gives_each_thread_four_blocks_when_it_can():
+def test_balanced_block_size_gives_each_thread_eight_blocks_when_it_can():
+    assert BLOCKS_PER_THREAD == 8
     assert balanced_block_size(1000, 4000, 1, 10) == 1000          # one thread: as asked
-    assert balanced_block_size(1000, 4000, 2, 10) == 500           # ceil(4000 / 8)
+    assert balanced_block_size(1000, 4000, 2, 10) == 250           # ceil(4000 / 16)
+    assert balanced_block_size(1000, 4001, 2, 10) == 251           # ceil(4001 / 16)
     assert balanced_block_size(1000, 4000, 2, 800) == 800          # never below the minimum block
     assert balanced_block_size(100, 4000, 2, 10) == 100            # never above the asked size
     assert worker_threads(3) == 3 and worker_threads(0) >= 1
