@@ -8,7 +8,8 @@ A run's peak memory is the whole-frame arrays it keeps plus what every worker th
   geometry and their hit-filtered copies; the adaptive pattern's refinement at worst re-traces every pixel of
   the block with refine² × the rays), the waveform rows (``BLOCK_WAVEFORM_BYTES``, float64) and echo
   detection's temporaries on them (≈ 3 ×), and the waveform binning's (ray, bin) terms (``waveform.MAX_TERMS``
-  × ≈ 56 B);
+  × ≈ 56 B) where it forms them in NumPy (the splat method, the rectangular pulse's cell boxes; the exact
+  Gaussian binning is one compiled pass without them);
 * products: energy/range/intensity images, per-echo images and the point cloud (≤ max_echoes points per
   pixel, ≈ 120 B each).
 
@@ -44,7 +45,7 @@ from ..config.settings import SimulationConfig
 from ..config.derived import n_scan_pulses
 from ..physics.laser import pulse_half_support_s
 from .atmosphere_stage import turbulence_switches
-from ..physics.waveform import MAX_TERMS
+from ..physics.waveform import MAX_TERMS, binning_method
 
 #: Waveform memory of one block (float64 while accumulating): bounds the memory of a run.
 BLOCK_WAVEFORM_BYTES = 64 * 2**20
@@ -126,12 +127,15 @@ def estimate_flash_memory(config: SimulationConfig) -> dict:
     if rx.subray_pattern == "adaptive":
         rays += per_block_px * s2 * rx.subray_refine ** 2  # worst case: every pixel of the block refined
     wf_rows = per_block_px * gate.n_bins * 8
+    numpy_terms = (binning_method(config.laser, gate) == "splat"
+                   or (config.laser.pulse_shape != "gaussian" and rx.cell_range_spread))
+    terms = MAX_TERMS * BYTES_PER_TERM if numpy_terms else 0
     parts = {
         "waveform_cube": (cube if keep_cube else 0, "gate.n_bins"),
         "receiver_chain": (pixels * gate.n_bins * _chain_bytes_per_sample(config), "gate.n_bins"),
         "block_rays": (threads * rays * BYTES_PER_RAY,
                        "receiver.subray_refine" if rx.subray_pattern == "adaptive" else "run.chunk_rays"),
-        "block_waveforms": (threads * (4 * wf_rows + MAX_TERMS * BYTES_PER_TERM), "run.threads"),
+        "block_waveforms": (threads * (4 * wf_rows + terms), "run.threads"),
         "products": (pixels * (8 + 8 * config.detection.max_echoes)
                      + pixels * config.detection.max_echoes * BYTES_PER_POINT, "receiver.width_px"),
     }

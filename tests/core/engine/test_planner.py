@@ -199,7 +199,7 @@ def test_a_run_that_would_not_fit_is_refused_naming_the_setting_and_writes_nothi
 
 
 def test_the_available_memory_limits_a_run(monkeypatch):
-    """With 100 MiB available (less than run.max_memory_bytes) a default 64×64 run (≈ 0.6 GiB estimated) is
+    """With 100 MiB available (less than run.max_memory_bytes) a default 64×64 run (≈ 0.12 GiB estimated) is
     refused, and the message says the limit is the available memory."""
     monkeypatch.setattr("core.engine.memory.available_memory_bytes", lambda: 100 * 2 ** 20)
     cfg = config_for(100.0, pixels=64)
