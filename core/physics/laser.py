@@ -138,32 +138,29 @@ _INV_SQRT_2PI = 0.3989422804014327
 
 
 def _tail_table(h, m_max):
-    """Quintic Hermite coefficients of Φ(−m), g₁(m) = φ(m) − mΦ(−m) (e₁ = σg₁) and g(m) (e₂ below 0 = σ²g) on
-    [0, m_max] at spacing h: (intervals, 3 functions, 6) with f(k·h + s·h) = Σ cᵢ sⁱ.  Values, first and second
+    """Cubic Hermite coefficients of Φ(−m), g₁(m) = φ(m) − mΦ(−m) (e₁ = σg₁) and g(m) (e₂ below 0 = σ²g) on
+    [0, m_max] at spacing h: (3 functions, intervals, 4) with f(k·h + s·h) = Σ cᵢ sⁱ.  Values and first
     derivatives are exact and chained: Φ(−m)' = −φ, g₁' = −Φ(−m), g' = −g₁."""
     m = np.arange(int(round(m_max / h)) + 1) * h
     phi = np.exp(-0.5 * m * m) * _INV_SQRT_2PI
     tail = ndtr(-m)
     g1 = phi - m * tail
     g = 0.5 * (m * m + 1.0) * tail - 0.5 * m * phi
-    out = np.empty((len(m) - 1, 3, 6))
-    for i, (f, d, dd) in enumerate(((tail, -phi, m * phi), (g1, -tail, phi), (g, -g1, tail))):
+    out = np.empty((3, len(m) - 1, 4))
+    for i, (f, d) in enumerate(((tail, -phi), (g1, -tail), (g, -g1))):
         df, d0, d1 = f[1:] - f[:-1], d[:-1] * h, d[1:] * h
-        s0, s1 = dd[:-1] * h * h, dd[1:] * h * h
-        out[:, i] = np.stack([f[:-1], d0, 0.5 * s0,
-                              10 * df - 6 * d0 - 4 * d1 - 0.5 * (3 * s0 - s1),
-                              -15 * df + 8 * d0 + 7 * d1 + 0.5 * (3 * s0 - 2 * s1),
-                              6 * df - 3 * d0 - 3 * d1 - 0.5 * (s0 - s1)], axis=1)
+        out[i] = np.stack([f[:-1], d0, 3 * df - 2 * d0 - d1, -2 * df + d0 + d1], axis=1)
     return out
 
 
-#: Spacing (in σ) and range of the tabulated Gaussian tail functions: quintic Hermite interpolation with exact
-#: derivatives (absolute error < 1e-13, tested against SciPy); beyond 10σ all three are < 1e-22 and taken as 0.
-_TAIL_H = 1.0 / 32.0
+#: Spacing (in σ) and range of the tabulated Gaussian tail functions: cubic Hermite interpolation with exact
+#: derivatives, absolute error < 1e-11 (5.3e-12, 3.9e-12, 2.3e-12 measured against SciPy; the quintic table at
+#: σ/32 it replaced was < 1e-13 and 20 % slower to bin with); beyond 10σ all three are < 1e-22 and taken as 0.
+_TAIL_H = 1.0 / 128.0
 _TAIL_MAX = 10.0
-#: (3 functions, intervals + 1, 6): one function's coefficients contiguous, and a last row of zeros that every
+#: (3 functions, intervals + 1, 4): one function's coefficients contiguous, and a last row of zeros that every
 #: m beyond the table lands on (no branch in the binning loops)
-_TAIL = np.ascontiguousarray(np.concatenate([_tail_table(_TAIL_H, _TAIL_MAX), np.zeros((1, 3, 6))]).transpose(1, 0, 2))
+_TAIL = np.ascontiguousarray(np.concatenate([_tail_table(_TAIL_H, _TAIL_MAX), np.zeros((3, 1, 4))], axis=1))
 _TAIL_LAST = _TAIL.shape[1] - 1
 _TAIL_INV_H = 1.0 / _TAIL_H
 
@@ -174,13 +171,12 @@ def _tail_interp(m, fn):
     x = m * _TAIL_INV_H
     k = min(int(x), _TAIL_LAST)
     s = x - k
-    return _TAIL[fn, k, 0] + s * (_TAIL[fn, k, 1] + s * (_TAIL[fn, k, 2] + s * (_TAIL[fn, k, 3] + s * (
-        _TAIL[fn, k, 4] + s * _TAIL[fn, k, 5]))))
+    return _TAIL[fn, k, 0] + s * (_TAIL[fn, k, 1] + s * (_TAIL[fn, k, 2] + s * _TAIL[fn, k, 3]))
 
 
 @kernel
 def gaussian_tail(m):
-    """Φ(−m), the standard normal CDF at −m (m ≥ 0), from the tail table (absolute error < 1e-13)."""
+    """Φ(−m), the standard normal CDF at −m (m ≥ 0), from the tail table (absolute error < 1e-11)."""
     return _tail_interp(m, 0)
 
 

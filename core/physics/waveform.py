@@ -263,9 +263,10 @@ def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
 def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
     """One return's pulse CDF differences over its bins [b0, b1] added at ``values[base + j]``: the CDF at the
     b1 − b0 + 2 edges into ``buf``, one loop per kind (no branch inside), then the differences.  A Gaussian
-    pulse (``rect_width`` 0) ⊛ the return's boxes (the kinds of :func:`core.physics.laser.gaussian_box_cdf_at`), or a
-    rectangular pulse of full width ``rect_width`` (impulses only).  Bins whose weight is not positive are
-    skipped."""
+    pulse (``rect_width`` 0) ⊛ the return's boxes (the kinds of :func:`core.physics.laser.gaussian_box_cdf_at`,
+    on its cubic tail tables: they are compiled into this kernel, whose cache numba keys on this file only, so a
+    change of the tables must touch this file too), or a rectangular pulse of full width ``rect_width``
+    (impulses only).  Bins whose weight is not positive are skipped."""
     n = b1 - b0 + 2
     inv_s = 1.0 / s if s > 0 else 0.0
     inv_a = 1.0 / a if a > 0 else 0.0
