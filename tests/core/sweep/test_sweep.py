@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from core.engine.memory import estimate_memory
 from core.errors import ConfigError
 from core.run import run_simulation
 from core.sweep.runner import figure_statistics, open_client, plan_sweep, read_table, replot, run_sweep
@@ -327,7 +328,10 @@ def test_resume_runs_only_what_is_missing_and_a_changed_sweep_is_refused(client,
 
 def test_a_failing_point_is_recorded_and_the_others_go_on(client, tmp_path):
     spec = sweep_from_dict({"sweep_version": 1, "axes": {"run.max_memory_bytes": [2**20, 2**32]}})
-    out = run_sweep(spec, scene(), tmp_path / "sw", base=base_config(), client=client, plots=False)
+    base = base_config()
+    base.gate.n_bins = 1024  # a frame estimated above the smallest limit allowed (1 MiB): ≈ 2.4 MiB
+    assert estimate_memory(base)["total"] > 2**20
+    out = run_sweep(spec, scene(), tmp_path / "sw", base=base, client=client, plots=False)
     assert (out.n_done, out.n_failed) == (1, 1)
     rows = read_table(tmp_path / "sw" / "results.csv")
     assert rows[0]["status"] == "failed" and "run.max_memory_bytes" in rows[0]["error"] and rows[0]["run"] == ""
