@@ -51,10 +51,11 @@ class SceneTracer:
         # plane of each traced triangle in float64 world coordinates (scene-indexed): its unit normal, and
         # whether it is degenerate (untraced triangles count as degenerate); its vertex v₀ is read from the scene
         m = scene.n_triangles
-        ids = np.arange(m, dtype=np.int64) if self.triangle_ids is None else self.triangle_ids.astype(np.int64)
         self.unit_normal = np.zeros((m, 3))
         self.degenerate = np.ones(m, bool)
-        _triangle_planes(v, scene.triangles, ids, self.unit_normal, self.degenerate)
+        if len(tris):
+            _triangle_planes(v, scene.triangles, np.zeros(0, np.int64) if self.triangle_ids is None
+                             else self.triangle_ids, self.unit_normal, self.degenerate)
 
     def serves(self, scene: SceneGeometry) -> bool:
         """True if this BVH was built on ``scene``'s geometry (the same vertex and triangle arrays): material
@@ -112,11 +113,12 @@ def _rays_float32(origins, k, reference, directions, o32, d32):
 
 @kernel
 def _triangle_planes(vertices, triangles, ids, unit_normal, degenerate):
-    """Unit normal n = (v₁ − v₀) × (v₂ − v₀) / |…| of the triangles ``ids`` (float64 world coordinates) and
+    """Unit normal n = (v₁ − v₀) × (v₂ − v₀) / |…| of the triangles ``ids`` (all when empty) and
     whether each is degenerate (|…| = 0; its cross product is then left unscaled), each term rounded as NumPy's
     ``cross``, ``linalg.norm`` ((x² + y²) + z²) and division round it (no whole-scene temporaries)."""
-    for i in range(ids.shape[0]):
-        p = ids[i]
+    every = ids.shape[0] == 0
+    for i in range(triangles.shape[0] if every else ids.shape[0]):
+        p = i if every else ids[i]
         i0, i1, i2 = triangles[p, 0], triangles[p, 1], triangles[p, 2]
         x0, y0, z0 = vertices[i0, 0], vertices[i0, 1], vertices[i0, 2]
         ax, ay, az = vertices[i1, 0] - x0, vertices[i1, 1] - y0, vertices[i1, 2] - z0
