@@ -82,10 +82,10 @@ class SceneTracer:
         directions = np.ascontiguousarray(directions, dtype=np.float64)
         origins = np.ascontiguousarray(np.asarray(origin_m, dtype=np.float64).reshape(-1, 3))
         n = len(directions)
-        if len(origins) == 0 or n % len(origins):
+        if (len(origins) == 0 and n) or (len(origins) and n % len(origins)):
             raise ValueError(f"{len(origins)} ray origins for {n} rays: one origin, one per ray, or one per group "
                              "of consecutive rays")
-        k = n // len(origins)
+        k = n // len(origins) if len(origins) else 0
         o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         _rays_float32(origins, k, np.asarray(self.reference_m, np.float64), directions, o32, d32)
         if self._embree is None:

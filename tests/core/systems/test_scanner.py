@@ -508,6 +508,9 @@ def test_trace_shares_one_origin_among_a_group_of_rays():
         assert np.array_equal(got, want, equal_nan=True)
     with pytest.raises(ValueError, match="3 ray origins for 14000 rays"):
         tracer.intersect(origin[:3], d)
+    for origins in (origin[:0], origin[0]):  # no rays (e.g. no active ray left): empty results
+        prim, range_m, cos_theta = tracer.intersect(origins, d[:0])
+        assert prim.shape == range_m.shape == cos_theta.shape == (0,)
 
 
 def test_scan_products_are_streamed_and_the_same_for_any_threads_and_blocks():
