@@ -588,13 +588,17 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
             sig_det = sig[r]
         thr[r] = k_sigma * sig_det if adaptive else threshold
         t32 = np.float32(thr[r])
+        above = 0
+        for j in range(1, n - 1):  # (vectorised: most rows of a frame have no sample above the threshold)
+            above += yd[j] > t32
         nc = 0
-        for j in range(1, n - 1):
-            c = yd[j]
-            if c > t32 and c > yd[j - 1] and c >= yd[j + 1]:  # (the threshold first: rarely passed)
-                cj[nc] = j
-                alive[nc] = True
-                nc += 1
+        if above:
+            for j in range(1, n - 1):
+                c = yd[j]
+                if c > t32 and c > yd[j - 1] and c >= yd[j + 1]:  # (the threshold first: rarely passed)
+                    cj[nc] = j
+                    alive[nc] = True
+                    nc += 1
         n_found = 0
         for k in range(n_slots):
             best = -1
