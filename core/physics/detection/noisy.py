@@ -201,11 +201,11 @@ def _order_stats32(x, k_lo, k_hi, keys, s1, s2, cast):
     if hi - lo <= 1:  # every value in the bracket is the key hi
         cast[0] = _key32(np.int32(hi))
         return vals[0], vals[0]
-    lo32, hi32, m = np.int32(lo), np.int32(hi), 0
-    for i in range(n):  # gather the bracket (branch-free)
+    lo1, width, m = lo + 1, np.uint32(hi - lo), 0
+    for i in range(n):  # gather the bracket, lo < key ≤ hi (branch-free, one unsigned comparison)
         kk = keys[i]
         s1[m] = kk
-        m += (kk > lo32) & (kk <= hi32)
+        m += np.uint32(kk - lo1) < width
     b, a = _select(s1, s2, m, k_hi - n_lo)
     if k_lo == k_hi:
         a = b
