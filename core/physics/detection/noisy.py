@@ -625,6 +625,11 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
             samples[r, k, 0], samples[r, k, 1], samples[r, k, 2] = yd[j - 1], yd[j], yd[j + 1]
 
 
+#: detect_echoes_noisy converts (and processes) this many rows at a time: no float32 copy of a whole cube of
+#: A/D codes.
+_CONVERT_ROWS = 256
+
+
 @dataclass
 class NoisyEchoes:
     """Echoes per pixel, shape (..., max_echoes), ordered in time (index 0 first); undetected slots are NaN
@@ -648,7 +653,8 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
                         interpolation="gaussian", noise_sigma=None, baseline=None, threads=1, min_noise_sigma=0.0):
     """Detect up to ``max_echoes`` echoes per pixel on noisy waveforms (docs/theory.md §9).
 
-    waveforms      : (..., B) digital counts or any real waveform.
+    waveforms      : (..., B) digital counts or any real waveform, of any integer or float type (processed as
+                     float32, a few rows at a time).
     threshold_mode : "adaptive" (k_sigma × per-pixel noise σ of the detection waveform, estimated by MAD) or
                      "fixed" (``threshold`` in input units above the baseline).
     pulse          : pulse shape samples for the matched filter (None: no filter).
@@ -672,7 +678,6 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
         raise ValueError(f"threshold_mode must be 'adaptive' or 'fixed', got {threshold_mode!r}")
     if min_separation_bins is None:
         min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
-    y = np.ascontiguousarray(y, dtype=np.float32)
     given_base = np.zeros(P) if baseline is None else \
         np.ascontiguousarray(np.broadcast_to(np.asarray(baseline, np.float64), shape).reshape(-1))
     given_sig = np.zeros(P) if noise_sigma is None else \
@@ -691,11 +696,15 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     pos = np.full((P, K), -1, dtype=np.int64)
     samples = np.zeros((P, K, 3), np.float32)  # detection waveform at j − 1, j, j + 1 of each echo
 
+    as_is = y.dtype == np.float32 and y.flags.c_contiguous
+
     def run(a, b):
-        _noisy_rows(y[a:b], given_base[a:b], given_sig[a:b], baseline is None, noise_sigma is None,
-                    pulse is not None, w, norm, threshold_mode == "adaptive", float(k_sigma), float(threshold),
-                    int(min_separation_bins), float(min_noise_sigma), base[a:b], sig[a:b], thr[a:b], pos[a:b],
-                    samples[a:b])
+        for c in range(a, b, b - a if as_is else _CONVERT_ROWS):  # other rows (A/D codes) float32 a few at a time
+            d = min(c + (b - a if as_is else _CONVERT_ROWS), b)
+            _noisy_rows(np.ascontiguousarray(y[c:d], dtype=np.float32), given_base[c:d], given_sig[c:d],
+                        baseline is None, noise_sigma is None, pulse is not None, w, norm,
+                        threshold_mode == "adaptive", float(k_sigma), float(threshold), int(min_separation_bins),
+                        float(min_noise_sigma), base[c:d], sig[c:d], thr[c:d], pos[c:d], samples[c:d])
 
     step = max(256, -(-P // (4 * max(1, threads))))
     chunks = [(a, min(a + step, P)) for a in range(0, P, step)]

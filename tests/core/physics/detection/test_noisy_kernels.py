@@ -167,3 +167,17 @@ def test_matched_filter_sums_in_scipys_order(d_outer, d_inner):
     assert np.array_equal(got, ndimage.correlate1d(y, w, axis=-1, mode="nearest", output=np.float32))
     assert np.all(got[:, centre] == 0.0)
     assert (1.0 + -(2.0 ** 53)) + 2.0 ** 53 == 1.0  # the other order
+
+
+def test_detection_of_a_code_cube_is_that_of_its_float32_copy():
+    """A/D codes (uint16) are converted a few rows at a time: the same echoes as on the float32 copy."""
+    rng = np.random.default_rng(5)
+    codes = (rng.poisson(2.0, (700, 512)) + 13).astype(np.uint16)
+    codes[:, 200:206] += rng.integers(0, 40, (700, 1)).astype(np.uint16)
+    pulse = gaussian_pulse_kernel(5e-9, 1e-9)
+    for threads in (1, 3):
+        a = detect_echoes_noisy(codes, 1e-9, pulse=pulse, threads=threads)
+        b = detect_echoes_noisy(codes.astype(np.float32), 1e-9, pulse=pulse, threads=threads)
+        assert np.count_nonzero(a.detected) > 300
+        for f in ("time_s", "amplitude", "snr", "detected", "baseline", "noise_sigma", "threshold"):
+            assert np.array_equal(getattr(a, f), getattr(b, f), equal_nan=True), f
