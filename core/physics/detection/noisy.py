@@ -469,7 +469,7 @@ def robust_baseline_noise(waveforms):
     """Per-pixel baseline (median) and noise σ = 1.4826 × median(|y − median|) along the last axis (float32
     arithmetic, as NumPy on float32 rows).  Robust to the echoes themselves as long as they occupy well under half
     of the bins.  Where the MAD is 0 (noise below one A/D count), σ is the rms deviation of the quietest 90 % of
-    the samples."""
+    the samples.  A row holding a NaN gets NaN for both (as np.median)."""
     y = np.ascontiguousarray(waveforms, dtype=np.float32)
     rows = y.reshape(-1, y.shape[-1])
     base, sigma = np.empty(len(rows), np.float32), np.empty(len(rows))
