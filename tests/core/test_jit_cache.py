@@ -40,9 +40,53 @@ def test_kernel_cache_goes_to_the_user_folder_not_the_package(tmp_path, numba_fi
     assert out.returncode == 0, out.stderr[-2000:]
     cache = Path(out.stdout.strip().splitlines()[-1])
     if sys.platform.startswith("linux"):
-        assert cache == home / ".cache" / "ladar_simulator" / "numba"
+        assert cache.parent == home / ".cache" / "ladar_simulator" / "numba"
     assert home in cache.parents
     assert list(cache.rglob("*.nbi")), "no kernel cached in the per-user folder"
     assert not [p for p in pkg.rglob("*") if p.suffix in (".nbi", ".nbc")], "kernel cache written into the package"
     for p in pkg.rglob("*"):
         p.chmod(p.stat().st_mode | stat.S_IWUSR)
+
+
+def _cache_dir_of(pkg: Path, home: Path) -> Path:
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "LOCALAPPDATA")}
+    env.update(HOME=str(home), USERPROFILE=str(home), PYTHONDONTWRITEBYTECODE="1")
+    code = f"import sys; sys.path.insert(0, {str(pkg)!r}); import core.jit; print(core.jit.CACHE_DIR)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=pkg)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return Path(out.stdout.strip().splitlines()[-1])
+
+
+def test_a_change_to_any_core_file_gives_the_kernels_a_new_cache_folder(tmp_path):
+    """numba checks a cached kernel against its own file only, while a kernel holds the kernels and tables it
+    calls from other files as compiled (physics/waveform.py's binning calls physics/laser.py's tail tables):
+    the cache folder is named after a digest of every core file, so editing laser.py alone cannot leave
+    waveform.py's cached kernels on the old tables."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    for pkg in (a, b):
+        shutil.copytree(REPO / "core", pkg / "core", ignore=shutil.ignore_patterns("__pycache__"))
+    home = tmp_path / "home"
+    first, same = _cache_dir_of(a, home), _cache_dir_of(b, home)
+    assert first == same and first.parent == _cache_dir_of(a, home).parent  # same sources: same folder
+    laser = b / "core" / "physics" / "laser.py"
+    laser.write_text(laser.read_text() + "\n# edited\n")
+    changed = _cache_dir_of(b, home)
+    assert changed.parent == first.parent and changed.name != first.name and len(changed.name) == 16
+
+
+def test_only_stale_digest_folders_beside_the_cache_are_pruned(tmp_path):
+    import time
+
+    from core.jit import prune_stale_caches
+
+    parent = tmp_path / "numba"
+    current, stale, fresh = parent / "0123456789abcdef", parent / "fedcba9876543210", parent / "00000000aaaaaaaa"
+    other = parent / "core_1491019fea487c031e0fdc1b53f8b1f2"  # not a digest folder: never ours to remove
+    for d in (stale, fresh, other):
+        (d / "x").mkdir(parents=True)
+    old = time.time() - 31 * 86400.0
+    for d in (stale, other):
+        os.utime(d, (old, old))
+    assert prune_stale_caches(current) == [stale]
+    assert sorted(p.name for p in parent.iterdir()) == sorted([current.name, fresh.name, other.name])
+    assert time.time() - current.stat().st_mtime < 60  # marked as used
