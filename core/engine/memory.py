@@ -60,9 +60,10 @@ BYTES_PER_TERM = 56
 BYTES_PER_POINT = 120
 #: Scanner: per pulse (time, pose, axis, channel, angle, energy, echo count and the output record's copies).
 BYTES_PER_PULSE = 110
-#: Noisy linear receiver and its echo detection, per (pixel, bin) beyond the float32 cube (measured 36 B in all
-#: at 64² px × 1024 bins).
-NOISY_BYTES_PER_SAMPLE = 32
+#: Noisy linear receiver and its echo detection, per (pixel, bin) beyond the float32 cube: the uint16 codes, the
+#: detector's per-thread rows and the echoes (measured 7.6 B in all, cube included, from the resident peak of
+#: a 256² px × 1024-bin frame, points only or cube saved; 36 B before the compiled chain and detection).
+NOISY_BYTES_PER_SAMPLE = 8
 #: Geiger mode and its echo detection, per (pixel, bin) beyond the float32 cube (measured 52 B in all).
 GEIGER_BYTES_PER_SAMPLE = 48
 #: Gated viewing: bytes per (ray, slice) gate term alive at once (indices, responses, weights and their

@@ -12,8 +12,8 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from core.engine.memory import (MAX_WORK_SAMPLES, check_memory, estimate_gated_memory, estimate_memory,
-                                held_bytes)
+from core.engine.memory import (MAX_WORK_SAMPLES, NOISY_BYTES_PER_SAMPLE, check_memory, estimate_gated_memory,
+                                estimate_memory, held_bytes)
 from core.errors import ConfigError
 from core.geometry.rays import Detector
 from core.run import run_simulation, simulate
@@ -99,15 +99,17 @@ def test_noisy_scanner_with_a_long_gate_is_refused(tmp_path):
 
 
 def test_noisy_flash_counts_the_whole_receiver_chain(tmp_path):
-    """1024² px × 1024 bins, noisy, points only: the chain and its detection (≈ 36 B per sample) need
-    ≈ 36 GiB; the old estimate (4 cubes) said 20 GiB."""
+    """1024² px × 1024 bins, noisy, points only: the float32 cube and, per sample, the chain and its detection
+    (8 B beyond the cube; measured 7.6 B per sample in all at 256² px × 1024 bins) are counted: ≈ 12 GiB,
+    refused under a limit that holds the cube alone, naming the bins and the receiver chain."""
     cfg = _cfg(pixels=1024, bins=1024)
     cfg.detector.mode = "noisy"
     cfg.run.save_waveforms = False
     cfg.run.max_memory_bytes = 2 ** 40
     est = estimate_memory(cfg)
-    assert est["parts"]["receiver_chain"] == 32 * 1024 ** 3
-    cfg.run.max_memory_bytes = 30 * 2 ** 30
+    assert est["parts"]["receiver_chain"] == NOISY_BYTES_PER_SAMPLE * 1024 ** 3
+    assert est["total"] > est["parts"]["receiver_chain"] + 4 * 1024 ** 3  # the cube beside the chain
+    cfg.run.max_memory_bytes = est["total"] - est["parts"]["receiver_chain"] // 2
     _refused(tmp_path, cfg, "gate.n_bins", "receiver_chain")
 
 
@@ -158,7 +160,7 @@ def test_profiler_is_checked_as_one_element(tmp_path):
     cfg = _cfg("profiler", pixels=4096, bins=1_000_000, sub=1)
     cfg.detector.mode = "noisy"
     est = check_memory(cfg, available=None)
-    assert est["total"] < 2 ** 30 and est["parts"]["receiver_chain"] == 1_000_000 * 32
+    assert est["total"] < 2 ** 30 and est["parts"]["receiver_chain"] == 1_000_000 * NOISY_BYTES_PER_SAMPLE
     cfg.system_type = "flash"
     with pytest.raises(ConfigError):
         check_memory(cfg, available=None)
