@@ -24,9 +24,9 @@ The other systems (:func:`estimate_memory` dispatches on ``system_type``):
   atmosphere realisation (scintillation pattern) per slice when turbulence is drawn per slice; per block and
   thread the rays, the per-slice energies and the (ray, slice) gate terms (≤ ``GATE_MAX_TERMS``).
 
-Noisy receivers add, per (pixel, bin): ``NOISY_BYTES_PER_SAMPLE`` (linear mode: digital cube, float32 copies
-of the detection, the multi-echo loop's distances) or ``GEIGER_BYTES_PER_SAMPLE`` (float64 rates and pile-up
-probabilities, the int64 histogram, then the same detection).
+Noisy receivers add, per (pixel, bin): ``NOISY_BYTES_PER_SAMPLE`` (linear mode: the uint16 digital cube and
+the detector's per-thread rows) or ``GEIGER_BYTES_PER_SAMPLE`` (float64 rates and pile-up probabilities, the
+int64 histogram, then the detection).
 
 Every system also estimates its work — elementary samples: rays traced, (pixel, bin) samples through the
 waveform, receiver chain and detection, Geiger per-pulse arrival searches, gated (ray, slice) terms — and a
