@@ -9,7 +9,8 @@ from functools import lru_cache
 import numpy as np
 
 from ...jit import kernel
-from .noisy import NoisyEchoes, matched_filter
+from .noisy import NoisyEchoes
+from .row_statistics import matched_filter
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -10,7 +10,8 @@ import pytest
 from core.constants import SPEED_OF_LIGHT_M_S
 from core.physics.detection.noisy import (cramer_rao_range_std, cramer_rao_time_std, detect_echoes_noisy,
                                           gaussian_offset, gaussian_pulse_kernel, parabolic_offset,
-                                          photon_limited_range_std, robust_baseline_noise, score_echoes)
+                                          photon_limited_range_std, score_echoes)
+from core.physics.detection.row_statistics import robust_baseline_noise
 from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
 from core.config.settings import DetectorSettings
 from core.physics.receiver.conversions import photons_per_joule

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from core.physics.detection.noisy import (MAD_TO_SIGMA, detect_echoes_noisy, gaussian_peak, gaussian_pulse_kernel,
-                                          matched_filter, parabolic_offset, parabolic_peak, gaussian_offset,
-                                          robust_baseline_noise)
+from core.physics.detection.noisy import (detect_echoes_noisy, gaussian_peak, gaussian_pulse_kernel, parabolic_offset,
+                                          parabolic_peak, gaussian_offset)
+from core.physics.detection.row_statistics import MAD_TO_SIGMA, matched_filter, robust_baseline_noise
 
 
 def numpy_baseline_noise(y):
