@@ -9,7 +9,7 @@ from functools import lru_cache
 import numpy as np
 
 from ...jit import kernel
-from .noisy import NoisyEchoes
+from .noisy import NoisyEchoes, run_row_chunks
 from .row_statistics import matched_filter
 
 
@@ -52,20 +52,8 @@ def eligible_bins(truth, guard_bins, rel_level=1e-3, abs_level=0.0, threads=1):
         t, level = t.astype(np.float64), level.astype(np.float64)        # with float64 levels, exactly
     P, B = t.shape
     el = np.empty((P, B), dtype=np.bool_)
-    _in_chunks(lambda a, b: _eligible_rows(t[a:b], level[a:b], int(guard_bins), el[a:b]), P, threads)
+    run_row_chunks(lambda a, b: _eligible_rows(t[a:b], level[a:b], int(guard_bins), el[a:b]), P, threads)
     return el
-
-
-def _in_chunks(run, n_rows, threads):
-    """``run(a, b)`` over row chunks, on ``threads`` threads when there are several chunks."""
-    step = max(256, -(-n_rows // (4 * max(1, threads))))
-    chunks = [(a, min(a + step, n_rows)) for a in range(0, n_rows, step)]
-    if threads > 1 and len(chunks) > 1:
-        with ThreadPoolExecutor(max_workers=min(threads, len(chunks))) as pool:
-            list(pool.map(lambda c: run(*c), chunks))
-    else:
-        for c in chunks:
-            run(*c)
 
 
 @kernel
@@ -227,8 +215,8 @@ def _eligible_summary(el, pulse, threads=1):
     cols = np.array(edges, dtype=np.int64)
     n_int, n_all = np.empty(P, np.int64), np.empty(P, np.int64)
     at_cols = np.empty((P, cols.size), dtype=np.bool_)
-    _in_chunks(lambda a, b: _eligible_counts(el[a:b], lo, hi, cols, n_int[a:b], n_all[a:b], at_cols[a:b]), P,
-               threads)
+    run_row_chunks(lambda a, b: _eligible_counts(el[a:b], lo, hi, cols, n_int[a:b], n_all[a:b], at_cols[a:b]),
+                   P, threads)
     return {"n_bins": B, "n_interior": n_int, "n_eligible": n_all, "at_edges": at_cols}
 
 

@@ -162,6 +162,19 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
 _CONVERT_ROWS = 256
 
 
+def run_row_chunks(run, n_rows: int, threads: int) -> None:
+    """``run(a, b)`` over chunks of ≥ 256 rows (about four a thread), on ``threads`` threads when there are
+    several chunks.  The rows' results do not depend on the chunks, so neither on the thread count."""
+    step = max(256, -(-n_rows // (4 * max(1, threads))))
+    chunks = [(a, min(a + step, n_rows)) for a in range(0, n_rows, step)]
+    if threads > 1 and len(chunks) > 1:
+        with ThreadPoolExecutor(max_workers=min(threads, len(chunks))) as pool:
+            list(pool.map(lambda c: run(*c), chunks))
+    else:
+        for c in chunks:
+            run(*c)
+
+
 @dataclass
 class NoisyEchoes:
     """Echoes per pixel, shape (..., max_echoes), ordered in time (index 0 first); undetected slots are NaN
@@ -238,14 +251,7 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
                         threshold_mode == "adaptive", float(k_sigma), float(threshold), int(min_separation_bins),
                         float(min_noise_sigma), base[c:d], sig[c:d], thr[c:d], pos[c:d], samples[c:d])
 
-    step = max(256, -(-P // (4 * max(1, threads))))
-    chunks = [(a, min(a + step, P)) for a in range(0, P, step)]
-    if threads > 1 and len(chunks) > 1:
-        with ThreadPoolExecutor(max_workers=min(threads, len(chunks))) as pool:
-            list(pool.map(lambda c: run(*c), chunks))
-    else:
-        for c in chunks:
-            run(*c)
+    run_row_chunks(run, P, threads)
 
     detected = pos >= 0
     jj = np.where(detected, pos, 1)
