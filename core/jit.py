@@ -81,7 +81,10 @@ def prune_stale_caches(cache_dir: Path, max_age_days: float = STALE_CACHE_DAYS) 
     return removed
 
 
-CACHE_DIR = user_cache_dir() / source_digest()
+_DIGEST = source_digest()
+_BASE = user_cache_dir()
+#: This source's kernel cache (a child process inherits NUMBA_CACHE_DIR already ending in the digest).
+CACHE_DIR = _BASE if _BASE.name == _DIGEST else _BASE / _DIGEST
 prune_stale_caches(CACHE_DIR)
 if "numba" not in sys.modules:
     os.environ.setdefault("NUMBA_CACHE_DIR", str(CACHE_DIR))

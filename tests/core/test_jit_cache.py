@@ -48,8 +48,10 @@ def test_kernel_cache_goes_to_the_user_folder_not_the_package(tmp_path, numba_fi
         p.chmod(p.stat().st_mode | stat.S_IWUSR)
 
 
-def _cache_dir_of(pkg: Path, home: Path) -> Path:
+def _cache_dir_of(pkg: Path, home: Path, numba_cache_dir=None) -> Path:
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "LOCALAPPDATA")}
+    if numba_cache_dir is not None:
+        env["NUMBA_CACHE_DIR"] = str(numba_cache_dir)
     env.update(HOME=str(home), USERPROFILE=str(home), PYTHONDONTWRITEBYTECODE="1")
     code = f"import sys; sys.path.insert(0, {str(pkg)!r}); import core.jit; print(core.jit.CACHE_DIR)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=pkg)
@@ -72,6 +74,9 @@ def test_a_change_to_any_core_file_gives_the_kernels_a_new_cache_folder(tmp_path
     laser.write_text(laser.read_text() + "\n# edited\n")
     changed = _cache_dir_of(b, home)
     assert changed.parent == first.parent and changed.name != first.name and len(changed.name) == 16
+    # a child process inherits NUMBA_CACHE_DIR as its parent set it (ending in the digest): the same folder
+    assert _cache_dir_of(a, home, numba_cache_dir=first) == first
+    assert _cache_dir_of(a, home, numba_cache_dir=tmp_path / "mine") == tmp_path / "mine" / first.name
 
 
 def test_only_stale_digest_folders_beside_the_cache_are_pruned(tmp_path):
