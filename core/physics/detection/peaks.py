@@ -73,6 +73,17 @@ def interpolate_peak(y_minus, y_0, y_plus, method: str = "gaussian"):
 
 
 @kernel
+def _compact(cand, mask, nc):
+    """Move the first ``nc`` candidates with ``mask`` set to the front of ``cand``, in order; returns how many."""
+    m = 0
+    for k in range(nc):
+        if mask[k]:
+            cand[m] = cand[k]
+            m += 1
+    return m
+
+
+@kernel
 def detect_row(y, lo, n, bin0, threshold_j, relative_threshold, min_dip, max_echoes, mode, cand, out_pix, row,
                out_pos, out_amp, out_idx, out_n, k0):
     """Echoes of one waveform ``y[lo:lo + n]`` (zero outside) whose first value is gate bin ``bin0``, written
@@ -135,12 +146,7 @@ def detect_row(y, lo, n, bin0, threshold_j, relative_threshold, min_dip, max_ech
             for k in range(nc):
                 if drop[k]:
                     keep[k] = False
-        m = 0
-        for k in range(nc):
-            if keep[k]:
-                cand[m] = cand[k]
-                m += 1
-        nc = m
+        nc = _compact(cand, keep, nc)
     # the max_echoes strongest (ties: the earlier bin), then in time order
     n_keep = min(nc, max_echoes)
     if nc > n_keep:
@@ -151,11 +157,7 @@ def detect_row(y, lo, n, bin0, threshold_j, relative_threshold, min_dip, max_ech
                 if not chosen[k] and (best < 0 or y[lo + cand[k]] > y[lo + cand[best]]):
                     best = k
             chosen[best] = True
-        m = 0
-        for k in range(nc):
-            if chosen[k]:
-                cand[m] = cand[k]
-                m += 1
+        _compact(cand, chosen, nc)
     for r in range(n_keep):
         j = cand[r]
         y0 = y[lo + j]
