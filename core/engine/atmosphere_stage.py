@@ -38,7 +38,8 @@ from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_tur
 from ..config.settings import SimulationConfig
 from ..physics.propagation import (FootprintAveragedPattern, draw_return_factor, effective_extinction_per_m,
                                    return_scintillation_variance, turbulence_model_settings)
-from .rng import stage_rng
+from .blocks import worker_threads
+from .rng import stage_rng, stage_seed
 
 #: The turbulence blur is skipped when the MTF at the pixel Nyquist frequency exceeds this (PSF ≪ a pixel).
 BLUR_NEGLIGIBLE_MTF = 0.999
@@ -141,11 +142,13 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
         out.beam_offset_tan = (float(offset_m[0]) / r_ref, float(offset_m[1]) / r_ref)
         meta["beam_wander_offset_m"] = [float(offset_m[0]), float(offset_m[1])]
     if "scintillation" in active:
-        rng = stage_rng(config.run.seed, frame, "scintillation", pulse)
+        seq = stage_seed(config.run.seed, frame, "scintillation", pulse)
+        rng = np.random.default_rng(seq)
         sub_pitch_m = (2 * det.half_width_tan * r_ref / (det.width_px * det.subsamples),
                        2 * det.half_height_tan * r_ref / (det.height_px * det.subsamples))
         if min(sub_pitch_m) > derived["cell_radius_m"]:
-            out.pattern = FootprintAveragedPattern.draw(det, sub_pitch_m, derived, rng)
+            out.pattern = FootprintAveragedPattern.draw(det, sub_pitch_m, derived, seq,
+                                                        worker_threads(config.run.threads))
             meta["scintillation_pattern"] = out.pattern.params
         else:
             half_x, half_y = det.half_width_tan * r_ref, det.half_height_tan * r_ref

@@ -5,6 +5,7 @@ frame (effects A–E, reference range, random streams).
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,6 +89,11 @@ def box_average_variance_factor(side_m, radius_m):
     return (np.sqrt(np.pi) * a * erf(a) + np.exp(-a * a) - 1.0) / (a * a)
 
 
+#: Row bands of :class:`FootprintAveragedPattern`, each drawn from its own stream (a fixed number: the values do
+#: not depend on the thread count).
+PATTERN_BANDS = 8
+
+
 @dataclass
 class FootprintAveragedPattern:
     """Scintillation seen by sub-rays whose footprint is larger than a scintillation cell.
@@ -95,19 +101,36 @@ class FootprintAveragedPattern:
     Each sub-ray collects the pattern averaged over its footprint (p_x × p_y at R_ref): unit mean, variance
     SI · g(p_x/ρ_l) · g(p_y/ρ_l) (:func:`box_average_variance_factor`), nearly independent between sub-rays
     (p > ρ_l).  A sum of many cells has gamma statistics (docs/theory.md §11), so one gamma value of that mean and
-    variance is drawn per sub-ray cell of the whole frame (independent of blocks and threads).
+    variance is drawn per sub-ray cell of the whole frame: in PATTERN_BANDS bands of rows, each from its own
+    child stream of the frame's seed sequence, on ``threads`` threads (NumPy's gamma sampler releases the GIL):
+    independent of blocks and threads.
     """
 
     values: np.ndarray  # (H·S, W·S) indexed by [sub_y, sub_x]
     params: dict
 
     @classmethod
-    def draw(cls, det, sub_pitch_m, derived, rng):
+    def draw(cls, det, sub_pitch_m, derived, seed_seq: np.random.SeedSequence, threads: int = 1):
         si = derived["scintillation_index"]
         rho = derived["cell_radius_m"]
         var = float(si * footprint_variance_factor(derived, sub_pitch_m[0], sub_pitch_m[1]))
         shape = (det.height_px * det.subsamples, det.width_px * det.subsamples)
-        values = rng.gamma(1.0 / var, var, size=shape) if var > 0 else np.ones(shape)
+        values = np.ones(shape)
+        if var > 0:
+            bands = [b for b in np.array_split(np.arange(shape[0]), PATTERN_BANDS) if b.size]
+
+            def band(k):
+                child = np.random.SeedSequence(seed_seq.entropy, spawn_key=tuple(seed_seq.spawn_key) + (k,))
+                rows = bands[k]
+                values[rows[0]:rows[-1] + 1] = np.random.default_rng(child).gamma(1.0 / var, var,
+                                                                                  (rows.size, shape[1]))
+
+            if threads > 1:
+                with ThreadPoolExecutor(max_workers=min(threads, len(bands))) as pool:
+                    list(pool.map(band, range(len(bands))))
+            else:
+                for k in range(len(bands)):
+                    band(k)
         return cls(values, {"pattern_model": "footprint_averaged_gamma", "sub_ray_footprint_m": list(sub_pitch_m),
                             "cell_radius_m": rho, "point_scintillation_index": si,
                             "averaged_scintillation_index": var})
