@@ -16,7 +16,8 @@ gamma-distributed speckle factor on the mean gives the negative-binomial counts 
 
 Speed: a cube is processed in fixed-size pixel blocks, each with its own generator spawned from one
 ``SeedSequence`` (spawn key = block index), so the output depends only on the seed and the cube shape, never
-on the number of threads.  Poisson primaries are sampled exactly and sparsely (a Poisson total per block or
+on the number of threads; on the table route the signal-free bins' uniforms come from a counter-based stream
+per block (SplitMix64 on the block's key and the bin's index, made inside the compiled sampler).  Poisson primaries are sampled exactly and sparsely (a Poisson total per block or
 per pixel, then placement by inverse-CDF search or uniform index), with a per-bin ``rng.poisson`` only for
 bins whose mean exceeds ``DENSE_MEAN``; the APD gain with excess noise is the exact sum of n gamma-distributed
 single-electron gains, i.e. one Gamma(n/(F-1), G(F-1)) draw per *non-zero* bin.  See docs/receiver.md.
@@ -101,9 +102,12 @@ def _seed_sequence(rng) -> np.random.SeedSequence:
     return np.random.SeedSequence(rng)
 
 
+def _child_ss(ss, *key) -> np.random.SeedSequence:
+    return np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + tuple(key))
+
+
 def _child(ss, *key) -> np.random.Generator:
-    return np.random.Generator(np.random.PCG64(
-        np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + tuple(key))))
+    return np.random.Generator(np.random.PCG64(_child_ss(ss, *key)))
 
 
 def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_table=True) -> ChainOutput:
@@ -131,11 +135,12 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         report["steps_skipped"] = list(STEPS)
         return ChainOutput(waveforms_j, report)
 
-    lo, hi = (cube.min(), cube.max()) if cube.size else (0.0, 0.0)  # (two SIMD passes over the cube)
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise ValueError("waveforms_j contains NaN or Inf")
-    if lo < 0:
-        raise ValueError("waveforms_j contains negative energies")
+    # input check (NaN or Inf first, then negative energies; nothing is returned for a bad cube).  A float32
+    # cube that reaches the blocks unchanged (no optics MTF) is checked on the table route by the compiled
+    # scan that finds each block's signal bins, in parallel and without a pass of its own; otherwise here.
+    deferred = cube.dtype == np.float32 and not det.enable_optics_mtf and det.detector_type != "geiger"
+    if not deferred:
+        _check_energies(cube)
     H, W, B = cube.shape
     ss = _seed_sequence(rng)
     run, skip = report["steps_run"], report["steps_skipped"]
@@ -228,6 +233,8 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         if refused:  # too many codes: per-bin route
             report["noise_table_refused"] = refused
     report["noise_sampling"] = "table" if table is not None else "per-bin"
+    if deferred and table is None:
+        _check_energies(cube)
     if table is not None:
         report["noise_table"] = {"codes": table.n_entries, "ambiguous_cells": table.n_ambiguous_cells,
                                  "probability_step": 2.0 ** -P_BITS, "max_probability_error": table.max_prob_error}
@@ -273,15 +280,20 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
                   sigma_r=sigma_r, adc=use_adc, bits=det.adc_bits, fs=det.adc_full_scale_e,
                   offset=det.adc_offset_counts)
 
+    # the signal-free bins' uniforms (table route): counter-based streams, one 64-bit key per block, all keys
+    # drawn from the child (3,) of the seed — one ``generate_state`` for the frame
+    keys = None if table is None else _child_ss(ss, 3).generate_state(len(blocks), np.uint64)
     local = threading.local()
 
     def work(blk):
         i, r0, r1 = blk
         if not hasattr(local, "ws"):
             local.ws = {}
-        fn = _process_block if table is None else _process_block_table
-        return fn(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1], params,
-                  local.ws, table)
+        if table is None:
+            return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1],
+                                  params, local.ws)
+        return _process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i],
+                                    None if spk is None else spk[r0:r1], params, local.ws, table)
 
     threads = det.threads or (os.cpu_count() or 1)
     if threads > 1 and len(blocks) > 1:
@@ -289,6 +301,8 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
             stats = list(ex.map(work, blocks))
     else:
         stats = [work(b) for b in blocks]
+    if deferred and table is not None:
+        _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
     for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
         report[key] = int(sum(s[key] for s in stats))
     if table is not None:
@@ -301,6 +315,19 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
                                         f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
     return ChainOutput(out.reshape(H, W, B), report)
+
+
+def _energy_error(nonfinite, negative):
+    if nonfinite:
+        raise ValueError("waveforms_j contains NaN or Inf")
+    if negative:
+        raise ValueError("waveforms_j contains negative energies")
+
+
+def _check_energies(cube):
+    """The input check as one pass of NumPy reductions (cubes that do not go through the table route's scan)."""
+    lo, hi = (cube.min(), cube.max()) if cube.size else (0.0, 0.0)  # (two SIMD passes over the cube)
+    _energy_error(not (np.isfinite(lo) and np.isfinite(hi)), lo < 0)
 
 
 @lru_cache(maxsize=4)
@@ -334,7 +361,7 @@ def _buf(ws, name, n, dtype):
     return a[:n]
 
 
-def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
+def _process_block_table(E, out, new_rng, key, spk, p, ws, table) -> dict:
     """One block of pixels (P, B), A/D on, with the tabulated code distribution of signal-free bins.
 
     Exact decomposition: the primaries of a bin are n = n_s + n_b (independent Poisson, signal and
@@ -343,18 +370,27 @@ def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
     placement below a mean of 1e-3) and the bins with n_s > 0 are redrawn from the law given n_s: by the
     tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform, which is independent of n_s), else
     per bin: n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read noise, A/D.
-    Cost: one 32-bit uniform and one table look-up per bin, plus one Poisson draw per bin with signal."""
+    The uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`): computed
+    inside the compiled sampler and recomputed from i for the bins with signal.  Other draws: the generator
+    ``new_rng()`` (made only for a block with signal).  A float32 block is also checked for NaN/Inf and
+    negative energies by the scan (counts in the stats; the block stops there if any).
+    Cost: one table look-up per bin (the uniforms ~0.2 ns each), plus one Poisson draw per bin with signal."""
     P, B = E.shape
     N = P * B
     stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
     of = out.reshape(-1)
-    r = uniform_uint32(rng, N)
-    stats["n_adc_low"], stats["n_adc_high"] = table.sample(r, of, _buf(ws, "cell", N, np.uint32))
+    stats["n_adc_low"], stats["n_adc_high"] = table.sample_stream(key, of)
     Ef = E.reshape(-1)
     nz = _buf(ws, "nz", N, np.int64)
-    nnz = _nonzero_index(Ef, nz)  # the bins with signal (compiled: signal-free stretches skipped by SIMD tests)
+    invalid = np.zeros(2, np.int64)
+    # the bins with signal (compiled: signal-free stretches skipped by SIMD tests), and the input check
+    nnz = _nonzero_index(Ef, nz, invalid)
+    if invalid.any():
+        stats["n_nonfinite"], stats["n_negative"] = int(invalid[0]), int(invalid[1])
+        return stats
     if not nnz:
         return stats
+    rng = new_rng()
     dense = nnz * 2 > N  # most bins hold signal: work on the whole block (no index array)
     nz = None if dense else nz[:nnz]
     with np.errstate(over="ignore"):
@@ -385,7 +421,7 @@ def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
         sig, n = (caught if dense else nz[caught]), n[caught]
         if not sig.size:
             return stats
-        rs = r[sig]
+        rs = uniform_uint32(key, sig)
         lo_t, hi_t = table.clipped(rs)  # those bins' signal-free codes are replaced
         stats["n_adc_low"] -= lo_t
         stats["n_adc_high"] -= hi_t
@@ -405,7 +441,7 @@ def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
     else:
         sig = np.arange(N) if dense else nz
         n = s + p["b_mult"]
-        lo_t, hi_t = table.clipped(r[sig])
+        lo_t, hi_t = table.clipped(uniform_uint32(key, sig))
         stats["n_adc_low"] -= lo_t
         stats["n_adc_high"] -= hi_t
     y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
@@ -421,9 +457,11 @@ def _process_block_table(E, out, rng, spk, p, ws, table) -> dict:
 
 
 @kernel
-def _nonzero_index(x, idx):
+def _nonzero_index(x, idx, invalid=None):
     """The indices of the non-zero elements of the 1-D ``x`` into ``idx`` (as np.flatnonzero); returns how
-    many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch."""
+    many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch.
+    ``invalid`` (int64 (2,), optional): adds the number of NaN/±Inf elements to invalid[0] and of negative
+    finite ones to invalid[1] (the chain's input check, in the same pass)."""
     n = x.size
     m = 0
     for q in range(n // 64 + 1):
@@ -432,16 +470,25 @@ def _nonzero_index(x, idx):
             c = 0
             for k in range(64):  # fixed trip count: compiled to SIMD compares
                 c += x[j0 + k] != 0
+            if invalid is not None:
+                for k in range(64):
+                    c += not ((x[j0 + k] >= 0) & (x[j0 + k] < np.inf))  # NaN, ±Inf, negative
             if c == 0:
                 continue
         for j in range(j0, min(j0 + 64, n)):
-            if x[j] != 0:
+            xj = x[j]
+            if xj != 0:
                 idx[m] = j
                 m += 1
+            if invalid is not None:
+                if not (xj == xj and abs(xj) < np.inf):
+                    invalid[0] += 1
+                elif xj < 0:
+                    invalid[1] += 1
     return m
 
 
-def _process_block(E, out, rng, spk, p, ws, table=None) -> dict:
+def _process_block(E, out, rng, spk, p, ws) -> dict:
     """One block of pixels (P, B): exact sampling of the §8 statistics, written into ``out``.
     ``ws``: per-thread scratch buffers (reused across blocks: fresh large allocations are slow)."""
     P, B = E.shape

@@ -158,12 +158,21 @@ class CodeTable:
             self.amb_cells = amb
         self.table = table
 
-    def sample(self, r, out, scratch=None):
-        """Codes for the uniform uint32 ``r`` into ``out`` (1-D, table dtype).  Returns (n_low, n_high):
-        how many were clipped at code 0 and at full scale.  One compiled pass (:func:`_sample_codes`)."""
+    def _args(self):
         amb = self.amb_cells if self.amb_cells is not None else np.zeros(1, dtype=bool)
-        return _sample_codes(r, self.table, P_BITS - self.CELL_BITS, -1 if self.sentinel is None else self.sentinel,
-                             amb, self.T_int, self.code, self.t_low, self.t_high, out)
+        return (self.table, P_BITS - self.CELL_BITS, -1 if self.sentinel is None else self.sentinel, amb,
+                self.T_int, self.code, self.t_low, self.t_high)
+
+    def sample(self, r, out):
+        """Codes for the given uniform uint32 ``r`` into ``out`` (1-D, table dtype).  Returns (n_low, n_high):
+        how many were clipped at code 0 and at full scale."""
+        return _lookup_codes(r, *self._args(), out, np.empty(r.size, dtype=np.int64))
+
+    def sample_stream(self, key, out):
+        """Codes for the uniforms 0 … len(out) − 1 of the counter-based stream ``key`` (:func:`uniform_uint32`)
+        into ``out``: the uniforms are computed inside the compiled pass, chunk by chunk, never stored.
+        Returns (n_low, n_high) like :meth:`sample`."""
+        return _sample_stream(np.uint64(key), *self._args(), out)
 
     def clipped(self, r):
         n_low = int(np.count_nonzero(r < np.uint32(self.t_low))) if self.t_low > 0 else 0
@@ -172,32 +181,106 @@ class CodeTable:
 
 
 @kernel
-def _sample_codes(r, table, shift, sentinel, amb_cells, T, code, t_low, t_high, out):
-    """out[i] = the code of the entry holding r[i]: the level-1 cell's code, or for an ambiguous cell (the
-    ``sentinel``; ``amb_cells`` when there is none, sentinel < 0) the binary search of r[i] on the cumulative
-    T (first T_k > r).  Returns the number of r below ``t_low`` and at or above ``t_high`` (clipped)."""
+def _lookup_codes(r, table, shift, sentinel, amb_cells, T, code, t_low, t_high, out, pos):
+    """out[k] = the code of the entry holding r[k]: the level-1 cell's code, or for an ambiguous cell (the
+    ``sentinel``; ``amb_cells`` when there is none, sentinel < 0) the binary search of r[k] on the cumulative
+    T (first T_j > r[k]).  Returns the number of r below ``t_low`` and at or above ``t_high`` (clipped).
+
+    One look-up pass that notes the (rare: ≤ one cell per entry boundary) ambiguous samples in ``pos``
+    (int64 scratch, ≥ r.size), their fix-up, then the clip counts (branch-free, only if a tail is clipped)."""
+    n = r.size
+    n_amb = 0
+    if sentinel >= 0:
+        for k in range(n):
+            c = table[r[k] >> shift]
+            out[k] = c
+            if c == sentinel:
+                pos[n_amb] = k
+                n_amb += 1
+    else:
+        for k in range(n):
+            cell = r[k] >> shift
+            out[k] = table[cell]
+            if amb_cells[cell]:
+                pos[n_amb] = k
+                n_amb += 1
+    n_t = T.size
+    for q in range(n_amb):
+        k = pos[q]
+        ri = np.int64(r[k])
+        lo, hi = 0, n_t
+        while lo < hi:  # first j with T[j] > ri (searchsorted, side="right")
+            mid = (lo + hi) >> 1
+            if T[mid] > ri:
+                hi = mid
+            else:
+                lo = mid + 1
+        out[k] = code[lo]
     n_low = 0
     n_high = 0
-    n_t = T.size
-    for i in range(r.size):
-        ri = np.int64(r[i])
-        cell = ri >> shift
-        c = table[cell]
-        if (sentinel >= 0 and c == sentinel) or (sentinel < 0 and amb_cells[cell]):
-            lo, hi = 0, n_t
-            while lo < hi:  # first k with T[k] > ri (searchsorted, side="right")
-                mid = (lo + hi) >> 1
-                if T[mid] > ri:
-                    hi = mid
-                else:
-                    lo = mid + 1
-            c = code[lo]
-        out[i] = c
-        if ri < t_low:
-            n_low += 1
-        elif ri >= t_high:
-            n_high += 1
+    if t_low > 0:
+        for k in range(n):
+            n_low += r[k] < t_low
+    if t_high < (1 << P_BITS):
+        for k in range(n):
+            n_high += r[k] >= t_high
     return n_low, n_high
+
+
+# ---------------------------------------------------------------------------- the counter-based uniform stream
+#: SplitMix64 (Steele, Lea & Flood, "Fast splittable pseudorandom number generators", OOPSLA 2014; the output
+#: function is Stafford's "Mix13" variant of the MurmurHash3 finalizer): word w of the stream with key κ is
+#: mix(κ + (w + 1)·γ) mod 2⁶⁴, γ the odd "golden gamma" ⌊2⁶⁴/φ⌋.
+SPLITMIX_GAMMA = np.uint64(0x9E3779B97F4A7C15)
+_MIX_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX_M2 = np.uint64(0x94D049BB133111EB)
+#: Uniforms computed per chunk of the compiled sampler (even: a chunk starts on a 64-bit word).
+_STREAM_CHUNK = 1024
+
+
+@kernel
+def splitmix64_mix(z):
+    """The SplitMix64 output function of a uint64 (a bijection of 2⁶⁴)."""
+    z = (z ^ (z >> np.uint64(30))) * _MIX_M1
+    z = (z ^ (z >> np.uint64(27))) * _MIX_M2
+    return z ^ (z >> np.uint64(31))
+
+
+@kernel
+def _stream_fill(key, w0, buf):
+    """buf[2j], buf[2j + 1] = low and high 32 bits of word w0 + j of the stream ``key`` (buf: uint32, even size)."""
+    base = key + np.uint64(w0 + 1) * SPLITMIX_GAMMA
+    for j in range(buf.size // 2):
+        z = splitmix64_mix(base + np.uint64(j) * SPLITMIX_GAMMA)
+        buf[2 * j] = np.uint32(z & np.uint64(0xFFFFFFFF))
+        buf[2 * j + 1] = np.uint32(z >> np.uint64(32))
+
+
+@kernel
+def _sample_stream(key, table, shift, sentinel, amb_cells, T, code, t_low, t_high, out):
+    """:func:`_lookup_codes` on the uniforms 0 … out.size − 1 of the stream ``key``, chunk by chunk."""
+    buf = np.empty(_STREAM_CHUNK, np.uint32)
+    pos = np.empty(_STREAM_CHUNK, np.int64)
+    n = out.size
+    n_low = 0
+    n_high = 0
+    for i0 in range(0, n, _STREAM_CHUNK):
+        m = min(_STREAM_CHUNK, n - i0)
+        _stream_fill(key, i0 // 2, buf)
+        lo, hi = _lookup_codes(buf[:m], table, shift, sentinel, amb_cells, T, code, t_low, t_high, out[i0:i0 + m],
+                               pos)
+        n_low += lo
+        n_high += hi
+    return n_low, n_high
+
+
+@kernel
+def _stream_at(key, idx, out):
+    """out[k] = uniform number idx[k] of the stream ``key`` (the 64-bit word idx // 2, low half when even)."""
+    for k in range(idx.size):
+        i = idx[k]
+        z = splitmix64_mix(key + np.uint64((i >> 1) + 1) * SPLITMIX_GAMMA)
+        out[k] = np.uint32((z >> np.uint64(32 * (i & 1))) & np.uint64(0xFFFFFFFF))
 
 
 class CaughtCodeTables:
@@ -255,7 +338,19 @@ class CaughtCodeTables:
         return codes, n_low, n_high
 
 
-def uniform_uint32(rng, n):
-    """``n`` independent uniform 32-bit integers from the generator's raw 64-bit stream."""
-    return rng.bit_generator.random_raw((n + 1) // 2).view(np.uint32)[:n]
-
+def uniform_uint32(key, n):
+    """Uniform 32-bit integers of the counter-based stream ``key`` (SplitMix64: word w = mix(key + (w + 1)·γ),
+    two uniforms per word, low half first).  ``n``: how many from the start of the stream (int), or the
+    indices of the uniforms wanted (1-D integers ≥ 0): any uniform is computed from its index alone.
+    ``key``: an integer < 2⁶⁴, or a ``np.random.Generator`` (one 64-bit key drawn from it)."""
+    if isinstance(key, np.random.Generator):
+        key = key.integers(0, 2 ** 64, dtype=np.uint64)
+    key = np.uint64(key)
+    if np.ndim(n) == 0:
+        out = np.empty(int(n) + (int(n) & 1), dtype=np.uint32)
+        _stream_fill(key, 0, out)
+        return out[:int(n)]
+    idx = np.ascontiguousarray(n, dtype=np.int64).reshape(-1)
+    out = np.empty(idx.size, dtype=np.uint32)
+    _stream_at(key, idx, out)
+    return out
