@@ -17,9 +17,10 @@ gamma-distributed speckle factor on the mean gives the negative-binomial counts 
 Speed: a cube is processed in fixed-size pixel blocks, each with its own generator spawned from one
 ``SeedSequence`` (spawn key = block index), so the output depends only on the seed and the cube shape, never
 on the number of threads; on the table route the signal-free bins' uniforms come from a counter-based stream
-per block (SplitMix64 on the block's key and the bin's index, made inside the compiled sampler).  Poisson primaries are sampled exactly and sparsely (a Poisson total per block or
-per pixel, then placement by inverse-CDF search or uniform index), with a per-bin ``rng.poisson`` only for
-bins whose mean exceeds ``DENSE_MEAN``; the APD gain with excess noise is the exact sum of n gamma-distributed
+per block (SplitMix64 on the block's key and the bin's index, made inside the compiled sampler).  Poisson
+primaries are sampled exactly and sparsely (a Poisson total per block or per pixel, then placement by
+inverse-CDF search or uniform index), with a per-bin ``rng.poisson`` only for bins whose mean exceeds
+``DENSE_MEAN``; the APD gain with excess noise is the exact sum of n gamma-distributed
 single-electron gains, i.e. one Gamma(n/(F-1), G(F-1)) draw per *non-zero* bin.  See docs/receiver.md.
 """
 from __future__ import annotations
