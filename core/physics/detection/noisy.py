@@ -82,33 +82,47 @@ def gaussian_pulse_kernel(fwhm_s, bin_width_s, half_width_sigmas=4.0):
 # Detection
 # ----------------------------------------------------------------------------------------------------------
 @kernel
-def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered, w, norm, adaptive, k_sigma,
-                threshold, min_sep, min_sig, base, sig, thr, pos, samples):
-    """Per row: baseline and raw noise (robust estimates unless given), the detection waveform yd = y − baseline
-    (float32) correlated with the pulse ``w`` when ``filtered``, its noise, the threshold, and up to
-    pos.shape[1] echoes: the strongest local maximum above the threshold (interior bins; ties: the earliest),
-    then the next outside ``min_sep`` bins of those taken, …; positions in time order, −1 for none, and the
-    three detection-waveform samples around each (``samples``, for the interpolation).  The raw noise σ is at
-    least ``min_sig``, the filtered one's estimate at least ``min_sig``/``norm``.  One row's scratch buffers
-    serve all rows of the call."""
+def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig, filtered, w, norm, adaptive,
+                k_sigma, threshold, min_sep, min_sig, base, sig, thr, pos, samples):
+    """Per row (of any real type, taken as float32; ``integral``: of an integer type): baseline and raw noise
+    (robust estimates unless given), the detection waveform yd = y − baseline (float32) correlated with the
+    pulse ``w`` when ``filtered``, its noise, the threshold, and up to pos.shape[1] echoes: the strongest local
+    maximum above the threshold (interior bins; ties: the earliest), then the next outside ``min_sep`` bins of
+    those taken, …; positions in time order, −1 for none, and the three detection-waveform samples around each
+    (``samples``, for the interpolation).  The raw noise σ is at least ``min_sig``, the filtered one's estimate
+    at least ``min_sig``/``norm``.  One row's scratch buffers serve all rows of the call."""
     n_rows, n = y.shape
     keys, s1, s2, cast, dev, d1, d2, counts = row_scratch(n)
-    ypad, acc = np.empty(n + w.shape[0] - 1), np.empty(FILTER_BLOCK)
-    yd = np.empty(n, np.float32)
+    ypad, acc = np.empty(n + w.shape[0] - 1, np.float32), np.empty(FILTER_BLOCK)
+    yr, yd = np.empty(n, np.float32), np.empty(n, np.float32)
     cj, alive = np.empty(n, np.int64), np.empty(n, np.bool_)
     n_slots = pos.shape[1]
     for r in range(n_rows):
+        row = y[r]
+        lo, hi = np.float32(0.0), np.float32(0.0)
+        if integral:  # the row as float32, and its extremes
+            i_lo, i_hi = row[0], row[0]
+            for i in range(n):
+                v = row[i]
+                yr[i] = np.float32(v)
+                i_lo, i_hi = min(i_lo, v), max(i_hi, v)
+            lo, hi = np.float32(i_lo), np.float32(i_hi)
+        else:
+            for i in range(n):
+                yr[i] = np.float32(row[i])
         b_est, s_est = np.float32(0.0), 0.0
         if estimate_base or estimate_sig:
-            b_est, s_est = baseline_noise_row(y[r], keys, s1, s2, cast, dev, d1, d2, counts)
+            b_est, s_est = baseline_noise_row(yr, integral, lo, hi, 0.0, 0.0, keys, s1, s2, cast, dev, d1, d2,
+                                              counts)
         base[r] = np.float64(b_est) if estimate_base else given_base[r]
         s_raw = s_est if estimate_sig else given_sig[r]
         sig[r] = min_sig if s_raw < min_sig else s_raw  # NaN stays NaN, as np.maximum
         b32 = np.float32(base[r])
         if filtered:
-            correlate_row(y[r], b32, w, ypad, acc, yd)
-            if estimate_sig:
-                sig_det = baseline_noise_row(yd, keys, s1, s2, cast, dev, d1, d2, counts)[1]
+            correlate_row(yr, b32, w, ypad, acc, yd)
+            if estimate_sig:  # (filtered noise: median near 0, σ near the raw one / ‖pulse‖)
+                sig_det = baseline_noise_row(yd, False, lo, hi, 0.0, sig[r] / norm, keys, s1, s2, cast, dev, d1,
+                                             d2, counts)[1]
                 floor = min_sig / norm
                 if sig_det < floor:
                     sig_det = floor
@@ -116,7 +130,7 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
                 sig_det = sig[r] / norm
         else:
             for i in range(n):
-                yd[i] = y[r, i] - b32
+                yd[i] = yr[i] - b32
             sig_det = sig[r]
         thr[r] = k_sigma * sig_det if adaptive else threshold
         t32 = np.float32(thr[r])
@@ -157,11 +171,6 @@ def _noisy_rows(y, given_base, given_sig, estimate_base, estimate_sig, filtered,
             samples[r, k, 0], samples[r, k, 1], samples[r, k, 2] = yd[j - 1], yd[j], yd[j + 1]
 
 
-#: detect_echoes_noisy converts (and processes) this many rows at a time: no float32 copy of a whole cube of
-#: A/D codes.
-_CONVERT_ROWS = 256
-
-
 def run_row_chunks(run, n_rows: int, threads: int) -> None:
     """``run(a, b)`` over chunks of ≥ 256 rows (about four a thread), on ``threads`` threads when there are
     several chunks.  The rows' results do not depend on the chunks, so neither on the thread count."""
@@ -199,7 +208,7 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     """Detect up to ``max_echoes`` echoes per pixel on noisy waveforms (docs/theory.md §9).
 
     waveforms      : (..., B) digital counts or any real waveform, of any integer or float type (processed as
-                     float32, a few rows at a time).
+                     float32, one row at a time).
     threshold_mode : "adaptive" (k_sigma × per-pixel noise σ of the detection waveform, estimated by MAD) or
                      "fixed" (``threshold`` in input units above the baseline).
     pulse          : pulse shape samples for the matched filter (None: no filter).
@@ -241,15 +250,15 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     pos = np.full((P, K), -1, dtype=np.int64)
     samples = np.zeros((P, K, 3), np.float32)  # detection waveform at j − 1, j, j + 1 of each echo
 
-    as_is = y.dtype == np.float32 and y.flags.c_contiguous
+    if y.dtype.kind not in "biu" and y.dtype not in (np.float32, np.float64):
+        y = y.astype(np.float32)
+    integral = y.dtype.kind in "biu"
 
-    def run(a, b):
-        for c in range(a, b, b - a if as_is else _CONVERT_ROWS):  # other rows (A/D codes) float32 a few at a time
-            d = min(c + (b - a if as_is else _CONVERT_ROWS), b)
-            _noisy_rows(np.ascontiguousarray(y[c:d], dtype=np.float32), given_base[c:d], given_sig[c:d],
-                        baseline is None, noise_sigma is None, pulse is not None, w, norm,
-                        threshold_mode == "adaptive", float(k_sigma), float(threshold), int(min_separation_bins),
-                        float(min_noise_sigma), base[c:d], sig[c:d], thr[c:d], pos[c:d], samples[c:d])
+    def run(a, b):  # (rows of A/D codes are taken as float32 one at a time: no float32 copy of the cube)
+        _noisy_rows(np.ascontiguousarray(y[a:b]), integral, given_base[a:b], given_sig[a:b], baseline is None,
+                    noise_sigma is None, pulse is not None, w, norm, threshold_mode == "adaptive", float(k_sigma),
+                    float(threshold), int(min_separation_bins), float(min_noise_sigma), base[a:b], sig[a:b],
+                    thr[a:b], pos[a:b], samples[a:b])
 
     run_row_chunks(run, P, threads)
 

@@ -58,10 +58,10 @@ def _select(a, b, n, k):
 #: Bits of float32 → order keys (int32 whose order is the float order: −0 just below +0); NaN keys lie
 #: beyond those of ±inf.
 _KEY_POS_INF, _KEY_NEG_INF = 0x7F800000, -0x7F800001
-#: Order statistics of float32 rows: a strided sample of this many values brackets the wanted rank, ...
+_KEY_MIN, _KEY_MAX = -0x7FFFFFFF - 1, 0x7FFFFFFF
+#: Order statistics of float32 rows without a model of the values: a strided sample of this many values
+#: proposes the first probes.
 _SAMPLE = 32
-#: ... then the bracket is halved (counting passes, vectorised) until it holds at most this many values.
-_BRACKET = 64
 
 
 @kernel
@@ -71,27 +71,89 @@ def _key32(b):
 
 
 @kernel
-def _order_stats32(x, k_lo, k_hi, keys, s1, s2, cast):
-    """(x₍k_lo₎, x₍k_hi₎): order statistics (0-based ranks, k_lo ≤ k_hi ≤ k_lo + 1) of the float32 row x,
-    exact; NaN if x holds a NaN (as np.median).  On the order keys of the values: two ranks of a strided
-    sample propose a bracket, which is narrowed by bisection in value (each step one vectorised counting pass)
-    until it holds ≤ _BRACKET values; those are gathered and selected (:func:`_select`).  Equal values
-    −0.0 and +0.0 are ordered −0.0 first.  keys, s1, s2 (int32, len(x)) and cast (int32, ≥ 1) are scratch."""
-    n = x.shape[0]
+def _key_value(k, cast, castf):
+    """The float32 value of the order key k (cast: int32 scratch, ≥ 1; castf: its float32 view)."""
+    cast[0] = _key32(np.int32(k))
+    return castf[0]
+
+
+@kernel
+def _value_key(v, cast, castf):
+    """The order key of the float32 value v."""
+    castf[0] = np.float32(v)
+    return np.int64(_key32(cast[0]))
+
+
+@kernel
+def _float_keys(x, keys):
+    """keys[:n] = the order keys of the float32 row x; returns their (min, max) (one vectorised pass)."""
     bits = x.view(np.int32)
-    mn, mx = np.int32(0x7FFFFFFF), np.int32(-0x7FFFFFFF - 1)
-    for i in range(n):
+    mn, mx = np.int32(_KEY_MAX), np.int32(_KEY_MIN)
+    for i in range(x.shape[0]):
         kk = _key32(bits[i])
         keys[i] = kk
         mn, mx = min(mn, kk), max(mx, kk)
+    return np.int64(mn), np.int64(mx)
+
+
+@kernel
+def _count_le(keys, n, t):
+    """#(keys[:n] ≤ t): one vectorised pass."""
+    t32 = np.int32(t)
+    c = 0
+    for i in range(n):
+        c += keys[i] <= t32
+    return c
+
+
+@kernel
+def _step_up(keys, n, t):
+    """(#(keys ≤ t), the smallest key above t or _KEY_MAX): one vectorised pass."""
+    t32 = np.int32(t)
+    c, nxt = 0, np.int32(_KEY_MAX)
+    for i in range(n):
+        kk = keys[i]
+        c += kk <= t32
+        nxt = min(nxt, kk if kk > t32 else np.int32(_KEY_MAX))
+    return c, np.int64(nxt)
+
+
+@kernel
+def _step_down(keys, n, t):
+    """(#(keys < t), the largest key below t or _KEY_MIN): one vectorised pass."""
+    t32 = np.int32(t)
+    c, prv = 0, np.int32(_KEY_MIN)
+    for i in range(n):
+        kk = keys[i]
+        c += kk < t32
+        prv = max(prv, kk if kk < t32 else np.int32(_KEY_MIN))
+    return c, np.int64(prv)
+
+
+@kernel
+def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
+    """(x₍k_lo₎, x₍k_hi₎): order statistics (0-based ranks, k_lo ≤ k_hi ≤ k_lo + 1) of the float32 values
+    whose order keys are keys[:n] (extremes mn, mx), exact; NaN if they hold a NaN (as np.median).  Vectorised
+    counting passes only (no gather, no sort): a bracket lo < wanted ≤ hi whose ends' counts are known is
+    narrowed by probes until a wanted rank is the next value past one end; passes then step from that end
+    value by value.  The first probe is ``guess`` when ``density`` (values per unit value near the wanted rank,
+    from a model; 0: none) is given, else two ranks of a strided sample.  Each next probe aims just past the
+    wanted ranks on the near end's side: a Newton step from that end with the slope measured by the last two
+    probes (``density`` before there are two), or, when that end is not a probe yet, interpolation in value
+    between the ends.  A probe that does not halve the near end's distance makes the next one aim past the
+    far side; after three such, the bracket is halved in value (in key order if that does not split it).
+    ``guess`` and ``density`` only choose the probes: the result is exact whatever they are.  Equal values
+    −0.0 and +0.0 are ordered −0.0 first.  s1, s2 (int32, ≥ _SAMPLE) and cast (int32, ≥ 1) are scratch."""
     if mx > _KEY_POS_INF or mn < _KEY_NEG_INF:
         return np.float32(np.nan), np.float32(np.nan)
-    vals = cast.view(np.float32)
+    castf = cast.view(np.float32)
     # invariant: #(keys ≤ lo) = n_lo ≤ k_lo and #(keys ≤ hi) = n_hi > k_hi
-    lo, hi, n_lo, n_hi = np.int64(mn) - 1, np.int64(mx), 0, n
-    n_proposed = 0
-    p1, p2 = np.int64(0), np.int64(0)
-    if n >= 8 * _SAMPLE:
+    lo, hi, n_lo, n_hi = mn - 1, mx, 0, n
+    p1, p2, n_prop, i_prop = np.int64(0), np.int64(0), 0, 0
+    modelled = density > 0 and math.isfinite(guess) and abs(guess) < 3e38
+    if modelled:
+        p1, n_prop = _value_key(guess, cast, castf), 1
+    elif n >= 8 * _SAMPLE:
         stride, r = n // _SAMPLE, (k_hi * _SAMPLE) // n
         for j in range(_SAMPLE):
             s1[j] = keys[j * stride]
@@ -99,64 +161,82 @@ def _order_stats32(x, k_lo, k_hi, keys, s1, s2, cast):
         for j in range(_SAMPLE):
             s1[j] = keys[j * stride]
         p2 = np.int64(_select(s1, s2, _SAMPLE, min(r + 6, _SAMPLE - 1))[0])
-    while n_hi - n_lo > _BRACKET and hi - lo > 1:
+        n_prop = 2
+    fails = 0  # probes in a row that did not halve the near end's distance
+    slope, pv, pc = 0.0, np.nan, -1  # values per unit value measured by the last two probes; the last probe
+    while hi - lo > 1:
+        d_lo, d_hi = k_lo - n_lo, n_hi - 1 - k_hi  # ranks between each end and the wanted ones
+        near = min(d_lo, d_hi)
+        if near == 0:
+            break
         t = lo
-        if n_proposed == 0 and n >= 8 * _SAMPLE:
-            t, n_proposed = p1, 1
-            if not lo < t < hi:
-                t, n_proposed = p2, 2
-        elif n_proposed == 1:
-            t, n_proposed = p2, 2
+        if i_prop < n_prop:
+            t = p1 if i_prop == 0 else p2
+            i_prop += 1
+            if i_prop == 1 and n_prop == 2 and not lo < t < hi:
+                t, i_prop = p2, 2
+        elif fails < 3:
+            margin = math.floor(0.5 * math.sqrt(near))
+            up = (d_hi <= d_lo) != (fails > 0)  # aim past the wanted ranks on the near end's side (far: stuck)
+            target = k_hi + 1 + margin if up else k_lo - margin
+            from_lo = d_lo <= d_hi
+            rho = slope if slope > 0 else (density if modelled else 0.0)
+            v = np.nan
+            if rho > 0 and (lo >= mn if from_lo else hi < mx):  # Newton step from the near end
+                end, n_end = (lo, n_lo) if from_lo else (hi, n_hi)
+                v = np.float64(_key_value(end, cast, castf)) + (target - n_end) / rho
+            else:  # interpolation between the ends
+                v_lo = np.float64(_key_value(max(lo, mn), cast, castf))
+                v = v_lo + (target - n_lo) / (n_hi - n_lo) * (np.float64(_key_value(hi, cast, castf)) - v_lo)
+            if math.isfinite(v) and abs(v) < 3e38:
+                t = _value_key(v, cast, castf)
         if not lo < t < hi:  # halve the bracket in value (in key order if that does not split it)
-            cast[0] = _key32(np.int32(max(lo, mn)))
-            v_lo = np.float64(vals[0])
-            cast[0] = _key32(np.int32(hi))
-            vals[0] = np.float32(0.5 * v_lo + 0.5 * np.float64(vals[0]))
-            t = np.int64(_key32(cast[0]))
+            v = 0.5 * np.float64(_key_value(max(lo, mn), cast, castf)) + 0.5 * np.float64(_key_value(hi, cast, castf))
+            t = _value_key(v, cast, castf) if math.isfinite(v) else lo
             if not lo < t < hi:
                 t = (lo + hi) >> 1
-        t32 = np.int32(t)
-        c = 0
-        for i in range(n):
-            c += keys[i] <= t32
+        c = _count_le(keys, n, t)
         if c > k_hi:
             hi, n_hi = t, c
         elif c <= k_lo:
             lo, n_lo = t, c
         else:  # c = k_hi = k_lo + 1: the largest key ≤ t and the smallest above
-            a, b = np.int32(-0x7FFFFFFF - 1), np.int32(0x7FFFFFFF)
+            a, b = np.int32(_KEY_MIN), np.int32(_KEY_MAX)
+            t32 = np.int32(t)
             for i in range(n):
                 kk = keys[i]
-                a = max(a, kk if kk <= t32 else np.int32(-0x7FFFFFFF - 1))
-                b = min(b, kk if kk > t32 else np.int32(0x7FFFFFFF))
-            cast[0] = _key32(a)
-            va = vals[0]
-            cast[0] = _key32(b)
-            return va, vals[0]
-    if hi - lo <= 1:  # every value in the bracket is the key hi
-        cast[0] = _key32(np.int32(hi))
-        return vals[0], vals[0]
-    lo1, width, m = lo + 1, np.uint32(hi - lo), 0
-    for i in range(n):  # gather the bracket, lo < key ≤ hi (branch-free, one unsigned comparison)
-        kk = keys[i]
-        s1[m] = kk
-        m += np.uint32(kk - lo1) < width
-    b, a = _select(s1, s2, m, k_hi - n_lo)
-    if k_lo == k_hi:
-        a = b
-    cast[0] = _key32(a)
-    va = vals[0]
-    cast[0] = _key32(b)
-    return va, vals[0]
+                a = max(a, kk if kk <= t32 else np.int32(_KEY_MIN))
+                b = min(b, kk if kk > t32 else np.int32(_KEY_MAX))
+            return _key_value(a, cast, castf), _key_value(b, cast, castf)
+        tv = np.float64(_key_value(t, cast, castf))
+        if pc >= 0 and c != pc and tv != pv:
+            slope = (c - pc) / (tv - pv)
+        pv, pc = tv, c
+        if i_prop >= n_prop:
+            fails = 0 if 2 * min(k_lo - n_lo, n_hi - 1 - k_hi) <= near else fails + 1
+    a, b = hi, hi  # (hi − lo ≤ 1: every value of the bracket is the key hi)
+    if hi - lo > 1 and k_lo == n_lo:  # step up from lo: v, the smallest key above, holds rank n_lo = k_lo
+        v = _step_up(keys, n, lo)[1]
+        a = b = v
+        if k_lo < k_hi:
+            f_v, nxt = _step_up(keys, n, v)
+            b = v if k_hi < f_v else nxt
+    elif hi - lo > 1:  # step down from hi: v, the largest key ≤ hi, holds rank n_hi − 1 = k_hi
+        v = _step_down(keys, n, hi + 1)[1]
+        a = b = v
+        if k_lo < k_hi:
+            c, prv = _step_down(keys, n, v)
+            a = v if c <= k_lo else prv
+    return _key_value(a, cast, castf), _key_value(b, cast, castf)
 
 
 @kernel
-def _median32(x, keys, s1, s2, cast):
-    """The median of the float32 row x as NumPy computes it: the middle element, or the mean of the two middle
-    ones rounded to float32 (NaN if x holds a NaN)."""
-    n = x.shape[0]
+def _median32(keys, n, mn, mx, s1, s2, cast, guess, density):
+    """The median of n float32 values given by their order keys (extremes mn, mx) as NumPy computes it: the
+    middle element, or the mean of the two middle ones rounded to float32 (NaN if they hold a NaN).
+    ``guess`` and ``density``: :func:`_order_stats32`."""
     k = n // 2
-    below, mid = _order_stats32(x, k - 1 + n % 2, k, keys, s1, s2, cast)
+    below, mid = _order_stats32(keys, n, mn, mx, k - 1 + n % 2, k, s1, s2, cast, guess, density)
     if n % 2:
         return mid
     return np.float32(mid + below) * np.float32(0.5)
@@ -320,16 +400,26 @@ def _lerp_quantile(a, b, gamma):
     return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
 
 
+#: The median of normal values lies at the density n φ(0)/σ, their MAD (0.6745 σ) at the density of |values|
+#: n 2φ(0.6745)/σ: the model of :func:`baseline_noise_row`'s first probes.
+_MEDIAN_DENSITY, _MAD_OF_SIGMA, _MAD_DENSITY = 0.3989422804014327, 0.6744897501960817, 0.6355857189727987
+
+
 @kernel
-def baseline_noise_row(y, keys, s1, s2, cast, dev, d1, d2, counts):
+def baseline_noise_row(y, integral, lo, hi, centre, spread, keys, s1, s2, cast, dev, d1, d2, counts):
     """(median, σ) of one float32 row: σ = 1.4826 × MAD, or where the MAD is 0 the rms deviation of the quietest
-    90 % of the samples (NumPy's linear quantile, its pairwise sum).  keys, s1, s2, cast (int32), dev (float32),
-    d1, d2 (float64) and counts are scratch (:func:`row_scratch`)."""
+    90 % of the samples (NumPy's linear quantile, its pairwise sum).  ``integral``: the row is known to hold
+    whole numbers (converted from an integer type) whose extremes are ``lo`` and ``hi``; else both are found
+    here.  ``centre`` and ``spread`` (> 0; else none): the expected median and σ of the row, which only choose
+    where the exact selection of a float row starts counting (:func:`_order_stats32`).  keys, s1, s2, cast
+    (int32), dev (float32), d1, d2 (float64) and counts are scratch (:func:`row_scratch`)."""
     n = y.shape[0]
-    lo, hi, counted = y[0], y[0], True
-    for i in (0, n // 2, n - 1):  # most float rows show at once
-        counted = counted and y[i] == np.floor(y[i])
-    if counted:  # fractional values (NaN counts) and the extremes by their order keys: one vectorised pass
+    counted = True
+    if not integral:
+        lo, hi = y[0], y[0]
+        for i in (0, n // 2, n - 1):  # most float rows show at once
+            counted = counted and y[i] == np.floor(y[i])
+    if counted and not integral:  # fractional values (NaN counts) and the extremes by their order keys
         bits = y.view(np.int32)
         n_frac, k_min, k_max = 0, np.int32(0x7FFFFFFF), np.int32(-0x7FFFFFFF - 1)
         for i in range(n):
@@ -338,16 +428,23 @@ def baseline_noise_row(y, keys, s1, s2, cast, dev, d1, d2, counts):
             k_min, k_max = min(k_min, kk), max(k_max, kk)
         cast[0], cast[1] = _key32(k_min), _key32(k_max)
         lo, hi = cast.view(np.float32)[0], cast.view(np.float32)[1]
-        counted = n_frac == 0 and hi - lo < _COUNTING_RANGE
+        counted = n_frac == 0
+    counted = counted and hi - lo < _COUNTING_RANGE
     span = 0
     if counted:  # A/D counts: the median and MAD by counting
         span = int(hi - lo) + 1
         base, mad = _counting_median_mad(y, lo, span, counts)
     else:
-        base = _median32(y, keys, s1, s2, cast)
+        modelled = spread > 0 and math.isfinite(spread)
+        mn, mx = _float_keys(y, keys)
+        base = _median32(keys, n, mn, mx, s1, s2, cast, centre, n * _MEDIAN_DENSITY / spread if modelled else 0.0)
+        dev_bits = dev.view(np.int32)  # |y − median| ≥ +0 (or NaN): its bits are its order keys
+        d_mn, d_mx = np.int32(_KEY_MAX), np.int32(_KEY_MIN)
         for i in range(n):
             dev[i] = abs(y[i] - base)
-        mad = _median32(dev, keys, s1, s2, cast)
+            d_mn, d_mx = min(d_mn, dev_bits[i]), max(d_mx, dev_bits[i])
+        mad = _median32(dev_bits, n, np.int64(d_mn), np.int64(d_mx), s1, s2, cast, _MAD_OF_SIGMA * spread,
+                        n * _MAD_DENSITY / spread if modelled else 0.0)
     sigma = np.float64(mad) * MAD_TO_SIGMA
     if sigma != 0:
         return base, sigma
@@ -397,7 +494,8 @@ def row_scratch(n):
 def _baseline_noise_rows(y, base, sigma):
     keys, s1, s2, cast, dev, d1, d2, counts = row_scratch(y.shape[1])
     for r in range(y.shape[0]):
-        base[r], sigma[r] = baseline_noise_row(y[r], keys, s1, s2, cast, dev, d1, d2, counts)
+        base[r], sigma[r] = baseline_noise_row(y[r], False, np.float32(0.0), np.float32(0.0), 0.0, 0.0, keys, s1, s2,
+                                               cast, dev, d1, d2, counts)
 
 
 def robust_baseline_noise(waveforms):
@@ -421,22 +519,23 @@ def correlate_row(y, b32, w, ypad, acc, out):
     """out = SciPy's correlate1d of y − b32 (float32) with a symmetric odd kernel ``w`` (float64), 'nearest'
     edges: each output summed in float64 in SciPy's order (centre tap, then the folded pairs from the outermost
     in) and rounded to float32.  The tap loop runs outside a block of outputs, which keeps every output's
-    order and lets the compiler vectorise across outputs.  ypad (n + len(w) − 1) and acc (FILTER_BLOCK) are
-    float64 scratch."""
+    order and lets the compiler vectorise across outputs.  ypad (float32, n + len(w) − 1: the row with its
+    edges, widened to float64 exactly where it is read — half the bytes of a float64 copy to load) and acc
+    (float64, FILTER_BLOCK) are scratch."""
     n, h = y.shape[0], w.shape[0] // 2
-    for i in range(h):  # the row with its edges clamped ('nearest'), in float64
-        ypad[i] = np.float64(y[0] - b32)
-        ypad[n + h + i] = np.float64(y[n - 1] - b32)
+    for i in range(h):  # the row with its edges clamped ('nearest')
+        ypad[i] = y[0] - b32
+        ypad[n + h + i] = y[n - 1] - b32
     body = ypad[h:h + n]
     for i in range(n):
-        body[i] = np.float64(y[i] - b32)
+        body[i] = y[i] - b32
     wc = w[h]
     for s in range(0, n, FILTER_BLOCK):  # (slices, indexed from 0: the compiler vectorises these loops)
         m = min(FILTER_BLOCK, n - s)
         c = s + h
         centre, dst = ypad[c:c + m], out[s:s + m]
         for i in range(m):
-            acc[i] = centre[i] * wc
+            acc[i] = np.float64(centre[i]) * wc
         jj = -h
         while jj + 4 <= 0:  # four taps per pass over the block, each added in turn
             w1, w2, w3, w4 = w[h + jj], w[h + jj + 1], w[h + jj + 2], w[h + jj + 3]
@@ -445,16 +544,16 @@ def correlate_row(y, b32, w, ypad, acc, out):
             l3, r3 = ypad[c + jj + 2:c + jj + 2 + m], ypad[c - jj - 2:c - jj - 2 + m]
             l4, r4 = ypad[c + jj + 3:c + jj + 3 + m], ypad[c - jj - 3:c - jj - 3 + m]
             for i in range(m):
-                a = acc[i] + (l1[i] + r1[i]) * w1
-                a += (l2[i] + r2[i]) * w2
-                a += (l3[i] + r3[i]) * w3
-                acc[i] = a + (l4[i] + r4[i]) * w4
+                a = acc[i] + (np.float64(l1[i]) + np.float64(r1[i])) * w1
+                a += (np.float64(l2[i]) + np.float64(r2[i])) * w2
+                a += (np.float64(l3[i]) + np.float64(r3[i])) * w3
+                acc[i] = a + (np.float64(l4[i]) + np.float64(r4[i])) * w4
             jj += 4
         while jj < 0:
             wj = w[h + jj]
             left, right = ypad[c + jj:c + jj + m], ypad[c - jj:c - jj + m]
             for i in range(m):
-                acc[i] += (left[i] + right[i]) * wj
+                acc[i] += (np.float64(left[i]) + np.float64(right[i])) * wj
             jj += 1
         for i in range(m):
             dst[i] = acc[i]
@@ -462,7 +561,7 @@ def correlate_row(y, b32, w, ypad, acc, out):
 
 @kernel
 def _correlate_rows(y, w, out):
-    ypad, acc = np.empty(y.shape[1] + w.shape[0] - 1), np.empty(FILTER_BLOCK)
+    ypad, acc = np.empty(y.shape[1] + w.shape[0] - 1, np.float32), np.empty(FILTER_BLOCK)
     for r in range(y.shape[0]):
         correlate_row(y[r], np.float32(0.0), w, ypad, acc, out[r])
 

@@ -5,6 +5,9 @@ written out in NumPy.  Rows of every kind the kernels treat differently: A/D cou
 not), float rows (order statistics by bracketing), short rows, duplicates, NaN and inf, both parities of the
 row length.  Tolerance: none (np.array_equal; −0.0 equals +0.0).
 """
+import inspect
+import sys
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -181,3 +184,154 @@ def test_detection_of_a_code_cube_is_that_of_its_float32_copy():
         assert np.count_nonzero(a.detected) > 300
         for f in ("time_s", "amplitude", "snr", "detected", "baseline", "noise_sigma", "threshold"):
             assert np.array_equal(getattr(a, f), getattr(b, f), equal_nan=True), f
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Exact selection whatever the model that chooses its probes (row_statistics._order_stats32)
+# ----------------------------------------------------------------------------------------------------------
+def adversarial_rows(rng, n):
+    """Float32 rows the probes' model (median near a centre, normal spread) does not describe, (k, n)."""
+    rows = [
+        rng.standard_exponential(n) * 3.0,  # skewed, all positive
+        rng.lognormal(0.0, 2.0, n),  # strongly skewed
+        np.clip(rng.standard_cauchy(n) * 5.0, -3e38, 3e38),  # heavy tails
+        np.where(rng.random(n) < 0.7, rng.uniform(200, 900, n), rng.standard_normal(n)),  # mostly echoes
+        np.full(n, -2.5),  # constant
+        np.where(np.arange(n) % 2 == 0, 1.0, 3.0),  # two values, half each
+        np.where(rng.random(n) < 0.9, 4.25, rng.standard_normal(n)),  # 90 % one value
+        np.round(rng.standard_normal(n) * 3) * 0.5 + 0.25,  # few values, many duplicates
+        np.where(rng.random(n) < 0.5, -0.0, 0.0) * np.where(rng.random(n) < 0.9, 1.0, rng.standard_normal(n)),
+        rng.standard_normal(n) * 1e-42,  # subnormal
+        np.where(rng.random(n) < 0.3, rng.choice([-3e38, 3e38], n), rng.standard_normal(n)),  # huge values
+        np.where(rng.random(n) < 0.2, rng.choice([-np.inf, np.inf], n), rng.standard_normal(n)),  # infinities
+        np.where(np.arange(n) < 0.7 * n, -np.inf, rng.standard_normal(n)),  # the median is −inf
+        np.where(np.arange(n) == n // 3, np.nan, rng.standard_normal(n)),  # one NaN
+        rng.standard_normal(n) * 0.01 + 1e6,  # far from the model's centre
+    ]
+    return np.array(rows, dtype=np.float32)
+
+
+#: (centre, spread) of the model handed to the selection: from exact to absurd; spread ≤ 0 or not finite
+#: means none.
+MODELS = [(0.0, 1.0), (0.0, 0.3), (0.0, 30.0), (50.0, 1.0), (-1e30, 1e-30), (0.0, 1e-300), (1e38, 1e38),
+          (np.nan, 1.0), (np.inf, 1.0), (0.0, np.nan), (0.0, np.inf), (0.0, 0.0), (0.0, -1.0)]
+
+
+def sorted_order_stats(x, k_lo, k_hi):
+    """The order statistics of x by sorting the order keys (−0 before +0), NaN if x holds a NaN."""
+    if np.isnan(x).any():
+        return np.float32(np.nan), np.float32(np.nan)
+    bits = x.view(np.int32)
+    keys = np.sort(bits ^ ((bits >> 31) & 0x7FFFFFFF))
+    vals = (keys ^ ((keys >> 31) & 0x7FFFFFFF)).astype(np.int32).view(np.float32)
+    return vals[k_lo], vals[k_hi]
+
+
+@pytest.mark.parametrize("n", [7, 64, 255, 1024, 1025, 1668])
+def test_baseline_noise_row_is_numpys_whatever_the_model(n):
+    """The median and σ of rows of every kind, each with every model (centre, spread) of the probes: NumPy's."""
+    from core.physics.detection.row_statistics import baseline_noise_row, row_scratch
+    rng = np.random.default_rng(100 + n)
+    y = np.concatenate([adversarial_rows(rng, n), row_families(rng, n, p=4)])
+    with np.errstate(invalid="ignore"):
+        want_base, want_sig = numpy_baseline_noise(y)
+    scratch = row_scratch(n)
+    for r in range(len(y)):
+        for centre, spread in MODELS + [(float(want_base[r]), float(want_sig[r]))]:
+            base, sig = baseline_noise_row(y[r], False, np.float32(0), np.float32(0), centre, spread, *scratch)
+            assert np.array_equal(base, want_base[r], equal_nan=True), (r, centre, spread)
+            assert np.array_equal(sig, want_sig[r], equal_nan=True), (r, centre, spread)
+
+
+def traced(func, *args):
+    """func(*args) run as Python (its compiled callees compiled), and the set of its own lines executed."""
+    code, hit = func.__code__, set()
+
+    def tracer(frame, event, arg):
+        if frame.f_code is not code:
+            return None
+        if event == "line":
+            hit.add(frame.f_lineno)
+        return tracer
+    sys.settrace(tracer)
+    try:
+        return func(*args), hit
+    finally:
+        sys.settrace(None)
+
+
+def test_every_branch_of_the_selection_runs_and_is_exact():
+    """The selection's Python source run on the adversarial rows with every model, traced line by line: each
+    rank pair (odd and even rows) equals the sorted keys' and every branch — model or sample first probes, the
+    second sample probe alone, Newton steps, interpolation, the bisections (in value and in key), the exit
+    between two ranks, stepping up and stepping down, NaN — runs at least once."""
+    from core.physics.detection import row_statistics as rs
+    func = rs._order_stats32.py_func
+    lines, first = inspect.getsourcelines(func)
+    markers = {"model probe": "p1, n_prop = _value_key(guess", "sample probes": "p2 = np.int64(_select(",
+               "second sample probe alone": "t, i_prop = p2, 2", "Newton": "# Newton step from the near end",
+               "interpolation": "v_lo = np.float64(", "value bisection": "t = _value_key(v, cast, castf) if",
+               "key bisection": "t = (lo + hi) >> 1", "between two ranks": "b = min(b, kk if kk > t32 else",
+               "step up": "b = v if k_hi < f_v else nxt", "step down": "a = v if c <= k_lo else prv",
+               "NaN": "return np.float32(np.nan), np.float32(np.nan)"}
+    where = {name: [first + i for i, text in enumerate(lines) if m in text] for name, m in markers.items()}
+    assert all(len(v) == 1 for v in where.values()), where
+    seen = set()
+    rng = np.random.default_rng(7)
+    for n in (255, 256, 1024, 1025):
+        y = np.concatenate([adversarial_rows(rng, n), row_families(rng, n, p=2)])
+        keys, s1, s2, cast = (np.empty(n, np.int32) for _ in range(4))
+        for r in range(len(y)):
+            mn, mx = rs._float_keys(y[r], keys)
+            for k_lo, k_hi in ((n // 2 - 1 + n % 2, n // 2), (n // 3, n // 3), (n - 2, n - 1), (0, 1)):
+                want = sorted_order_stats(y[r], k_lo, k_hi)
+                for centre, spread in MODELS:
+                    density = n * 0.4 / spread if spread > 0 and np.isfinite(spread) else 0.0
+                    with np.errstate(all="ignore"):  # (inf − inf in Python, as in the compiled kernel)
+                        got, hit = traced(func, keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, centre, density)
+                    compiled = rs._order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, centre, density)
+                    for g in (got, compiled):
+                        assert np.array_equal(np.array(g, np.float32).view(np.int32),
+                                              np.array(want, np.float32).view(np.int32)) or \
+                            (np.isnan(want[0]) and np.isnan(g).all()), (n, r, k_lo, centre, spread)
+                    seen |= {name for name, ln in where.items() if ln[0] in hit}
+    assert seen == set(markers), set(markers) - seen
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+@pytest.mark.parametrize("dtype", [np.uint16, np.int8, np.int64, np.float64, np.float32])
+def test_detection_of_adversarial_rows_of_any_type_is_its_numpy_formulation(dtype, threads):
+    """Rows full of echoes, constant, two-valued, skewed, all-zero, negative (int8), beyond the counting range
+    (int64), with the matched filter and the adaptive threshold: bit for bit the NumPy formulation on the
+    float32 copy, on 1 and 3 threads."""
+    rng = np.random.default_rng(11)
+    n = 1024
+    rows = [rng.poisson(2.0, n) + 13, np.full(n, 16), np.where(np.arange(n) % 2 == 0, 15, 17),
+            np.where(rng.random(n) < 0.7, rng.integers(60, 120, n), 16),  # mostly echo
+            rng.geometric(0.3, n) + 10, np.zeros(n, np.int64)]
+    for _ in range(300):  # noise rows with an echo or two
+        row = rng.poisson(rng.uniform(0.2, 3.0), n) + 14
+        for _ in range(rng.integers(0, 3)):
+            j = rng.integers(20, n - 20)
+            row[j - 3:j + 4] += rng.integers(5, 100)
+        rows.append(row)
+    y = np.array(rows)
+    if dtype == np.int8:
+        y = np.clip(y - 40, -128, 127)
+    if dtype == np.int64:
+        y[::7] = y[::7] * 3 + rng.integers(0, 1 << 40, (1, n))  # beyond the counting range
+    if dtype in (np.float64, np.float32):
+        y = y + rng.standard_normal(y.shape) * 0.3
+    y = y.astype(dtype)
+    pulse = gaussian_pulse_kernel(5e-9, 1e-9)
+    with np.errstate(all="ignore"):
+        got = detect_echoes_noisy(y, 1e-9, pulse=pulse, k_sigma=4.0, max_echoes=3, min_noise_sigma=0.5,
+                                  threads=threads)
+        pos, amp, base, sig, thr = numpy_detection(y.astype(np.float32), pulse, 4.0, 0.5, 3,
+                                                   max(3, len(pulse) // 2))
+    assert np.count_nonzero(got.detected) > 100
+    assert np.array_equal(got.position_bins, pos, equal_nan=True)
+    assert np.array_equal(got.amplitude, amp, equal_nan=True)
+    assert np.array_equal(got.baseline, base)
+    assert np.array_equal(got.noise_sigma, sig)
+    assert np.array_equal(got.threshold, thr)
