@@ -16,11 +16,12 @@ gamma-distributed speckle factor on the mean gives the negative-binomial counts 
 
 Speed: a cube is processed in fixed-size pixel blocks, each with its own generator spawned from one
 ``SeedSequence`` (spawn key = block index), so the output depends only on the seed and the cube shape, never
-on the number of threads; on the table route the signal-free bins' uniforms come from a counter-based stream
-per block (SplitMix64 on the block's key and the bin's index, made inside the compiled sampler).  Poisson
-primaries are sampled exactly and sparsely (a Poisson total per block or per pixel, then placement by
-inverse-CDF search or uniform index), with a per-bin ``rng.poisson`` only for bins whose mean exceeds
-``DENSE_MEAN``; the APD gain with excess noise is the exact sum of n gamma-distributed
+on the number of threads; on the table route the signal-free bins' uniforms and the signal bins' Poisson
+counts (means below 8) come from counter-based streams per block (SplitMix64 on the block's key and the bin's
+index, evaluated inside the compiled kernels).  On the per-bin
+route Poisson primaries are sampled exactly and sparsely (a Poisson total per block or per pixel, then
+placement by inverse-CDF search or uniform index), with a per-bin ``rng.poisson`` only for bins whose mean
+exceeds ``DENSE_MEAN``; the APD gain with excess noise is the exact sum of n gamma-distributed
 single-electron gains, i.e. one Gamma(n/(F-1), G(F-1)) draw per *non-zero* bin.  See docs/receiver.md.
 """
 from __future__ import annotations
@@ -38,16 +39,15 @@ from ...config.settings import DetectorSettings
 from ...config.validate import validate
 from ...jit import kernel
 from .adc import adc_convert, adc_dtype
-from .code_tables import (CAUGHT_TABLES, P_BITS, TABLE_MIN_SIGMA_STEPS, CaughtCodeTables, CodeTable, noise_code_pmf,
-                          uniform_uint32)
+from .code_tables import (CAUGHT_TABLES, P_BITS, SPLITMIX_GAMMA, TABLE_MIN_SIGMA_STEPS, CaughtCodeTables, CodeTable,
+                          noise_code_pmf, splitmix64_mix, uniform_uint32)
 from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
                           noise_sigma_floor, photons_per_joule)
 from .geiger import geiger_histogram
-from .samplers import DENSE_MEAN, NORMAL_MEAN, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
+from .samplers import (DENSE_MEAN, NORMAL_MEAN, POISSON_INVERSION_MAX, gamma_gain, poisson_dense, poisson_inversion,
+                       poisson_sparse_counts, poisson_uniform_rows)
 from .speckle import apply_mtf, optics_mtf_2d, speckle_gain_field
 
-#: Table route: signal bins with a mean below this are drawn by sparse placement (one Poisson total first).
-_SPARSE_MEAN = 1e-3
 #: Largest mean number of primaries per bin carried (float32 safe); larger means are clipped and reported.
 _MEAN_CAP = 1e30
 #: Samples (pixels × bins) per random block.  Fixed: the result depends on the seed and shape only.
@@ -281,9 +281,11 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
                   sigma_r=sigma_r, adc=use_adc, bits=det.adc_bits, fs=det.adc_full_scale_e,
                   offset=det.adc_offset_counts)
 
-    # the signal-free bins' uniforms (table route): counter-based streams, one 64-bit key per block, all keys
-    # drawn from the child (3,) of the seed — one ``generate_state`` for the frame
+    # table route: counter-based streams, one 64-bit key per block for the signal-free bins' uniforms (all keys
+    # drawn from the child (3,) of the seed: one ``generate_state`` for the frame) and one for the uniforms of
+    # the signal bins' Poisson counts (child (4,))
     keys = None if table is None else _child_ss(ss, 3).generate_state(len(blocks), np.uint64)
+    pkeys = None if table is None else _child_ss(ss, 4).generate_state(len(blocks), np.uint64)
     local = threading.local()
 
     def work(blk):
@@ -293,7 +295,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         if table is None:
             return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1],
                                   params, local.ws)
-        return _process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i],
+        return _process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
                                     None if spk is None else spk[r0:r1], params, local.ws, table)
 
     threads = det.threads or (os.cpu_count() or 1)
@@ -362,20 +364,23 @@ def _buf(ws, name, n, dtype):
     return a[:n]
 
 
-def _process_block_table(E, out, new_rng, key, spk, p, ws, table) -> dict:
+def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     """One block of pixels (P, B), A/D on, with the tabulated code distribution of signal-free bins.
 
     Exact decomposition: the primaries of a bin are n = n_s + n_b (independent Poisson, signal and
     background/bulk dark).  Every bin first gets a code from ``table`` (the law of a bin with n_s = 0); then
-    the signal primaries n_s are drawn exactly for the bins with a non-zero mean (one Poisson each; sparse
-    placement below a mean of 1e-3) and the bins with n_s > 0 are redrawn from the law given n_s: by the
-    tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform, which is independent of n_s), else
-    per bin: n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read noise, A/D.
-    The uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`): computed
-    inside the compiled sampler and recomputed from i for the bins with signal.  Other draws: the generator
-    ``new_rng()`` (made only for a block with signal).  A float32 block is also checked for NaN/Inf and
-    negative energies by the scan (counts in the stats; the block stops there if any).
-    Cost: one table look-up per bin (the uniforms ~0.2 ns each), plus one Poisson draw per bin with signal."""
+    the signal primaries n_s are drawn exactly for the bins with a non-zero mean and the bins with n_s > 0 are
+    redrawn from the law given n_s: by the tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform,
+    which is independent of n_s), else per bin: n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)),
+    surface dark Poisson, read noise, A/D.
+
+    Random numbers: the uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`):
+    made inside the compiled sampler and recomputed from i for the bins with signal; n_s of bin i, for means
+    below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the 53-bit uniform of word i of the stream
+    ``pkey`` (compiled, :func:`_signal_counts`); the rest (larger means, the per-bin route) from the generator
+    ``new_rng()``, made only when needed.  A float32 block is also checked for NaN/Inf and negative energies
+    by the scan (counts in the stats; the block stops there if any).
+    Cost: one table look-up per bin (its uniform ~0.2 ns), plus a few ns per bin with signal."""
     P, B = E.shape
     N = P * B
     stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
@@ -391,56 +396,60 @@ def _process_block_table(E, out, new_rng, key, spk, p, ws, table) -> dict:
         return stats
     if not nnz:
         return stats
-    rng = new_rng()
-    dense = nnz * 2 > N  # most bins hold signal: work on the whole block (no index array)
-    nz = None if dense else nz[:nnz]
-    with np.errstate(over="ignore"):
-        s = Ef.astype(np.float64) if dense else Ef[nz].astype(np.float64)
-        s *= p["k_sig"]
-        if spk is not None and dense:
-            sv = s.reshape(P, B)
-            sv *= spk[:, None]
-        elif spk is not None:
-            s *= spk[nz // B]
-    bad = ~(s <= _MEAN_CAP)
-    if bad.any():
-        stats["n_mean_clipped"] = int(np.count_nonzero(bad))
-        s[bad] = _MEAN_CAP
+    nz = nz[:nnz]
+    rng = None
+    spk_b = np.empty(0, np.float32) if spk is None else spk
     if p["shot"]:
-        # exact Poisson counts: one draw per bin (numpy: 8–10 ns below a mean of 0.1, ~30 ns at 1) except for
-        # very faint bins (pulse tails, FFT round-off), placed sparsely — usually no event at all
-        faint = s < _SPARSE_MEAN
-        if faint.any():
-            n = np.empty(s.size)
-            fi = np.flatnonzero(faint)
-            n[fi] = poisson_sparse_counts(s[fi], rng)
-            bi = np.flatnonzero(~faint)
-            n[bi], stats["normal_bins"] = poisson_dense(s[bi], rng)
-        else:
-            n, stats["normal_bins"] = poisson_dense(s, rng)
-        caught = np.flatnonzero(n > 0)
-        sig, n = (caught if dense else nz[caught]), n[caught]
+        lam, p0, sig, cnt, big = (_buf(ws, k, nnz, t) for k, t in (("lam", np.float64), ("p0", np.float64),
+                                                                  ("sig", np.int64), ("cnt", np.float64),
+                                                                  ("big", np.int64)))
+        stats["n_mean_clipped"] = _signal_means(Ef, nz, p["k_sig"], spk_b, B, _MEAN_CAP, lam)
+        np.negative(lam, out=p0)
+        np.exp(p0, out=p0)  # e^(−λ) of every signal bin: NumPy's vectorised exp
+        n_sig, n_big = _signal_counts(nz, lam, p0, pkey, sig, cnt, big)
+        sig, cnt = sig[:n_sig], cnt[:n_sig]
+        if n_big:  # bright bins: one exact rng.poisson each
+            rng = new_rng()
+            nb, stats["normal_bins"] = poisson_dense(lam[big[:n_big]], rng)
+            hit = nb > 0
+            sig = np.concatenate([sig, nz[big[:n_big][hit]]])
+            cnt = np.concatenate([cnt, nb[hit]])
         if not sig.size:
             return stats
         rs = uniform_uint32(key, sig)
         lo_t, hi_t = table.clipped(rs)  # those bins' signal-free codes are replaced
         stats["n_adc_low"] -= lo_t
         stats["n_adc_high"] -= hi_t
-        few = n <= table.caught.m_max
-        if few.any():  # codes given the caught count, from the tables (the same uniform r: independent of n)
-            codes, lo, hi = table.caught.sample(n[few], rs[few])
+        few = cnt <= table.caught.m_max
+        n_few = int(np.count_nonzero(few))
+        if n_few:  # codes given the caught count, from the tables (the same uniform r: independent of n)
+            codes, lo, hi = table.caught.sample(cnt[few], rs[few])
             of[sig[few]] = codes
             stats["n_adc_low"] += lo
             stats["n_adc_high"] += hi
-            stats["caught_table"] = int(np.count_nonzero(few))
-            sig, n = sig[~few], n[~few]
+            stats["caught_table"] = n_few
+            sig, n = sig[~few], cnt[~few]
             if not sig.size:
                 return stats
+        else:
+            n = cnt.copy()
         stats["caught_per_bin"] = int(sig.size)
+        if rng is None:
+            rng = new_rng()
         if p["b_mult"] > 0:
             n += rng.poisson(p["b_mult"], sig.size)
     else:
-        sig = np.arange(N) if dense else nz
+        rng = new_rng()
+        with np.errstate(over="ignore"):
+            s = Ef[nz].astype(np.float64)
+            s *= p["k_sig"]
+            if spk is not None:
+                s *= spk[nz // B]
+        bad = ~(s <= _MEAN_CAP)
+        if bad.any():
+            stats["n_mean_clipped"] = int(np.count_nonzero(bad))
+            s[bad] = _MEAN_CAP
+        sig = nz
         n = s + p["b_mult"]
         lo_t, hi_t = table.clipped(uniform_uint32(key, sig))
         stats["n_adc_low"] -= lo_t
@@ -455,6 +464,48 @@ def _process_block_table(E, out, new_rng, key, spk, p, ws, table) -> dict:
     stats["n_adc_high"] += hi
     of[sig] = codes
     return stats
+
+
+@kernel
+def _signal_means(E, idx, k_sig, spk, n_bins, cap, lam):
+    """lam[q] = the mean signal primaries of bin idx[q] of a block: E·k_sig in float64, × the pixel's speckle
+    factor when ``spk`` is not empty, clipped to ``cap``.  Returns how many were clipped."""
+    n_clip = 0
+    for q in range(idx.size):
+        j = idx[q]
+        s = np.float64(E[j]) * k_sig
+        if spk.size:
+            s *= spk[j // n_bins]
+        if not s <= cap:
+            s = cap
+            n_clip += 1
+        lam[q] = s
+    return n_clip
+
+
+@kernel
+def _signal_counts(idx, lam, p0, pkey, sig, cnt, big):
+    """Poisson counts of the signal bins idx (means ``lam``, p0 = e^(−lam)): below POISSON_INVERSION_MAX by
+    :func:`poisson_inversion` of the 53-bit uniform (w ≫ 11)·2⁻⁵³ of word j of the counter-based stream
+    ``pkey`` (j = the bin's index in the block); the bins with a count > 0 listed in ``sig`` (bin index) and
+    ``cnt`` (float64 count); larger means listed in ``big`` (position in idx) for ``rng.poisson``.  Returns
+    (n_sig, n_big)."""
+    n_sig = 0
+    n_big = 0
+    for q in range(idx.size):
+        s = lam[q]
+        if s >= POISSON_INVERSION_MAX:
+            big[n_big] = q
+            n_big += 1
+            continue
+        j = idx[q]
+        w = splitmix64_mix(pkey + np.uint64(j + 1) * SPLITMIX_GAMMA)
+        k = poisson_inversion(s, p0[q], np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0))
+        if k:
+            sig[n_sig] = j
+            cnt[n_sig] = k
+            n_sig += 1
+    return n_sig, n_big
 
 
 @kernel

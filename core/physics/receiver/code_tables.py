@@ -310,32 +310,46 @@ class CaughtCodeTables:
             self.stack = stack.reshape(-1)
             self.t_low = np.array([t.t_low for t in tabs], dtype=np.int64)
             self.t_high = np.array([t.t_high for t in tabs], dtype=np.int64)
-            self.clip_low = bool(np.any(self.t_low > 0))
-            self.clip_high = bool(np.any(self.t_high < (1 << P_BITS)))
+            self.T_stack = np.stack([t.T_int for t in tabs])  # (one window: the same entries and codes)
             self.max_prob_error = max(t.max_prob_error for t in tabs)
             self.tables = tabs
 
     def sample(self, m, r):
         """Codes for caught counts ``m`` (1 … m_max) and uniforms ``r`` (uint32).  Returns (codes int64, n_low,
-        n_high)."""
+        n_high).  One compiled pass (:func:`_caught_lookup`)."""
         if self.tables is None:
             self._build()
-        mi = m.astype(np.int32) - 1
-        flat = (r >> np.uint32(P_BITS - self.cell_bits)).astype(np.int32)
-        flat |= mi << self.cell_bits
-        codes = self.stack[flat]
-        amb = np.flatnonzero(codes < 0)
-        if amb.size:
-            for j in np.unique(mi[amb]):
-                sel = amb[mi[amb] == j]
-                t = self.tables[j]
-                codes[sel] = t.code[np.searchsorted(t.T, r[sel].astype(np.uint64), side="right")]
-        n_low = n_high = 0
-        if self.clip_low:
-            n_low = int(np.count_nonzero(r.astype(np.int64) < self.t_low[mi]))
-        if self.clip_high:
-            n_high = int(np.count_nonzero(r.astype(np.int64) >= self.t_high[mi]))
+        codes = np.empty(len(m), dtype=np.int64)
+        n_low, n_high = _caught_lookup(np.ascontiguousarray(m, dtype=np.int64), r, self.stack, self.cell_bits,
+                                       self.T_stack, self.tables[0].code, self.t_low, self.t_high, codes)
         return codes, n_low, n_high
+
+
+@kernel
+def _caught_lookup(m, r, stack, cell_bits, T_stack, code, t_low, t_high, out):
+    """out[q] = the code of table m[q] for the uniform r[q]: the stacked level-1 cell, or (cell −1: ambiguous)
+    the binary search of r[q] on that table's cumulative T (first T_j > r).  Returns the clipped counts."""
+    n_low = 0
+    n_high = 0
+    shift = P_BITS - cell_bits
+    n_t = T_stack.shape[1]
+    for q in range(m.size):
+        mi = m[q] - 1
+        ri = np.int64(r[q])
+        c = stack[(mi << cell_bits) | (ri >> shift)]
+        if c < 0:
+            lo, hi = 0, n_t
+            while lo < hi:  # first j with T[j] > ri (searchsorted, side="right")
+                mid = (lo + hi) >> 1
+                if T_stack[mi, mid] > ri:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            c = code[lo]
+        out[q] = c
+        n_low += ri < t_low[mi]
+        n_high += ri >= t_high[mi]
+    return n_low, n_high
 
 
 def uniform_uint32(key, n):

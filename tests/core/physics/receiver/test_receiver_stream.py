@@ -6,6 +6,8 @@ Tolerances: known answers exact (an independent big-integer implementation of th
 χ² tests at the 1e-3 level (a perfect generator fails one of them with probability 1e-3; the keys are fixed, so
 each test is deterministic); correlations within 5 standard errors (1/√n) of 0.
 """
+import math
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -14,6 +16,7 @@ from core.config.settings import DetectorSettings
 from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
 from core.physics.receiver.code_tables import P_BITS, CodeTable, noise_code_pmf, uniform_uint32
 from core.physics.receiver.conversions import current_to_electrons, mcintyre_excess_noise
+from core.physics.receiver.samplers import poisson_inversion
 
 MASK64 = (1 << 64) - 1
 
@@ -233,3 +236,64 @@ def test_valid_edge_values_pass_the_check():
     cube[1, 1, 7] = np.finfo(np.float32).max
     out = chain(cube, 1)
     assert out.report["noise_sampling"] == "table" and out.report["n_mean_clipped"] == 1
+
+
+# ------------------------------------------------------------------------- Poisson counts of the signal bins
+def poisson_inversion_reference(lam, p0, u):
+    """The same inversion in Python floats."""
+    if u < p0:
+        return 0
+    p = f = p0
+    k = 0
+    while k < 64:
+        k += 1
+        p *= lam / k
+        f += p
+        if u < f:
+            break
+    return k
+
+
+def test_poisson_inversion_equals_reference():
+    """Known answers: 20000 (mean, uniform) pairs over the inversion's range, and the extreme uniforms."""
+    rng = np.random.default_rng(8)
+    lam = np.concatenate([10.0 ** rng.uniform(-8, np.log10(7.999), 19990), [1e-12, 0.5, 7.999, 3.0, 3.0]])
+    u = np.concatenate([rng.uniform(0, 1, 19990), [0.0, 1 - 2.0 ** -53, 1 - 2.0 ** -53, 0.0, 0.049787068367863944]])
+    p0 = np.exp(-lam)
+    args = list(zip(lam.tolist(), p0.tolist(), u.tolist()))
+    got = [poisson_inversion(*a) for a in args]
+    assert got == [poisson_inversion_reference(*a) for a in args]
+    assert got[-5] == 0 and got[-2] == 0 and 20 < got[-3] < 64 and got[-1] == 1  # u = F_0 exactly: k = 1
+
+
+@pytest.mark.parametrize("lam", [1e-4, 0.05, 0.7, 3.0, 7.99])
+def test_poisson_inversion_of_the_stream_matches_the_pmf(lam):
+    """2e5 counts from the 53-bit uniforms of a stream (as the chain makes them) against the Poisson pmf: χ² at
+    the 1e-3 level (cells with < 5 expected lumped), mean and variance within 5 standard errors."""
+    n = 200_000
+    w = uniform_uint32(31, 2 * n).view(np.uint64)  # (the 64-bit words of the stream, little-endian)
+    u = (w >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
+    k = np.array([poisson_inversion(lam, math.exp(-lam), x) for x in u.tolist()])
+    h = np.bincount(k, minlength=80)[:80]
+    e = stats.poisson.pmf(np.arange(80), lam) * n
+    big = e >= 5
+    chi2 = np.sum((h[big] - e[big]) ** 2 / e[big]) + (h[~big].sum() - e[~big].sum()) ** 2 / max(e[~big].sum(), 1e-9)
+    assert stats.chi2.sf(chi2, max(np.count_nonzero(big), 1)) > 1e-3
+    assert abs(k.mean() - lam) < 5 * np.sqrt(lam / n)
+    assert abs(k.var() - lam) < 5 * np.sqrt((lam + 2 * lam ** 2) / n)
+
+
+@pytest.mark.parametrize("n_s", [0.02, 3.0])
+def test_signal_bins_drawn_by_inversion_match_the_formula(n_s):
+    """Signal means below 8 (Poisson by inversion, caught codes from the tables): 262144 bins have the §8 mean and
+    variance within 2 %."""
+    from core.physics.receiver.conversions import energy_to_photons, linear_detector_moments
+
+    e = n_s / float(energy_to_photons(1.0, 1.064e-6, 0.4))
+    out = chain(np.full((64, 64, 64), e, np.float32), 12)
+    assert out.report["noise_table"]["caught_bins_from_tables"] > 0
+    b = 5e9 * 1e-9 * 0.4 + current_to_electrons(1e-12, 1e-9)
+    x = (out.data.astype(np.float64) - 16) * 500.0
+    mean_e, var_e = linear_detector_moments(n_s, b, 100.0, F_SEC8, 0.0, DS_SEC8, 300.0, 500.0)
+    assert x.mean() == pytest.approx(mean_e, rel=0.02)
+    assert x.var() == pytest.approx(var_e, rel=0.02)
