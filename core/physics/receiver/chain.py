@@ -513,7 +513,7 @@ def _nonzero_index(x, idx, invalid=None):
     """The indices of the non-zero elements of the 1-D ``x`` into ``idx`` (as np.flatnonzero); returns how
     many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch.
     ``invalid`` (int64 (2,), optional): adds the number of NaN/±Inf elements to invalid[0] and of negative
-    finite ones to invalid[1] (the chain's input check, in the same pass)."""
+    finite ones to invalid[1] (the chain's input check, in the same pass: a stretch of zeros holds neither)."""
     n = x.size
     m = 0
     for q in range(n // 64 + 1):
@@ -521,10 +521,7 @@ def _nonzero_index(x, idx, invalid=None):
         if j0 + 64 <= n:
             c = 0
             for k in range(64):  # fixed trip count: compiled to SIMD compares
-                c += x[j0 + k] != 0
-            if invalid is not None:
-                for k in range(64):
-                    c += not ((x[j0 + k] >= 0) & (x[j0 + k] < np.inf))  # NaN, ±Inf, negative
+                c += x[j0 + k] != 0  # (NaN, ±Inf and negatives are non-zero: checked below)
             if c == 0:
                 continue
         for j in range(j0, min(j0 + 64, n)):
