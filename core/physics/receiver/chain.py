@@ -400,13 +400,13 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     rng = None
     spk_b = np.empty(0, np.float32) if spk is None else spk
     if p["shot"]:
-        lam, p0, sig, cnt, big = (_buf(ws, k, nnz, t) for k, t in (("lam", np.float64), ("p0", np.float64),
-                                                                  ("sig", np.int64), ("cnt", np.float64),
-                                                                  ("big", np.int64)))
+        lam, p0, u, sig, cnt, big = (_buf(ws, k, nnz, t) for k, t in (
+            ("lam", np.float64), ("p0", np.float64), ("u", np.float64), ("sig", np.int64), ("cnt", np.float64),
+            ("big", np.int64)))
         stats["n_mean_clipped"] = _signal_means(Ef, nz, p["k_sig"], spk_b, B, _MEAN_CAP, lam)
         np.negative(lam, out=p0)
         np.exp(p0, out=p0)  # e^(−λ) of every signal bin: NumPy's vectorised exp
-        n_sig, n_big = _signal_counts(nz, lam, p0, pkey, sig, cnt, big)
+        n_sig, n_big = _signal_counts(nz, lam, p0, pkey, u, sig, cnt, big)
         sig, cnt = sig[:n_sig], cnt[:n_sig]
         if n_big:  # bright bins: one exact rng.poisson each
             rng = new_rng()
@@ -484,12 +484,15 @@ def _signal_means(E, idx, k_sig, spk, n_bins, cap, lam):
 
 
 @kernel
-def _signal_counts(idx, lam, p0, pkey, sig, cnt, big):
+def _signal_counts(idx, lam, p0, pkey, u, sig, cnt, big):
     """Poisson counts of the signal bins idx (means ``lam``, p0 = e^(−lam)): below POISSON_INVERSION_MAX by
-    :func:`poisson_inversion` of the 53-bit uniform (w ≫ 11)·2⁻⁵³ of word j of the counter-based stream
-    ``pkey`` (j = the bin's index in the block); the bins with a count > 0 listed in ``sig`` (bin index) and
-    ``cnt`` (float64 count); larger means listed in ``big`` (position in idx) for ``rng.poisson``.  Returns
-    (n_sig, n_big)."""
+    :func:`poisson_inversion` of the 53-bit uniform u = (w ≫ 11)·2⁻⁵³ of word j of the counter-based stream
+    ``pkey`` (j = the bin's index in the block; all u first, in a vectorised pass into the scratch ``u``); the
+    bins with a count > 0 listed in ``sig`` (bin index) and ``cnt`` (float64 count); larger means listed in
+    ``big`` (position in idx) for ``rng.poisson``.  Returns (n_sig, n_big)."""
+    for q in range(idx.size):
+        w = splitmix64_mix(pkey + np.uint64(idx[q] + 1) * SPLITMIX_GAMMA)
+        u[q] = np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0)
     n_sig = 0
     n_big = 0
     for q in range(idx.size):
@@ -497,13 +500,9 @@ def _signal_counts(idx, lam, p0, pkey, sig, cnt, big):
         if s >= POISSON_INVERSION_MAX:
             big[n_big] = q
             n_big += 1
-            continue
-        j = idx[q]
-        w = splitmix64_mix(pkey + np.uint64(j + 1) * SPLITMIX_GAMMA)
-        k = poisson_inversion(s, p0[q], np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0))
-        if k:
-            sig[n_sig] = j
-            cnt[n_sig] = k
+        elif u[q] >= p0[q]:  # (count 0 otherwise: the usual case, decided without a call)
+            sig[n_sig] = idx[q]
+            cnt[n_sig] = poisson_inversion(s, p0[q], u[q])
             n_sig += 1
     return n_sig, n_big
 
