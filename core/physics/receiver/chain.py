@@ -300,8 +300,13 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
 
     threads = det.threads or (os.cpu_count() or 1)
     if threads > 1 and len(blocks) > 1:
+        # tasks of consecutive blocks (two per thread): each thread writes its own stretches of the output, so
+        # the first touches of its fresh pages do not wait for the other thread's (measured: 17 -> 15 ms on the
+        # 128×128×1024 cube, 2 threads); the blocks and their streams are the same whatever the grouping
+        g = -(-len(blocks) // (2 * threads))
+        seqs = [blocks[k:k + g] for k in range(0, len(blocks), g)]
         with ThreadPoolExecutor(max_workers=threads) as ex:
-            stats = list(ex.map(work, blocks))
+            stats = [s for seq in ex.map(lambda seq: [work(b) for b in seq], seqs) for s in seq]
     else:
         stats = [work(b) for b in blocks]
     if deferred and table is not None:
@@ -416,23 +421,17 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
             cnt = np.concatenate([cnt, nb[hit]])
         if not sig.size:
             return stats
-        rs = uniform_uint32(key, sig)
-        lo_t, hi_t = table.clipped(rs)  # those bins' signal-free codes are replaced
-        stats["n_adc_low"] -= lo_t
-        stats["n_adc_high"] -= hi_t
-        few = cnt <= table.caught.m_max
-        n_few = int(np.count_nonzero(few))
-        if n_few:  # codes given the caught count, from the tables (the same uniform r: independent of n)
-            codes, lo, hi = table.caught.sample(cnt[few], rs[few])
-            of[sig[few]] = codes
-            stats["n_adc_low"] += lo
-            stats["n_adc_high"] += hi
-            stats["caught_table"] = n_few
-            sig, n = sig[~few], cnt[~few]
-            if not sig.size:
-                return stats
-        else:
-            n = cnt.copy()
+        # codes given the caught count, from the tables (the bin's uniform again: independent of n), in place of
+        # the signal-free codes; the bins that caught more than m_max go on to the per-bin draws below
+        rest = _buf(ws, "rest", sig.size, np.int64)
+        d_low, d_high, n_tab, n_rest = table.caught.apply(sig, cnt, key, table, of, rest)
+        stats["n_adc_low"] += d_low
+        stats["n_adc_high"] += d_high
+        if n_tab:
+            stats["caught_table"] = n_tab
+        if not n_rest:
+            return stats
+        sig, n = sig[rest[:n_rest]], cnt[rest[:n_rest]]
         stats["caught_per_bin"] = int(sig.size)
         if rng is None:
             rng = new_rng()

@@ -275,12 +275,17 @@ def _sample_stream(key, table, shift, sentinel, amb_cells, T, code, t_low, t_hig
 
 
 @kernel
+def _stream_uniform(key, i):
+    """Uniform number i of the stream ``key``: the 64-bit word i // 2, its low half when i is even."""
+    z = splitmix64_mix(key + np.uint64((i >> 1) + 1) * SPLITMIX_GAMMA)
+    return np.uint32((z >> np.uint64(32 * (i & 1))) & np.uint64(0xFFFFFFFF))
+
+
+@kernel
 def _stream_at(key, idx, out):
-    """out[k] = uniform number idx[k] of the stream ``key`` (the 64-bit word idx // 2, low half when even)."""
+    """out[k] = uniform number idx[k] of the stream ``key``."""
     for k in range(idx.size):
-        i = idx[k]
-        z = splitmix64_mix(key + np.uint64((i >> 1) + 1) * SPLITMIX_GAMMA)
-        out[k] = np.uint32((z >> np.uint64(32 * (i & 1))) & np.uint64(0xFFFFFFFF))
+        out[k] = _stream_uniform(key, idx[k])
 
 
 class CaughtCodeTables:
@@ -325,31 +330,73 @@ class CaughtCodeTables:
         return codes, n_low, n_high
 
 
+    def apply(self, sig, cnt, key, table, out, rest):
+        """The bins ``sig`` of a block caught ``cnt`` (float64 ≥ 1) signal photo-electrons: their signal-free
+        codes (``table``, uniform number sig[q] of the stream ``key``) are replaced, for cnt ≤ m_max, by the
+        code of the caught-count table for the same uniform, written into ``out``; the positions q of larger
+        counts go to ``rest``.  Returns (change of n_low, change of n_high, bins coded, len(rest) used).
+        One compiled pass (:func:`_caught_codes`)."""
+        if self.tables is None:
+            self._build()
+        return _caught_codes(sig, cnt, np.uint64(key), table.t_low, table.t_high, self.stack, self.cell_bits,
+                             self.T_stack, self.tables[0].code, self.t_low, self.t_high, self.m_max, out, rest)
+
+
+@kernel
+def _caught_code(mi, ri, stack, cell_bits, T_stack, code):
+    """The code of caught-count table mi (0-based) for the uniform ri: the stacked level-1 cell, or (cell −1:
+    ambiguous) the binary search of ri on that table's cumulative T (first T_j > ri)."""
+    c = stack[(mi << cell_bits) | (ri >> (P_BITS - cell_bits))]
+    if c < 0:
+        lo, hi = 0, T_stack.shape[1]
+        while lo < hi:  # searchsorted, side="right"
+            mid = (lo + hi) >> 1
+            if T_stack[mi, mid] > ri:
+                hi = mid
+            else:
+                lo = mid + 1
+        c = code[lo]
+    return c
+
+
 @kernel
 def _caught_lookup(m, r, stack, cell_bits, T_stack, code, t_low, t_high, out):
-    """out[q] = the code of table m[q] for the uniform r[q]: the stacked level-1 cell, or (cell −1: ambiguous)
-    the binary search of r[q] on that table's cumulative T (first T_j > r).  Returns the clipped counts."""
+    """out[q] = the code of table m[q] for the uniform r[q] (:func:`_caught_code`).  Returns the clipped counts."""
     n_low = 0
     n_high = 0
-    shift = P_BITS - cell_bits
-    n_t = T_stack.shape[1]
     for q in range(m.size):
         mi = m[q] - 1
         ri = np.int64(r[q])
-        c = stack[(mi << cell_bits) | (ri >> shift)]
-        if c < 0:
-            lo, hi = 0, n_t
-            while lo < hi:  # first j with T[j] > ri (searchsorted, side="right")
-                mid = (lo + hi) >> 1
-                if T_stack[mi, mid] > ri:
-                    hi = mid
-                else:
-                    lo = mid + 1
-            c = code[lo]
-        out[q] = c
+        out[q] = _caught_code(mi, ri, stack, cell_bits, T_stack, code)
         n_low += ri < t_low[mi]
         n_high += ri >= t_high[mi]
     return n_low, n_high
+
+
+@kernel
+def _caught_codes(sig, cnt, key, t_low0, t_high0, stack, cell_bits, T_stack, code, t_low, t_high, m_max, out,
+                  rest):
+    """:meth:`CaughtCodeTables.apply`: per bin j = sig[q], its uniform (:func:`_stream_uniform`), the signal-free
+    clip counts taken back, the caught-count code written (cnt ≤ m_max) or q listed in ``rest``."""
+    d_low = 0
+    d_high = 0
+    n_tab = 0
+    n_rest = 0
+    for q in range(sig.size):
+        j = sig[q]
+        ri = np.int64(_stream_uniform(key, j))
+        d_low -= ri < t_low0
+        d_high -= ri >= t_high0
+        if cnt[q] <= m_max:
+            mi = np.int64(cnt[q]) - 1
+            out[j] = _caught_code(mi, ri, stack, cell_bits, T_stack, code)
+            d_low += ri < t_low[mi]
+            d_high += ri >= t_high[mi]
+            n_tab += 1
+        else:
+            rest[n_rest] = q
+            n_rest += 1
+    return d_low, d_high, n_tab, n_rest
 
 
 def uniform_uint32(key, n):
