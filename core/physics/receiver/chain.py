@@ -52,6 +52,8 @@ from .speckle import apply_mtf, optics_mtf_2d, speckle_gain_field
 _MEAN_CAP = 1e30
 #: Samples (pixels × bins) per random block.  Fixed: the result depends on the seed and shape only.
 _BLOCK_SAMPLES = 1 << 18
+#: The same on the table route (larger: its per-block work outside the compiled kernels is a fixed ~50 µs).
+_TABLE_BLOCK_SAMPLES = 1 << 19
 
 STEPS = ("photon_conversion", "optics_mtf", "quantum_efficiency", "speckle", "background", "dark_current",
          "shot_noise", "gain", "excess_noise", "read_noise", "adc")
@@ -275,7 +277,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     report["noise_sigma_floor"] = noise_sigma_floor(det, tau)
 
     src2 = np.ascontiguousarray(src, dtype=np.float32).reshape(H * W, B)
-    rows = max(1, _BLOCK_SAMPLES // max(B, 1))
+    rows = max(1, (_BLOCK_SAMPLES if table is None else _TABLE_BLOCK_SAMPLES) // max(B, 1))
     blocks = [(i, r0, min(r0 + rows, H * W)) for i, r0 in enumerate(range(0, H * W, rows))]
     params = dict(k_sig=k_sig, b_mult=b_mult, ds=ds, ds_gauss=ds_gauss, shot=shot, gain=gain, F=F,
                   sigma_r=sigma_r, adc=use_adc, bits=det.adc_bits, fs=det.adc_full_scale_e,
@@ -295,8 +297,11 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         if table is None:
             return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1],
                                   params, local.ws)
-        return _process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
-                                    None if spk is None else spk[r0:r1], params, local.ws, table)
+        st = _process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
+                                  None if spk is None else spk[r0:r1], params, local.ws, table)
+        if "tail" in st:  # (bin indices in the block → in the cube)
+            st["tail"] = (st["tail"][0] + r0 * B, st["tail"][1])
+        return st
 
     threads = det.threads or (os.cpu_count() or 1)
     if threads > 1 and len(blocks) > 1:
@@ -311,6 +316,11 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         stats = [work(b) for b in blocks]
     if deferred and table is not None:
         _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
+    tails = [s["tail"] for s in stats if "tail" in s]
+    if tails:  # table route: the bins left for per-bin draws, all blocks at once (in block order), child (5,)
+        lo, hi = _per_bin_tail(np.concatenate([t[0] for t in tails]), np.concatenate([t[1] for t in tails]),
+                               params, _child(ss, 5), out.reshape(-1))
+        stats.append({"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0})
     for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
         report[key] = int(sum(s[key] for s in stats))
     if table is not None:
@@ -376,14 +386,15 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     background/bulk dark).  Every bin first gets a code from ``table`` (the law of a bin with n_s = 0); then
     the signal primaries n_s are drawn exactly for the bins with a non-zero mean and the bins with n_s > 0 are
     redrawn from the law given n_s: by the tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform,
-    which is independent of n_s), else per bin: n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)),
-    surface dark Poisson, read noise, A/D.
+    which is independent of n_s), else per bin (listed in ``stats["tail"]``, drawn by :func:`_per_bin_tail` for
+    all blocks at once): n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read
+    noise, A/D.
 
     Random numbers: the uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`):
     made inside the compiled sampler and recomputed from i for the bins with signal; n_s of bin i, for means
     below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the 53-bit uniform of word i of the stream
-    ``pkey`` (compiled, :func:`_signal_counts`); the rest (larger means, the per-bin route) from the generator
-    ``new_rng()``, made only when needed.  A float32 block is also checked for NaN/Inf and negative energies
+    ``pkey`` (compiled, :func:`_signal_counts`); larger means from the generator ``new_rng()``, made only when
+    needed.  A float32 block is also checked for NaN/Inf and negative energies
     by the scan (counts in the stats; the block stops there if any).
     Cost: one table look-up per bin (its uniform ~0.2 ns), plus a few ns per bin with signal."""
     P, B = E.shape
@@ -402,7 +413,6 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     if not nnz:
         return stats
     nz = nz[:nnz]
-    rng = None
     spk_b = np.empty(0, np.float32) if spk is None else spk
     if p["shot"]:
         lam, p0, u, sig, cnt, big = (_buf(ws, k, nnz, t) for k, t in (
@@ -433,12 +443,7 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
             return stats
         sig, n = sig[rest[:n_rest]], cnt[rest[:n_rest]]
         stats["caught_per_bin"] = int(sig.size)
-        if rng is None:
-            rng = new_rng()
-        if p["b_mult"] > 0:
-            n += rng.poisson(p["b_mult"], sig.size)
     else:
-        rng = new_rng()
         with np.errstate(over="ignore"):
             s = Ef[nz].astype(np.float64)
             s *= p["k_sig"]
@@ -448,21 +453,30 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
         if bad.any():
             stats["n_mean_clipped"] = int(np.count_nonzero(bad))
             s[bad] = _MEAN_CAP
-        sig = nz
+        sig = nz.copy()
         n = s + p["b_mult"]
         lo_t, hi_t = table.clipped(uniform_uint32(key, sig))
         stats["n_adc_low"] -= lo_t
         stats["n_adc_high"] -= hi_t
+    stats["tail"] = (sig, n)  # drawn by _per_bin_tail once all blocks are done
+    return stats
+
+
+def _per_bin_tail(idx, n, p, rng, of):
+    """Table route: the bins ``idx`` (in the cube) whose code is drawn per bin, for all blocks at once (a few
+    calls instead of a few per block).  With shot noise ``n`` holds the signal primaries (> 16): n_b ~ Poisson
+    is added; without, the continuous mean of all primaries.  Then gain Gamma(n/(F − 1), G(F − 1)), surface dark
+    (Poisson with shot noise), read noise, A/D; codes written into ``of``.  Returns (n_low, n_high)."""
+    if p["shot"] and p["b_mult"] > 0:
+        n = n + rng.poisson(p["b_mult"], n.size)
     y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
     if p["ds"] > 0:
-        y += rng.poisson(p["ds"], sig.size) if p["shot"] else p["ds"]
+        y += rng.poisson(p["ds"], n.size) if p["shot"] else p["ds"]
     if p["sigma_r"] > 0:
-        y += p["sigma_r"] * rng.standard_normal(sig.size)
+        y += p["sigma_r"] * rng.standard_normal(n.size)
     codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
-    stats["n_adc_low"] += lo
-    stats["n_adc_high"] += hi
-    of[sig] = codes
-    return stats
+    of[idx] = codes
+    return lo, hi
 
 
 @kernel
