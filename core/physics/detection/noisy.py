@@ -17,7 +17,7 @@ import numpy as np
 
 from ...constants import SPEED_OF_LIGHT_M_S
 from ...jit import kernel
-from .row_statistics import FILTER_BLOCK, baseline_noise_row, correlate_row, row_scratch
+from .row_statistics import EXACT_PAIR_VALUE, FILTER_BLOCK, baseline_noise_row, correlate_row, row_scratch
 
 
 
@@ -119,7 +119,8 @@ def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig,
         sig[r] = min_sig if s_raw < min_sig else s_raw  # NaN stays NaN, as np.maximum
         b32 = np.float32(base[r])
         if filtered:
-            correlate_row(yr, b32, w, ypad, acc, yd)
+            exact_pairs = integral and 2 * b32 == np.floor(2 * b32) and max(hi - b32, b32 - lo) < EXACT_PAIR_VALUE
+            correlate_row(yr, b32, w, ypad, acc, yd, exact_pairs)
             if estimate_sig:  # (filtered noise: median near 0, σ near the raw one / ‖pulse‖)
                 sig_det = baseline_noise_row(yd, False, lo, hi, 0.0, sig[r] / norm, keys, s1, s2, cast, dev, d1,
                                              d2, counts)[1]

@@ -313,6 +313,11 @@ _COUNTING_RANGE = 1 << 16
 _EXACT_VALUE, _EXACT_BINS = float(1 << 22), 1 << 19
 
 
+#: Rows of integers spanning at most this many values are counted value by value (when every integer of the
+#: span is a float32: magnitudes below 2²⁴), wider ones into histograms.
+_VALUE_PASSES, _WHOLE_FLOAT32 = 8, float(1 << 24)
+
+
 @kernel
 def _kth_from_counts(counts, span, k):
     """Index of the k-th smallest (0-based) of indices i repeated counts[i] times (i < span)."""
@@ -359,17 +364,24 @@ def _counting_median_mad(y, lo, span, counts):
     """(median, MAD) as float32 of a row of integer values in [lo, lo + span): the same order statistics as
     sorting, in O(n + span); ``counts`` (≥ 4 span) is left holding the histogram in counts[:span]."""
     n = y.shape[0]
-    counts[:4 * span] = 0
-    n4 = n - n % 4
-    for i in range(0, n4, 4):  # four partial histograms: consecutive equal values do not wait on each other
-        counts[int(y[i] - lo)] += 1
-        counts[span + int(y[i + 1] - lo)] += 1
-        counts[2 * span + int(y[i + 2] - lo)] += 1
-        counts[3 * span + int(y[i + 3] - lo)] += 1
-    for i in range(n4, n):
-        counts[int(y[i] - lo)] += 1
-    for i in range(span):
-        counts[i] += counts[span + i] + counts[2 * span + i] + counts[3 * span + i]
+    if span <= _VALUE_PASSES and max(-lo, lo + span) < _WHOLE_FLOAT32:
+        for j in range(span):  # value by value: one vectorised counting pass each, no scattered writes
+            v, c = lo + np.float32(j), 0
+            for i in range(n):
+                c += y[i] == v
+            counts[j] = c
+    else:
+        counts[:4 * span] = 0
+        n4 = n - n % 4
+        for i in range(0, n4, 4):  # four partial histograms: consecutive equal values do not wait on each other
+            counts[int(y[i] - lo)] += 1
+            counts[span + int(y[i + 1] - lo)] += 1
+            counts[2 * span + int(y[i + 2] - lo)] += 1
+            counts[3 * span + int(y[i + 3] - lo)] += 1
+        for i in range(n4, n):
+            counts[int(y[i] - lo)] += 1
+        for i in range(span):
+            counts[i] += counts[span + i] + counts[2 * span + i] + counts[3 * span + i]
     k = n // 2
     vk = np.float32(lo + _kth_from_counts(counts, span, k))
     if n % 2:
@@ -438,12 +450,14 @@ def baseline_noise_row(y, integral, lo, hi, centre, spread, keys, s1, s2, cast, 
         modelled = spread > 0 and math.isfinite(spread)
         mn, mx = _float_keys(y, keys)
         base = _median32(keys, n, mn, mx, s1, s2, cast, centre, n * _MEDIAN_DENSITY / spread if modelled else 0.0)
-        dev_bits = dev.view(np.int32)  # |y − median| ≥ +0 (or NaN): its bits are its order keys
-        d_mn, d_mx = np.int32(_KEY_MAX), np.int32(_KEY_MIN)
         for i in range(n):
             dev[i] = abs(y[i] - base)
-            d_mn, d_mx = min(d_mn, dev_bits[i]), max(d_mx, dev_bits[i])
-        mad = _median32(dev_bits, n, np.int64(d_mn), np.int64(d_mx), s1, s2, cast, _MAD_OF_SIGMA * spread,
+        # |y − median| ≥ +0 (or NaN): its bits are its order keys, at least 0, at most those of the deviation
+        # of an extreme (rounding keeps the order of |y − median|)
+        castf = cast.view(np.float32)
+        d_mx = max(_value_key(abs(_key_value(mx, cast, castf) - base), cast, castf),
+                   _value_key(abs(_key_value(mn, cast, castf) - base), cast, castf))
+        mad = _median32(dev.view(np.int32), n, np.int64(0), d_mx, s1, s2, cast, _MAD_OF_SIGMA * spread,
                         n * _MAD_DENSITY / spread if modelled else 0.0)
     sigma = np.float64(mad) * MAD_TO_SIGMA
     if sigma != 0:
@@ -514,14 +528,20 @@ def robust_baseline_noise(waveforms):
 FILTER_BLOCK = 256
 
 
+#: correlate_row's exact_pairs: rows of halves (whole numbers minus a whole or half baseline) below this
+#: magnitude, whose pair sums are exact in float32.
+EXACT_PAIR_VALUE = float(1 << 21)
+
+
 @kernel
-def correlate_row(y, b32, w, ypad, acc, out):
+def correlate_row(y, b32, w, ypad, acc, out, exact_pairs):
     """out = SciPy's correlate1d of y − b32 (float32) with a symmetric odd kernel ``w`` (float64), 'nearest'
     edges: each output summed in float64 in SciPy's order (centre tap, then the folded pairs from the outermost
     in) and rounded to float32.  The tap loop runs outside a block of outputs, which keeps every output's
-    order and lets the compiler vectorise across outputs.  ypad (float32, n + len(w) − 1: the row with its
-    edges, widened to float64 exactly where it is read — half the bytes of a float64 copy to load) and acc
-    (float64, FILTER_BLOCK) are scratch."""
+    order and lets the compiler vectorise across outputs.  ``exact_pairs``: the caller knows every y − b32 is
+    a multiple of ½ below EXACT_PAIR_VALUE in magnitude, so that each pair sum is exact in float32 — then
+    summed there (half the operations), the same float64 value.  ypad (float32, n + len(w) − 1: the row with
+    its edges, widened to float64 where it is read) and acc (float64, FILTER_BLOCK) are scratch."""
     n, h = y.shape[0], w.shape[0] // 2
     for i in range(h):  # the row with its edges clamped ('nearest')
         ypad[i] = y[0] - b32
@@ -543,11 +563,18 @@ def correlate_row(y, b32, w, ypad, acc, out):
             l2, r2 = ypad[c + jj + 1:c + jj + 1 + m], ypad[c - jj - 1:c - jj - 1 + m]
             l3, r3 = ypad[c + jj + 2:c + jj + 2 + m], ypad[c - jj - 2:c - jj - 2 + m]
             l4, r4 = ypad[c + jj + 3:c + jj + 3 + m], ypad[c - jj - 3:c - jj - 3 + m]
-            for i in range(m):
-                a = acc[i] + (np.float64(l1[i]) + np.float64(r1[i])) * w1
-                a += (np.float64(l2[i]) + np.float64(r2[i])) * w2
-                a += (np.float64(l3[i]) + np.float64(r3[i])) * w3
-                acc[i] = a + (np.float64(l4[i]) + np.float64(r4[i])) * w4
+            if exact_pairs:
+                for i in range(m):
+                    a = acc[i] + np.float64(l1[i] + r1[i]) * w1
+                    a += np.float64(l2[i] + r2[i]) * w2
+                    a += np.float64(l3[i] + r3[i]) * w3
+                    acc[i] = a + np.float64(l4[i] + r4[i]) * w4
+            else:
+                for i in range(m):
+                    a = acc[i] + (np.float64(l1[i]) + np.float64(r1[i])) * w1
+                    a += (np.float64(l2[i]) + np.float64(r2[i])) * w2
+                    a += (np.float64(l3[i]) + np.float64(r3[i])) * w3
+                    acc[i] = a + (np.float64(l4[i]) + np.float64(r4[i])) * w4
             jj += 4
         while jj < 0:
             wj = w[h + jj]
@@ -563,7 +590,7 @@ def correlate_row(y, b32, w, ypad, acc, out):
 def _correlate_rows(y, w, out):
     ypad, acc = np.empty(y.shape[1] + w.shape[0] - 1, np.float32), np.empty(FILTER_BLOCK)
     for r in range(y.shape[0]):
-        correlate_row(y[r], np.float32(0.0), w, ypad, acc, out[r])
+        correlate_row(y[r], np.float32(0.0), w, ypad, acc, out[r], False)
 
 
 def matched_filter(waveforms, pulse):

@@ -207,6 +207,7 @@ def adversarial_rows(rng, n):
         np.where(np.arange(n) < 0.7 * n, -np.inf, rng.standard_normal(n)),  # the median is −inf
         np.where(np.arange(n) == n // 3, np.nan, rng.standard_normal(n)),  # one NaN
         rng.standard_normal(n) * 0.01 + 1e6,  # far from the model's centre
+        rng.integers(0, 3, n) * 2.0 + 2.0 ** 25,  # whole numbers of few values where float32 skips odd ones
     ]
     return np.array(rows, dtype=np.float32)
 
@@ -335,3 +336,28 @@ def test_detection_of_adversarial_rows_of_any_type_is_its_numpy_formulation(dtyp
     assert np.array_equal(got.baseline, base)
     assert np.array_equal(got.noise_sigma, sig)
     assert np.array_equal(got.threshold, thr)
+
+
+@pytest.mark.parametrize("fwhm_bins", [1.2, 5.0, 20.0])
+def test_matched_filter_of_halves_summed_in_float32_pairs_is_scipys(fwhm_bins):
+    """Rows of whole numbers minus a whole or half baseline up to the bound of the float32 pair sums
+    (EXACT_PAIR_VALUE): the filter with exact_pairs is SciPy's correlate1d bit for bit; the detection takes
+    that route for integer rows only when the bound holds (int64 rows beyond it: the adversarial test above)."""
+    from core.physics.detection.row_statistics import EXACT_PAIR_VALUE, FILTER_BLOCK, correlate_row
+    pulse = gaussian_pulse_kernel(fwhm_bins * 1e-9, 1e-9)
+    k = np.asarray(pulse, dtype=np.float64)
+    w = (k / np.sum(k * k)).astype(np.float32)
+    rng = np.random.default_rng(int(fwhm_bins * 10))
+    big = EXACT_PAIR_VALUE - 1
+    for b32 in (np.float32(0.0), np.float32(16.5), np.float32(-3.0), np.float32(-0.5)):
+        for scale in (3.0, 1e3, big / 2):
+            lo, hi = np.ceil(b32 - big), np.floor(b32 + big)  # the extreme whole numbers within the bound
+            y = np.clip(np.round(rng.standard_normal(1030) * scale + b32), lo, hi)
+            y[::97], y[5::89] = hi, lo
+            y = y.astype(np.float32)
+            assert np.all(np.abs(y - b32) < EXACT_PAIR_VALUE) and np.all(y == np.round(y))
+            out = np.empty_like(y)
+            correlate_row(y, b32, w.astype(np.float64), np.empty(len(y) + len(w) - 1, np.float32),
+                          np.empty(FILTER_BLOCK), out, True)
+            want = ndimage.correlate1d(y - b32, w, mode="nearest", output=np.float32)
+            assert np.array_equal(out.view(np.int32), want.view(np.int32)), (b32, scale)
