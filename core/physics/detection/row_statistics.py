@@ -62,6 +62,9 @@ _KEY_MIN, _KEY_MAX = -0x7FFFFFFF - 1, 0x7FFFFFFF
 #: Order statistics of float32 rows without a model of the values: a strided sample of this many values
 #: proposes the first probes.
 _SAMPLE = 32
+#: Probes made when the wanted ranks are at most this many values from the near end also find the neighbours
+#: of the probe (the end they set then knows its next value).
+_AROUND = 8
 
 
 @kernel
@@ -104,6 +107,19 @@ def _count_le(keys, n, t):
     for i in range(n):
         c += keys[i] <= t32
     return c
+
+
+@kernel
+def _around(keys, n, t):
+    """(#(keys ≤ t), the largest key ≤ t or _KEY_MIN, the smallest above t or _KEY_MAX): one vectorised pass."""
+    t32 = np.int32(t)
+    c, prv, nxt = 0, np.int32(_KEY_MIN), np.int32(_KEY_MAX)
+    for i in range(n):
+        kk = keys[i]
+        c += kk <= t32
+        prv = max(prv, kk if kk <= t32 else np.int32(_KEY_MIN))
+        nxt = min(nxt, kk if kk > t32 else np.int32(_KEY_MAX))
+    return c, np.int64(prv), np.int64(nxt)
 
 
 @kernel
@@ -162,6 +178,7 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
             s1[j] = keys[j * stride]
         p2 = np.int64(_select(s1, s2, _SAMPLE, min(r + 6, _SAMPLE - 1))[0])
         n_prop = 2
+    above_lo, below_hi = np.int64(_KEY_MAX), np.int64(_KEY_MIN)  # the next value past each end, if known
     fails = 0  # probes in a row that did not halve the near end's distance
     slope, pv, pc = 0.0, np.nan, -1  # values per unit value measured by the last two probes; the last probe
     while hi - lo > 1:
@@ -195,19 +212,18 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
             t = _value_key(v, cast, castf) if math.isfinite(v) else lo
             if not lo < t < hi:
                 t = (lo + hi) >> 1
-        c = _count_le(keys, n, t)
+        if near <= _AROUND:  # also the neighbours of t: an end set here knows its next value
+            c, below_t, above_t = _around(keys, n, t)
+        else:
+            c, below_t, above_t = _count_le(keys, n, t), np.int64(_KEY_MIN), np.int64(_KEY_MAX)
         if c > k_hi:
-            hi, n_hi = t, c
+            hi, n_hi, below_hi = t, c, below_t
         elif c <= k_lo:
-            lo, n_lo = t, c
+            lo, n_lo, above_lo = t, c, above_t
         else:  # c = k_hi = k_lo + 1: the largest key ≤ t and the smallest above
-            a, b = np.int32(_KEY_MIN), np.int32(_KEY_MAX)
-            t32 = np.int32(t)
-            for i in range(n):
-                kk = keys[i]
-                a = max(a, kk if kk <= t32 else np.int32(_KEY_MIN))
-                b = min(b, kk if kk > t32 else np.int32(_KEY_MAX))
-            return _key_value(a, cast, castf), _key_value(b, cast, castf)
+            if near > _AROUND:
+                c, below_t, above_t = _around(keys, n, t)  # (not found by the pass above)
+            return _key_value(below_t, cast, castf), _key_value(above_t, cast, castf)
         tv = np.float64(_key_value(t, cast, castf))
         if pc >= 0 and c != pc and tv != pv:
             slope = (c - pc) / (tv - pv)
@@ -216,13 +232,17 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
             fails = 0 if 2 * min(k_lo - n_lo, n_hi - 1 - k_hi) <= near else fails + 1
     a, b = hi, hi  # (hi − lo ≤ 1: every value of the bracket is the key hi)
     if hi - lo > 1 and k_lo == n_lo:  # step up from lo: v, the smallest key above, holds rank n_lo = k_lo
-        v = _step_up(keys, n, lo)[1]
+        v = above_lo
+        if v == _KEY_MAX:  # (not found by a probe)
+            v = _step_up(keys, n, lo)[1]
         a = b = v
         if k_lo < k_hi:
             f_v, nxt = _step_up(keys, n, v)
             b = v if k_hi < f_v else nxt
     elif hi - lo > 1:  # step down from hi: v, the largest key ≤ hi, holds rank n_hi − 1 = k_hi
-        v = _step_down(keys, n, hi + 1)[1]
+        v = below_hi
+        if v == _KEY_MIN:  # (not found by a probe)
+            v = _step_down(keys, n, hi + 1)[1]
         a = b = v
         if k_lo < k_hi:
             c, prv = _step_down(keys, n, v)

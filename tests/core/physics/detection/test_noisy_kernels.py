@@ -264,19 +264,27 @@ def traced(func, *args):
 def test_every_branch_of_the_selection_runs_and_is_exact():
     """The selection's Python source run on the adversarial rows with every model, traced line by line: each
     rank pair (odd and even rows) equals the sorted keys' and every branch — model or sample first probes, the
-    second sample probe alone, Newton steps, interpolation, the bisections (in value and in key), the exit
-    between two ranks, stepping up and stepping down, NaN — runs at least once."""
+    second sample probe alone, Newton steps, interpolation, the bisections (in value and in key), probes that
+    find their neighbours or not, the exit between two ranks, stepping up and stepping down with the next
+    value known or not, NaN — runs at least once."""
     from core.physics.detection import row_statistics as rs
     func = rs._order_stats32.py_func
     lines, first = inspect.getsourcelines(func)
     markers = {"model probe": "p1, n_prop = _value_key(guess", "sample probes": "p2 = np.int64(_select(",
                "second sample probe alone": "t, i_prop = p2, 2", "Newton": "# Newton step from the near end",
                "interpolation": "v_lo = np.float64(", "value bisection": "t = _value_key(v, cast, castf) if",
-               "key bisection": "t = (lo + hi) >> 1", "between two ranks": "b = min(b, kk if kk > t32 else",
+               "key bisection": "t = (lo + hi) >> 1", "between two ranks": "return _key_value(below_t, cast, castf), _key_value(above_t",
+               "neighbours with the probe": "c, below_t, above_t = _around(keys, n, t)\n",
+               "neighbours after the probe": "(not found by the pass above)",
+               "step up, next unknown": "v = _step_up(keys, n, lo)[1]",
+               "step down, next unknown": "v = _step_down(keys, n, hi + 1)[1]",
                "step up": "b = v if k_hi < f_v else nxt", "step down": "a = v if c <= k_lo else prv",
                "NaN": "return np.float32(np.nan), np.float32(np.nan)"}
     where = {name: [first + i for i, text in enumerate(lines) if m in text] for name, m in markers.items()}
     assert all(len(v) == 1 for v in where.values()), where
+    up_ab, down_ab = [first + i for i, text in enumerate(lines) if "a = b = v" in text]  # step up, step down
+    derived = {"step up, next known": (up_ab, where["step up, next unknown"][0]),
+               "step down, next known": (down_ab, where["step down, next unknown"][0])}
     seen = set()
     rng = np.random.default_rng(7)
     for n in (255, 256, 1024, 1025):
@@ -296,7 +304,8 @@ def test_every_branch_of_the_selection_runs_and_is_exact():
                                               np.array(want, np.float32).view(np.int32)) or \
                             (np.isnan(want[0]) and np.isnan(g).all()), (n, r, k_lo, centre, spread)
                     seen |= {name for name, ln in where.items() if ln[0] in hit}
-    assert seen == set(markers), set(markers) - seen
+                    seen |= {name for name, (ran, not_ran) in derived.items() if ran in hit and not_ran not in hit}
+    assert seen == set(markers) | set(derived), set(markers) | set(derived) - seen
 
 
 @pytest.mark.parametrize("threads", [1, 3])
