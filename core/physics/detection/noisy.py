@@ -5,7 +5,7 @@ waveform itself; optional matched filter (correlation with the pulse shape, norm
 amplitude A gives a filtered peak of A); fixed or noise-adaptive threshold (k σ); local maxima above the
 threshold, taken greedily by amplitude with a minimum separation (multi-echo); 3-point sub-bin interpolation
 (parabolic or Gaussian, the exact §9 formulas).  One compiled pass per row (threads split the rows); the
-interpolation is vectorised over the (pixels, echoes) slots.  Bin j is centred at j + 0.5 bin widths after the
+interpolation is vectorised over the detected (pixel, echo) slots.  Bin j is centred at j + 0.5 bin widths after the
 gate opening (as in ``core/physics/waveform.py``).
 """
 from __future__ import annotations
@@ -214,7 +214,8 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
                      "fixed" (``threshold`` in input units above the baseline).
     pulse          : pulse shape samples for the matched filter (None: no filter).
     min_separation_bins : smallest distance between two echoes of a pixel (default: pulse length or 3).
-    interpolation  : "gaussian" (falls back to parabolic where a sample ≤ 0 — counted), "parabolic", "none".
+    interpolation  : "gaussian" (falls back to parabolic where a sample ≤ 0 — counted), "parabolic", "none";
+                     computed for the detected echoes only.
     noise_sigma, baseline : known per-pixel values instead of the robust estimates.
     threads        : rows are processed in chunks on this many threads (never changes the result).
     min_noise_sigma : floor of the raw noise σ (and σ/‖pulse‖ after the matched filter): the receiver's
@@ -222,7 +223,7 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
                      one A/D count (MAD 0) gets neither a zero threshold nor infinite SNRs.
     Edge bins 0 and B−1 are never peaks (no 3-point neighbourhood).
     Per row, one compiled pass (:func:`_noisy_rows`): baseline and noise, matched filter, threshold, the greedy
-    choice of maxima; the interpolation of the chosen ones is vectorised over the (P, max_echoes) slots.
+    choice of maxima; the interpolation of the chosen ones is vectorised over the detected slots.
     """
     y = np.asarray(waveforms)
     shape = y.shape[:-1]
@@ -264,8 +265,9 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     run_row_chunks(run, P, threads)
 
     detected = pos >= 0
-    jj = np.where(detected, pos, 1)
-    ym, y0, yp = (samples[:, :, i].astype(np.float64) for i in range(3))
+    sel = np.flatnonzero(detected)  # the interpolation runs on the detected slots only
+    jj = pos.reshape(-1)[sel]
+    ym, y0, yp = (samples.reshape(-1, 3)[sel, i].astype(np.float64) for i in range(3))
     n_fallback = 0
     if interpolation == "none":
         delta = np.zeros_like(y0)
@@ -278,7 +280,7 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
         if interpolation == "gaussian":
             d_g = gaussian_offset(ym, y0, yp)
             okg = np.isfinite(d_g)
-            n_fallback = int(np.count_nonzero(detected & ~okg))
+            n_fallback = int(np.count_nonzero(~okg))
             with np.errstate(divide="ignore", invalid="ignore"):
                 a_g = gaussian_peak(np.where(okg, ym, 1.0), np.where(okg, y0, 1.0), np.where(okg, yp, 1.0),
                                     np.where(okg, d_g, 0.0))
@@ -287,9 +289,10 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     else:
         raise ValueError(f"interpolation must be 'gaussian', 'parabolic' or 'none', got {interpolation!r}")
 
-    position = np.where(detected, jj + 0.5 + delta, np.nan)
+    position, amplitude = np.full(P * K, np.nan), np.full(P * K, np.nan)
+    position[sel], amplitude[sel] = jj + 0.5 + delta, amp
+    position, amp = position.reshape(P, K), amplitude.reshape(P, K)
     t = gate_start_s + position * bin_width_s
-    amp = np.where(detected, amp, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         snr = amp / sig[:, None]
     out_shape = shape + (K,)
