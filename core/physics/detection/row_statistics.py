@@ -196,6 +196,8 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
             margin = math.floor(0.5 * math.sqrt(near))
             up = (d_hi <= d_lo) != (fails > 0)  # aim past the wanted ranks on the near end's side (far: stuck)
             target = k_hi + 1 + margin if up else k_lo - margin
+            if near <= _AROUND:  # the probe finds its neighbours: aim between the wanted ranks
+                target = 0.5 * (k_lo + k_hi + 1)
             from_lo = d_lo <= d_hi
             rho = slope if slope > 0 else (density if modelled else 0.0)
             v = np.nan
