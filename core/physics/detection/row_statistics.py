@@ -180,7 +180,8 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
         n_prop = 2
     above_lo, below_hi = np.int64(_KEY_MAX), np.int64(_KEY_MIN)  # the next value past each end, if known
     fails = 0  # probes in a row that did not halve the near end's distance
-    slope, pv, pc = 0.0, np.nan, -1  # values per unit value measured by the last two probes; the last probe
+    # value per count: measured by the last two probes (0: not yet), the model's; the last probe
+    per_count, per_count_model, pv, pc = 0.0, 1.0 / density if modelled else 0.0, np.nan, -1
     while hi - lo > 1:
         d_lo, d_hi = k_lo - n_lo, n_hi - 1 - k_hi  # ranks between each end and the wanted ones
         near = min(d_lo, d_hi)
@@ -193,24 +194,26 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
             if i_prop == 1 and n_prop == 2 and not lo < t < hi:
                 t, i_prop = p2, 2
         elif fails < 3:
-            margin = math.floor(0.5 * math.sqrt(near))
             up = (d_hi <= d_lo) != (fails > 0)  # aim past the wanted ranks on the near end's side (far: stuck)
-            target = k_hi + 1 + margin if up else k_lo - margin
             if near <= _AROUND:  # the probe finds its neighbours: aim between the wanted ranks
                 target = 0.5 * (k_lo + k_hi + 1)
+            else:
+                margin = math.floor(0.5 * math.sqrt(near))
+                target = k_hi + 1 + margin if up else k_lo - margin
             from_lo = d_lo <= d_hi
-            rho = slope if slope > 0 else (density if modelled else 0.0)
+            step = per_count if per_count > 0 else per_count_model
             v = np.nan
-            if rho > 0 and (lo >= mn if from_lo else hi < mx):  # Newton step from the near end
+            if step > 0 and (lo >= mn if from_lo else hi < mx):  # Newton step from the near end
                 end, n_end = (lo, n_lo) if from_lo else (hi, n_hi)
-                v = np.float64(_key_value(end, cast, castf)) + (target - n_end) / rho
+                v = np.float64(_key_value(end, cast, castf)) + (target - n_end) * step
             else:  # interpolation between the ends
                 v_lo = np.float64(_key_value(max(lo, mn), cast, castf))
                 v = v_lo + (target - n_lo) / (n_hi - n_lo) * (np.float64(_key_value(hi, cast, castf)) - v_lo)
             if math.isfinite(v) and abs(v) < 3e38:
                 t = _value_key(v, cast, castf)
         if not lo < t < hi:  # halve the bracket in value (in key order if that does not split it)
-            v = 0.5 * np.float64(_key_value(max(lo, mn), cast, castf)) + 0.5 * np.float64(_key_value(hi, cast, castf))
+            v = 0.5 * np.float64(_key_value(max(lo, mn), cast, castf))
+            v += 0.5 * np.float64(_key_value(hi, cast, castf))
             t = _value_key(v, cast, castf) if math.isfinite(v) else lo
             if not lo < t < hi:
                 t = (lo + hi) >> 1
@@ -228,7 +231,7 @@ def _order_stats32(keys, n, mn, mx, k_lo, k_hi, s1, s2, cast, guess, density):
             return _key_value(below_t, cast, castf), _key_value(above_t, cast, castf)
         tv = np.float64(_key_value(t, cast, castf))
         if pc >= 0 and c != pc and tv != pv:
-            slope = (c - pc) / (tv - pv)
+            per_count = (tv - pv) / (c - pc)
         pv, pc = tv, c
         if i_prop >= n_prop:
             fails = 0 if 2 * min(k_lo - n_lo, n_hi - 1 - k_hi) <= near else fails + 1
