@@ -390,11 +390,16 @@ def _counting_median_mad(y, lo, span, counts):
     sorting, in O(n + span); ``counts`` (≥ 4 span) is left holding the histogram in counts[:span]."""
     n = y.shape[0]
     if span <= _VALUE_PASSES and max(-lo, lo + span) < _WHOLE_FLOAT32:
-        for j in range(span):  # value by value: one vectorised counting pass each, no scattered writes
+        # value by value: one vectorised counting pass each, no scattered writes; the last value (the row's
+        # maximum) counts the rest
+        rest = n
+        for j in range(span - 1):
             v, c = lo + np.float32(j), 0
             for i in range(n):
                 c += y[i] == v
             counts[j] = c
+            rest -= c
+        counts[span - 1] = rest
     else:
         counts[:4 * span] = 0
         n4 = n - n % 4
