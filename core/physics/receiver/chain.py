@@ -312,15 +312,12 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         seqs = [blocks[k:k + g] for k in range(0, len(blocks), g)]
         with ThreadPoolExecutor(max_workers=threads) as ex:
             stats = [s for seq in ex.map(lambda seq: [work(b) for b in seq], seqs) for s in seq]
+            stats += _tail_stats(stats, deferred, params, ss, out, ex.map)
     else:
         stats = [work(b) for b in blocks]
+        stats += _tail_stats(stats, deferred, params, ss, out, map)
     if deferred and table is not None:
         _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
-    tails = [s["tail"] for s in stats if "tail" in s]
-    if tails:  # table route: the bins left for per-bin draws, all blocks at once (in block order), child (5,)
-        lo, hi = _per_bin_tail(np.concatenate([t[0] for t in tails]), np.concatenate([t[1] for t in tails]),
-                               params, _child(ss, 5), out.reshape(-1))
-        stats.append({"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0})
     for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
         report[key] = int(sum(s[key] for s in stats))
     if table is not None:
@@ -460,6 +457,29 @@ def _process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
         stats["n_adc_high"] -= hi_t
     stats["tail"] = (sig, n)  # drawn by _per_bin_tail once all blocks are done
     return stats
+
+
+#: The table route's per-bin draws (bins that caught more than 16 photo-electrons) are split into this many
+#: fixed parts by position, each with its own generator (spawn key (5, k)), drawn in parallel.
+_TAIL_PARTS = 2
+
+
+def _tail_stats(stats, deferred, p, ss, out, mapper):
+    """Table route, after the blocks: the bins they left for per-bin draws (``"tail"`` of their stats), all
+    blocks together in block order, in :data:`_TAIL_PARTS` fixed parts (``mapper``: the pool's map or ``map``).
+    Returns the parts' stats (their A/D clip counts); nothing when a block found bad input (raised later)."""
+    tails = [s["tail"] for s in stats if "tail" in s]
+    if not tails or (deferred and any(s.get("n_nonfinite", 0) or s.get("n_negative", 0) for s in stats)):
+        return []
+    idx, n = np.concatenate([t[0] for t in tails]), np.concatenate([t[1] for t in tails])
+    cuts = [len(idx) * k // _TAIL_PARTS for k in range(_TAIL_PARTS + 1)]
+    of = out.reshape(-1)
+
+    def part(k):
+        lo, hi = _per_bin_tail(idx[cuts[k]:cuts[k + 1]], n[cuts[k]:cuts[k + 1]], p, _child(ss, 5, k), of)
+        return {"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0}
+
+    return list(mapper(part, range(_TAIL_PARTS)))
 
 
 def _per_bin_tail(idx, n, p, rng, of):
