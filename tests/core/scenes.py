@@ -1,8 +1,9 @@
 """Small analytic scenes for the core tests (plates in the sensor frame: the sensor looks along −Z)."""
 import numpy as np
 
-from core.config.settings import BRDFSettings, SimulationConfig
+from core.config.settings import BRDFSettings, DetectorSettings, SimulationConfig
 from core.geometry.scene import SceneGeometry
+from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
 
 C = 299_792_458.0
 
@@ -28,3 +29,16 @@ def config_for(range_m, pixels=16, subsamples=4, fov_rad=0.01, bins=256, bin_s=1
     cfg.gate.gate_start_s = max(0.0, 2 * range_m / C - margin_bins * bin_s)
     cfg.run.threads = 1
     return cfg
+
+
+#: The §8 APD with a 12-bit A/D (docs/receiver.md) and a 5e9 photons/s background: the receiver tests' detector.
+SEC8 = dict(quantum_efficiency=0.4, apd_gain=100.0, apd_k_eff=0.02, dark_current_bulk_a=1e-12,
+            dark_current_surface_a=1e-9, read_noise_e=300.0, adc_bits=12, adc_full_scale_e=500.0 * 4096,
+            adc_offset_counts=16, background_rate_photons_per_s=5e9)
+
+
+def sec8_chain(cube, rng, noise_table=True, **det):
+    """The noisy receiver chain with the SEC8 detector (``det`` overrides), 1064 nm, 1 ns bins."""
+    return apply_receiver_chain(cube, ChainSettings(DetectorSettings(**{"mode": "noisy", **SEC8, **det}),
+                                                    wavelength_m=1.064e-6, bin_width_s=1e-9), rng,
+                                noise_table=noise_table)

@@ -13,10 +13,10 @@ import pytest
 from scipy import stats
 
 from core.config.settings import DetectorSettings
-from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
 from core.physics.receiver.code_tables import P_BITS, CodeTable, noise_code_pmf, uniform_uint32
 from core.physics.receiver.conversions import current_to_electrons, mcintyre_excess_noise
 from core.physics.receiver.samplers import poisson_inversion
+from scenes import SEC8, sec8_chain as chain
 
 MASK64 = (1 << 64) - 1
 
@@ -152,15 +152,6 @@ def test_stream_sampler_code_frequencies_match_the_table():
 
 
 # ----------------------------------------------------------------------------------------------- the chain
-SEC8 = dict(quantum_efficiency=0.4, apd_gain=100.0, apd_k_eff=0.02, dark_current_bulk_a=1e-12,
-            dark_current_surface_a=1e-9, read_noise_e=300.0, adc_bits=12, adc_full_scale_e=500.0 * 4096,
-            adc_offset_counts=16, background_rate_photons_per_s=5e9)
-
-
-def chain(cube, rng, noise_table=True, **det):
-    return apply_receiver_chain(cube, ChainSettings(DetectorSettings(**{"mode": "noisy", **SEC8, **det}),
-                                                    wavelength_m=1.064e-6, bin_width_s=1e-9), rng,
-                                noise_table=noise_table)
 
 
 def returns_cube(shape=(96, 80, 300)):

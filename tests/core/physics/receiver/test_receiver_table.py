@@ -10,10 +10,10 @@ import pytest
 from scipy import special, stats
 
 from core.physics.receiver.code_tables import CaughtCodeTables, CodeTable, noise_code_pmf, uniform_uint32
-from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
 from core.config.settings import DetectorSettings
 from core.physics.receiver.conversions import (current_to_electrons, energy_to_photons, linear_detector_moments,
                                                mcintyre_excess_noise)
+from scenes import SEC8, sec8_chain as chain
 
 F_SEC8 = float(mcintyre_excess_noise(100.0, 0.02))  # 3.950
 DS_SEC8 = float(current_to_electrons(1e-9, 1e-9))   # surface dark 6.242 e⁻ per 1 ns bin
@@ -143,17 +143,6 @@ def test_code_table_equals_inverse_cdf_search(offset, top, dtype):
 
 
 # ------------------------------------------------------------------------------- the chain on the table route
-SEC8 = dict(quantum_efficiency=0.4, apd_gain=100.0, apd_k_eff=0.02, dark_current_bulk_a=1e-12,
-            dark_current_surface_a=1e-9, read_noise_e=300.0, adc_bits=12, adc_full_scale_e=500.0 * 4096,
-            adc_offset_counts=16, background_rate_photons_per_s=5e9)
-
-
-def chain(cube, rng, noise_table=True, **det):
-    return apply_receiver_chain(cube, ChainSettings(DetectorSettings(**{"mode": "noisy", **SEC8, **det}),
-                                                    wavelength_m=1.064e-6, bin_width_s=1e-9), rng,
-                                noise_table=noise_table)
-
-
 def sparse_returns_cube():
     """64×64×128: a return of 1e-17 J/bin (21.4 primaries) in bins 60–63 of every pixel, zero elsewhere."""
     cube = np.zeros((64, 64, 128), np.float32)
