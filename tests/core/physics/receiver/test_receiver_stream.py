@@ -181,15 +181,15 @@ def test_table_route_is_identical_on_any_thread_count():
 def test_table_route_signal_free_bins_use_the_block_streams():
     """The codes of the signal-free bins are the table's codes of the uniforms of each block's stream (key k of
     the keys drawn from the seed's child (3,), uniform index = bin index in the block)."""
-    from core.physics.receiver import chain as chain_module
+    from core.physics.receiver.conversions import background_photons
+    from core.physics.receiver.table_route import noise_tables
 
     cube = returns_cube((20, 16, 300))  # 320 pixels: 1747 per block of 2^19 samples → one block
     out = chain(cube, np.random.SeedSequence(77))
     key = np.random.SeedSequence(77, spawn_key=(3,)).generate_state(1, np.uint64)[0]
     d = DetectorSettings(**{"mode": "noisy", **SEC8})
-    table, _ = chain_module._noise_tables(500.0, float(chain_module.background_photons(5e9, 1e-9)) * 0.4
-                                          + float(current_to_electrons(1e-12, 1e-9)), 100.0, F_SEC8, True,
-                                          DS_SEC8, 300.0, 16, 12, np.dtype(np.uint16).str)
+    b_mult = float(background_photons(5e9, 1e-9)) * 0.4 + float(current_to_electrons(1e-12, 1e-9))
+    table, _ = noise_tables(500.0, b_mult, 100.0, F_SEC8, True, DS_SEC8, 300.0, 16, 12, np.dtype(np.uint16).str)
     ref = np.empty(cube.size, np.uint16)
     table.sample(uniform_uint32(key, cube.size), ref)
     free = cube.reshape(-1) == 0

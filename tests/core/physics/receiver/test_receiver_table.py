@@ -216,7 +216,7 @@ def test_per_bin_route_where_the_table_does_not_apply():
 def test_tables_kept_for_the_next_frames_give_the_same_codes():
     """The code tables are kept between frames of a run (bounded cache): a frame drawn with kept tables (their
     caught-count tables already built) is bit for bit the frame drawn with tables built afresh."""
-    from core.physics.receiver.chain import _noise_tables
+    from core.physics.receiver.table_route import noise_tables as _noise_tables
 
     cube = sparse_returns_cube()
     _noise_tables.cache_clear()
@@ -233,7 +233,7 @@ def test_tables_kept_for_the_next_frames_give_the_same_codes():
 def test_nonzero_index_equals_flatnonzero(n):
     """The compiled compaction of the chain (64-element SIMD tests, then the element loop): np.flatnonzero on
     sparse, dense, signed-zero and NaN data."""
-    from core.physics.receiver.chain import _nonzero_index
+    from core.physics.receiver.table_route import nonzero_index as _nonzero_index
 
     rng = np.random.default_rng(n)
     for frac in (0.0, 0.01, 0.5, 1.0):

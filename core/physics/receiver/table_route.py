@@ -1,0 +1,226 @@
+"""The receiver chain's table route (A/D on, docs/receiver.md): a block of the cube drawn from the exact code
+distribution of signal-free bins, the bins with signal redrawn given their caught photo-electrons.
+
+Random numbers: counter-based streams (SplitMix64, :mod:`.code_tables`) keyed per block, evaluated inside the
+compiled kernels; the few per-bin draws from NumPy generators.  Used by :func:`.chain.apply_receiver_chain`.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from ...jit import kernel
+from .adc import adc_convert
+from .code_tables import (CAUGHT_TABLES, SPLITMIX_GAMMA, CaughtCodeTables, CodeTable, noise_code_pmf, splitmix64_mix,
+                          uniform_uint32)
+from .samplers import POISSON_INVERSION_MAX, gamma_gain, poisson_dense, poisson_inversion
+
+#: Largest mean number of primaries per bin carried (float32 safe); larger means are clipped and reported.
+MEAN_CAP = 1e30
+#: Samples (pixels × bins) per block of the table route (larger than the per-bin route's: its per-block work
+#: outside the compiled kernels is a fixed ~50 µs).
+TABLE_BLOCK_SAMPLES = 1 << 19
+
+
+@lru_cache(maxsize=4)
+def noise_tables(step, b_mult, gain, F, shot, ds, sigma_r, offset, bits, dtype):
+    """The code tables of signal-free bins (and of bins that caught 1 … 16 signal photo-electrons, built on
+    first use) for these detector numbers: ``(CodeTable, None)``, or ``(None, reason)`` when the distribution
+    spans too many codes.  Kept for the next frames of a run (a few detectors at most: bounded cache); the
+    tables depend on nothing else, so a kept table gives the same codes as a new one."""
+    top = 2 ** bits - 1
+    try:
+        k0, pmf = noise_code_pmf(step, n_mult=b_mult, gain=gain, excess_noise=F, shot=shot,
+                                 surface_dark_e=ds, surface_dark_poisson=shot and ds > 0,
+                                 gauss_mean_e=0.0 if shot else ds, gauss_var_e2=sigma_r ** 2)
+    except ValueError as exc:
+        return None, str(exc)
+    table = CodeTable(k0, pmf, offset, top, np.dtype(dtype))
+    table.caught = None
+    if shot:  # bins that caught 1 … 16 signal photo-electrons: their own tables, built on first use
+        table.caught = CaughtCodeTables(
+            CAUGHT_TABLES, step, dict(n_mult=b_mult, gain=gain, excess_noise=F, surface_dark_e=ds,
+                                       surface_dark_poisson=ds > 0, gauss_var_e2=sigma_r ** 2),
+            offset, top, np.dtype(dtype))
+    return table, None
+
+
+def scratch(ws, name, n, dtype):
+    """A scratch array of n ``dtype`` from the per-thread dict ``ws`` (kept and reused: fresh large allocations
+    are slow)."""
+    a = ws.get(name)
+    if a is None or a.size < n or a.dtype != dtype:
+        a = np.empty(n, dtype=dtype)
+        ws[name] = a
+    return a[:n]
+
+
+def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
+    """One block of pixels (P, B), A/D on, with the tabulated code distribution of signal-free bins.
+
+    Exact decomposition: the primaries of a bin are n = n_s + n_b (independent Poisson, signal and
+    background/bulk dark).  Every bin first gets a code from ``table`` (the law of a bin with n_s = 0); then
+    the signal primaries n_s are drawn exactly for the bins with a non-zero mean and the bins with n_s > 0 are
+    redrawn from the law given n_s: by the tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform,
+    which is independent of n_s), else per bin (listed in ``stats["tail"]``, drawn by :func:`per_bin_tail` for
+    all blocks at once): n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read
+    noise, A/D.
+
+    Random numbers: the uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`):
+    made inside the compiled sampler and recomputed from i for the bins with signal; n_s of bin i, for means
+    below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the 53-bit uniform of word i of the stream
+    ``pkey`` (compiled, :func:`_signal_counts`); larger means from the generator ``new_rng()``, made only when
+    needed.  A float32 block is also checked for NaN/Inf and negative energies
+    by the scan (counts in the stats; the block stops there if any).
+    Cost: one table look-up per bin (its uniform ~0.2 ns), plus a few ns per bin with signal."""
+    P, B = E.shape
+    N = P * B
+    stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
+    of = out.reshape(-1)
+    stats["n_adc_low"], stats["n_adc_high"] = table.sample_stream(key, of)
+    Ef = E.reshape(-1)
+    nz = scratch(ws, "nz", N, np.int64)
+    invalid = np.zeros(2, np.int64)
+    # the bins with signal (compiled: signal-free stretches skipped by SIMD tests), and the input check
+    nnz = nonzero_index(Ef, nz, invalid)
+    if invalid.any():
+        stats["n_nonfinite"], stats["n_negative"] = int(invalid[0]), int(invalid[1])
+        return stats
+    if not nnz:
+        return stats
+    nz = nz[:nnz]
+    spk_b = np.empty(0, np.float32) if spk is None else spk
+    if p["shot"]:
+        lam, p0, u, sig, cnt, big = (scratch(ws, k, nnz, t) for k, t in (
+            ("lam", np.float64), ("p0", np.float64), ("u", np.float64), ("sig", np.int64), ("cnt", np.float64),
+            ("big", np.int64)))
+        stats["n_mean_clipped"] = _signal_means(Ef, nz, p["k_sig"], spk_b, B, MEAN_CAP, lam)
+        np.negative(lam, out=p0)
+        np.exp(p0, out=p0)  # e^(−λ) of every signal bin: NumPy's vectorised exp
+        n_sig, n_big = _signal_counts(nz, lam, p0, pkey, u, sig, cnt, big)
+        sig, cnt = sig[:n_sig], cnt[:n_sig]
+        if n_big:  # bright bins: one exact rng.poisson each
+            rng = new_rng()
+            nb, stats["normal_bins"] = poisson_dense(lam[big[:n_big]], rng)
+            hit = nb > 0
+            sig = np.concatenate([sig, nz[big[:n_big][hit]]])
+            cnt = np.concatenate([cnt, nb[hit]])
+        if not sig.size:
+            return stats
+        # codes given the caught count, from the tables (the bin's uniform again: independent of n), in place of
+        # the signal-free codes; the bins that caught more than m_max go on to the per-bin draws below
+        rest = scratch(ws, "rest", sig.size, np.int64)
+        d_low, d_high, n_tab, n_rest = table.caught.apply(sig, cnt, key, table, of, rest)
+        stats["n_adc_low"] += d_low
+        stats["n_adc_high"] += d_high
+        if n_tab:
+            stats["caught_table"] = n_tab
+        if not n_rest:
+            return stats
+        sig, n = sig[rest[:n_rest]], cnt[rest[:n_rest]]
+        stats["caught_per_bin"] = int(sig.size)
+    else:
+        with np.errstate(over="ignore"):
+            s = Ef[nz].astype(np.float64)
+            s *= p["k_sig"]
+            if spk is not None:
+                s *= spk[nz // B]
+        bad = ~(s <= MEAN_CAP)
+        if bad.any():
+            stats["n_mean_clipped"] = int(np.count_nonzero(bad))
+            s[bad] = MEAN_CAP
+        sig = nz.copy()
+        n = s + p["b_mult"]
+        lo_t, hi_t = table.clipped(uniform_uint32(key, sig))
+        stats["n_adc_low"] -= lo_t
+        stats["n_adc_high"] -= hi_t
+    stats["tail"] = (sig, n)  # drawn by per_bin_tail once all blocks are done
+    return stats
+
+
+def per_bin_tail(idx, n, p, rng, of):
+    """Table route: the bins ``idx`` (in the cube) whose code is drawn per bin, for all blocks at once (a few
+    calls instead of a few per block).  With shot noise ``n`` holds the signal primaries (> 16): n_b ~ Poisson
+    is added; without, the continuous mean of all primaries.  Then gain Gamma(n/(F − 1), G(F − 1)), surface dark
+    (Poisson with shot noise), read noise, A/D; codes written into ``of``.  Returns (n_low, n_high)."""
+    if p["shot"] and p["b_mult"] > 0:
+        n = n + rng.poisson(p["b_mult"], n.size)
+    y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
+    if p["ds"] > 0:
+        y += rng.poisson(p["ds"], n.size) if p["shot"] else p["ds"]
+    if p["sigma_r"] > 0:
+        y += p["sigma_r"] * rng.standard_normal(n.size)
+    codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
+    of[idx] = codes
+    return lo, hi
+
+
+@kernel
+def _signal_means(E, idx, k_sig, spk, n_bins, cap, lam):
+    """lam[q] = the mean signal primaries of bin idx[q] of a block: E·k_sig in float64, × the pixel's speckle
+    factor when ``spk`` is not empty, clipped to ``cap``.  Returns how many were clipped."""
+    n_clip = 0
+    for q in range(idx.size):
+        j = idx[q]
+        s = np.float64(E[j]) * k_sig
+        if spk.size:
+            s *= spk[j // n_bins]
+        if not s <= cap:
+            s = cap
+            n_clip += 1
+        lam[q] = s
+    return n_clip
+
+
+@kernel
+def _signal_counts(idx, lam, p0, pkey, u, sig, cnt, big):
+    """Poisson counts of the signal bins idx (means ``lam``, p0 = e^(−lam)): below POISSON_INVERSION_MAX by
+    :func:`poisson_inversion` of the 53-bit uniform u = (w ≫ 11)·2⁻⁵³ of word j of the counter-based stream
+    ``pkey`` (j = the bin's index in the block; all u first, in a vectorised pass into the scratch ``u``); the
+    bins with a count > 0 listed in ``sig`` (bin index) and ``cnt`` (float64 count); larger means listed in
+    ``big`` (position in idx) for ``rng.poisson``.  Returns (n_sig, n_big)."""
+    for q in range(idx.size):
+        w = splitmix64_mix(pkey + np.uint64(idx[q] + 1) * SPLITMIX_GAMMA)
+        u[q] = np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    n_sig = 0
+    n_big = 0
+    for q in range(idx.size):
+        s = lam[q]
+        if s >= POISSON_INVERSION_MAX:
+            big[n_big] = q
+            n_big += 1
+        elif u[q] >= p0[q]:  # (count 0 otherwise: the usual case, decided without a call)
+            sig[n_sig] = idx[q]
+            cnt[n_sig] = poisson_inversion(s, p0[q], u[q])
+            n_sig += 1
+    return n_sig, n_big
+
+
+@kernel
+def nonzero_index(x, idx, invalid=None):
+    """The indices of the non-zero elements of the 1-D ``x`` into ``idx`` (as np.flatnonzero); returns how
+    many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch.
+    ``invalid`` (int64 (2,), optional): adds the number of NaN/±Inf elements to invalid[0] and of negative
+    finite ones to invalid[1] (the chain's input check, in the same pass: a stretch of zeros holds neither)."""
+    n = x.size
+    m = 0
+    for q in range(n // 64 + 1):
+        j0 = q * 64
+        if j0 + 64 <= n:
+            c = 0
+            for k in range(64):  # fixed trip count: compiled to SIMD compares
+                c += x[j0 + k] != 0  # (NaN, ±Inf and negatives are non-zero: checked below)
+            if c == 0:
+                continue
+        for j in range(j0, min(j0 + 64, n)):
+            xj = x[j]
+            if xj != 0:
+                idx[m] = j
+                m += 1
+            if invalid is not None:
+                if not (xj == xj and abs(xj) < np.inf):
+                    invalid[0] += 1
+                elif xj < 0:
+                    invalid[1] += 1
+    return m
