@@ -12,7 +12,7 @@ import numpy as np
 
 from ...jit import kernel
 from .noisy import NoisyEchoes, run_row_chunks
-from .row_statistics import matched_filter
+from .matched_filter import matched_filter
 
 
 # ----------------------------------------------------------------------------------------------------------

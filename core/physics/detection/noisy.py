@@ -17,7 +17,8 @@ import numpy as np
 
 from ...constants import SPEED_OF_LIGHT_M_S
 from ...jit import kernel
-from .row_statistics import EXACT_PAIR_VALUE, FILTER_BLOCK, baseline_noise_row, correlate_row, row_scratch
+from .matched_filter import EXACT_PAIR_VALUE, FILTER_BLOCK, correlate_row
+from .row_statistics import baseline_noise_row, row_scratch
 
 
 

@@ -14,7 +14,8 @@ from scipy import ndimage
 
 from core.physics.detection.noisy import (detect_echoes_noisy, gaussian_peak, gaussian_pulse_kernel, parabolic_offset,
                                           parabolic_peak, gaussian_offset)
-from core.physics.detection.row_statistics import MAD_TO_SIGMA, matched_filter, robust_baseline_noise
+from core.physics.detection.matched_filter import matched_filter
+from core.physics.detection.row_statistics import MAD_TO_SIGMA, robust_baseline_noise
 
 
 def numpy_baseline_noise(y):
@@ -353,7 +354,7 @@ def test_matched_filter_of_halves_summed_in_float32_pairs_is_scipys(fwhm_bins):
     """Rows of whole numbers minus a whole or half baseline up to the bound of the float32 pair sums
     (EXACT_PAIR_VALUE): the filter with exact_pairs is SciPy's correlate1d bit for bit; the detection takes
     that route for integer rows only when the bound holds (int64 rows beyond it: the adversarial test above)."""
-    from core.physics.detection.row_statistics import EXACT_PAIR_VALUE, FILTER_BLOCK, correlate_row
+    from core.physics.detection.matched_filter import EXACT_PAIR_VALUE, FILTER_BLOCK, correlate_row
     pulse = gaussian_pulse_kernel(fwhm_bins * 1e-9, 1e-9)
     k = np.asarray(pulse, dtype=np.float64)
     w = (k / np.sum(k * k)).astype(np.float32)

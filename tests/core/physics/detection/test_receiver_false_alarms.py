@@ -13,7 +13,7 @@ from core.config.settings import DetectorSettings
 from core.physics.detection.false_alarms import (_filter_rows, eligible_bins, expected_false_alarms, false_alarm_mask,
                                                  local_max_probability)
 from core.physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
-from core.physics.detection.row_statistics import matched_filter
+from core.physics.detection.matched_filter import matched_filter
 from core.systems.flash import simulate_frame
 from scenes import config_for, plate
 
