@@ -88,61 +88,63 @@ def _value_key(v, cast, castf):
 
 @kernel
 def _float_keys(x, keys):
-    """keys[:n] = the order keys of the float32 row x; returns their (min, max) (one vectorised pass)."""
+    """keys[:n] = the order keys of the float32 row x; returns their (min, max) (two vectorised passes: with the
+    extremes in the same loop the compiler did not vectorise it)."""
     bits = x.view(np.int32)
-    mn, mx = np.int32(_KEY_MAX), np.int32(_KEY_MIN)
-    for i in range(x.shape[0]):
-        kk = _key32(bits[i])
-        keys[i] = kk
-        mn, mx = min(mn, kk), max(mx, kk)
+    n = x.shape[0]
+    for i in range(n):
+        keys[i] = _key32(bits[i])
+    mn, mx = keys[0], keys[0]
+    for i in range(n):
+        kk = keys[i]
+        mn = kk if kk < mn else mn
+        mx = kk if kk > mx else mx
     return np.int64(mn), np.int64(mx)
 
 
 @kernel
 def _count_le(keys, n, t):
-    """#(keys[:n] ≤ t): one vectorised pass."""
-    t32 = np.int32(t)
+    """#(keys[:n] ≤ t): one vectorised pass (the comparison as the sign of an int64 difference, which the
+    compiler vectorises into fewer instructions than an int32 comparison widened to the count)."""
     c = 0
     for i in range(n):
-        c += keys[i] <= t32
+        c += (t - np.int64(keys[i])) >= 0
     return c
 
 
 @kernel
 def _around(keys, n, t):
-    """(#(keys ≤ t), the largest key ≤ t or _KEY_MIN, the smallest above t or _KEY_MAX): one vectorised pass."""
+    """(#(keys ≤ t), the largest key ≤ t or _KEY_MIN, the smallest above t or _KEY_MAX): two vectorised passes
+    (the count and the neighbours in one loop vectorised worse)."""
     t32 = np.int32(t)
-    c, prv, nxt = 0, np.int32(_KEY_MIN), np.int32(_KEY_MAX)
+    prv, nxt = np.int32(_KEY_MIN), np.int32(_KEY_MAX)
     for i in range(n):
         kk = keys[i]
-        c += kk <= t32
         prv = max(prv, kk if kk <= t32 else np.int32(_KEY_MIN))
         nxt = min(nxt, kk if kk > t32 else np.int32(_KEY_MAX))
-    return c, np.int64(prv), np.int64(nxt)
+    return _count_le(keys, n, t), np.int64(prv), np.int64(nxt)
 
 
 @kernel
 def _step_up(keys, n, t):
-    """(#(keys ≤ t), the smallest key above t or _KEY_MAX): one vectorised pass."""
+    """(#(keys ≤ t), the smallest key above t or _KEY_MAX): two vectorised passes."""
     t32 = np.int32(t)
-    c, nxt = 0, np.int32(_KEY_MAX)
+    nxt = np.int32(_KEY_MAX)
     for i in range(n):
         kk = keys[i]
-        c += kk <= t32
         nxt = min(nxt, kk if kk > t32 else np.int32(_KEY_MAX))
-    return c, np.int64(nxt)
+    return _count_le(keys, n, t), np.int64(nxt)
 
 
 @kernel
 def _step_down(keys, n, t):
-    """(#(keys < t), the largest key below t or _KEY_MIN): one vectorised pass."""
+    """(#(keys < t), the largest key below t or _KEY_MIN): two vectorised passes."""
     t32 = np.int32(t)
-    c, prv = 0, np.int32(_KEY_MIN)
+    prv = np.int32(_KEY_MIN)
     for i in range(n):
         kk = keys[i]
-        c += kk < t32
         prv = max(prv, kk if kk < t32 else np.int32(_KEY_MIN))
-    return c, np.int64(prv)
+    return _count_le(keys, n, t - 1), np.int64(prv)
 
 
 @kernel
