@@ -95,3 +95,30 @@ def test_only_stale_digest_folders_beside_the_cache_are_pruned(tmp_path):
     assert prune_stale_caches(current) == [stale]
     assert sorted(p.name for p in parent.iterdir()) == sorted([current.name, fresh.name, other.name])
     assert time.time() - current.stat().st_mtime < 60  # marked as used
+
+
+
+def test_fma_rounds_once_and_equals_multiply_add_where_the_product_is_exact():
+    """core.jit.fma is a fused multiply-add: one rounding (0.1·10 − 1 is 2⁻⁵⁴ exactly, where the separate product
+    rounds to 1 and gives 0), and where the product is exact — a sum of two halves below 2²¹ times a float32 tap,
+    as the matched filter uses it — the same number as ``a * b + c``."""
+    import numba
+    import numpy as np
+
+    from core.jit import fma
+
+    @numba.njit
+    def f(a, b, c):
+        out = np.empty(a.shape[0])
+        for i in range(a.shape[0]):
+            out[i] = fma(a[i], b[i], c[i])
+        return out
+
+    assert f(np.array([0.1]), np.array([10.0]), np.array([-1.0]))[0] == 2.0 ** -54
+    assert 0.1 * 10.0 - 1.0 == 0.0
+    rng = np.random.default_rng(7)
+    n = 100_000
+    a = np.round(rng.uniform(-2 ** 23, 2 ** 23, n)) / 2  # pair sums of halves below 2²¹ in magnitude
+    b = rng.standard_normal(n).astype(np.float32).astype(np.float64)  # float32 taps
+    c = rng.standard_normal(n) * 10.0 ** rng.uniform(-8, 8, n)
+    assert np.array_equal(f(a, b, c), a * b + c)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...jit import kernel
+from ...jit import fma, kernel
 
 
 #: Outputs of the matched filter summed together, tap by tap (their float64 sums stay in L1 / registers).
@@ -12,7 +12,7 @@ FILTER_BLOCK = 256
 
 
 #: correlate_row's exact_pairs: rows of halves (whole numbers minus a whole or half baseline) below this
-#: magnitude, whose pair sums are exact in float32.
+#: magnitude, whose pair sums times a float32 tap are exact in float64.
 EXACT_PAIR_VALUE = float(1 << 21)
 
 
@@ -22,8 +22,10 @@ def correlate_row(y, b32, w, ypad, acc, out, exact_pairs):
     edges: each output summed in float64 in SciPy's order (centre tap, then the folded pairs from the outermost
     in) and rounded to float32.  The tap loop runs outside a block of outputs, which keeps every output's
     order and lets the compiler vectorise across outputs.  ``exact_pairs``: the caller knows every y − b32 is
-    a multiple of ½ below EXACT_PAIR_VALUE in magnitude, so that each pair sum is exact in float32 — then
-    summed there (half the operations), the same float64 value.  ypad (float32, n + len(w) − 1: the row with
+    a multiple of ½ below EXACT_PAIR_VALUE in magnitude, so that each pair sum (≤ 24 significant bits) times a
+    tap (a float32: 24 bits) is exact in float64 — then each product and its addition are one fused
+    multiply-add (:func:`core.jit.fma`), the same float64 value in fewer instructions.  ``w``'s taps must be
+    float32 values (as :func:`matched_filter` and the noisy detection make them).  ypad (float32, n + len(w) − 1: the row with
     its edges, widened to float64 where it is read) and acc (float64, FILTER_BLOCK) are scratch."""
     n, h = y.shape[0], w.shape[0] // 2
     for i in range(h):  # the row with its edges clamped ('nearest')
@@ -46,12 +48,12 @@ def correlate_row(y, b32, w, ypad, acc, out, exact_pairs):
             l2, r2 = ypad[c + jj + 1:c + jj + 1 + m], ypad[c - jj - 1:c - jj - 1 + m]
             l3, r3 = ypad[c + jj + 2:c + jj + 2 + m], ypad[c - jj - 2:c - jj - 2 + m]
             l4, r4 = ypad[c + jj + 3:c + jj + 3 + m], ypad[c - jj - 3:c - jj - 3 + m]
-            if exact_pairs:
+            if exact_pairs:  # (exact pair sums and products: a fused multiply-add is the same number)
                 for i in range(m):
-                    a = acc[i] + np.float64(l1[i] + r1[i]) * w1
-                    a += np.float64(l2[i] + r2[i]) * w2
-                    a += np.float64(l3[i] + r3[i]) * w3
-                    acc[i] = a + np.float64(l4[i] + r4[i]) * w4
+                    a = fma(np.float64(l1[i]) + np.float64(r1[i]), w1, acc[i])
+                    a = fma(np.float64(l2[i]) + np.float64(r2[i]), w2, a)
+                    a = fma(np.float64(l3[i]) + np.float64(r3[i]), w3, a)
+                    acc[i] = fma(np.float64(l4[i]) + np.float64(r4[i]), w4, a)
             else:
                 for i in range(m):
                     a = acc[i] + (np.float64(l1[i]) + np.float64(r1[i])) * w1
