@@ -7,11 +7,10 @@ embreex and NumPy release the GIL, so threads scale the trace and the array stag
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
 from ..errors import Cancelled
+from ..threads import imap
 
 #: Blocks each thread gets at least, when the frame allows (:func:`balanced_block_size`).
 BLOCKS_PER_THREAD = 8
@@ -41,7 +40,8 @@ def balanced_block_size(per_block: int, n_items: int, threads: int, min_items: i
 
 
 def run_blocks(process, blocks, threads: int, progress=None, label: str = "block", cancel=None) -> list:
-    """``process(block)`` for every block on a pool of ``threads`` (results in block order).
+    """``process(block)`` for every block on ``threads`` threads of the shared pool (core/threads.py; results in
+    block order).
 
     ``progress(fraction, text)`` after each block; ``cancel()`` is asked before each block starts and a true
     answer raises :class:`~core.errors.Cancelled` (blocks already running finish, nothing is returned)."""
@@ -51,11 +51,10 @@ def run_blocks(process, blocks, threads: int, progress=None, label: str = "block
         return process(block)
 
     results = []
-    with ThreadPoolExecutor(max_workers=max(1, min(threads, len(blocks)))) as pool:
-        for i, res in enumerate(pool.map(guarded, blocks)):
-            results.append(res)
-            if progress is not None:
-                progress((i + 1) / len(blocks), f"{label} {i + 1}/{len(blocks)}")
+    for i, res in enumerate(imap(guarded, blocks, threads)):
+        results.append(res)
+        if progress is not None:
+            progress((i + 1) / len(blocks), f"{label} {i + 1}/{len(blocks)}")
     return results
 
 

@@ -5,7 +5,6 @@ frame (effects A–E, reference range, random streams).
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +15,7 @@ from ..atmosphere import (extinction_from_visibility, gamma_factor_g_correlation
                           unit_gamma_from_gaussian)
 from ..atmosphere import wave_optics as wo
 from ..config.settings import SimulationConfig
+from ..threads import map_list
 
 
 def effective_extinction_per_m(config: SimulationConfig) -> float:
@@ -125,12 +125,7 @@ class FootprintAveragedPattern:
                 values[rows[0]:rows[-1] + 1] = np.random.default_rng(child).gamma(1.0 / var, var,
                                                                                   (rows.size, shape[1]))
 
-            if threads > 1:
-                with ThreadPoolExecutor(max_workers=min(threads, len(bands))) as pool:
-                    list(pool.map(band, range(len(bands))))
-            else:
-                for k in range(len(bands)):
-                    band(k)
+            map_list(band, range(len(bands)), threads)
         return cls(values, {"pattern_model": "footprint_averaged_gamma", "sub_ray_footprint_m": list(sub_pitch_m),
                             "cell_radius_m": rho, "point_scintillation_index": si,
                             "averaged_scintillation_index": var})

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import math
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import numpy as np
 
 from ...jit import kernel
+from ...threads import map_list
 from .noisy import NoisyEchoes, run_row_chunks
 from .matched_filter import matched_filter
 
@@ -330,8 +330,8 @@ class _RateLattice:
                 t = np.array(missing, dtype=np.float64) / _LATTICE_DIVISIONS
                 parts = np.array_split(np.arange(len(self.covs)), max(1, min(threads, len(self.covs))))
                 if len(parts) > 1:  # (SciPy's special functions release the GIL)
-                    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
-                        r = np.concatenate(list(pool.map(lambda k: local_max_probability(t, self.covs[k]), parts)))
+                    r = np.concatenate(map_list(lambda k: local_max_probability(t, self.covs[k]), parts,
+                                                len(parts)))
                 else:
                     r = local_max_probability(t, self.covs)
                 g = np.log(np.maximum(r, 1e-300)) + t * t * self.inv_2v0[:, None]

@@ -10,13 +10,13 @@ gate opening (as in ``core/physics/waveform.py``).
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from ...constants import SPEED_OF_LIGHT_M_S
 from ...jit import kernel
+from ...threads import map_list
 from .matched_filter import EXACT_PAIR_VALUE, FILTER_BLOCK, correlate_row
 from .row_statistics import baseline_noise_row, row_scratch
 
@@ -174,16 +174,12 @@ def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig,
 
 
 def run_row_chunks(run, n_rows: int, threads: int) -> None:
-    """``run(a, b)`` over chunks of ≥ 256 rows (about four a thread), on ``threads`` threads when there are
-    several chunks.  The rows' results do not depend on the chunks, so neither on the thread count."""
+    """``run(a, b)`` over chunks of ≥ 256 rows (about four a thread), on ``threads`` threads of the shared pool
+    (core/threads.py) when there are several chunks.  The rows' results do not depend on the chunks, so neither
+    on the thread count."""
     step = max(256, -(-n_rows // (4 * max(1, threads))))
     chunks = [(a, min(a + step, n_rows)) for a in range(0, n_rows, step)]
-    if threads > 1 and len(chunks) > 1:
-        with ThreadPoolExecutor(max_workers=min(threads, len(chunks))) as pool:
-            list(pool.map(lambda c: run(*c), chunks))
-    else:
-        for c in chunks:
-            run(*c)
+    map_list(lambda c: run(*c), chunks, threads)
 
 
 @dataclass

@@ -1,0 +1,123 @@
+"""core/threads.py: the process's one worker pool — results in item order, at most ``threads`` items at once,
+errors raised by item after the running items finished, nested calls run inline, the pool kept between calls."""
+import os
+import threading
+import time
+
+import pytest
+
+from core import threads as th
+
+
+def test_results_come_in_item_order_on_the_requested_threads():
+    lock = threading.Lock()
+    state = {"now": 0, "most": 0, "names": set()}
+
+    def work(x):
+        with lock:
+            state["now"] += 1
+            state["most"] = max(state["most"], state["now"])
+            state["names"].add(threading.current_thread().name)
+        time.sleep(0.002 * (x % 3))  # finish out of order
+        with lock:
+            state["now"] -= 1
+        return x * x
+
+    assert th.map_list(work, range(40), 3) == [x * x for x in range(40)]
+    assert state["most"] <= 3 and len(state["names"]) <= 3
+    assert all(name.startswith("ladar-worker") for name in state["names"])
+
+
+def test_one_thread_or_one_item_runs_in_the_calling_thread():
+    me = threading.current_thread().name
+    assert th.map_list(lambda x: threading.current_thread().name, range(3), 1) == [me] * 3
+    assert th.map_list(lambda x: threading.current_thread().name, [0], 8) == [me]
+    assert th.map_list(lambda x: x, [], 4) == []
+
+
+def test_the_pool_is_kept_between_calls():
+    th.map_list(lambda x: x, range(8), 2)
+    before = {t.ident for t in threading.enumerate()}
+    for _ in range(20):
+        th.map_list(lambda x: x, range(8), 2)
+    assert {t.ident for t in threading.enumerate()} == before  # no thread started (nor ended) by the 20 calls
+
+
+def test_the_first_error_by_item_is_raised_after_the_running_items_finished():
+    finished, started = [], []
+    lock = threading.Lock()
+
+    def work(x):
+        with lock:
+            started.append(x)
+        if x == 5:
+            raise ValueError("item 5")
+        if x == 2:
+            raise KeyError("item 2")
+        time.sleep(0.01)
+        with lock:
+            finished.append(x)
+        return x
+
+    with pytest.raises(KeyError):
+        th.map_list(work, range(200), 2)
+    running = set(started) - set(finished) - {2, 5}
+    assert running == set()  # every item that started had finished when the call raised
+    assert len(started) < 200  # and no item started after the error was seen (but the ones running then)
+
+
+def test_results_before_an_error_are_yielded_then_it_is_raised():
+    def work(x):
+        if x == 3:
+            raise RuntimeError("three")
+        return x
+
+    got = []
+    with pytest.raises(RuntimeError, match="three"):
+        for v in th.imap(work, range(10), 2):
+            got.append(v)
+    assert got == [0, 1, 2]
+
+
+def test_a_call_from_a_worker_runs_its_items_in_that_worker():
+    def outer(x):
+        here = threading.current_thread().name
+        inner = th.map_list(lambda y: threading.current_thread().name, range(4), 2)
+        return here, inner
+
+    for here, inner in th.map_list(outer, range(4), 2):
+        assert th.in_worker() is False
+        assert inner == [here] * 4  # no wait on the pool the worker belongs to: no deadlock
+
+
+def test_an_abandoned_iteration_waits_for_its_running_items():
+    done = []
+
+    def work(x):
+        time.sleep(0.01)
+        done.append(x)
+        return x
+
+    it = th.imap(work, range(50), 2)
+    assert next(it) == 0
+    it.close()  # the consumer stops early: the items still running finish, no new one starts
+    n = len(done)
+    time.sleep(0.05)
+    assert len(done) == n < 50
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX fork")
+def test_a_forked_child_starts_a_pool_of_its_own():
+    th.map_list(lambda x: x, range(4), 2)  # the parent's pool exists
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child: the parent's worker threads do not exist here
+        try:
+            ok = th.map_list(lambda x: x + 1, range(6), 2) == [1, 2, 3, 4, 5, 6]
+            os.write(w, b"1" if ok else b"0")
+        finally:
+            os._exit(0)
+    os.close(w)
+    assert os.read(r, 1) == b"1"
+    os.close(r)
+    os.waitpid(pid, 0)
