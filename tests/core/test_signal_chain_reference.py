@@ -145,16 +145,37 @@ def products():
     return out
 
 
+#: Detection outputs computed through NumPy's float64 log and exp (the Gaussian 3-point interpolation, which stays
+#: NumPy): their last bits depend on the CPU — NumPy evaluates them with its own AVX-512 code where the CPU has
+#: it (the machine that wrote the reference) and with the C library elsewhere (measured on an AVX2 machine:
+#: times 1 ulp, amplitudes and SNR up to 8 ulp apart) — so against the stored file they agree within this many
+#: ulp; on one machine they are bit-identical for any thread count (below).
+INTERPOLATED_FIELDS, INTERPOLATION_ULP = ("noisy/time_s", "noisy/amplitude", "noisy/snr"), 16
+
+
 def test_noisy_detection_is_bit_identical_to_the_numpy_version_on_any_thread_count():
     """The same algorithm compiled (robust baseline and noise, matched filter, threshold, greedy maxima,
-    interpolation, false alarms) on the stored digital cube: bit for bit, on 1 and 3 threads."""
+    interpolation, false alarms) on the stored digital cube: bit for bit, on 1 and 3 threads — the values that
+    pass through NumPy's log/exp within INTERPOLATION_ULP of the stored ones (CPU-dependent last bits), and bit
+    for bit between the thread counts."""
     ref = np.load(DATA)
+    runs = {}
     for threads in (1, 3):
-        new = noisy_detection(ref["noisy/digital"], ref["noisy/truth"], float(ref["noisy/noise_sigma_raw"]), threads)
+        new = runs[threads] = noisy_detection(ref["noisy/digital"], ref["noisy/truth"],
+                                              float(ref["noisy/noise_sigma_raw"]), threads)
         assert new["noisy/detected"].any()
         for k, v in new.items():
-            if k != "noisy/expected_false_alarms":
+            if k == "noisy/expected_false_alarms":
+                continue
+            if k in INTERPOLATED_FIELDS:
+                r = ref[k]
+                assert np.array_equal(np.isnan(v), np.isnan(r)), (k, threads)
+                ok = ~np.isnan(r)
+                assert np.all(np.abs(v[ok] - r[ok]) <= INTERPOLATION_ULP * np.spacing(np.abs(r[ok]))), (k, threads)
+            else:
                 assert np.array_equal(v, ref[k], equal_nan=True), (k, threads)
+    for k, v in runs[1].items():
+        assert np.array_equal(v, runs[3][k], equal_nan=True), k
 
 
 def test_expected_false_alarms_against_the_quadrature_at_every_threshold():
