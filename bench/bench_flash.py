@@ -31,6 +31,7 @@ from core.geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
 from core.fileio.run_folder import software_versions  # noqa: E402
 from core.geometry.scene import SceneGeometry  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402
+from machine import machine_info  # noqa: E402  (bench/machine.py)
 
 
 def bench_scene(n_grid: int = 128) -> SceneGeometry:
@@ -163,6 +164,7 @@ def main(argv=None):
         "flash_demo_noisy_vs_ideal": demo,
         "waveform_binning": res.stats["waveform_binning"],
         "n_points": res.stats["n_points"],
+        "machine": machine_info(),
         "software": software_versions(),
     }
     out = Path(args.out)

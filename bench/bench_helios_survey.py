@@ -183,6 +183,7 @@ def main(argv=None) -> int:
 
     from core.fileio.run_folder import software_versions
     from core.geometry.trace import SceneTracer
+    from machine import machine_info
 
     first = None if args.no_first_call else first_call_latency()
     import core.systems.scanner  # noqa: F401  (the libraries and the compiled-kernel modules)
@@ -239,6 +240,7 @@ def main(argv=None) -> int:
                       "peak_memory": peak / HELIOS["peak_memory_bytes"],
                       "scene_load": load_s / HELIOS["scene_load_s"]},
         "cpu_count": os.cpu_count(),
+        "machine": machine_info(),
         "software": software_versions(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
