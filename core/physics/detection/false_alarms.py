@@ -46,14 +46,15 @@ def eligible_bins(truth, guard_bins, rel_level=1e-3, abs_level=0.0, threads=1):
     """(P, B) bool: the bins where a detection would be a false alarm (outside ``guard_bins`` of every bin with
     signal above max(rel_level × peak, abs_level)); all bins of a pixel without signal.
 
-    Rows in chunks on ``threads`` threads (never changes the result): the levels from the rows' peaks
-    (:func:`_levels`), then one compiled pass per row (:func:`_guarded_runs`)."""
+    Rows in chunks on ``threads`` threads (never changes the result): one compiled pass per row, its level
+    from its peak (:func:`_row_level`) then its guarded runs (:func:`_guarded_runs`)."""
     t = _as_float_rows(truth)
     P, B = t.shape
     el = np.empty((P, B), dtype=np.bool_)
+    rel, absl = t.dtype.type(rel_level), t.dtype.type(abs_level)
 
     def run(a, b):
-        _eligible_rows(t[a:b], _levels(t[a:b], rel_level, abs_level), int(guard_bins), el[a:b])
+        _eligible_rows(t[a:b], rel, absl, int(guard_bins), el[a:b])
 
     run_row_chunks(run, P, threads)
     return el
@@ -65,10 +66,22 @@ def _as_float_rows(truth):
     return t if t.dtype in (np.float32, np.float64) else t.astype(np.float64)
 
 
-def _levels(t, rel_level, abs_level):
-    """Signal level of each row: max(rel_level × the row's peak, abs_level), in the rows' float type (NaN for a
-    row holding a NaN)."""
-    return np.maximum(rel_level * t.max(axis=1), abs_level)
+@kernel
+def _row_level(t, rel, absl):
+    """Signal level of the row t: max(rel × the row's peak, absl) in the row's float type (rel and absl given
+    in it), NaN for a row holding a NaN — NumPy's ``np.maximum(rel * t.max(), absl)`` to the bit, in two
+    vectorised passes over the row (which the guarded runs then read from cache)."""
+    peak = t[0]
+    for j in range(t.shape[0]):
+        v = t[j]
+        peak = v if v > peak else peak
+    n_nan = 0
+    for j in range(t.shape[0]):
+        n_nan += t[j] != t[j]
+    if n_nan:
+        return rel * np.float32(np.nan)  # (NaN in the row's type)
+    lv = rel * peak
+    return lv if lv >= absl else absl
 
 
 @kernel
@@ -103,14 +116,15 @@ def _guarded_runs(t, lv, guard, starts, ends):
 
 
 @kernel
-def _eligible_rows(t, level, guard, el):
-    """Per row: ``el`` False on the guarded runs of :func:`_guarded_runs`, True elsewhere."""
+def _eligible_rows(t, rel, absl, guard, el):
+    """Per row: ``el`` False on the guarded runs of :func:`_guarded_runs` (level: :func:`_row_level`), True
+    elsewhere."""
     n = t.shape[1]
     starts, ends = np.empty(n, np.int64), np.empty(n, np.int64)
     for r in range(t.shape[0]):
         for j in range(n):
             el[r, j] = True
-        for i in range(_guarded_runs(t[r], level[r], guard, starts, ends)):
+        for i in range(_guarded_runs(t[r], _row_level(t[r], rel, absl), guard, starts, ends)):
             for j in range(starts[i], ends[i]):
                 el[r, j] = False
 
@@ -144,14 +158,14 @@ def _outside_runs(j, starts, ends, m):
 
 
 @kernel
-def _classify_rows(t, level, guard, lo, hi, cols, det_bin, n_range, n_all, at_cols, fa):
+def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, at_cols, fa):
     """What :func:`_eligible_rows` then :func:`_eligible_counts` give, from the guarded runs of each row without
     writing its flags: the eligible bins in [lo, hi) and in all, the flags at ``cols``, and each detection's
     flag fa[r, k] = eligible[r, det_bin[r, k]] for det_bin ≥ 0 (False for none)."""
     n = t.shape[1]
     starts, ends = np.empty(n, np.int64), np.empty(n, np.int64)
     for r in range(t.shape[0]):
-        m = _guarded_runs(t[r], level[r], guard, starts, ends)
+        m = _guarded_runs(t[r], _row_level(t[r], rel, absl), guard, starts, ends)
         c_range, c_all = hi - lo, n
         for i in range(m):
             c_all -= ends[i] - starts[i]
@@ -440,9 +454,11 @@ def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_
     at_cols = np.empty((P, cols.size), dtype=np.bool_)
     fa = np.empty((P, K), dtype=bool)  # no signal within the guard of the detection's bin (= false_alarm_mask)
 
+    rel, absl = t.dtype.type(rel_level), t.dtype.type(abs_level)
+
     def run(a, b):
-        _classify_rows(t[a:b], _levels(t[a:b], rel_level, abs_level), guard, lo, hi, cols, det_bin[a:b], n_int[a:b],
-                       n_all[a:b], at_cols[a:b], fa[a:b])
+        _classify_rows(t[a:b], rel, absl, guard, lo, hi, cols, det_bin[a:b], n_int[a:b], n_all[a:b], at_cols[a:b],
+                       fa[a:b])
 
     run_row_chunks(run, P, threads)
     counts = {"n_bins": B, "n_interior": n_int, "n_eligible": n_all, "at_edges": at_cols}

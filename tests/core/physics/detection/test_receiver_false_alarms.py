@@ -240,3 +240,19 @@ def test_expected_false_alarms_independent_of_what_was_computed_before():
     _rate_lattice.cache_clear()
     both = expected_false_alarms(np.concatenate([b, a]), 1.1, np.concatenate([el, el]), PULSE, threads=3)
     assert np.array_equal(both[300:], first)
+
+
+def test_row_level_is_numpys_maximum_of_the_scaled_peak_and_the_floor():
+    """The compiled level of a row (classification's signal level): np.maximum(rel × row max, abs) to the bit,
+    in the row's float type (float32 rows: float32 arithmetic, as NumPy does), NaN for a row holding a NaN."""
+    from core.physics.detection.false_alarms import _row_level
+
+    rng = np.random.default_rng(3)
+    for dt in (np.float32, np.float64):
+        t = (rng.standard_normal((400, 37)) ** 3).astype(dt)
+        t[5, 3], t[7, 0], t[9] = np.nan, np.nan, -1.0
+        for rel, floor in ((1e-3, 0.0), (1e-3, 0.05), (0.3, 1e-9)):
+            want = np.maximum(rel * t.max(axis=1), floor)
+            got = np.array([_row_level(row, t.dtype.type(rel), t.dtype.type(floor)) for row in t]).astype(dt)
+            assert np.array_equal(got, want, equal_nan=True), (dt, rel, floor)
+            assert np.isnan(got[[5, 7]]).all() and not np.isnan(np.delete(got, [5, 7])).any()
