@@ -120,6 +120,27 @@ SUBRAY_PATTERNS = ("grid", "stratified", "sobol", "adaptive")
 ADAPTIVE_BASE, ADAPTIVE_FINE = "sobol", "sobol"
 
 
+@kernel
+def _grid_samples(pixels, s, width, height, half_w, half_h, fx, fy, x_tan, y_tan, pixel, cx, cy, weight):
+    """The grid pattern's rays of ``pixels`` (pixel-major, each pixel's S×S cells row by row): the cell centres in
+    the arithmetic of :func:`core.geometry.rays.block_subray_tan` and the cells' exact erf energies fy·fx — the
+    values NumPy gave element by element, bit for bit."""
+    n = s * s
+    kx = 2 * half_w / (width * s)
+    ky = 2 * half_h / (height * s)
+    for p in range(pixels.shape[0]):
+        q = pixels[p]
+        ix, iy = q % width, q // width
+        for k in range(n):
+            i = p * n + k
+            gx, gy = k % s, k // s
+            x, y = ix * s + gx, iy * s + gy
+            pixel[i], cx[i], cy[i] = q, x, y
+            x_tan[i] = -half_w + (x + 0.5) * kx
+            y_tan[i] = half_h - (y + 0.5) * ky
+            weight[i] = fy[y] * fx[x]
+
+
 @dataclass
 class Samples:
     """Sub-rays of a run of whole pixels, pixel-major (rays of a pixel are contiguous, pixels increasing).
@@ -231,6 +252,17 @@ class SubraySampler:
     def _samples(self, pixels, s, pattern, fx, fy, level) -> Samples:
         det = self.det
         n = s * s
+        if pattern == "grid":  # (the default: one compiled pass, no NumPy temporaries)
+            m = len(pixels) * n
+            x_tan, y_tan, pixel = np.empty(m), np.empty(m), np.empty(m, np.int64)
+            cx, cy, weight = np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m)
+            _grid_samples(np.ascontiguousarray(pixels, dtype=np.int64), s, det.width_px, det.height_px,
+                          det.half_width_tan, det.half_height_tan, fx, fy, x_tan, y_tan, pixel, cx, cy, weight)
+            ratio = s // det.subsamples
+            zeros = np.zeros(m)
+            return Samples(x_tan, y_tan, pixel, cx // ratio if ratio > 1 else cx, cy // ratio if ratio > 1 else cy,
+                           weight, np.full(m, det.pixel_pitch_tan[0] / s), np.full(m, det.pixel_pitch_tan[1] / s),
+                           zeros, zeros)
         ix, iy = pixels % det.width_px, pixels // det.width_px
         pitch_x, pitch_y = det.pixel_pitch_tan
         cell_x, cell_y = pitch_x / s, pitch_y / s

@@ -9,7 +9,7 @@ from core.config.settings import BRDFSettings, DetectionSettings, LaserSettings
 from core.physics.detection.peaks import detect_echoes
 from core.physics.laser import cell_energy_fractions
 from core.systems.flash import simulate_frame
-from core.geometry.rays import Detector, tan_to_unit_direction
+from core.geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
 from core.physics.sampling import SubraySampler, hash_uniform
 from core.geometry.scene import SceneGeometry, merge_meshes
 from scenes import config_for, plate
@@ -206,3 +206,19 @@ def test_plateau_wiggles_are_one_echo_but_resolved_pulses_are_two():
     for sep, n in ((2.2, 2), (2.0, 1)):
         pulses = np.exp(-0.5 * ((x - 100) / 2.0) ** 2) + np.exp(-0.5 * ((x - 100 - 2.0 * sep) / 2.0) ** 2)
         assert len(detect_echoes(pulses[None], DetectionSettings()).pixel) == n
+
+
+@pytest.mark.parametrize("s", [1, 3, 4])
+def test_grid_rays_are_the_cell_centres_bit_for_bit(s):
+    """The grid pattern (compiled) gives block_subray_tan's cell centres and the cells' fy·fx energies bit for
+    bit, for any block of pixels; no offsets; the cell sizes of the pattern."""
+    det, (fx, fy), smp = _sampler("grid", s, offset=(0.002, -0.001), scale=1.3)
+    for a, b in ((0, det.n_pixels), (3, 17), (det.n_pixels - 1, det.n_pixels)):
+        got = smp.block(a, b)
+        x, y, pix, sx, sy = block_subray_tan(det, a, b)
+        assert np.array_equal(got.x_tan, x) and np.array_equal(got.y_tan, y)
+        assert np.array_equal(got.pixel, pix) and np.array_equal(got.sub_x, sx) and np.array_equal(got.sub_y, sy)
+        assert np.array_equal(got.weight, fy[sy] * fx[sx])
+        assert not got.offset_x_tan.any() and not got.offset_y_tan.any()
+        assert np.all(got.cell_x_tan == det.pixel_pitch_tan[0] / s)
+        assert np.all(got.cell_y_tan == det.pixel_pitch_tan[1] / s)
