@@ -20,7 +20,15 @@ interrupted run leaves nothing behind: its staging folder and the temporary Blen
 """
 from __future__ import annotations
 
+import signal as _signal
 import sys
+
+#: Ctrl-C before the command's own handlers are in place is recorded here and acted on at the next step: a
+#: KeyboardInterrupt raised by Python's default handler inside a weakref callback of the import machinery is only
+#: printed ("Exception ignored in ...") and lost, and the run would go on.
+_EARLY_SIGINT = []
+if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:  # (not where SIGINT is ignored)
+    _signal.signal(_signal.SIGINT, lambda signum, frame: _EARLY_SIGINT.append(signum))
 
 try:  # every import inside: Ctrl-C within the first milliseconds exits 130 without a traceback
     import os
@@ -31,6 +39,8 @@ try:  # every import inside: Ctrl-C within the first milliseconds exits 130 with
     import blender_env  # noqa: E402  (puts the repository on sys.path: core.process is standard library only)
     import core.process as process  # noqa: E402
 except KeyboardInterrupt:  # Ctrl-C within the first milliseconds: nothing started yet
+    sys.exit(130)
+if _EARLY_SIGINT:  # (the same, recorded by the handler above)
     sys.exit(130)
 
 USAGE = ("usage: ladar_run.py SCENE.blend {simulate,sweep,export-config,validate-config} [options]\n"
@@ -79,6 +89,8 @@ def main(argv=None) -> int:
 
     with process.interrupts_as_exceptions():
         try:
+            if _EARLY_SIGINT:  # Ctrl-C before the handlers above were in place
+                raise process.Interrupted(_EARLY_SIGINT[0])
             with process.deferred():  # starting Blender is not cut in two: a signal meanwhile ends it right after
                 blender_env.isolate_user_resources()  # a temporary folder, removed at exit
                 import bpy
