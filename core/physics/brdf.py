@@ -52,23 +52,32 @@ def steinvall_at(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
     specular = 0.0
     if specular_a != 0.0:
         specular = specular_a * math.exp(min(-tan2 / (slope_s * slope_s) - 6.0 * math.log(c), 700.0))
-    return specular + diffuse_b * c ** diffuse_m
+    if diffuse_m == 1.0:  # cᵐ of the common exponents without pow: the same values (as NumPy's ** does)
+        diffuse = c
+    elif diffuse_m == 0.0:
+        diffuse = 1.0
+    elif diffuse_m == 2.0:
+        diffuse = c * c
+    else:
+        diffuse = c ** diffuse_m
+    return specular + diffuse_b * diffuse
 
 
 @kernel
-def table_at(cos_theta, angle_deg, brdf_per_sr):
-    """f_r(θ) (1/sr) of one ray on a measured table (strictly increasing angles, ≥ 2 rows): linear in θ
-    (degrees) between rows, the first value below the first angle, the last value beyond the last angle (module
-    docstring); cos θ is clipped to [0, 1].  The arithmetic of ``np.interp`` (NumPy 1.26), value for value."""
+def table_at(cos_theta, angle_deg, brdf_per_sr, first, end):
+    """f_r(θ) (1/sr) of one ray on a measured table, rows ``first`` … ``end`` − 1 of ``angle_deg`` (strictly
+    increasing) and ``brdf_per_sr``: linear in θ (degrees) between rows, the first value below the first angle,
+    the last value beyond the last angle (module docstring); cos θ is clipped to [0, 1].  The arithmetic of
+    ``np.interp`` (NumPy 1.26), value for value."""
     theta = math.acos(min(max(cos_theta, 0.0), 1.0)) * (180.0 / math.pi)
     if cos_theta != cos_theta:
         return cos_theta  # NaN in, NaN out (as np.interp)
-    last = angle_deg.shape[0] - 1
+    last = end - 1
     if not theta < angle_deg[last]:  # at or beyond the last angle
         return brdf_per_sr[last]
-    if theta < angle_deg[0]:
-        return brdf_per_sr[0]
-    lo, hi = 0, last  # angle_deg[lo] <= theta < angle_deg[hi]
+    if theta < angle_deg[first]:
+        return brdf_per_sr[first]
+    lo, hi = first, last  # angle_deg[lo] <= theta < angle_deg[hi]
     while hi - lo > 1:
         mid = (lo + hi) >> 1
         if angle_deg[mid] <= theta:
@@ -81,24 +90,26 @@ def table_at(cos_theta, angle_deg, brdf_per_sr):
     return slope * (theta - angle_deg[lo]) + brdf_per_sr[lo]
 
 
-@kernel
-def brdf_at(model, params, angle_deg, brdf_per_sr, cos_theta):
-    """f_r(θ) (1/sr) of one ray on a packed material (:class:`MaterialTable`): ``params`` = (ρ_d/π, …)
-    (Lambertian), (A, s, B, m) (Steinvall); ``angle_deg``, ``brdf_per_sr`` its table rows (table)."""
-    if model == LAMBERTIAN:
-        return params[0]
-    if model == TABLE:
-        return table_at(cos_theta, angle_deg, brdf_per_sr)
-    return steinvall_at(cos_theta, params[0], params[1], params[2], params[3])
-
-
-@kernel
+@kernel(inline=True)
 def material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material, cos_theta):
-    """f_r(θ) of one ray hitting material index ``material`` of a packed :class:`MaterialTable`."""
-    if material < 0 or material >= model.shape[0]:
-        raise IndexError("material index out of range")
-    a, b = start[material], start[material + 1]
-    return brdf_at(model[material], params[material], angle_deg[a:b], brdf_per_sr[a:b], cos_theta)
+    """f_r(θ) (1/sr) of one ray hitting material index ``material`` of a packed :class:`MaterialTable`
+    (0 ≤ material < its length: not checked here)."""
+    code = model[material]
+    if code == LAMBERTIAN:
+        return params[material, 0]
+    if code == TABLE:
+        return table_at(cos_theta, angle_deg, brdf_per_sr, start[material], start[material + 1])
+    return steinvall_at(cos_theta, params[material, 0], params[material, 1], params[material, 2],
+                        params[material, 3])
+
+
+@kernel
+def materials_in_range(material, n_materials):
+    """True if every index of ``material`` is in [0, n_materials)."""
+    for i in range(material.shape[0]):
+        if material[i] < 0 or material[i] >= n_materials:
+            return False
+    return True
 
 
 @kernel
@@ -139,10 +150,18 @@ def material_table(materials) -> MaterialTable:
     return MaterialTable(model, params, start, np.array(angles, np.float64), np.array(values, np.float64))
 
 
+def checked_ids(material_ids, n_materials):
+    """``material_ids`` as an array, IndexError if one is not a material index (the kernels do not check)."""
+    ids = np.asarray(material_ids)
+    if not materials_in_range(ids.reshape(-1), n_materials):
+        raise IndexError(f"material index out of range (0 … {n_materials - 1})")
+    return ids
+
+
 def _evaluate_table(table: MaterialTable, material_ids, cos_theta):
     c = np.asarray(cos_theta, dtype=np.float64)
     flat = c.reshape(-1)
-    ids = np.broadcast_to(np.asarray(material_ids), c.shape).reshape(-1)
+    ids = np.broadcast_to(checked_ids(material_ids, len(table.model)), c.shape).reshape(-1)
     out = np.empty(flat.shape[0])
     _evaluate(*table, ids, flat, out)
     return out.reshape(c.shape)

@@ -23,13 +23,13 @@ import math
 import numpy as np
 
 from ..jit import kernel
-from .brdf import material_brdf_at, material_table
+from .brdf import checked_ids, material_brdf_at, material_table
 
 #: Smallest normal float64: products below it have lost precision (or underflowed), so the log form is used.
 _TINY = 2.2250738585072014e-308
 
 
-@kernel
+@kernel(inline=True)
 def energy_at(scale, fraction, f_r, cos_theta, range_m, two_sigma):
     """E_r (J) of one ray: scale·F·f_r·cos θ/R² · exp(−2σR), with ``scale`` = E_T η_sys π r_a² and
     ``two_sigma`` = 2σ_atm (module docstring for the zeros and the log form)."""
@@ -74,7 +74,11 @@ def received_energy(laser, receiver, extinction_per_m, materials, material_ids, 
     fraction = fraction.reshape(-1)
     if step and fraction.shape != cos_theta.shape or range_m.shape != cos_theta.shape:
         raise ValueError("cos_theta, range_m and cell_fraction need one value per ray")
+    table = material_table(materials)
+    ids = checked_ids(material_ids, len(materials))
+    if ids.shape != cos_theta.shape:
+        raise ValueError("material_ids needs one value per ray")
     out = np.empty(cos_theta.shape[0])
-    _received_energy(float(energy_scale(laser, receiver)), 2.0 * float(extinction_per_m),
-                     *material_table(materials), np.asarray(material_ids), cos_theta, range_m, fraction, step, out)
+    _received_energy(float(energy_scale(laser, receiver)), 2.0 * float(extinction_per_m), *table, ids, cos_theta,
+                     range_m, fraction, step, out)
     return out
