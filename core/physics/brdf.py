@@ -93,7 +93,7 @@ def table_at(cos_theta, angle_deg, brdf_per_sr, first, end):
 @kernel(inline=True)
 def material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material, cos_theta):
     """f_r(θ) (1/sr) of one ray hitting material index ``material`` of a packed :class:`MaterialTable`
-    (0 ≤ material < its length: not checked here)."""
+    (0 ≤ material < its length: not checked here, see :func:`bad_material`)."""
     code = model[material]
     if code == LAMBERTIAN:
         return params[material, 0]
@@ -104,18 +104,20 @@ def material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material, cos
 
 
 @kernel
-def materials_in_range(material, n_materials):
-    """True if every index of ``material`` is in [0, n_materials)."""
-    for i in range(material.shape[0]):
-        if material[i] < 0 or material[i] >= n_materials:
-            return False
-    return True
-
-
-@kernel
 def _evaluate(model, params, start, angle_deg, brdf_per_sr, material, cos_theta, out):
     for i in range(cos_theta.shape[0]):
+        if material[i] < 0 or material[i] >= model.shape[0]:
+            return i
         out[i] = material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material[i], cos_theta[i])
+    return -1
+
+
+def bad_material(first_bad, material_ids, n_materials):
+    """IndexError for the first ray whose material index is out of range, as a kernel reported it (``first_bad``
+    ≥ 0: its position; the kernels check each index before using it and stop there)."""
+    if first_bad >= 0:
+        raise IndexError(f"material index {int(np.reshape(material_ids, -1)[first_bad])} out of range "
+                         f"(0 … {n_materials - 1})")
 
 
 class MaterialTable(NamedTuple):
@@ -150,20 +152,12 @@ def material_table(materials) -> MaterialTable:
     return MaterialTable(model, params, start, np.array(angles, np.float64), np.array(values, np.float64))
 
 
-def checked_ids(material_ids, n_materials):
-    """``material_ids`` as an array, IndexError if one is not a material index (the kernels do not check)."""
-    ids = np.asarray(material_ids)
-    if not materials_in_range(ids.reshape(-1), n_materials):
-        raise IndexError(f"material index out of range (0 … {n_materials - 1})")
-    return ids
-
-
 def _evaluate_table(table: MaterialTable, material_ids, cos_theta):
     c = np.asarray(cos_theta, dtype=np.float64)
     flat = c.reshape(-1)
-    ids = np.broadcast_to(checked_ids(material_ids, len(table.model)), c.shape).reshape(-1)
+    ids = np.broadcast_to(np.asarray(material_ids), c.shape).reshape(-1)
     out = np.empty(flat.shape[0])
-    _evaluate(*table, ids, flat, out)
+    bad_material(_evaluate(*table, ids, flat, out), ids, len(table.model))
     return out.reshape(c.shape)
 
 

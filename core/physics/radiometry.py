@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from ..jit import kernel
-from .brdf import checked_ids, material_brdf_at, material_table
+from .brdf import bad_material, material_brdf_at, material_table
 
 #: Smallest normal float64: products below it have lost precision (or underflowed), so the log form is used.
 _TINY = 2.2250738585072014e-308
@@ -53,8 +53,11 @@ def energy_at(scale, fraction, f_r, cos_theta, range_m, two_sigma):
 def _received_energy(scale, two_sigma, model, params, start, angle_deg, brdf_per_sr, material, cos_theta,
                      range_m, fraction, fraction_step, out):
     for i in range(cos_theta.shape[0]):
+        if material[i] < 0 or material[i] >= model.shape[0]:
+            return i
         f_r = material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material[i], cos_theta[i])
         out[i] = energy_at(scale, fraction[i * fraction_step], f_r, cos_theta[i], range_m[i], two_sigma)
+    return -1
 
 
 def energy_scale(laser, receiver) -> float:
@@ -75,10 +78,10 @@ def received_energy(laser, receiver, extinction_per_m, materials, material_ids, 
     if step and fraction.shape != cos_theta.shape or range_m.shape != cos_theta.shape:
         raise ValueError("cos_theta, range_m and cell_fraction need one value per ray")
     table = material_table(materials)
-    ids = checked_ids(material_ids, len(materials))
+    ids = np.asarray(material_ids)
     if ids.shape != cos_theta.shape:
         raise ValueError("material_ids needs one value per ray")
     out = np.empty(cos_theta.shape[0])
-    _received_energy(float(energy_scale(laser, receiver)), 2.0 * float(extinction_per_m), *table, ids, cos_theta,
-                     range_m, fraction, step, out)
+    bad_material(_received_energy(float(energy_scale(laser, receiver)), 2.0 * float(extinction_per_m), *table, ids,
+                                  cos_theta, range_m, fraction, step, out), ids, len(materials))
     return out
