@@ -86,7 +86,8 @@ def main(argv=None):
                                           for k in new for f in (np.min, np.median)}
             e_new, e_base = last["core"].energy_image, last["core_base"].energy_image
             lit = e_base > 0
-            entry["energy_image_max_relative_difference"] = float(np.max(np.abs(e_new[lit] - e_base[lit]) / e_base[lit]))
+            rel = np.abs(e_new[lit] - e_base[lit]) / e_base[lit]
+            entry["energy_image_max_relative_difference"] = float(np.max(rel))
             entry["energy_image_zeros_equal"] = bool(np.array_equal(e_new[~lit], e_base[~lit]))
         report[f"threads_{threads}"] = entry
     out = Path(args.out)

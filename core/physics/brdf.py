@@ -52,7 +52,7 @@ def steinvall_at(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
     specular = 0.0
     if specular_a != 0.0:
         specular = specular_a * math.exp(min(-tan2 / (slope_s * slope_s) - 6.0 * math.log(c), 700.0))
-    if diffuse_m == 1.0:  # cᵐ of the common exponents without pow: the same values (as NumPy's ** does)
+    if diffuse_m == 1.0:  # cᵐ of the common exponents without pow (c¹ = c, c⁰ = 1 exactly; c·c correctly rounded)
         diffuse = c
     elif diffuse_m == 0.0:
         diffuse = 1.0
@@ -63,7 +63,7 @@ def steinvall_at(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
     return specular + diffuse_b * diffuse
 
 
-@kernel
+@kernel(inline=True)
 def table_at(cos_theta, angle_deg, brdf_per_sr, first, end):
     """f_r(θ) (1/sr) of one ray on a measured table, rows ``first`` … ``end`` − 1 of ``angle_deg`` (strictly
     increasing) and ``brdf_per_sr``: linear in θ (degrees) between rows, the first value below the first angle,
