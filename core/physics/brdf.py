@@ -21,63 +21,174 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from ..config.settings import BRDFSettings
 from ..config.validate import check_brdf_table
 from ..errors import ConfigError
+from ..jit import kernel
 
 
-def steinvall_brdf(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
-    """Steinvall (2000) monostatic BRDF, paper eq. 3-3, in 1/sr.
+#: Model codes of a packed material (:class:`MaterialTable`).
+LAMBERTIAN, STEINVALL, TABLE = 0, 1, 2
+_MODEL_CODES = {"lambertian": LAMBERTIAN, "steinvall": STEINVALL, "table": TABLE}
+
+
+@kernel
+def steinvall_at(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
+    """Steinvall (2000) monostatic BRDF of one ray, paper eq. 3-3, in 1/sr.
 
     f_r(θ) = A cos⁻⁶θ exp(−tan²θ/s²) + B cosᵐθ.
 
     The specular term is evaluated as A·exp(−tan²θ/s² − 6 ln cosθ) (docs/theory.md §10) with cosθ clamped to
-    [1e-150, 1], so grazing incidence gives a finite value (→ 0 for the specular lobe) instead of 0·∞.
+    [1e-150, 1] and the exponent capped at 700, so grazing incidence gives a finite value (→ 0 for the specular
+    lobe) instead of 0·∞.
     """
-    c = np.clip(np.asarray(cos_theta, dtype=np.float64), 1e-150, 1.0)
+    c = min(max(cos_theta, 1e-150), 1.0)
     c2 = c * c
-    tan2 = np.maximum((1.0 - c2) / c2, 0.0)
-    with np.errstate(over="ignore"):
-        exponent = -tan2 / (slope_s * slope_s) - 6.0 * np.log(c)
-    specular = specular_a * np.exp(np.minimum(exponent, 700.0)) if specular_a else np.zeros_like(c)
-    diffuse = diffuse_b * c ** diffuse_m
-    return specular + diffuse
+    tan2 = max((1.0 - c2) / c2, 0.0)
+    specular = 0.0
+    if specular_a != 0.0:
+        specular = specular_a * math.exp(min(-tan2 / (slope_s * slope_s) - 6.0 * math.log(c), 700.0))
+    if diffuse_m == 1.0:  # cᵐ of the common exponents without pow (c¹ = c, c⁰ = 1 exactly; c·c correctly rounded)
+        diffuse = c
+    elif diffuse_m == 0.0:
+        diffuse = 1.0
+    elif diffuse_m == 2.0:
+        diffuse = c * c
+    else:
+        diffuse = c ** diffuse_m
+    return specular + diffuse_b * diffuse
+
+
+@kernel(inline=True)
+def table_at(cos_theta, angle_deg, brdf_per_sr, first, end):
+    """f_r(θ) (1/sr) of one ray on a measured table, rows ``first`` … ``end`` − 1 of ``angle_deg`` (strictly
+    increasing) and ``brdf_per_sr``: linear in θ (degrees) between rows, the first value below the first angle,
+    the last value beyond the last angle (module docstring); cos θ is clipped to [0, 1].  The arithmetic of
+    ``np.interp`` (NumPy 1.26), value for value."""
+    theta = math.acos(min(max(cos_theta, 0.0), 1.0)) * (180.0 / math.pi)
+    if cos_theta != cos_theta:
+        return cos_theta  # NaN in, NaN out (as np.interp)
+    last = end - 1
+    if not theta < angle_deg[last]:  # at or beyond the last angle
+        return brdf_per_sr[last]
+    if theta < angle_deg[first]:
+        return brdf_per_sr[first]
+    lo, hi = first, last  # angle_deg[lo] <= theta < angle_deg[hi]
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if angle_deg[mid] <= theta:
+            lo = mid
+        else:
+            hi = mid
+    if theta == angle_deg[lo]:
+        return brdf_per_sr[lo]
+    slope = (brdf_per_sr[lo + 1] - brdf_per_sr[lo]) / (angle_deg[lo + 1] - angle_deg[lo])
+    return slope * (theta - angle_deg[lo]) + brdf_per_sr[lo]
+
+
+@kernel(inline=True)
+def material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material, cos_theta):
+    """f_r(θ) (1/sr) of one ray hitting material index ``material`` of a packed :class:`MaterialTable`
+    (0 ≤ material < its length: not checked here, see :func:`bad_material`)."""
+    code = model[material]
+    if code == LAMBERTIAN:
+        return params[material, 0]
+    if code == TABLE:
+        return table_at(cos_theta, angle_deg, brdf_per_sr, start[material], start[material + 1])
+    return steinvall_at(cos_theta, params[material, 0], params[material, 1], params[material, 2],
+                        params[material, 3])
+
+
+@kernel
+def _evaluate(model, params, start, angle_deg, brdf_per_sr, material, cos_theta, out):
+    for i in range(cos_theta.shape[0]):
+        if material[i] < 0 or material[i] >= model.shape[0]:
+            return i
+        out[i] = material_brdf_at(model, params, start, angle_deg, brdf_per_sr, material[i], cos_theta[i])
+    return -1
+
+
+def bad_material(first_bad, material_ids, n_materials):
+    """IndexError for the first ray whose material index is out of range, as a kernel reported it (``first_bad``
+    ≥ 0: its position; the kernels check each index before using it and stop there)."""
+    if first_bad >= 0:
+        raise IndexError(f"material index {int(np.reshape(material_ids, -1)[first_bad])} out of range "
+                         f"(0 … {n_materials - 1})")
+
+
+class MaterialTable(NamedTuple):
+    """Materials packed for the compiled kernels: per material its model code (LAMBERTIAN, STEINVALL, TABLE),
+    four parameters (ρ_d/π, 0, 0, 0 | A, s, B, m | unused) and its table rows angle_deg[start[k]:start[k+1]],
+    brdf_per_sr[…] (none for the parametric models)."""
+
+    model: np.ndarray
+    params: np.ndarray
+    start: np.ndarray
+    angle_deg: np.ndarray
+    brdf_per_sr: np.ndarray
+
+
+def material_table(materials) -> MaterialTable:
+    """Pack a list of :class:`BRDFSettings` for :func:`material_brdf_at`."""
+    n = len(materials)
+    model, params, start = np.zeros(n, np.int64), np.zeros((n, 4)), np.zeros(n + 1, np.int64)
+    angles, values = [], []
+    for k, brdf in enumerate(materials):
+        model[k] = _MODEL_CODES[brdf.model]
+        if brdf.model == "lambertian":
+            params[k, 0] = brdf.reflectance / np.pi
+        elif brdf.model == "steinvall":
+            params[k] = brdf.specular_a, brdf.slope_s, brdf.diffuse_b, brdf.diffuse_m
+        else:
+            if len(brdf.table_angle_deg) == 0 or len(brdf.table_angle_deg) != len(brdf.table_brdf_per_sr):
+                raise ValueError("a measured BRDF table needs one value per angle, at least one row")
+            angles += [float(a) for a in brdf.table_angle_deg]
+            values += [float(v) for v in brdf.table_brdf_per_sr]
+        start[k + 1] = len(angles)
+    return MaterialTable(model, params, start, np.array(angles, np.float64), np.array(values, np.float64))
+
+
+def _evaluate_table(table: MaterialTable, material_ids, cos_theta):
+    c = np.asarray(cos_theta, dtype=np.float64)
+    flat = c.reshape(-1)
+    ids = np.broadcast_to(np.asarray(material_ids), c.shape).reshape(-1)
+    out = np.empty(flat.shape[0])
+    bad_material(_evaluate(*table, ids, flat, out), ids, len(table.model))
+    return out.reshape(c.shape)
+
+
+def steinvall_brdf(cos_theta, specular_a, slope_s, diffuse_b, diffuse_m):
+    """Steinvall (2000) monostatic BRDF, paper eq. 3-3, in 1/sr, per element of ``cos_theta``
+    (:func:`steinvall_at`)."""
+    return evaluate_brdf(BRDFSettings(model="steinvall", specular_a=specular_a, slope_s=slope_s,
+                                      diffuse_b=diffuse_b, diffuse_m=diffuse_m), cos_theta)
 
 
 def lambertian_brdf(cos_theta, reflectance):
     """Lambertian BRDF f_r = ρ_d/π (1/sr), independent of angle (docs/theory.md §10)."""
-    return np.full(np.shape(cos_theta), reflectance / np.pi, dtype=np.float64)
+    return evaluate_brdf(BRDFSettings(model="lambertian", reflectance=reflectance), cos_theta)
 
 
 def table_brdf(cos_theta, angle_deg, brdf_per_sr):
     """f_r(θ) (1/sr) of a measured table: linear in θ (degrees) between rows, the first value below the
-    first angle, the last value beyond the last angle (module docstring).  cos θ is clipped to [0, 1]."""
-    theta_deg = np.degrees(np.arccos(np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)))
-    return np.interp(theta_deg, np.asarray(angle_deg, dtype=np.float64), np.asarray(brdf_per_sr, np.float64))
+    first angle, the last value beyond the last angle (module docstring, :func:`table_at`).  cos θ is clipped
+    to [0, 1]."""
+    return evaluate_brdf(BRDFSettings(model="table", table_angle_deg=list(angle_deg),
+                                      table_brdf_per_sr=list(brdf_per_sr)), cos_theta)
 
 
 def evaluate_brdf(brdf: BRDFSettings, cos_theta):
-    """f_r(θ) for one material's settings."""
-    if brdf.model == "lambertian":
-        return lambertian_brdf(cos_theta, brdf.reflectance)
-    if brdf.model == "table":
-        return table_brdf(cos_theta, brdf.table_angle_deg, brdf.table_brdf_per_sr)
-    return steinvall_brdf(cos_theta, brdf.specular_a, brdf.slope_s, brdf.diffuse_b, brdf.diffuse_m)
+    """f_r(θ) for one material's settings, per element of ``cos_theta`` (an array of its shape)."""
+    return _evaluate_table(material_table([brdf]), 0, cos_theta)
 
 
 def evaluate_materials(materials, material_ids, cos_theta):
-    """f_r per ray for rays hitting triangles of the given material indices (vectorized per material)."""
-    out = np.zeros(np.shape(cos_theta), dtype=np.float64)
-    ids = np.asarray(material_ids)
-    # the materials present, in increasing order (a count per material: O(n), where np.unique sorts)
-    present = np.flatnonzero(np.bincount(ids.reshape(-1), minlength=len(materials))) if ids.size else []
-    for index in present:
-        sel = material_ids == index
-        out[sel] = evaluate_brdf(materials[int(index)], cos_theta[sel])
-    return out
+    """f_r per ray for rays hitting triangles of the given material indices (one compiled pass)."""
+    return _evaluate_table(material_table(materials), material_ids, cos_theta)
 
 
 def directional_hemispherical_reflectance(brdf: BRDFSettings) -> float:

@@ -391,35 +391,43 @@ def adaptive_tolerance_m(laser, gate) -> float:
     return 0.25 * 0.5 * SPEED_OF_LIGHT_M_S * max(laser.pulse_fwhm_s, gate.bin_width_s)
 
 
-def cell_returns(smp: Samples, index, range_m, cos_theta, normal_sensor, max_spread_s=np.inf):
+def cell_returns(smp: Samples, index, range_m, cos_theta, prim, unit_normal, rot, max_spread_s=np.inf):
     """The cell model of the hits ``smp[index]`` for the radiometry and the waveform: (spread (n, 2) s, range_m
-    and cos θ at the cell centre on the hit plane) of the n hits; ``range_m``, ``cos_theta`` are the block's
-    (all of ``smp``), ``normal_sensor`` (n, 3) the hits' unit normals.
+    and cos θ at the cell centre on the hit plane) of the n hits; ``range_m``, ``cos_theta``, ``prim`` (hit
+    triangle) are the block's (all of ``smp``), ``unit_normal`` (triangles, 3) the world-frame unit normals of the
+    triangles and ``rot`` the sensor-to-world rotation: a hit's sensor-frame normal is unit_normal[prim] @ rot.
 
     A ray off its cell's centre (jittered patterns) stands for the whole cell: the cell's return is evaluated
     where the cell centre's ray meets the plane the ray hit, R_c = R + ∂R/∂x·δx + ∂R/∂y·δy and
     cos θ_c = |n·p_c|/|p_c|; its round-trip times span the centred box (:func:`cell_time_box_s`).  Rays at their
-    cell centre (the grid) keep their own range and cos θ bit for bit.  One compiled pass over the hits."""
+    cell centre (the grid) keep their own range and cos θ bit for bit.  One compiled pass over the hits (the
+    normals looked up and turned into the sensor frame on the way)."""
     index = np.ascontiguousarray(index, dtype=np.int64)
     k = len(index)
     spread, range_c, cos_c = np.empty((k, 2)), np.empty(k), np.empty(k)
     _cell_returns(index, smp.x_tan, smp.y_tan, np.asarray(range_m, np.float64), np.asarray(cos_theta, np.float64),
-                  np.ascontiguousarray(normal_sensor, dtype=np.float64), smp.cell_x_tan, smp.cell_y_tan,
-                  smp.offset_x_tan, smp.offset_y_tan, float(max_spread_s), spread, range_c, cos_c)
+                  np.asarray(prim), np.asarray(unit_normal, np.float64), np.ascontiguousarray(rot, np.float64),
+                  smp.cell_x_tan, smp.cell_y_tan, smp.offset_x_tan, smp.offset_y_tan, float(max_spread_s), spread,
+                  range_c, cos_c)
     return spread, range_c, cos_c
 
 
 @kernel
-def _cell_returns(index, x, y, range_m, cos_theta, n, cell_x, cell_y, off_x, off_y, max_spread_s, spread, range_c,
-                  cos_c):
+def _cell_returns(index, x, y, range_m, cos_theta, prim, unit_normal, rot, cell_x, cell_y, off_x, off_y,
+                  max_spread_s, spread, range_c, cos_c):
     for k in range(index.shape[0]):
         i = index[k]
+        p = prim[i]
+        w0, w1, w2 = unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2]
+        n0 = w0 * rot[0, 0] + w1 * rot[1, 0] + w2 * rot[2, 0]
+        n1 = w0 * rot[0, 1] + w1 * rot[1, 1] + w2 * rot[2, 1]
+        n2 = w0 * rot[0, 2] + w1 * rot[1, 2] + w2 * rot[2, 2]
         r = range_m[i]
-        spread[k, 0], spread[k, 1], shift = cell_box_at(x[i], y[i], r, n[k, 0], n[k, 1], n[k, 2], cell_x[i],
-                                                        cell_y[i], off_x[i], off_y[i], max_spread_s)
+        spread[k, 0], spread[k, 1], shift = cell_box_at(x[i], y[i], r, n0, n1, n2, cell_x[i], cell_y[i], off_x[i],
+                                                        off_y[i], max_spread_s)
         if off_x[i] != 0 or off_y[i] != 0:
             range_c[k] = r + _HALF_C * shift
             xc, yc = x[i] + off_x[i], y[i] + off_y[i]
-            cos_c[k] = min(abs(n[k, 0] * xc + n[k, 1] * yc - n[k, 2]) / math.sqrt(xc * xc + yc * yc + 1.0), 1.0)
+            cos_c[k] = min(abs(n0 * xc + n1 * yc - n2) / math.sqrt(xc * xc + yc * yc + 1.0), 1.0)
         else:
             range_c[k], cos_c[k] = r, cos_theta[i]

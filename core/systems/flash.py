@@ -27,6 +27,7 @@ from ..errors import ConfigError
 from ..geometry.rays import Detector, tan_to_unit_direction
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer
+from ..jit import kernel
 from ..physics.detection.peaks import detect_echoes, detect_echoes_windows
 from ..physics.laser import cell_energy_fractions
 from ..physics.propagation import effective_extinction_per_m
@@ -36,6 +37,24 @@ from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from ..physics.waveform import accumulate_waveform_windows, binning_method, round_trip_time_s
 
 STAGES = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")
+
+
+def block_hits(prim, pixel, first_pixel, material_ids, fraction):
+    """The hits of a block's rays (``prim`` ≥ 0), in ray order: (ray index, pixel − ``first_pixel``, material
+    index of the hit triangle, the ray's energy fraction), one compiled pass."""
+    n = int(np.count_nonzero(prim >= 0))
+    index, pix, mat, frac = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, material_ids.dtype), np.empty(n)
+    _block_hits(prim, pixel, first_pixel, material_ids, fraction, index, pix, mat, frac)
+    return index, pix, mat, frac
+
+
+@kernel
+def _block_hits(prim, pixel, first_pixel, material_ids, fraction, index, pix, mat, frac):
+    k = 0
+    for i in range(prim.shape[0]):
+        if prim[i] >= 0:
+            index[k], pix[k], mat[k], frac[k] = i, pixel[i] - first_pixel, material_ids[prim[i]], fraction[i]
+            k += 1
 
 
 def plan(config: SimulationConfig) -> dict:
@@ -130,19 +149,16 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             local["refine"] = time.perf_counter() - t
         x_tan, y_tan, pixel, sub_x, sub_y, fraction = smp.x_tan, smp.y_tan, smp.pixel, smp.sub_x, smp.sub_y, smp.weight
         t = time.perf_counter()
-        hit = prim >= 0
+        index, pix_local, mat_hit, frac_hit = block_hits(prim, pixel, a, scene.material_ids, fraction)
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
-            index = np.flatnonzero(hit)
-            spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta,
-                                                      rows_matmul(tracer.unit_normal[prim[index]], rot),
+            spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta, prim, tracer.unit_normal, rot,
                                                       max_spread_s)
         else:
-            spread, range_hit, cos_hit = None, range_m[hit], cos_theta[hit]
-        e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials,
-                            scene.material_ids[prim[hit]], cos_hit, range_hit, fraction[hit])
+            spread, range_hit, cos_hit = None, range_m[index], cos_theta[index]
+        e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
+                            range_hit, frac_hit)
         if atm.pattern is not None:
-            e *= atm.scintillation_at(x_tan[hit], y_tan[hit], sub_x[hit], sub_y[hit])
-        pix_local = pixel[hit] - a
+            e *= atm.scintillation_at(x_tan[index], y_tan[index], sub_x[index], sub_y[index])
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
@@ -154,12 +170,12 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             wf.write_rows(waveforms, np.arange(a, b))
         local["waveform"] = time.perf_counter() - t
         if whole_cube:  # echoes are detected after the whole-cube stages
-            return None, int(hit.sum()), local
+            return None, len(index), local
         t = time.perf_counter()
         echoes = detect_echoes_windows(wf, config.detection)
         echoes.pixel += a
         local["echoes"] = time.perf_counter() - t
-        return echoes, int(hit.sum()), local
+        return echoes, len(index), local
 
     results = run_blocks(process, blocks, threads, progress, cancel=cancel)
     n_hits = sum(r[1] for r in results)
