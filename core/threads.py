@@ -4,11 +4,13 @@ echo detection, false-alarm classification, extinction bands).
 A frame used to start a pool of its own for each of these stages (six to eight per noisy flash frame), and a
 new thread must be scheduled before ``Thread.start`` returns: ≈ 0.1 ms each on an idle machine, milliseconds
 when the cores are busy (the frame's own other thread among them).  The pool here is started once per process
-and grows to the largest thread count asked for; a call runs on at most ``threads`` of its workers.
+and grows to the largest thread count asked for; a call runs on at most ``threads`` threads.
 
-:func:`imap` yields the results in item order; the first error (by item) is raised after the running items
-have finished and before anything else starts, so a caller never returns while its items still write to its
-arrays.  Called from one of the pool's own workers (a stage inside a stage) it runs the items in that thread,
+:func:`map_list` runs the items on the calling thread and ``threads`` − 1 workers, in stretches of consecutive
+items with work taken from the longest stretch left (the stages that fill a fresh output); :func:`imap` runs them
+on ``threads`` workers and yields the results in item order while the caller reports progress (the frame
+blocks).  In both the first error (by item) is raised after the running items have finished, so a caller never
+returns while its items still write to its arrays.  Called from one of the pool's own workers (a stage inside a stage) it runs the items in that thread,
 one after the other: a worker never waits for the pool it belongs to.  A forked child process starts a pool of
 its own.  Results never depend on the thread count (each caller's items are independent).
 """
@@ -109,5 +111,53 @@ def imap(fn, items, threads: int):
 
 
 def map_list(fn, items, threads: int) -> list:
-    """``list(imap(fn, items, threads))``."""
-    return list(imap(fn, items, threads))
+    """``[fn(item) for item in items]`` on the calling thread and up to ``threads`` − 1 of the shared pool's
+    workers.  Each thread starts at the front of its own stretch of consecutive items (the caller: the first) and,
+    once that is done, takes items from the back of the longest stretch left: every thread writes mostly its own
+    part of a fresh output (its pages' first touches), and a thread the system runs less leaves its items to the
+    others instead of holding up the end.  An error stops the other threads at their next item; the first one
+    (by item) is raised once every running item has finished.  Called from a worker: the items run in order in
+    that thread."""
+    items = list(items)
+    n = len(items)
+    k = min(int(threads), n)
+    if k <= 1 or in_worker():
+        return [fn(item) for item in items]
+    results = [None] * n
+    spans = [[n * t // k, n * (t + 1) // k] for t in range(k)]
+    lock = threading.Lock()
+    errors: dict[int, BaseException] = {}
+
+    def take(t):
+        with lock:
+            if errors:
+                return -1
+            s = spans[t]
+            if s[0] < s[1]:
+                s[0] += 1
+                return s[0] - 1
+            s = max(spans, key=lambda v: v[1] - v[0])
+            if s[0] < s[1]:
+                s[1] -= 1
+                return s[1]
+            return -1
+
+    def run(t):
+        while (i := take(t)) >= 0:
+            try:
+                results[i] = fn(items[i])
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller
+                with lock:
+                    errors[i] = exc
+                return
+
+    pool = _executor(k - 1)
+    futures = [pool.submit(run, t) for t in range(1, k)]
+    try:
+        run(0)
+    finally:
+        for f in futures:  # (a worker that has not started takes nothing: every item is done or stopped)
+            f.result()
+    if errors:
+        raise errors[min(errors)]
+    return results

@@ -1,5 +1,6 @@
 """core/threads.py: the process's one worker pool — results in item order, at most ``threads`` items at once,
-errors raised by item after the running items finished, nested calls run inline, the pool kept between calls."""
+errors raised by item after the running items finished, nested calls run inline, the pool kept between calls;
+map_list's stretches (each thread its own run of consecutive items first) and work taken from the longest."""
 import os
 import threading
 import time
@@ -9,7 +10,8 @@ import pytest
 from core import threads as th
 
 
-def test_results_come_in_item_order_on_the_requested_threads():
+@pytest.mark.parametrize("run", [th.map_list, lambda f, x, t: list(th.imap(f, x, t))], ids=["map_list", "imap"])
+def test_results_come_in_item_order_on_the_requested_threads(run):
     lock = threading.Lock()
     state = {"now": 0, "most": 0, "names": set()}
 
@@ -23,9 +25,10 @@ def test_results_come_in_item_order_on_the_requested_threads():
             state["now"] -= 1
         return x * x
 
-    assert th.map_list(work, range(40), 3) == [x * x for x in range(40)]
+    assert run(work, range(40), 3) == [x * x for x in range(40)]
     assert state["most"] <= 3 and len(state["names"]) <= 3
-    assert all(name.startswith("ladar-worker") for name in state["names"])
+    me = threading.current_thread().name
+    assert all(name.startswith("ladar-worker") or name == me for name in state["names"])
 
 
 def test_one_thread_or_one_item_runs_in_the_calling_thread():
@@ -43,7 +46,8 @@ def test_the_pool_is_kept_between_calls():
     assert {t.ident for t in threading.enumerate()} == before  # no thread started (nor ended) by the 20 calls
 
 
-def test_the_first_error_by_item_is_raised_after_the_running_items_finished():
+@pytest.mark.parametrize("run", [th.map_list, lambda f, x, t: list(th.imap(f, x, t))], ids=["map_list", "imap"])
+def test_the_first_error_by_item_is_raised_after_the_running_items_finished(run):
     finished, started = [], []
     lock = threading.Lock()
 
@@ -60,7 +64,7 @@ def test_the_first_error_by_item_is_raised_after_the_running_items_finished():
         return x
 
     with pytest.raises(KeyError):
-        th.map_list(work, range(200), 2)
+        run(work, range(200), 2)
     running = set(started) - set(finished) - {2, 5}
     assert running == set()  # every item that started had finished when the call raised
     assert len(started) < 200  # and no item started after the error was seen (but the ones running then)
@@ -85,9 +89,31 @@ def test_a_call_from_a_worker_runs_its_items_in_that_worker():
         inner = th.map_list(lambda y: threading.current_thread().name, range(4), 2)
         return here, inner
 
-    for here, inner in th.map_list(outer, range(4), 2):
+    for here, inner in th.imap(outer, range(4), 2):  # (imap: every item on a worker)
         assert th.in_worker() is False
+        assert here.startswith("ladar-worker")
         assert inner == [here] * 4  # no wait on the pool the worker belongs to: no deadlock
+    for here, inner in th.map_list(outer, range(6), 3):  # items on the caller may use the pool, on workers not
+        assert len(inner) == 4 and (not here.startswith("ladar-worker") or inner == [here] * 4)
+
+
+def test_map_list_threads_start_with_their_own_stretch():
+    """Three threads, 30 slow items: the caller's first item is item 0, each worker's first is the start of its
+    stretch (10 or 20); every item runs once."""
+    first, seen = {}, []
+    lock = threading.Lock()
+
+    def work(x):
+        with lock:
+            first.setdefault(threading.current_thread().name, x)
+            seen.append(x)
+        time.sleep(0.003)
+        return x
+
+    assert th.map_list(work, range(30), 3) == list(range(30))
+    assert sorted(seen) == list(range(30))
+    assert first[threading.current_thread().name] == 0
+    assert sorted(v for k, v in first.items() if k != threading.current_thread().name) in ([10, 20], [10], [20], [])
 
 
 def test_an_abandoned_iteration_waits_for_its_running_items():
