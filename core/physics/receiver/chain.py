@@ -325,10 +325,9 @@ def _helper_pool(n):
     global _HELPERS
     with _HELPERS_LOCK:
         if _HELPERS is None or _HELPERS[0] != os.getpid() or _HELPERS[1]._max_workers < n:
-            old = _HELPERS
+            # (a replaced executor is not shut down: a concurrent call may still submit to it; its threads end
+            # once it is no longer referenced)
             _HELPERS = (os.getpid(), ThreadPoolExecutor(max_workers=n, thread_name_prefix="receiver-chain"))
-            if old is not None and old[0] == os.getpid():
-                old[1].shutdown(wait=False)  # (its idle threads end)
         return _HELPERS[1]
 
 
