@@ -71,8 +71,9 @@ def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     made inside the compiled sampler and recomputed from i for the bins with signal; n_s of bin i, for means
     below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the 53-bit uniform of word i of the stream
     ``pkey`` (compiled, :func:`_signal_draws` and :func:`_signal_counts`; e^(−λ) only for the bins whose uniform
-    is not below 1 − λ); larger means from the generator ``new_rng()``, made only when needed.  A float32 block is also checked for NaN/Inf and negative energies
-    by the scan (counts in the stats; the block stops there if any).
+    is not below 1 − λ); larger means from the generator ``new_rng()``, made only when needed.  A float32 block
+    is also checked for NaN/Inf and negative energies by the scan (counts in the stats; the block stops there if
+    any).
     Cost: one table look-up per bin (its uniform ~0.2 ns), plus a few ns per bin with signal."""
     P, B = E.shape
     N = P * B
@@ -81,21 +82,23 @@ def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     stats["n_adc_low"], stats["n_adc_high"] = table.sample_stream(key, of)
     Ef = E.reshape(-1)
     nz = scratch(ws, "nz", N, np.int64)
+    ev = scratch(ws, "ev", N, np.float32)
     invalid = np.zeros(2, np.int64)
-    # the bins with signal (compiled: signal-free stretches skipped by SIMD tests), and the input check
-    nnz = nonzero_index(Ef, nz, invalid)
+    # the bins with signal (compiled: signal-free stretches skipped by SIMD tests) and their energies, and the
+    # input check
+    nnz = nonzero_index(Ef, nz, invalid, ev)
     if invalid.any():
         stats["n_nonfinite"], stats["n_negative"] = int(invalid[0]), int(invalid[1])
         return stats
     if not nnz:
         return stats
-    nz = nz[:nnz]
+    nz, ev = nz[:nnz], ev[:nnz]
     spk_b = np.empty(0, np.float32) if spk is None else spk
     if p["shot"]:
         lam, p0, u, todo, sig, cnt, big = (scratch(ws, k, nnz, t) for k, t in (
             ("lam", np.float64), ("p0", np.float64), ("u", np.float64), ("todo", np.int64), ("sig", np.int64),
             ("cnt", np.float64), ("big", np.int64)))
-        stats["n_mean_clipped"], n_todo = _signal_draws(Ef, nz, p["k_sig"], spk_b, B, MEAN_CAP, pkey, lam, u, todo)
+        stats["n_mean_clipped"], n_todo = _signal_draws(ev, nz, p["k_sig"], spk_b, B, MEAN_CAP, pkey, lam, u, todo)
         todo = todo[:n_todo]
         p0 = p0[:n_todo]
         np.negative(lam[todo], out=p0)
@@ -158,25 +161,25 @@ def per_bin_tail(idx, n, p, rng, of):
     return lo, hi
 
 
-#: The count of a signal bin is 0 without computing e^(−λ) when its uniform u < (1 − λ) − this: e^(−λ) ≥ 1 − λ for
-#: every λ, and the float64 roundings of 1 − λ and of NumPy's exp (a few ulp of numbers ≤ 1: < 2⁻⁵⁰) are far
-#: below the margin, so u < e^(−λ) as computed; the decision is the same as with the exp.
+#: The count of a signal bin is 0 without computing e^(−λ) when its uniform u < (1 − λ) − this: e^(−λ) ≥ 1 − λ
+#: for every λ, and the float64 roundings of 1 − λ and of NumPy's exp (a few ulp of numbers ≤ 1: < 2⁻⁵⁰) are
+#: far below the margin, so u < e^(−λ) as computed; the decision is the same as with the exp.
 _ZERO_MARGIN = 2.0 ** -40
 
 
 @kernel
-def _signal_draws(E, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo):
-    """The signal bins idx of a block: lam[q] = their mean signal primaries (E·k_sig in float64, × the pixel's
-    speckle factor when ``spk`` is not empty, clipped to ``cap``); u[q] = the 53-bit uniform (w ≫ 11)·2⁻⁵³ of
-    word idx[q] of the counter-based stream ``pkey``; ``todo`` = the positions q whose Poisson count is not
-    already known to be 0 by u < (1 − λ) − :data:`_ZERO_MARGIN` (so e^(−λ) is computed for those only).
+def _signal_draws(ev, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo):
+    """The signal bins idx of a block, energies ``ev``: lam[q] = their mean signal primaries (ev·k_sig in
+    float64, × the pixel's speckle factor when ``spk`` is not empty, clipped to ``cap``); u[q] = the 53-bit
+    uniform (w ≫ 11)·2⁻⁵³ of word idx[q] of the counter-based stream ``pkey``; ``todo`` = the positions q whose
+    Poisson count is not already known to be 0 by u < (1 − λ) − :data:`_ZERO_MARGIN` (so e^(−λ) is computed
+    for those only).
     Returns (number of means clipped, number of positions in todo)."""
     n_clip = 0
     for q in range(idx.size):
-        j = idx[q]
-        s = np.float64(E[j]) * k_sig
+        s = np.float64(ev[q]) * k_sig
         if spk.size:
-            s *= spk[j // n_bins]
+            s *= spk[idx[q] // n_bins]
         if not s <= cap:
             s = cap
             n_clip += 1
@@ -214,11 +217,12 @@ def _signal_counts(idx, todo, lam, p0, u, sig, cnt, big):
 
 
 @kernel
-def nonzero_index(x, idx, invalid=None):
+def nonzero_index(x, idx, invalid=None, values=None):
     """The indices of the non-zero elements of the 1-D ``x`` into ``idx`` (as np.flatnonzero); returns how
     many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch.
     ``invalid`` (int64 (2,), optional): adds the number of NaN/±Inf elements to invalid[0] and of negative
-    finite ones to invalid[1] (the chain's input check, in the same pass: a stretch of zeros holds neither)."""
+    finite ones to invalid[1] (the chain's input check, in the same pass: a stretch of zeros holds neither).
+    ``values`` (optional, like ``idx``): the non-zero elements themselves, values[k] = x[idx[k]]."""
     n = x.size
     m = 0
     for q in range(n // 64 + 1):
@@ -233,6 +237,8 @@ def nonzero_index(x, idx, invalid=None):
             xj = x[j]
             if xj != 0:
                 idx[m] = j
+                if values is not None:
+                    values[m] = xj
                 m += 1
             if invalid is not None:
                 if not (xj == xj and abs(xj) < np.inf):
