@@ -43,8 +43,8 @@ from .conversions import (adc_step_e, background_photons, bin_moments, current_t
 from .geiger import geiger_histogram
 from .samplers import DENSE_MEAN, NORMAL_MEAN, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
 from .speckle import apply_mtf, optics_mtf_2d, speckle_gain_field
-from .table_route import (MEAN_CAP, TABLE_BLOCK_SAMPLES, block_codes_table, block_signal_table, noise_tables,
-                          per_bin_tail, scratch)
+from .table_route import (MEAN_CAP, TABLE_BLOCK_SAMPLES, noise_tables, per_bin_tail, process_block_table,
+                          scratch)
 
 #: Samples (pixels × bins) per random block.  Fixed: the result depends on the seed and shape only.
 _BLOCK_SAMPLES = 1 << 18
@@ -283,13 +283,23 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     keys = None if table is None else _child_ss(ss, 3).generate_state(len(blocks), np.uint64)
     pkeys = None if table is None else _child_ss(ss, 4).generate_state(len(blocks), np.uint64)
 
+    def work(blk):
+        i, r0, r1 = blk
+        ws = _scratch_of_thread()
+        if table is None:
+            return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1],
+                                  params, ws)
+        st = process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
+                                  None if spk is None else spk[r0:r1], params, ws, table)
+        if "tail" in st:  # (bin indices in the block → in the cube)
+            st["tail"] = (st["tail"][0] + r0 * B, st["tail"][1])
+        return st
+
     threads = det.threads or (os.cpu_count() or 1)
-    if table is None:
-        stats = in_parallel(lambda blk: _process_block(
-            src2[blk[1]:blk[2]], out[blk[1]:blk[2]], _child(ss, 0, blk[0]),
-            None if spk is None else spk[blk[1]:blk[2]], params, _scratch_of_thread()), blocks, threads)
-    else:
-        stats = _table_route(src2, out, blocks, keys, pkeys, spk, params, ss, table, deferred, threads)
+    stats = in_parallel(work, blocks, threads)
+    stats += _tail_stats(stats, deferred, params, ss, out, threads)
+    if deferred and table is not None:
+        _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
     for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
         report[key] = int(sum(s[key] for s in stats))
     if table is not None:
@@ -406,53 +416,22 @@ def _check_energies(cube):
 _TAIL_PARTS = 2
 
 
-def _table_route(src2, out, blocks, keys, pkeys, spk, p, ss, table, deferred, threads):
-    """The table route's two passes over the blocks (:func:`.table_route.block_signal_table`, then
-    :func:`.table_route.block_codes_table`), on up to ``threads`` threads.  The bins the blocks leave for per-bin
-    draws (their ``"tail"``, all blocks together in block order, in :data:`_TAIL_PARTS` fixed parts) are drawn
-    during the second pass, as its first work items (the longest), and their codes written after it; the input
-    check of a deferred cube is raised after the first pass, before any output is drawn.  Returns the stats of
-    the blocks and of the tail parts."""
-    B = src2.shape[1]
-
-    def signal(blk):
-        i, r0, r1 = blk
-        st = block_signal_table(src2[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
-                                None if spk is None else spk[r0:r1], p, _scratch_of_thread(), table)
-        if "tail" in st:  # (bin indices in the block → in the cube)
-            st["tail"] = (st["tail"][0] + r0 * B, st["tail"][1])
-        return st
-
-    stats = in_parallel(signal, blocks, threads)
-    if deferred:
-        _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
+def _tail_stats(stats, deferred, p, ss, out, threads):
+    """Table route, after the blocks: the bins they left for per-bin draws (``"tail"`` of their stats), all
+    blocks together in block order, in :data:`_TAIL_PARTS` fixed parts (on up to ``threads`` threads).
+    Returns the parts' stats (their A/D clip counts); nothing when a block found bad input (raised later)."""
     tails = [s["tail"] for s in stats if "tail" in s]
-    idx = np.concatenate([t[0] for t in tails]) if tails else np.empty(0, np.int64)
-    n = np.concatenate([t[1] for t in tails]) if tails else np.empty(0)
-    cuts = [len(idx) * k // _TAIL_PARTS for k in range(_TAIL_PARTS + 1)] if tails else [0]
-
-    def item(it):
-        kind, k = it
-        if kind == "tail":
-            return per_bin_tail(n[cuts[k]:cuts[k + 1]], p, _child(ss, 5, k))
-        i, r0, r1 = blocks[k]
-        return block_codes_table(out[r0:r1], keys[i], table, stats[k].get("hits"), _scratch_of_thread())
-
-    items = [("tail", k) for k in range(len(cuts) - 1)] + [("block", k) for k in range(len(blocks))]
-    res = in_parallel(item, items, threads)
+    if not tails or (deferred and any(s.get("n_nonfinite", 0) or s.get("n_negative", 0) for s in stats)):
+        return []
+    idx, n = np.concatenate([t[0] for t in tails]), np.concatenate([t[1] for t in tails])
+    cuts = [len(idx) * k // _TAIL_PARTS for k in range(_TAIL_PARTS + 1)]
     of = out.reshape(-1)
-    parts = []
-    for (kind, k), r in zip(items, res):
-        if kind == "tail":
-            of[idx[cuts[k]:cuts[k + 1]]] = r[0]
-            parts.append({"n_mean_clipped": 0, "n_adc_low": r[1], "n_adc_high": r[2], "normal_bins": 0})
-        else:
-            st = stats[k]
-            st["n_adc_low"] += r[0]
-            st["n_adc_high"] += r[1]
-            if r[2]:
-                st["caught_table"] = r[2]
-    return stats + parts
+
+    def part(k):
+        lo, hi = per_bin_tail(idx[cuts[k]:cuts[k + 1]], n[cuts[k]:cuts[k + 1]], p, _child(ss, 5, k), of)
+        return {"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0}
+
+    return in_parallel(part, range(_TAIL_PARTS), threads)
 
 
 def _process_block(E, out, rng, spk, p, ws) -> dict:

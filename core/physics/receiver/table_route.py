@@ -56,29 +56,30 @@ def scratch(ws, name, n, dtype):
     return a[:n]
 
 
-def block_signal_table(E, new_rng, key, pkey, spk, p, ws, table) -> dict:
-    """A block of pixels (P, B), A/D on, table route, first pass: its bins with signal and what they caught; nothing
-    is written to the output (:func:`block_codes_table` does that once every block's signal is known).
+def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
+    """One block of pixels (P, B), A/D on, with the tabulated code distribution of signal-free bins.
 
     Exact decomposition: the primaries of a bin are n = n_s + n_b (independent Poisson, signal and
-    background/bulk dark).  Every bin gets a code from ``table`` (the law of a bin with n_s = 0); the signal
-    primaries n_s are drawn exactly here for the bins with a non-zero mean, and the bins with n_s > 0 are
+    background/bulk dark).  Every bin first gets a code from ``table`` (the law of a bin with n_s = 0); then
+    the signal primaries n_s are drawn exactly for the bins with a non-zero mean and the bins with n_s > 0 are
     redrawn from the law given n_s: by the tables of ``table.caught`` for n_s ≤ 16 (re-using the bin's uniform,
-    which is independent of n_s; listed in ``stats["hits"]`` = (bin indices, counts), all the bins with
-    n_s > 0), else per bin (listed in ``stats["tail"]``, drawn by :func:`per_bin_tail` for all blocks at once):
-    n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read noise, A/D.  Without
-    shot noise every signal bin goes to the tail, and the clip counts of its signal-free code (uniform i of the
-    block's stream ``key``) are taken back here.
+    which is independent of n_s), else per bin (listed in ``stats["tail"]``, drawn by :func:`per_bin_tail` for
+    all blocks at once): n_b ~ Poisson, gain Gamma((n_s + n_b)/(F − 1), G(F − 1)), surface dark Poisson, read
+    noise, A/D.
 
-    Random numbers: n_s of bin i, for means below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the
-    53-bit uniform of word i of the counter-based stream ``pkey`` (compiled, :func:`_signal_draws` and
-    :func:`_signal_counts`; e^(−λ) only for the bins whose uniform is not below 1 − λ); larger means from the
-    generator ``new_rng()``, made only when needed.  A float32 block is also checked for NaN/Inf and negative
-    energies by the scan (counts in the stats; the block stops there if any).
-    Cost: the scan (≈ 0.35 ns a bin), plus a few ns per bin with signal."""
+    Random numbers: the uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`):
+    made inside the compiled sampler and recomputed from i for the bins with signal; n_s of bin i, for means
+    below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the 53-bit uniform of word i of the stream
+    ``pkey`` (compiled, :func:`_signal_draws` and :func:`_signal_counts`; e^(−λ) only for the bins whose uniform
+    is not below 1 − λ); larger means from the generator ``new_rng()``, made only when needed.  A float32 block
+    is also checked for NaN/Inf and negative energies by the scan (counts in the stats; the block stops there if
+    any).
+    Cost: one table look-up per bin (its uniform ~0.2 ns), plus a few ns per bin with signal."""
     P, B = E.shape
     N = P * B
     stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
+    of = out.reshape(-1)
+    stats["n_adc_low"], stats["n_adc_high"] = table.sample_stream(key, of)
     Ef = E.reshape(-1)
     nz = scratch(ws, "nz", N, np.int64)
     ev = scratch(ws, "ev", N, np.float32)
@@ -103,7 +104,7 @@ def block_signal_table(E, new_rng, key, pkey, spk, p, ws, table) -> dict:
         np.negative(lam[todo], out=p0)
         np.exp(p0, out=p0)  # e^(−λ) of the undecided signal bins: NumPy's vectorised exp
         n_sig, n_big = _signal_counts(nz, todo, lam, p0, u, sig, cnt, big)
-        sig, cnt = sig[:n_sig].copy(), cnt[:n_sig].copy()  # (out of the scratch: kept for the second pass)
+        sig, cnt = sig[:n_sig], cnt[:n_sig]
         if n_big:  # bright bins: one exact rng.poisson each
             rng = new_rng()
             nb, stats["normal_bins"] = poisson_dense(lam[big[:n_big]], rng)
@@ -112,11 +113,17 @@ def block_signal_table(E, new_rng, key, pkey, spk, p, ws, table) -> dict:
             cnt = np.concatenate([cnt, nb[hit]])
         if not sig.size:
             return stats
-        stats["hits"] = (sig, cnt)
-        over = cnt > table.caught.m_max  # (the bins CaughtCodeTables.apply leaves to the per-bin draws)
-        if not over.any():
+        # codes given the caught count, from the tables (the bin's uniform again: independent of n), in place of
+        # the signal-free codes; the bins that caught more than m_max go on to the per-bin draws below
+        rest = scratch(ws, "rest", sig.size, np.int64)
+        d_low, d_high, n_tab, n_rest = table.caught.apply(sig, cnt, key, table, of, rest)
+        stats["n_adc_low"] += d_low
+        stats["n_adc_high"] += d_high
+        if n_tab:
+            stats["caught_table"] = n_tab
+        if not n_rest:
             return stats
-        sig, n = sig[over], cnt[over]
+        sig, n = sig[rest[:n_rest]], cnt[rest[:n_rest]]
         stats["caught_per_bin"] = int(sig.size)
     else:
         with np.errstate(over="ignore"):
@@ -133,33 +140,15 @@ def block_signal_table(E, new_rng, key, pkey, spk, p, ws, table) -> dict:
         lo_t, hi_t = table.clipped(uniform_uint32(key, sig))
         stats["n_adc_low"] -= lo_t
         stats["n_adc_high"] -= hi_t
-    stats["tail"] = (sig, n)  # drawn by per_bin_tail for all blocks at once
+    stats["tail"] = (sig, n)  # drawn by per_bin_tail once all blocks are done
     return stats
 
 
-def block_codes_table(out, key, table, hits, ws):
-    """A block of pixels, table route, second pass: the codes of its signal-free bins from the uniforms of the
-    counter-based stream ``key`` (uniform i for bin i: :meth:`CodeTable.sample_stream`, made inside the compiled
-    sampler), then, for the bins in ``hits`` (bin indices, caught counts ≥ 1; None: none), the codes given the
-    caught count from ``table.caught`` with the bin's same uniform (independent of the count), in place of the
-    signal-free ones; bins with more than m_max are left to :func:`per_bin_tail` (their signal-free clip
-    counts taken back).  Returns (n_low, n_high, bins coded from the caught-count tables).
-    Cost: one table look-up per bin (its uniform ≈ 0.3 ns), a few ns per bin in ``hits``."""
-    of = out.reshape(-1)
-    n_low, n_high = table.sample_stream(key, of)
-    if hits is None:
-        return n_low, n_high, 0
-    sig, cnt = hits
-    rest = scratch(ws, "rest", sig.size, np.int64)
-    d_low, d_high, n_tab, _ = table.caught.apply(sig, cnt, key, table, of, rest)
-    return n_low + d_low, n_high + d_high, n_tab
-
-
-def per_bin_tail(n, p, rng):
-    """Table route: the codes of the bins drawn per bin, for all blocks at once (a few calls instead of a few per
-    block; the caller writes them into the output).  With shot noise ``n`` holds the signal primaries (> 16): n_b ~ Poisson
+def per_bin_tail(idx, n, p, rng, of):
+    """Table route: the bins ``idx`` (in the cube) whose code is drawn per bin, for all blocks at once (a few
+    calls instead of a few per block).  With shot noise ``n`` holds the signal primaries (> 16): n_b ~ Poisson
     is added; without, the continuous mean of all primaries.  Then gain Gamma(n/(F − 1), G(F − 1)), surface dark
-    (Poisson with shot noise), read noise, A/D.  Returns (codes, n_low, n_high)."""
+    (Poisson with shot noise), read noise, A/D; codes written into ``of``.  Returns (n_low, n_high)."""
     if p["shot"] and p["b_mult"] > 0:
         n = n + rng.poisson(p["b_mult"], n.size)
     y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
@@ -167,7 +156,9 @@ def per_bin_tail(n, p, rng):
         y += rng.poisson(p["ds"], n.size) if p["shot"] else p["ds"]
     if p["sigma_r"] > 0:
         y += p["sigma_r"] * rng.standard_normal(n.size)
-    return adc_convert(y, p["bits"], p["fs"], p["offset"])
+    codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
+    of[idx] = codes
+    return lo, hi
 
 
 #: The count of a signal bin is 0 without computing e^(−λ) when its uniform u < (1 − λ) − this: e^(−λ) ≥ 1 − λ
