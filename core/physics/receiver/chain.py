@@ -282,34 +282,22 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     # the signal bins' Poisson counts (child (4,))
     keys = None if table is None else _child_ss(ss, 3).generate_state(len(blocks), np.uint64)
     pkeys = None if table is None else _child_ss(ss, 4).generate_state(len(blocks), np.uint64)
-    local = threading.local()
 
     def work(blk):
         i, r0, r1 = blk
-        if not hasattr(local, "ws"):
-            local.ws = {}
+        ws = _scratch_of_thread()
         if table is None:
             return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1],
-                                  params, local.ws)
+                                  params, ws)
         st = process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
-                                  None if spk is None else spk[r0:r1], params, local.ws, table)
+                                  None if spk is None else spk[r0:r1], params, ws, table)
         if "tail" in st:  # (bin indices in the block → in the cube)
             st["tail"] = (st["tail"][0] + r0 * B, st["tail"][1])
         return st
 
     threads = det.threads or (os.cpu_count() or 1)
-    if threads > 1 and len(blocks) > 1:
-        # tasks of consecutive blocks (two per thread): each thread writes its own stretches of the output, so
-        # the first touches of its fresh pages do not wait for the other thread's (measured: 17 -> 15 ms on the
-        # 128×128×1024 cube, 2 threads); the blocks and their streams are the same whatever the grouping
-        g = -(-len(blocks) // (2 * threads))
-        seqs = [blocks[k:k + g] for k in range(0, len(blocks), g)]
-        with ThreadPoolExecutor(max_workers=threads) as ex:
-            stats = [s for seq in ex.map(lambda seq: [work(b) for b in seq], seqs) for s in seq]
-            stats += _tail_stats(stats, deferred, params, ss, out, ex.map)
-    else:
-        stats = [work(b) for b in blocks]
-        stats += _tail_stats(stats, deferred, params, ss, out, map)
+    stats = in_parallel(work, blocks, threads)
+    stats += _tail_stats(stats, deferred, params, ss, out, threads)
     if deferred and table is not None:
         _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
     for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
@@ -324,6 +312,90 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
                                         f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
     return ChainOutput(out.reshape(H, W, B), report)
+
+
+#: Helper threads of the chain, kept between calls (starting and joining threads per frame cost 1–5 ms on a
+#: busy machine): ``(pid, executor)``, replaced when a call needs more helpers or after a fork.
+_HELPERS = None
+_HELPERS_LOCK = threading.Lock()
+
+
+def _helper_pool(n):
+    """An executor with at least ``n`` threads, kept for the next calls."""
+    global _HELPERS
+    with _HELPERS_LOCK:
+        if _HELPERS is None or _HELPERS[0] != os.getpid() or _HELPERS[1]._max_workers < n:
+            # (a replaced executor is not shut down: a concurrent call may still submit to it; its threads end
+            # once it is no longer referenced)
+            _HELPERS = (os.getpid(), ThreadPoolExecutor(max_workers=n, thread_name_prefix="receiver-chain"))
+        return _HELPERS[1]
+
+
+def in_parallel(fn, items, threads):
+    """``[fn(x) for x in items]`` on the calling thread and up to ``threads`` − 1 helper threads.
+
+    Each thread starts at the front of its own stretch of consecutive items (the caller: the first one) and,
+    once it is done, takes items from the back of the longest stretch left: every thread writes mostly its own
+    stretch of a fresh output (its first touches of the pages), and a thread the system runs less (a shared
+    machine) leaves its items to the others instead of holding up the end.  Which thread computes an item
+    changes nothing in its result.  An exception stops the other threads at their next item and is raised."""
+    items = list(items)
+    n = len(items)
+    n_thr = max(1, min(int(threads), n))
+    if n_thr == 1:
+        return [fn(x) for x in items]
+    res = [None] * n
+    spans = [[n * t // n_thr, n * (t + 1) // n_thr] for t in range(n_thr)]
+    lock = threading.Lock()
+    failed = []
+
+    def take(t):
+        with lock:
+            if failed:
+                return -1
+            s = spans[t]
+            if s[0] < s[1]:
+                s[0] += 1
+                return s[0] - 1
+            s = max(spans, key=lambda v: v[1] - v[0])
+            if s[0] < s[1]:
+                s[1] -= 1
+                return s[1]
+            return -1
+
+    def run(t):
+        try:
+            while (k := take(t)) >= 0:
+                res[k] = fn(items[k])
+        except BaseException:
+            failed.append(True)
+            raise
+
+    pool = _helper_pool(n_thr - 1)
+    futs = [pool.submit(run, t) for t in range(1, n_thr)]
+    try:
+        run(0)
+    finally:  # helpers not started yet are cancelled (every item is taken); the others finish theirs
+        for f in futs:
+            if not f.cancel():
+                f.exception()
+    for f in futs:
+        if not f.cancelled() and f.exception() is not None:
+            raise f.exception()
+    return res
+
+
+_THREAD_SCRATCH = threading.local()
+
+
+def _scratch_of_thread() -> dict:
+    """This thread's scratch buffers (:func:`.table_route.scratch`), kept between calls: a block's buffers are
+    sized by the block (table route: 6 MB, plus 64 B per signal bin of the busiest block, ≤ 40 MB), and fresh
+    ones cost their first-touch page faults every frame."""
+    ws = getattr(_THREAD_SCRATCH, "ws", None)
+    if ws is None:
+        ws = _THREAD_SCRATCH.ws = {}
+    return ws
 
 
 def _energy_error(nonfinite, negative):
@@ -344,9 +416,9 @@ def _check_energies(cube):
 _TAIL_PARTS = 2
 
 
-def _tail_stats(stats, deferred, p, ss, out, mapper):
+def _tail_stats(stats, deferred, p, ss, out, threads):
     """Table route, after the blocks: the bins they left for per-bin draws (``"tail"`` of their stats), all
-    blocks together in block order, in :data:`_TAIL_PARTS` fixed parts (``mapper``: the pool's map or ``map``).
+    blocks together in block order, in :data:`_TAIL_PARTS` fixed parts (on up to ``threads`` threads).
     Returns the parts' stats (their A/D clip counts); nothing when a block found bad input (raised later)."""
     tails = [s["tail"] for s in stats if "tail" in s]
     if not tails or (deferred and any(s.get("n_nonfinite", 0) or s.get("n_negative", 0) for s in stats)):
@@ -359,7 +431,7 @@ def _tail_stats(stats, deferred, p, ss, out, mapper):
         lo, hi = per_bin_tail(idx[cuts[k]:cuts[k + 1]], n[cuts[k]:cuts[k + 1]], p, _child(ss, 5, k), of)
         return {"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0}
 
-    return list(mapper(part, range(_TAIL_PARTS)))
+    return in_parallel(part, range(_TAIL_PARTS), threads)
 
 
 def _process_block(E, out, rng, spk, p, ws) -> dict:

@@ -306,7 +306,8 @@ class CaughtCodeTables:
             step_e, kw, offset, top, dtype = self._args
             k0, P = noise_code_pmf(step_e, fixed_primaries=np.arange(1, self.m_max + 1), **kw)
             tabs = [CodeTable(k0, P[j], offset, top, dtype, self.cell_bits) for j in range(self.m_max)]
-            stack = np.empty((self.m_max, 1 << self.cell_bits), dtype=np.int64)
+            # (int32 when every code fits: half the cache footprint of int64, the look-ups are random)
+            stack = np.empty((self.m_max, 1 << self.cell_bits), dtype=np.int32 if top < 2 ** 31 else np.int64)
             for j, t in enumerate(tabs):
                 stack[j] = t.table
                 if t.n_ambiguous_cells:

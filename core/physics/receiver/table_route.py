@@ -70,9 +70,10 @@ def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     Random numbers: the uniform of bin i is number i of the counter-based stream ``key`` (:func:`uniform_uint32`):
     made inside the compiled sampler and recomputed from i for the bins with signal; n_s of bin i, for means
     below ``POISSON_INVERSION_MAX``, is the Poisson inversion of the 53-bit uniform of word i of the stream
-    ``pkey`` (compiled, :func:`_signal_counts`); larger means from the generator ``new_rng()``, made only when
-    needed.  A float32 block is also checked for NaN/Inf and negative energies
-    by the scan (counts in the stats; the block stops there if any).
+    ``pkey`` (compiled, :func:`_signal_draws` and :func:`_signal_counts`; e^(−λ) only for the bins whose uniform
+    is not below 1 − λ); larger means from the generator ``new_rng()``, made only when needed.  A float32 block
+    is also checked for NaN/Inf and negative energies by the scan (counts in the stats; the block stops there if
+    any).
     Cost: one table look-up per bin (its uniform ~0.2 ns), plus a few ns per bin with signal."""
     P, B = E.shape
     N = P * B
@@ -81,24 +82,28 @@ def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
     stats["n_adc_low"], stats["n_adc_high"] = table.sample_stream(key, of)
     Ef = E.reshape(-1)
     nz = scratch(ws, "nz", N, np.int64)
+    ev = scratch(ws, "ev", N, np.float32)
     invalid = np.zeros(2, np.int64)
-    # the bins with signal (compiled: signal-free stretches skipped by SIMD tests), and the input check
-    nnz = nonzero_index(Ef, nz, invalid)
+    # the bins with signal (compiled: signal-free stretches skipped by SIMD tests) and their energies, and the
+    # input check
+    nnz = nonzero_index(Ef, nz, invalid, ev)
     if invalid.any():
         stats["n_nonfinite"], stats["n_negative"] = int(invalid[0]), int(invalid[1])
         return stats
     if not nnz:
         return stats
-    nz = nz[:nnz]
+    nz, ev = nz[:nnz], ev[:nnz]
     spk_b = np.empty(0, np.float32) if spk is None else spk
     if p["shot"]:
-        lam, p0, u, sig, cnt, big = (scratch(ws, k, nnz, t) for k, t in (
-            ("lam", np.float64), ("p0", np.float64), ("u", np.float64), ("sig", np.int64), ("cnt", np.float64),
-            ("big", np.int64)))
-        stats["n_mean_clipped"] = _signal_means(Ef, nz, p["k_sig"], spk_b, B, MEAN_CAP, lam)
-        np.negative(lam, out=p0)
-        np.exp(p0, out=p0)  # e^(−λ) of every signal bin: NumPy's vectorised exp
-        n_sig, n_big = _signal_counts(nz, lam, p0, pkey, u, sig, cnt, big)
+        lam, p0, u, todo, sig, cnt, big = (scratch(ws, k, nnz, t) for k, t in (
+            ("lam", np.float64), ("p0", np.float64), ("u", np.float64), ("todo", np.int64), ("sig", np.int64),
+            ("cnt", np.float64), ("big", np.int64)))
+        stats["n_mean_clipped"], n_todo = _signal_draws(ev, nz, p["k_sig"], spk_b, B, MEAN_CAP, pkey, lam, u, todo)
+        todo = todo[:n_todo]
+        p0 = p0[:n_todo]
+        np.negative(lam[todo], out=p0)
+        np.exp(p0, out=p0)  # e^(−λ) of the undecided signal bins: NumPy's vectorised exp
+        n_sig, n_big = _signal_counts(nz, todo, lam, p0, u, sig, cnt, big)
         sig, cnt = sig[:n_sig], cnt[:n_sig]
         if n_big:  # bright bins: one exact rng.poisson each
             rng = new_rng()
@@ -156,53 +161,68 @@ def per_bin_tail(idx, n, p, rng, of):
     return lo, hi
 
 
+#: The count of a signal bin is 0 without computing e^(−λ) when its uniform u < (1 − λ) − this: e^(−λ) ≥ 1 − λ
+#: for every λ, and the float64 roundings of 1 − λ and of NumPy's exp (a few ulp of numbers ≤ 1: < 2⁻⁵⁰) are
+#: far below the margin, so u < e^(−λ) as computed; the decision is the same as with the exp.
+_ZERO_MARGIN = 2.0 ** -40
+
+
 @kernel
-def _signal_means(E, idx, k_sig, spk, n_bins, cap, lam):
-    """lam[q] = the mean signal primaries of bin idx[q] of a block: E·k_sig in float64, × the pixel's speckle
-    factor when ``spk`` is not empty, clipped to ``cap``.  Returns how many were clipped."""
+def _signal_draws(ev, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo):
+    """The signal bins idx of a block, energies ``ev``: lam[q] = their mean signal primaries (ev·k_sig in
+    float64, × the pixel's speckle factor when ``spk`` is not empty, clipped to ``cap``); u[q] = the 53-bit
+    uniform (w ≫ 11)·2⁻⁵³ of word idx[q] of the counter-based stream ``pkey``; ``todo`` = the positions q whose
+    Poisson count is not already known to be 0 by u < (1 − λ) − :data:`_ZERO_MARGIN` (so e^(−λ) is computed
+    for those only).
+    Returns (number of means clipped, number of positions in todo)."""
     n_clip = 0
     for q in range(idx.size):
-        j = idx[q]
-        s = np.float64(E[j]) * k_sig
+        s = np.float64(ev[q]) * k_sig
         if spk.size:
-            s *= spk[j // n_bins]
+            s *= spk[idx[q] // n_bins]
         if not s <= cap:
             s = cap
             n_clip += 1
         lam[q] = s
-    return n_clip
+    for q in range(idx.size):  # (a loop of its own: vectorised)
+        w = splitmix64_mix(pkey + np.uint64(idx[q] + 1) * SPLITMIX_GAMMA)
+        u[q] = np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    n_todo = 0
+    for q in range(idx.size):
+        if not u[q] < (1.0 - lam[q]) - _ZERO_MARGIN:
+            todo[n_todo] = q
+            n_todo += 1
+    return n_clip, n_todo
 
 
 @kernel
-def _signal_counts(idx, lam, p0, pkey, u, sig, cnt, big):
-    """Poisson counts of the signal bins idx (means ``lam``, p0 = e^(−lam)): below POISSON_INVERSION_MAX by
-    :func:`poisson_inversion` of the 53-bit uniform u = (w ≫ 11)·2⁻⁵³ of word j of the counter-based stream
-    ``pkey`` (j = the bin's index in the block; all u first, in a vectorised pass into the scratch ``u``); the
-    bins with a count > 0 listed in ``sig`` (bin index) and ``cnt`` (float64 count); larger means listed in
-    ``big`` (position in idx) for ``rng.poisson``.  Returns (n_sig, n_big)."""
-    for q in range(idx.size):
-        w = splitmix64_mix(pkey + np.uint64(idx[q] + 1) * SPLITMIX_GAMMA)
-        u[q] = np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+def _signal_counts(idx, todo, lam, p0, u, sig, cnt, big):
+    """Poisson counts of the signal bins at the positions ``todo`` (in order; the others have count 0), with
+    means lam[q], uniforms u[q] and p0[t] = e^(−lam[todo[t]]): below POISSON_INVERSION_MAX by
+    :func:`poisson_inversion`; the bins with a count > 0 listed in ``sig`` (bin index idx[q]) and ``cnt`` (float64
+    count); larger means listed in ``big`` (position q) for ``rng.poisson``.  Returns (n_sig, n_big)."""
     n_sig = 0
     n_big = 0
-    for q in range(idx.size):
+    for t in range(todo.size):
+        q = todo[t]
         s = lam[q]
         if s >= POISSON_INVERSION_MAX:
             big[n_big] = q
             n_big += 1
-        elif u[q] >= p0[q]:  # (count 0 otherwise: the usual case, decided without a call)
+        elif u[q] >= p0[t]:  # (count 0 otherwise: decided without a call)
             sig[n_sig] = idx[q]
-            cnt[n_sig] = poisson_inversion(s, p0[q], u[q])
+            cnt[n_sig] = poisson_inversion(s, p0[t], u[q])
             n_sig += 1
     return n_sig, n_big
 
 
 @kernel
-def nonzero_index(x, idx, invalid=None):
+def nonzero_index(x, idx, invalid=None, values=None):
     """The indices of the non-zero elements of the 1-D ``x`` into ``idx`` (as np.flatnonzero); returns how
     many.  Blocks of 64 elements are tested with one vectorised count first: zero blocks cost no branch.
     ``invalid`` (int64 (2,), optional): adds the number of NaN/±Inf elements to invalid[0] and of negative
-    finite ones to invalid[1] (the chain's input check, in the same pass: a stretch of zeros holds neither)."""
+    finite ones to invalid[1] (the chain's input check, in the same pass: a stretch of zeros holds neither).
+    ``values`` (optional, like ``idx``): the non-zero elements themselves, values[k] = x[idx[k]]."""
     n = x.size
     m = 0
     for q in range(n // 64 + 1):
@@ -217,6 +237,8 @@ def nonzero_index(x, idx, invalid=None):
             xj = x[j]
             if xj != 0:
                 idx[m] = j
+                if values is not None:
+                    values[m] = xj
                 m += 1
             if invalid is not None:
                 if not (xj == xj and abs(xj) < np.inf):

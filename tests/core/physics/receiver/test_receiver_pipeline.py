@@ -85,3 +85,41 @@ def test_weak_returns_give_misses_and_false_alarms_are_counted():
     n_first = int(np.sum(res.points["echo_index"] == 1))
     assert n_first < 0.2 * 16 * 16
     assert np.all(np.isfinite(res.points["range_m"]))
+
+
+def test_chain_threads_share_the_items_and_pass_errors_on():
+    """The chain's work sharing (caller + kept helper threads): results in item order whatever the thread count,
+    also with more threads than items, from concurrent callers, and an error in any item is raised."""
+    import threading
+    import time
+
+    from core.physics.receiver.chain import in_parallel
+
+    for threads in (1, 2, 3, 8):
+        assert in_parallel(lambda x: (time.sleep(0.0005 * (x % 3)), x * x)[1], range(11), threads) == [
+            x * x for x in range(11)]
+    assert in_parallel(abs, [], 2) == [] and in_parallel(abs, [-5], 4) == [5]
+
+    def bad(x):
+        if x == 6:
+            raise ValueError("item 6")
+        time.sleep(0.001)
+        return x
+
+    with pytest.raises(ValueError, match="item 6"):
+        in_parallel(bad, range(16), 2)
+    errors = []
+
+    def caller(k):
+        try:
+            for i in range(20):
+                assert in_parallel(lambda x: x + k, range(9), 2 + (i + k) % 3) == [x + k for x in range(9)]
+        except Exception as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    callers = [threading.Thread(target=caller, args=(k,)) for k in range(3)]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join()
+    assert not errors

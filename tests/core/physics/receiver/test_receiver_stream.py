@@ -290,3 +290,26 @@ def test_signal_bins_drawn_by_inversion_match_the_formula(n_s):
     mean_e, var_e = linear_detector_moments(n_s, b, 100.0, F_SEC8, 0.0, DS_SEC8, 300.0, 500.0)
     assert x.mean() == pytest.approx(mean_e, rel=0.02)
     assert x.var() == pytest.approx(var_e, rel=0.02)
+
+
+def test_zero_count_shortcut_decides_as_the_exp():
+    """A signal bin with u < (1 − λ) − margin has count 0 without its e^(−λ) (table_route._ZERO_MARGIN): the
+    decision must be the one of u < e^(−λ) computed by NumPy's exp, also for uniforms just below 1 − λ and for
+    tiny λ, where e^(−λ) and 1 − λ round to neighbouring doubles."""
+    from core.physics.receiver import table_route
+
+    margin = table_route._ZERO_MARGIN
+    assert 0 < margin < 1e-9
+    rng = np.random.default_rng(16)
+    lam = np.concatenate([10.0 ** rng.uniform(-17, 1, 20_000), [0.0, 1e-300, 2.0 ** -53, 2.0 ** -40, 1.0]])
+    step = 2.0 ** -53
+    ks = np.concatenate([np.arange(0, 4096), 2 ** np.arange(12, 40)]).astype(np.float64)
+    for lo in range(0, lam.size, 2000):
+        lm = lam[lo:lo + 2000, None]
+        b = 1.0 - lm
+        # uniforms on the 2⁻⁵³ grid just below and around 1 − λ, and random ones
+        u = np.clip(np.floor(b / step) * step - ks[None, :] * step, 0.0, 1.0 - step)
+        u = np.concatenate([u, rng.integers(0, 2 ** 53, (lm.size, 64)) * step], axis=1)
+        shortcut = u < b - margin
+        assert not np.any(shortcut & ~(u < np.exp(-lm)))
+        assert shortcut[:, -64:].mean() > 0.4  # (it decides most random ones)
