@@ -147,3 +147,39 @@ def test_a_forked_child_starts_a_pool_of_its_own():
     assert os.read(r, 1) == b"1"
     os.close(r)
     os.waitpid(pid, 0)
+
+
+def test_map_list_from_concurrent_callers_and_more_threads_than_items():
+    """map_list (the receiver chain's and the detection's work sharing): results in item order whatever the
+    thread count, also with more threads than items, from concurrent callers, and an error in any item is
+    raised."""
+    in_parallel = th.map_list
+
+    for threads in (1, 2, 3, 8):
+        assert in_parallel(lambda x: (time.sleep(0.0005 * (x % 3)), x * x)[1], range(11), threads) == [
+            x * x for x in range(11)]
+    assert in_parallel(abs, [], 2) == [] and in_parallel(abs, [-5], 4) == [5]
+
+    def bad(x):
+        if x == 6:
+            raise ValueError("item 6")
+        time.sleep(0.001)
+        return x
+
+    with pytest.raises(ValueError, match="item 6"):
+        in_parallel(bad, range(16), 2)
+    errors = []
+
+    def caller(k):
+        try:
+            for i in range(20):
+                assert in_parallel(lambda x: x + k, range(9), 2 + (i + k) % 3) == [x + k for x in range(9)]
+        except Exception as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    callers = [threading.Thread(target=caller, args=(k,)) for k in range(3)]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join()
+    assert not errors

@@ -29,13 +29,13 @@ from __future__ import annotations
 import math
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ...config.settings import DetectorSettings
 from ...config.validate import validate
+from ...threads import map_list
 from .adc import adc_convert, adc_dtype
 from .code_tables import P_BITS, TABLE_MIN_SIGMA_STEPS
 from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
@@ -296,7 +296,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         return st
 
     threads = det.threads or (os.cpu_count() or 1)
-    stats = in_parallel(work, blocks, threads)
+    stats = map_list(work, blocks, threads)  # (core/threads.py: the caller and the shared pool)
     stats += _tail_stats(stats, deferred, params, ss, out, threads)
     if deferred and table is not None:
         _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
@@ -312,77 +312,6 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
                                         f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
     return ChainOutput(out.reshape(H, W, B), report)
-
-
-#: Helper threads of the chain, kept between calls (starting and joining threads per frame cost 1–5 ms on a
-#: busy machine): ``(pid, executor)``, replaced when a call needs more helpers or after a fork.
-_HELPERS = None
-_HELPERS_LOCK = threading.Lock()
-
-
-def _helper_pool(n):
-    """An executor with at least ``n`` threads, kept for the next calls."""
-    global _HELPERS
-    with _HELPERS_LOCK:
-        if _HELPERS is None or _HELPERS[0] != os.getpid() or _HELPERS[1]._max_workers < n:
-            # (a replaced executor is not shut down: a concurrent call may still submit to it; its threads end
-            # once it is no longer referenced)
-            _HELPERS = (os.getpid(), ThreadPoolExecutor(max_workers=n, thread_name_prefix="receiver-chain"))
-        return _HELPERS[1]
-
-
-def in_parallel(fn, items, threads):
-    """``[fn(x) for x in items]`` on the calling thread and up to ``threads`` − 1 helper threads.
-
-    Each thread starts at the front of its own stretch of consecutive items (the caller: the first one) and,
-    once it is done, takes items from the back of the longest stretch left: every thread writes mostly its own
-    stretch of a fresh output (its first touches of the pages), and a thread the system runs less (a shared
-    machine) leaves its items to the others instead of holding up the end.  Which thread computes an item
-    changes nothing in its result.  An exception stops the other threads at their next item and is raised."""
-    items = list(items)
-    n = len(items)
-    n_thr = max(1, min(int(threads), n))
-    if n_thr == 1:
-        return [fn(x) for x in items]
-    res = [None] * n
-    spans = [[n * t // n_thr, n * (t + 1) // n_thr] for t in range(n_thr)]
-    lock = threading.Lock()
-    failed = []
-
-    def take(t):
-        with lock:
-            if failed:
-                return -1
-            s = spans[t]
-            if s[0] < s[1]:
-                s[0] += 1
-                return s[0] - 1
-            s = max(spans, key=lambda v: v[1] - v[0])
-            if s[0] < s[1]:
-                s[1] -= 1
-                return s[1]
-            return -1
-
-    def run(t):
-        try:
-            while (k := take(t)) >= 0:
-                res[k] = fn(items[k])
-        except BaseException:
-            failed.append(True)
-            raise
-
-    pool = _helper_pool(n_thr - 1)
-    futs = [pool.submit(run, t) for t in range(1, n_thr)]
-    try:
-        run(0)
-    finally:  # helpers not started yet are cancelled (every item is taken); the others finish theirs
-        for f in futs:
-            if not f.cancel():
-                f.exception()
-    for f in futs:
-        if not f.cancelled() and f.exception() is not None:
-            raise f.exception()
-    return res
 
 
 _THREAD_SCRATCH = threading.local()
@@ -431,7 +360,7 @@ def _tail_stats(stats, deferred, p, ss, out, threads):
         lo, hi = per_bin_tail(idx[cuts[k]:cuts[k + 1]], n[cuts[k]:cuts[k + 1]], p, _child(ss, 5, k), of)
         return {"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0}
 
-    return in_parallel(part, range(_TAIL_PARTS), threads)
+    return map_list(part, range(_TAIL_PARTS), threads)
 
 
 def _process_block(E, out, rng, spk, p, ws) -> dict:
