@@ -33,16 +33,14 @@ def _mark_worker() -> None:
 
 
 def _executor(threads: int) -> ThreadPoolExecutor:
-    """The shared pool, with at least ``threads`` workers (a larger one replaces it; its idle workers exit)."""
+    """The shared pool, with at least ``threads`` workers.  A call that needs more replaces it; the old one is not
+    shut down (a concurrent call may still be submitting to it): its workers end once nothing refers to it."""
     global _pool, _pool_size, _pool_pid
     with _lock:
         if _pool is None or _pool_size < threads or _pool_pid != os.getpid():
-            old = _pool if _pool_pid == os.getpid() else None
             _pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="ladar-worker",
                                        initializer=_mark_worker)
             _pool_size, _pool_pid = threads, os.getpid()
-            if old is not None:
-                old.shutdown(wait=False)
         return _pool
 
 

@@ -183,3 +183,28 @@ def test_map_list_from_concurrent_callers_and_more_threads_than_items():
     for t in callers:
         t.join()
     assert not errors
+
+
+def test_callers_asking_for_more_threads_while_others_run():
+    """A call that grows the pool while other calls are submitting to the old one: every call completes
+    (the replaced pool is not shut down under them)."""
+    held = th._executor(2)  # what a running call holds
+    th._executor(64)  # another call grows the pool
+    assert held.submit(lambda: 7).result() == 7  # the held pool still takes work
+    errors = []
+
+    def caller(k):
+        try:
+            for i in range(30):
+                n = 2 + (k * 7 + i) % 6
+                assert th.map_list(lambda x: x * k, range(12), n) == [x * k for x in range(12)]
+                assert list(th.imap(lambda x: x + k, range(5), n)) == [x + k for x in range(5)]
+        except Exception as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    callers = [threading.Thread(target=caller, args=(k,)) for k in range(4)]
+    for t in callers:
+        t.start()
+    for t in callers:
+        t.join()
+    assert not errors
