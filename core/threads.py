@@ -10,9 +10,10 @@ and grows to the largest thread count asked for; a call runs on at most ``thread
 items with work taken from the longest stretch left (the stages that fill a fresh output); :func:`imap` runs them
 on ``threads`` workers and yields the results in item order while the caller reports progress (the frame
 blocks).  In both the first error (by item) is raised after the running items have finished, so a caller never
-returns while its items still write to its arrays.  Called from one of the pool's own workers (a stage inside a stage) it runs the items in that thread,
-one after the other: a worker never waits for the pool it belongs to.  A forked child process starts a pool of
-its own.  Results never depend on the thread count (each caller's items are independent).
+returns while its items still write to its arrays.  Called from one of the pool's own workers (a stage inside a
+stage) either runs the items in that thread, one after the other: a worker never waits for the pool it belongs
+to.  A forked child process starts a pool of its own.  Results never depend on the thread count (each caller's
+items are independent).
 """
 from __future__ import annotations
 
