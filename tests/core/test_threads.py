@@ -168,21 +168,12 @@ def test_map_list_from_concurrent_callers_and_more_threads_than_items():
 
     with pytest.raises(ValueError, match="item 6"):
         in_parallel(bad, range(16), 2)
-    errors = []
 
     def caller(k):
-        try:
-            for i in range(20):
-                assert in_parallel(lambda x: x + k, range(9), 2 + (i + k) % 3) == [x + k for x in range(9)]
-        except Exception as exc:  # pragma: no cover - reported below
-            errors.append(exc)
+        for i in range(20):
+            assert in_parallel(lambda x: x + k, range(9), 2 + (i + k) % 3) == [x + k for x in range(9)]
 
-    callers = [threading.Thread(target=caller, args=(k,)) for k in range(3)]
-    for t in callers:
-        t.start()
-    for t in callers:
-        t.join()
-    assert not errors
+    assert _run_callers(caller, 3) == []
 
 
 def test_callers_asking_for_more_threads_while_others_run():
@@ -191,20 +182,29 @@ def test_callers_asking_for_more_threads_while_others_run():
     held = th._executor(2)  # what a running call holds
     th._executor(64)  # another call grows the pool
     assert held.submit(lambda: 7).result() == 7  # the held pool still takes work
-    errors = []
 
     def caller(k):
+        for i in range(30):
+            n = 2 + (k * 7 + i) % 6
+            assert th.map_list(lambda x: x * k, range(12), n) == [x * k for x in range(12)]
+            assert list(th.imap(lambda x: x + k, range(5), n)) == [x + k for x in range(5)]
+
+    assert _run_callers(caller, 4) == []
+
+
+def _run_callers(caller, n):
+    """Run caller(0) … caller(n − 1) on n threads of their own at once; the errors they raised."""
+    errors = []
+
+    def guarded(k):
         try:
-            for i in range(30):
-                n = 2 + (k * 7 + i) % 6
-                assert th.map_list(lambda x: x * k, range(12), n) == [x * k for x in range(12)]
-                assert list(th.imap(lambda x: x + k, range(5), n)) == [x + k for x in range(5)]
-        except Exception as exc:  # pragma: no cover - reported below
+            caller(k)
+        except Exception as exc:  # reported by the caller of this helper
             errors.append(exc)
 
-    callers = [threading.Thread(target=caller, args=(k,)) for k in range(4)]
-    for t in callers:
+    threads = [threading.Thread(target=guarded, args=(k,)) for k in range(n)]
+    for t in threads:
         t.start()
-    for t in callers:
+    for t in threads:
         t.join()
-    assert not errors
+    return errors
