@@ -7,6 +7,7 @@ embreex and NumPy release the GIL, so threads scale the trace and the array stag
 from __future__ import annotations
 
 import os
+
 import numpy as np
 
 from ..errors import Cancelled
