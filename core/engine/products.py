@@ -18,6 +18,7 @@ from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify
 from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
 from ..physics.receiver.conversions import photons_per_joule
+from ..threads import map_list
 from .blocks import worker_threads
 from .result import FrameResult
 
@@ -62,12 +63,20 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     return echoes
 
 
-def reference_range_m(tracer, det, origin, rot) -> float:
-    """Median range of the pixel-centre rays that hit the scene: where the turbulence is evaluated."""
+def reference_range_m(tracer, det, origin, rot, threads: int = 1) -> float:
+    """Median range of the pixel-centre rays that hit the scene: where the turbulence is evaluated.  The rays are
+    traced in ``threads`` parts on the shared pool (each ray's range does not depend on the parts)."""
     pix = np.arange(det.n_pixels)
     xt, yt = det.pixel_center_tan(pix % det.width_px, pix // det.width_px)
-    prim, range_m, _ = tracer.intersect(origin, tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float))
-                                        @ rot.T)
+    dirs = tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float)) @ rot.T
+    prim, range_m = np.empty(len(dirs), np.int32), np.empty(len(dirs))
+
+    def trace(part):
+        a, b = part
+        prim[a:b], range_m[a:b], _ = tracer.intersect(origin, dirs[a:b])
+
+    step = -(-len(dirs) // max(1, threads))
+    map_list(trace, [(a, min(a + step, len(dirs))) for a in range(0, len(dirs), step)], threads)
     hits = range_m[prim >= 0]
     if len(hits) == 0:
         raise ConfigError("sensor", "sees nothing", "a field of view containing geometry: no pixel-centre ray "

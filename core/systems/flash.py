@@ -96,9 +96,10 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     scene, tracer, origin, rot, memory = fr.scene, fr.tracer, fr.origin, fr.rot, fr.memory
     needs_reference = any(s not in log.skipped
                           for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
+    threads = worker_threads(config.run.threads)
     with log.timed("atmosphere"):
-        atm = prepare_frame_atmosphere(config, det, reference_range_m(tracer, det, origin, rot) if needs_reference
-                                       else None, frame)
+        r_ref = reference_range_m(tracer, det, origin, rot, threads) if needs_reference else None
+        atm = prepare_frame_atmosphere(config, det, r_ref, frame)
     for stage, reason in atm.skipped.items():  # decided with the frame's geometry (e.g. negligible blur)
         log.skip(stage, reason, keep_earlier=True)
     fx, fy = cell_energy_fractions(config.laser, det, atm.beam_offset_tan, atm.beam_width_scale)
@@ -110,7 +111,6 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     s2 = det.rays_per_pixel
     per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
     # several threads: at least 8 blocks each when the frame allows (≥ 8192 rays a block)
-    threads = worker_threads(config.run.threads)
     per_block = balanced_block_size(per_block, det.n_pixels, threads, -(-8192 // s2))
     blocks = item_blocks(det.n_pixels, per_block)
     keep_cube = config.run.save_waveforms or whole_cube

@@ -267,7 +267,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     t0 = time.perf_counter()
     switches = turbulence_switches(config)
     needs_ref = any(s not in switches for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
-    r_ref = reference_range_m(tracer, det, origin, rot) if needs_ref else None
+    r_ref = reference_range_m(tracer, det, origin, rot, worker_threads(config.run.threads)) if needs_ref else None
     per_slice_random = any(s not in switches for s in ("scintillation", "beam_wander"))
     atm_slices = [prepare_frame_atmosphere(config, det, r_ref, frame, pulse=0 if per_slice_random else None)]
     # one realisation per slice: check the sweep's memory with the first one's size before drawing the others
