@@ -107,7 +107,14 @@ def kernel(fn=None, *, inline: bool = False):
     return numba.njit(nogil=True, cache=True, inline="always" if inline else "never")(fn)
 
 
-@numba.extending.intrinsic
+#: numba's ``intrinsic`` decorator, for the kernels written in LLVM IR (:func:`fma`; the 4-lane binning in
+#: core/physics/laser.py): the other modules take it from here, numba's one home.
+intrinsic = numba.extending.intrinsic
+#: numba's types, for the signatures of those kernels
+nbtypes = numba.types
+
+
+@intrinsic
 def fma(typingctx, a, b, c):
     """a·b + c rounded once (LLVM's fma: one instruction on CPUs with FMA, exact in software elsewhere), for
     kernels: float64 only.  Where the product a·b is exact in float64 (e.g. two numbers of ≤ 26 significant

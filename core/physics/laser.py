@@ -21,7 +21,7 @@ from scipy.special import erf, ndtr
 
 from ..config.settings import LaserSettings
 from ..geometry.rays import Detector
-from ..jit import kernel
+from ..jit import intrinsic, kernel, nbtypes
 
 FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
@@ -267,6 +267,176 @@ def _gaussian_box_cdf_array(t, sigma, a, b, kind, out):
         for j in range(t.shape[1]):
             out[i, j] = gaussian_box_cdf_at(t[i, j], sigma[i], 1.0 / sigma[i], a[i], 1.0 / a[i] if a[i] > 0 else 0.0,
                                             b[i], 1.0 / (a[i] * b[i]) if b[i] > 0 else 0.0, kind[i])
+
+
+class _Lanes:
+    """LLVM IR on four float64 lanes for the 4-lane CDF kernels below: each operation is the IEEE operation of the
+    scalar kernel it mirrors (no fused or reassociated arithmetic), so every lane is bit for bit the scalar
+    result.  The table look-ups are four row loads (a row: the 4 cubic coefficients of one interval, 32 bytes)
+    transposed into coefficient vectors: the scalar kernels' look-ups keep a loop from vectorising (no gathers
+    on AVX2 CPUs), these do not need to."""
+
+    def __init__(self, context, builder):
+        from llvmlite import ir
+
+        self.ir, self.context, self.b = ir, context, builder
+        self.d = ir.DoubleType()
+        self.v4 = ir.VectorType(self.d, 4)
+        self.i32, self.i64 = ir.IntType(32), ir.IntType(64)
+        self.vi = ir.VectorType(self.i32, 4)
+        self._fabs = builder.module.declare_intrinsic("llvm.fabs.v4f64", fnty=ir.FunctionType(self.v4, [self.v4]))
+
+    def splat(self, x):
+        ir, b = self.ir, self.b
+        v = b.insert_element(ir.Constant(self.v4, ir.Undefined), x, ir.Constant(self.i32, 0))
+        return b.shuffle_vector(v, ir.Constant(self.v4, ir.Undefined), ir.Constant(self.vi, [0, 0, 0, 0]))
+
+    def const(self, *x):
+        return self.ir.Constant(self.v4, [float(v) for v in (x * 4 if len(x) == 1 else x)])
+
+    def abs(self, x):
+        return self.b.call(self._fabs, [x])
+
+    def min(self, x, y):  # x if x < y else y (NaN: y), as the scalar kernels' min
+        return self.b.select(self.b.fcmp_ordered("<", x, y), x, y)
+
+    def max(self, x, y):  # x if x > y else y
+        return self.b.select(self.b.fcmp_ordered(">", x, y), x, y)
+
+    def where(self, cond, x, y):
+        return self.b.select(cond, x, y)
+
+    def gt(self, x, y):
+        return self.b.fcmp_ordered(">", x, y)
+
+    def ge(self, x, y):
+        return self.b.fcmp_ordered(">=", x, y)
+
+    def le(self, x, y):
+        return self.b.fcmp_ordered("<=", x, y)
+
+    def table(self, fn):
+        """(first row's address, index of the last row as a float) of tail function ``fn``'s table."""
+        table = np.ascontiguousarray(_TAIL[fn])
+        ty = self.context.typing_context.resolve_value_type(table)
+        ary = self.context.make_array(ty)(self.context, self.b, self.context.make_constant_array(self.b, ty, table))
+        return self.b.bitcast(ary.data, self.ir.PointerType(self.d)), self.splat(self.ir.Constant(self.d, float(table.shape[0] - 1)))
+
+    def tail(self, m, table):
+        """:func:`_tail_interp` of the four m ≥ 0 (the table of :meth:`table`); NaN lands on the last row."""
+        ir, b = self.ir, self.b
+        rows, last = table
+        x = b.fmul(m, self.const(_TAIL_INV_H))
+        k = b.fptosi(self.min(x, last), self.vi)  # = min(int(x), last) for x ≥ 0
+        s = b.fsub(x, b.sitofp(k, self.v4))
+        r = []
+        for q in range(4):
+            kq = b.sext(b.extract_element(k, ir.Constant(self.i32, q)), self.i64)
+            ptr = b.gep(rows, [b.mul(kq, ir.Constant(self.i64, 4))])
+            r.append(b.load(b.bitcast(ptr, ir.PointerType(self.v4)), align=8))
+        lo = b.shuffle_vector(r[0], r[1], ir.Constant(self.vi, [0, 4, 2, 6]))
+        hi = b.shuffle_vector(r[2], r[3], ir.Constant(self.vi, [0, 4, 2, 6]))
+        lo2 = b.shuffle_vector(r[0], r[1], ir.Constant(self.vi, [1, 5, 3, 7]))
+        hi2 = b.shuffle_vector(r[2], r[3], ir.Constant(self.vi, [1, 5, 3, 7]))
+        c0 = b.shuffle_vector(lo, hi, ir.Constant(self.vi, [0, 1, 4, 5]))
+        c2 = b.shuffle_vector(lo, hi, ir.Constant(self.vi, [2, 3, 6, 7]))
+        c1 = b.shuffle_vector(lo2, hi2, ir.Constant(self.vi, [0, 1, 4, 5]))
+        c3 = b.shuffle_vector(lo2, hi2, ir.Constant(self.vi, [2, 3, 6, 7]))
+        h = b.fadd(c2, b.fmul(s, c3))
+        h = b.fadd(c1, b.fmul(s, h))
+        return b.fadd(c0, b.fmul(s, h))
+
+    def edges(self, f, c, dt):
+        """t = (f + q − c)·dt for q = 0 … 3 (f a whole number: f + q exact) and −|t|."""
+        b = self.b
+        t = b.fmul(b.fsub(b.fadd(self.splat(f), self.const(0.0, 1.0, 2.0, 3.0)), self.splat(c)), self.splat(dt))
+        return t, b.fneg(self.abs(t))
+
+    def symmetric_store(self, left, t, out, out_ty, j):
+        """out[j:j + 4] = :func:`symmetric_cdf` (left, t)."""
+        ir, b = self.ir, self.b
+        clipped = self.min(self.max(left, self.const(0.0)), self.const(0.5))
+        res = b.select(self.gt(t, self.const(0.0)), b.fsub(self.const(1.0), clipped), clipped)
+        ary = self.context.make_array(out_ty)(self.context, b, out)
+        ptr = b.gep(b.bitcast(ary.data, ir.PointerType(self.d)), [j])
+        b.store(res, b.bitcast(ptr, ir.PointerType(self.v4)), align=8)
+
+
+def _lanes_signature(out, j, scalars):
+    f64 = nbtypes.float64
+    ok = (isinstance(out, nbtypes.Array) and out.dtype == f64 and out.ndim == 1 and out.layout == "C"
+          and isinstance(j, nbtypes.Integer) and all(x == f64 for x in scalars))
+    return nbtypes.void(out, j, *scalars) if ok else None
+
+
+@intrinsic
+def gaussian_box1_cdf4(typingctx, out, j, f, c, dt, sigma, inv_sigma, a, inv_a):
+    """out[j:j + 4] = symmetric_cdf(gaussian_box1_cdf_left(−|t|, σ, 1/σ, a, 1/a), t) at t = (f + q − c)·dt,
+    q = 0 … 3 (f a whole number), bit for bit, on four lanes (:class:`_Lanes`).  ``out`` must hold j + 4 values."""
+    sig = _lanes_signature(out, j, (f, c, dt, sigma, inv_sigma, a, inv_a))
+
+    def codegen(context, builder, signature, args):
+        v = _Lanes(context, builder)
+        b = builder
+        out_v, j_v, f_v, c_v, dt_v, s_v, inv_s_v, a_v, inv_a_v = args
+        j64 = context.cast(builder, j_v, signature.args[1], nbtypes.int64)
+        t, tl = v.edges(f_v, c_v, dt_v)
+        sigma_, inv_s, inv_a = v.splat(s_v), v.splat(inv_s_v), v.splat(inv_a_v)
+        ha = v.splat(b.fmul(v.ir.Constant(v.d, 0.5), a_v))
+        box = v.min(v.max(b.fadd(b.fmul(tl, inv_a), v.const(0.5)), v.const(0.0)), v.const(1.0))
+        g1 = v.table(1)
+
+        def e1(u):  # gauss_e1
+            return b.fmul(sigma_, v.tail(b.fmul(v.abs(u), inv_s), g1))
+
+        left = b.fadd(box, b.fmul(b.fsub(e1(b.fadd(tl, ha)), e1(b.fsub(tl, ha))), inv_a))
+        v.symmetric_store(left, t, out_v, signature.args[0], j64)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def gaussian_box2_cdf4(typingctx, out, j, f, c, dt, sigma, inv_sigma, a, b, inv_ab):
+    """out[j:j + 4] = symmetric_cdf(gaussian_box2_cdf_left(−|t|, σ, 1/σ, a, b, 1/(ab)), t) at t = (f + q − c)·dt,
+    q = 0 … 3, bit for bit, on four lanes (:class:`_Lanes`).  ``out`` must hold j + 4 values."""
+    sig = _lanes_signature(out, j, (f, c, dt, sigma, inv_sigma, a, b, inv_ab))
+
+    def codegen(context, builder, signature, args):
+        v = _Lanes(context, builder)
+        bd = builder
+        out_v, j_v, f_v, c_v, dt_v, s_v, inv_s_v, a_s, b_s, inv_ab_v = args
+        j64 = context.cast(builder, j_v, signature.args[1], nbtypes.int64)
+        half = v.ir.Constant(v.d, 0.5)
+        t, tl = v.edges(f_v, c_v, dt_v)
+        inv_s, inv_ab = v.splat(inv_s_v), v.splat(inv_ab_v)
+        s2 = v.splat(bd.fmul(s_v, s_v))
+        a, bb = v.splat(a_s), v.splat(b_s)
+        ha, hb = v.splat(bd.fmul(half, a_s)), v.splat(bd.fmul(half, b_s))
+        ab2 = v.splat(bd.fmul(bd.fmul(v.ir.Constant(v.d, 2.0), a_s), b_s))
+        apb = v.splat(bd.fadd(a_s, b_s))
+        g = v.table(2)
+
+        def e2(u):  # gauss_e2
+            gv = v.tail(bd.fmul(v.abs(u), inv_s), g)
+            return bd.fmul(s2, v.where(v.gt(u, v.const(0.0)), bd.fsub(v.const(0.5), gv), gv))
+
+        def trapezoid(x):  # trapezoid_cdf_at(x, a, b)
+            out = bd.fdiv(bd.fmul(x, x), ab2)
+            out = v.where(v.gt(x, bb), bd.fdiv(bd.fsub(x, bd.fmul(v.const(0.5), bb)), a), out)
+            r = bd.fsub(apb, x)
+            out = v.where(v.gt(x, a), bd.fsub(v.const(1.0), bd.fdiv(bd.fmul(r, r), ab2)), out)
+            out = v.where(v.ge(x, apb), v.const(1.0), out)
+            return v.where(v.le(x, v.const(0.0)), v.const(0.0), out)
+
+        up, dn = bd.fadd(tl, ha), bd.fsub(tl, ha)
+        a1, a2, a3, a4 = bd.fadd(up, hb), bd.fsub(up, hb), bd.fadd(dn, hb), bd.fsub(dn, hb)
+        diff = bd.fadd(bd.fsub(bd.fsub(e2(a1), e2(a2)), e2(a3)), e2(a4))
+        left = bd.fadd(trapezoid(a1), bd.fmul(diff, inv_ab))
+        v.symmetric_store(left, t, out_v, signature.args[0], j64)
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 #: A box narrower than this fraction of the Gaussian pulse's σ is dropped: the shape changes by
