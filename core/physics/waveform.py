@@ -266,7 +266,9 @@ def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
     pulse (``rect_width`` 0) ⊛ the return's boxes (the kinds of :func:`core.physics.laser.gaussian_box_cdf_at`,
     on its cubic tail tables: they are compiled into this kernel, whose cache numba keys on this file only, so a
     change of the tables must touch this file too), or a rectangular pulse of full width ``rect_width``
-    (impulses only).  Bins whose weight is not positive are skipped."""
+    (impulses only).  The boxed kinds run four edges at a time (``gaussian_box1_cdf4``, ``gaussian_box2_cdf4``:
+    bit for bit the scalar kernel; ``buf`` holds b1 − b0 + 5 values).  Bins whose weight is not positive are
+    skipped."""
     n = b1 - b0 + 2
     inv_s = 1.0 / s if s > 0 else 0.0
     inv_a = 1.0 / a if a > 0 else 0.0
