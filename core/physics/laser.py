@@ -370,6 +370,24 @@ def _lanes_signature(out, j, scalars):
 
 
 @intrinsic
+def gaussian_cdf4(typingctx, out, j, f, c, dt, inv_sigma):
+    """out[j:j + 4] = symmetric_cdf(gaussian_cdf_left(−|t|, 1/σ), t) at t = (f + q − c)·dt, q = 0 … 3 (f a whole
+    number), bit for bit, on four lanes (:class:`_Lanes`): kind 0, no box.  ``out`` must hold j + 4 values."""
+    sig = _lanes_signature(out, j, (f, c, dt, inv_sigma))
+
+    def codegen(context, builder, signature, args):
+        v = _Lanes(context, builder)
+        out_v, j_v, f_v, c_v, dt_v, inv_s_v = args
+        j64 = context.cast(builder, j_v, signature.args[1], nbtypes.int64)
+        t, tl = v.edges(f_v, c_v, dt_v)
+        left = v.tail(builder.fmul(builder.fneg(tl), v.splat(inv_s_v)), v.table(0))
+        v.symmetric_store(left, t, out_v, signature.args[0], j64)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
 def gaussian_box1_cdf4(typingctx, out, j, f, c, dt, sigma, inv_sigma, a, inv_a):
     """out[j:j + 4] = symmetric_cdf(gaussian_box1_cdf_left(−|t|, σ, 1/σ, a, 1/a), t) at t = (f + q − c)·dt,
     q = 0 … 3 (f a whole number), bit for bit, on four lanes (:class:`_Lanes`).  ``out`` must hold j + 4 values."""

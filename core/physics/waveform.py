@@ -33,8 +33,8 @@ from ..constants import SPEED_OF_LIGHT_M_S
 from ..jit import kernel
 from .detection.peaks import INTERPOLATION, Echoes, detect_row
 from .laser import (GAUSS_BOX_FOLD, boxes_cdf, gaussian_box1_cdf4, gaussian_box2_cdf4, gaussian_box_params,
-                    gaussian_cdf_left, pulse_box_cdf, pulse_cdf, pulse_half_support_s, pulse_sigma_s,
-                    sorted_spread_pair, spread_drop_s, symmetric_cdf)
+                    gaussian_cdf4, pulse_box_cdf, pulse_cdf, pulse_half_support_s, pulse_sigma_s,
+                    sorted_spread_pair, spread_drop_s)
 
 #: Largest number of (ray, bin) terms evaluated at once by the exact method (bounds memory, ~100 MB).
 MAX_TERMS = 4_000_000
@@ -266,9 +266,9 @@ def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
     pulse (``rect_width`` 0) ⊛ the return's boxes (the kinds of :func:`core.physics.laser.gaussian_box_cdf_at`,
     on its cubic tail tables: they are compiled into this kernel, whose cache numba keys on this file only, so a
     change of the tables must touch this file too), or a rectangular pulse of full width ``rect_width``
-    (impulses only).  The boxed kinds run four edges at a time (``gaussian_box1_cdf4``, ``gaussian_box2_cdf4``:
-    bit for bit the scalar kernel; ``buf`` holds b1 − b0 + 5 values).  Bins whose weight is not positive are
-    skipped."""
+    (impulses only).  The Gaussian kinds run four edges at a time (``gaussian_cdf4``, ``gaussian_box1_cdf4``,
+    ``gaussian_box2_cdf4``: bit for bit the scalar kernel; ``buf`` holds b1 − b0 + 5 values).  Bins whose weight
+    is not positive add +0.0 (the windows start at +0.0 and only grow: the same values)."""
     n = b1 - b0 + 2
     inv_s = 1.0 / s if s > 0 else 0.0
     inv_a = 1.0 / a if a > 0 else 0.0
@@ -277,20 +277,19 @@ def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
         inv_w = 1.0 / rect_width
         for j in range(n):
             buf[j] = min(max((b0 + j - c) * dt * inv_w + 0.5, 0.0), 1.0)
-    elif k == 0:
-        for j in range(n):
-            t = (b0 + j - c) * dt
-            buf[j] = symmetric_cdf(gaussian_cdf_left(-abs(t), inv_s), t)
-    elif k == 1:  # four edges at a time (the last group's extra edges are computed and not used)
+    elif k == 0:  # four edges at a time (the last group's extra edges are computed and not used)
+        for j in range(0, n, 4):
+            gaussian_cdf4(buf, j, np.float64(b0 + j), c, dt, inv_s)
+    elif k == 1:
         for j in range(0, n, 4):
             gaussian_box1_cdf4(buf, j, np.float64(b0 + j), c, dt, s, inv_s, a, inv_a)
     else:
         for j in range(0, n, 4):
             gaussian_box2_cdf4(buf, j, np.float64(b0 + j), c, dt, s, inv_s, a, b, inv_ab)
-    for j in range(n - 1):
+    dst = values[base + b0:base + b0 + n - 1]
+    for j in range(n - 1):  # (no branch: vectorised)
         w = (buf[j + 1] - buf[j]) * e
-        if w > 0:
-            values[base + b0 + j] += w
+        dst[j] += w if w > 0 else 0.0
 
 
 def _ragged_add(win, pixel, col, weight, valid):

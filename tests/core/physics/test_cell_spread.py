@@ -200,27 +200,29 @@ def test_exact_binning_matches_the_closed_form(a_bins, b_bins):
 
 
 def test_four_lane_box_cdfs_equal_the_scalar_kernel_bit_for_bit():
-    """gaussian_box1_cdf4 / gaussian_box2_cdf4 (the exact binning's kinds 1 and 2, four edges at a time in LLVM
-    vector IR) against the scalar gaussian_box_cdf_at, bit for bit, on 400 returns of random position, σ and box
-    widths (a box from 0.3σ to 60σ, the second from 0.3σ to the first) over their whole support, plus edges placed
-    on the hard points: t = 0, the box ends (t·/a + ½ = 0 or 1, x = a, b, a + b of the trapezoid), table nodes
-    and the table's end (|u|/σ = 10 exactly and beyond)."""
+    """gaussian_cdf4 / gaussian_box1_cdf4 / gaussian_box2_cdf4 (the exact binning's kinds 0, 1 and 2, four edges at
+    a time in LLVM vector IR) against the scalar gaussian_box_cdf_at, bit for bit, on 400 returns of random
+    position, σ and box widths (a box from 0.3σ to 60σ, the second from 0.3σ to the first) over their whole
+    support, plus edges placed on the hard points: t = 0, the box ends (t·/a + ½ = 0 or 1, x = a, b, a + b of the
+    trapezoid), table nodes and the table's end (|u|/σ = 10 exactly and beyond)."""
     from core.jit import kernel
-    from core.physics.laser import gaussian_box1_cdf4, gaussian_box2_cdf4, gaussian_box_cdf_at
+    from core.physics.laser import gaussian_box1_cdf4, gaussian_box2_cdf4, gaussian_box_cdf_at, gaussian_cdf4
 
     @kernel
     def lanes(kind, f0, n, c, dt, s, a, b, out):
-        inv_s, inv_a = 1.0 / s, 1.0 / a
+        inv_s, inv_a = 1.0 / s, 1.0 / a if a > 0 else 0.0
         inv_ab = 1.0 / (a * b) if b > 0 else 0.0
         for j in range(0, n, 4):
-            if kind == 1:
+            if kind == 0:
+                gaussian_cdf4(out, j, f0 + j, c, dt, inv_s)
+            elif kind == 1:
                 gaussian_box1_cdf4(out, j, f0 + j, c, dt, s, inv_s, a, inv_a)
             else:
                 gaussian_box2_cdf4(out, j, f0 + j, c, dt, s, inv_s, a, b, inv_ab)
 
     @kernel
     def scalar(kind, f0, n, c, dt, s, a, b, out):
-        inv_s, inv_a = 1.0 / s, 1.0 / a
+        inv_s, inv_a = 1.0 / s, 1.0 / a if a > 0 else 0.0
         inv_ab = 1.0 / (a * b) if b > 0 else 0.0
         for j in range(n):
             t = (f0 + j - c) * dt
@@ -234,16 +236,16 @@ def test_four_lane_box_cdfs_equal_the_scalar_kernel_bit_for_bit():
         a = s * np.exp(rng.uniform(np.log(0.3), np.log(60.0)))
         b = rng.uniform(0.3 * s, a)
         c = rng.uniform(10.0, 500.0)
-        for kind in (1, 2):
-            half = (6.1 * s + 0.5 * (a + (b if kind == 2 else 0.0))) / dt
+        for kind in (0, 1, 2):
+            half = (6.1 * s + 0.5 * ((a if kind else 0.0) + (b if kind == 2 else 0.0))) / dt
             f0 = float(np.floor(c - half))
-            cases.append((kind, f0, int(2 * half) + 3, c, s, a, b if kind == 2 else 0.0))
+            cases.append((kind, f0, int(2 * half) + 3, c, s, a if kind else 0.0, b if kind == 2 else 0.0))
     # hard points: an edge on t = 0, on the box ends, at |u|/σ on a table node, at 10 (the table's end) and beyond
     s, a, b = 2.0 * dt, 8.0 * dt, 3.0 * dt
     for c in (100.0, 100.0 - 4.0, 100.0 + 4.0, 100.0 - 1.5, 100.0 - 5.5, 100.0 - 4.0 - 20.0, 100.0 + 4.0 + 20.0,
               100.0 - 4.0 - 2.0 * 10.0 / 2.0, 100.0 + 0.5 + 2.0 * 37 / 128):
-        for kind in (1, 2):
-            cases.append((kind, 60.0, 84, c, s, a, b if kind == 2 else 0.0))
+        for kind in (0, 1, 2):
+            cases.append((kind, 60.0, 84, c, s, a if kind else 0.0, b if kind == 2 else 0.0))
     for kind, f0, n, c, s, a, b in cases:
         got, want = np.full(n + 4, np.nan), np.full(n, np.nan)
         lanes(kind, f0, n, c, dt, s, a, b, got)
