@@ -23,6 +23,7 @@ from .errors import Cancelled, ConfigError
 from .engine.products import label_points, record_pose
 from .fileio.run_folder import software_versions, write_run_files
 from .fileio.staging import claim_run_dir
+from .heap import release_freed_blocks
 from .geometry.scene import SceneGeometry
 from .systems.flash import simulate_frame, simulate_profiler
 from .systems.gated import simulate_gated
@@ -74,11 +75,14 @@ def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     run is cancelled.  The folder's name is claimed before the simulation starts (fileio.staging).
     """
     validate_config(config)  # a SimulationConfig (not None or a dict); before the folder is claimed
-    with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
-        result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
-                          start_time_s=start_time_s, progress=progress, cancel=cancel)
-        if cancel is not None and cancel():
-            raise Cancelled()
-        write_run_files(claim.work, result, run_metadata(config, result, frame, extra_metadata))
-        path = claim.commit()
+    try:
+        with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
+            result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
+                              start_time_s=start_time_s, progress=progress, cancel=cancel)
+            if cancel is not None and cancel():
+                raise Cancelled()
+            write_run_files(claim.work, result, run_metadata(config, result, frame, extra_metadata))
+            path = claim.commit()
+    finally:
+        release_freed_blocks()  # the memory the run freed goes back to the system (core/heap.py)
     return path, result

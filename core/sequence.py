@@ -23,6 +23,7 @@ from .errors import Cancelled
 from .run import run_metadata, simulate
 from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
+from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
 from .fileio.las import las_run_facts, write_las
 
@@ -71,63 +72,66 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     if len(set(frames)) != len(frames):
         raise ConfigError("frames", frames, "distinct frame numbers")
     validate_config(config)  # a SimulationConfig (not None or a dict), before the folder is claimed
-    with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
-        tmp = claim.work
-        tmp.mkdir()
-        t_wall = time.perf_counter()
-        tracer, bvh_builds, all_stats, point_sets, units = None, 0, [], [], {}
-        for i, frame in enumerate(frames):
+    try:
+        with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
+            tmp = claim.work
+            tmp.mkdir()
+            t_wall = time.perf_counter()
+            tracer, bvh_builds, all_stats, point_sets, units = None, 0, [], [], {}
+            for i, frame in enumerate(frames):
+                if cancel is not None and cancel():
+                    raise Cancelled()
+                scene = scene_for_frame(frame).with_overrides(config.materials)
+                if tracer is None or not tracer.serves(scene):  # static geometry keeps the previous frame's BVH
+                    scene.check()
+                    tracer = SceneTracer(scene)
+                    bvh_builds += 1
+                frame_progress = None
+                if progress is not None:
+                    def frame_progress(fraction, text, _i=i, _f=frame):
+                        progress((_i + fraction) / len(frames), f"frame {_f} ({_i + 1}/{len(frames)}): {text}")
+                traj = trajectory_for_frame(frame) if trajectory_for_frame is not None else None
+                start = start_time_for_frame(frame) if start_time_for_frame is not None else 0.0
+                result = simulate(scene, pose_for_frame(frame), config, frame=frame, tracer=tracer, trajectory=traj,
+                                  start_time_s=start, progress=frame_progress, cancel=cancel)
+                meta = run_metadata(config, result, frame, extra_metadata)
+                write_run_files(tmp / f"frame_{frame:04d}", result, meta)
+                all_stats.append(result.stats)
+                point_sets.append(result.points)
+                units = result.units  # the same settings every frame: the same units
+                del result
+            names = unify_material_ids(point_sets, [st.get("material_names", []) for st in all_stats])
+            merged = merge_points(point_sets)
+            files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
+            if merged:
+                write_ply(tmp / "points_merged.ply", merged)
+                np.savez(tmp / "points_merged.npz", **merged)
+                files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
+                files["points_merged.npz"] = "the same as NumPy arrays"
+                if len(merged.get("range_m", ())):
+                    write_las(tmp / "points_merged.las", merged, **las_run_facts(
+                        {"system_type": config.system_type, "frames": frames, "seed": config.run.seed,
+                         "units": units, "material_names": names}))
+                    files["points_merged.las"] = "all frames' points as LAS 1.4 (point source ID = frame)"
+            meta = {"format": "ladar-sequence", "format_version": 1, "system_type": config.system_type,
+                    "frames": frames, "seed": config.run.seed, "settings": config_to_dict(config),
+                    "software": software_versions(), "created_unix_s": time.time(),
+                    "bvh_builds": bvh_builds,
+                    "n_points": int(sum(len(p.get("range_m", ())) for p in point_sets)),
+                    "frame_wall_time_s": [s["wall_time_s"] for s in all_stats],
+                    "sensor_poses": {str(f): st["sensor_pose"]["world_from_sensor"]
+                                     for f, st in zip(frames, all_stats) if "sensor_pose" in st},
+                    "wall_time_s": time.perf_counter() - t_wall, "units": dict(units), "files": files}
+            if bvh_builds < len(frames):
+                meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
+                                                       f"({bvh_builds} built)"}
+            if extra_metadata:
+                meta.update(extra_metadata)
+            with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+                json.dump(meta, f, indent=2, default=json_default)
             if cancel is not None and cancel():
                 raise Cancelled()
-            scene = scene_for_frame(frame).with_overrides(config.materials)
-            if tracer is None or not tracer.serves(scene):  # static geometry keeps the previous frame's BVH
-                scene.check()
-                tracer = SceneTracer(scene)
-                bvh_builds += 1
-            frame_progress = None
-            if progress is not None:
-                def frame_progress(fraction, text, _i=i, _f=frame):
-                    progress((_i + fraction) / len(frames), f"frame {_f} ({_i + 1}/{len(frames)}): {text}")
-            traj = trajectory_for_frame(frame) if trajectory_for_frame is not None else None
-            start = start_time_for_frame(frame) if start_time_for_frame is not None else 0.0
-            result = simulate(scene, pose_for_frame(frame), config, frame=frame, tracer=tracer, trajectory=traj,
-                              start_time_s=start, progress=frame_progress, cancel=cancel)
-            meta = run_metadata(config, result, frame, extra_metadata)
-            write_run_files(tmp / f"frame_{frame:04d}", result, meta)
-            all_stats.append(result.stats)
-            point_sets.append(result.points)
-            units = result.units  # the same settings every frame: the same units
-            del result
-        names = unify_material_ids(point_sets, [st.get("material_names", []) for st in all_stats])
-        merged = merge_points(point_sets)
-        files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
-        if merged:
-            write_ply(tmp / "points_merged.ply", merged)
-            np.savez(tmp / "points_merged.npz", **merged)
-            files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
-            files["points_merged.npz"] = "the same as NumPy arrays"
-            if len(merged.get("range_m", ())):
-                write_las(tmp / "points_merged.las", merged, **las_run_facts(
-                    {"system_type": config.system_type, "frames": frames, "seed": config.run.seed,
-                     "units": units, "material_names": names}))
-                files["points_merged.las"] = "all frames' points as LAS 1.4 (point source ID = frame)"
-        meta = {"format": "ladar-sequence", "format_version": 1, "system_type": config.system_type,
-                "frames": frames, "seed": config.run.seed, "settings": config_to_dict(config),
-                "software": software_versions(), "created_unix_s": time.time(),
-                "bvh_builds": bvh_builds,
-                "n_points": int(sum(len(p.get("range_m", ())) for p in point_sets)),
-                "frame_wall_time_s": [s["wall_time_s"] for s in all_stats],
-                "sensor_poses": {str(f): st["sensor_pose"]["world_from_sensor"]
-                                 for f, st in zip(frames, all_stats) if "sensor_pose" in st},
-                "wall_time_s": time.perf_counter() - t_wall, "units": dict(units), "files": files}
-        if bvh_builds < len(frames):
-            meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
-                                                   f"({bvh_builds} built)"}
-        if extra_metadata:
-            meta.update(extra_metadata)
-        with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
-            json.dump(meta, f, indent=2, default=json_default)
-        if cancel is not None and cancel():
-            raise Cancelled()
-        out = claim.commit()
+            out = claim.commit()
+    finally:
+        release_freed_blocks()  # the memory the run freed goes back to the system (core/heap.py)
     return out, all_stats

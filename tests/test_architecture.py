@@ -24,6 +24,7 @@ PACKAGES = ("core", "ladar_addon", "operators", "panels")
 #: layer of each part of core/ (by its dotted prefix; the longest prefix wins), bottom = 0
 CORE_LAYERS = {
     "core.constants": 0, "core.errors": 0, "core.version": 0, "core.process": 0, "core.jit": 0, "core.threads": 0,
+    "core.heap": 0,
     "core.config": 1,
     "core.geometry": 2, "core.atmosphere": 2,
     "core.physics": 3,

@@ -23,6 +23,7 @@ from ..geometry.culling import frustum_triangles
 from ..geometry.motion import split_pose
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer
+from ..heap import keep_freed_blocks
 from .memory import check_memory
 
 
@@ -96,6 +97,7 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
     the triangles inside the frustum ``frustum_tan`` = (half width, half height) in tan units (or says it does not).
     The BVH's time is logged as ``build_bvh``; reuse and culling are recorded in ``log``."""
     t_wall = time.perf_counter()
+    keep_freed_blocks()  # a frame's large arrays reuse the previous frame's memory (core/heap.py; once per process)
     validate_config(config)  # a SimulationConfig (not None, a dict or a settings group) with valid settings
     memory = check_memory(config)
     checked = preflight(config) if preflight is not None else None

@@ -320,7 +320,8 @@ class _Lanes:
         table = np.ascontiguousarray(_TAIL[fn])
         ty = self.context.typing_context.resolve_value_type(table)
         ary = self.context.make_array(ty)(self.context, self.b, self.context.make_constant_array(self.b, ty, table))
-        return self.b.bitcast(ary.data, self.ir.PointerType(self.d)), self.splat(self.ir.Constant(self.d, float(table.shape[0] - 1)))
+        last = self.splat(self.ir.Constant(self.d, float(table.shape[0] - 1)))
+        return self.b.bitcast(ary.data, self.ir.PointerType(self.d)), last
 
     def tail(self, m, table):
         """:func:`_tail_interp` of the four m ≥ 0 (the table of :meth:`table`); NaN lands on the last row."""
