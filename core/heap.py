@@ -7,11 +7,12 @@ paid again for mapping, faulting and zeroing them: 27–41 ms of system time per
 (11 % of its CPU), 20 ms per noise-free one.
 
 :func:`keep_freed_blocks` (called by every frame, core.engine.frame.open_frame; it acts once per process) raises
-glibc's mmap and trim thresholds to :data:`KEEP_BYTES`: large blocks come from the heap and stay there when freed,
-and the next frame's arrays reuse them.  :func:`release_freed_blocks` (``malloc_trim``) hands the free pages back
-to the system; runs call it when they end (core.run, core.sequence), so that Blender does not hold a run's memory
-after it.  Code that calls the systems' ``simulate_*`` directly, frame after frame, keeps up to
-:data:`KEEP_BYTES` of freed memory until it calls :func:`release_freed_blocks` itself.
+glibc's mmap threshold to :data:`MMAP_THRESHOLD_BYTES` and its trim threshold to :data:`KEEP_BYTES`: large blocks
+come from the heap and stay there when freed, and the next frame's arrays reuse them.
+:func:`release_freed_blocks` (``malloc_trim``) hands the free pages back to the system; runs call it when they end
+(core.run, core.sequence), so that Blender does not hold a run's memory after it.  Code that calls the systems'
+``simulate_*`` directly, frame after frame, keeps up to about :data:`KEEP_BYTES` of freed memory until it calls
+:func:`release_freed_blocks` itself.
 
 Nothing is changed with other C libraries (macOS, Windows, musl) or when the environment sets
 ``LADAR_KEEP_FREED_MEMORY=0``.  Only where memory comes from changes, never a value.
@@ -23,9 +24,12 @@ import os
 import sys
 import threading
 
-#: glibc's mmap threshold and trim threshold while freed blocks are kept: blocks below this come from the heap,
-#: and free memory at the heap's top up to this is kept.
-KEEP_BYTES = 1 << 30
+#: glibc's mmap threshold while freed blocks are kept: blocks below this come from the heap ...
+MMAP_THRESHOLD_BYTES = 1 << 30
+#: ... and free memory at the heap's top is handed back only beyond this (glibc's trim threshold).  128 MiB holds
+#: a frame's cubes (100 MB on the full-physics benchmark frame); 1 GiB held back on the 3 s survey raised its
+#: peak from 0.89 to 1.01 GB, 128 MiB leaves it at 0.89 GB.
+KEEP_BYTES = 128 << 20
 #: mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 
@@ -57,7 +61,7 @@ def keep_freed_blocks() -> bool:
             kept = False
             if libc is not None:  # (the trim threshold first: with the mmap threshold alone freed blocks go back)
                 kept = bool(libc.mallopt(_M_TRIM_THRESHOLD, KEEP_BYTES)) and \
-                    bool(libc.mallopt(_M_MMAP_THRESHOLD, KEEP_BYTES))
+                    bool(libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
             _state["kept"], _state["checked"] = kept, True
     return _state["kept"]
 
