@@ -50,10 +50,6 @@ from .task import FIGURES, finished_row
 
 SWEEP_FORMAT = "ladar-sweep"
 SWEEP_FORMAT_VERSION = 1
-#: The dask setting by which a nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536; unset for the local
-#: cluster: with it, glibc hands every large freed array back to the system and the next one faults its pages in
-#: again (a flash task took 1.40-1.61 s in such a worker against 1.06-1.25 s without; docs/sweeps.md)
-WORKER_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 #: Sub-folders and files of a sweep folder that ``restart`` discards (never anything else).
 OWNED = ("runs", "failed", "scene", "plots", "results.csv", "sweep.json", "sweep_file.toml", "sweep_file.json")
 
@@ -314,13 +310,12 @@ def open_client(scheduler: str | None = None, n_workers: int | None = None):
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError) as exc:
             raise ConfigError("scheduler", scheduler, f"the address of a running Dask scheduler ({exc})") from None
-    import dask
-
     n = n_workers or os.cpu_count() or 1
     stage_core()  # before the workers start: they inherit its folder on sys.path (no upload, no restart)
-    with dask.config.set({WORKER_MALLOC_TRIM: None}):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=40)
+    # (the nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536; their frames set glibc's thresholds themselves:
+    # core/heap.py)
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=40)
     return Client(cluster), cluster
 
 

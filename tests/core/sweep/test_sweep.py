@@ -276,23 +276,6 @@ def test_results_do_not_depend_on_the_number_of_workers(client, tmp_path, monkey
     assert seen[-1][1] == "12/12 tasks, ETA 0 s"
 
 
-def test_the_sweeps_local_cluster_starts_workers_without_dasks_malloc_trim(client, monkeypatch):
-    """distributed's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (the fixture's default cluster);
-    open_client's local cluster does not (its nanny also writes the setting into this process's environment,
-    which a later cluster's workers would inherit: removed here as in a fresh process)."""
-    def trim():
-        return os.environ.get("MALLOC_TRIM_THRESHOLD_")
-
-    assert set(client.run(trim).values()) == {"65536"}
-    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
-    c, cluster = open_client(n_workers=1)
-    try:
-        assert list(c.run(trim).values()) == [None]
-    finally:
-        c.close()
-        cluster.close()
-
-
 def test_plot_statistics_are_the_mean_and_spread_over_seeds():
     rows = [{"status": "done", "a": a, "b": b, "points": v} for a, b, v in
             [(1, 10, 2.0), (1, 10, 4.0), (2, 10, 6.0), (2, 10, 6.0), (1, 20, 1.0), (1, 20, 3.0), (2, 20, 5.0)]]
