@@ -36,6 +36,7 @@ from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_tur
                           long_term_beam_radius, make_scintillation_pattern, short_term_beam_radius, turbulence_blur,
                           turbulence_mtf_long)
 from ..config.settings import SimulationConfig
+from ..jit import kernel
 from ..physics.propagation import (FootprintAveragedPattern, draw_return_factor, effective_extinction_per_m,
                                    return_scintillation_variance, turbulence_model_settings)
 from .blocks import worker_threads
@@ -60,6 +61,17 @@ class FrameAtmosphere:
     return_factor: np.ndarray | None = None  # (H, W) return-path factor per pixel (B'), None when off
     subsamples: int = 1
 
+    def scale_by_scintillation(self, e, index, x_tan, y_tan, sub_x, sub_y):
+        """e *= the scintillation factor (:meth:`scintillation_at`) of the sub-rays ``index`` of a block, in place:
+        the footprint-averaged pattern and the return factor in one compiled pass (the same products), other
+        patterns through :meth:`scintillation_at`."""
+        if isinstance(self.pattern, FootprintAveragedPattern):
+            with_return = self.return_factor is not None
+            _scale_by_cells(e, index, sub_x, sub_y, self.pattern.values,
+                            self.return_factor if with_return else np.ones((1, 1)), self.subsamples, with_return)
+        elif self.pattern is not None:
+            e *= self.scintillation_at(x_tan[index], y_tan[index], sub_x[index], sub_y[index])
+
     def scintillation_at(self, x_tan, y_tan, sub_x, sub_y):
         """Scintillation factor for sub-rays at tan-plane coordinates / sub-ray cells: the outgoing pattern at
         the target times the return-path factor of the sub-ray's pixel."""
@@ -74,6 +86,19 @@ class FrameAtmosphere:
             s = self.subsamples
             out = out * self.return_factor[np.asarray(sub_y) // s, np.asarray(sub_x) // s]
         return out
+
+
+@kernel
+def _scale_by_cells(e, index, sub_x, sub_y, values, return_factor, s, with_return):
+    """e[i] *= values[cell] (× return_factor[cell's pixel] when ``with_return``) for the sub-ray cell of ray index[i]:
+    FrameAtmosphere.scintillation_at's footprint-averaged product, in the same order."""
+    for i in range(e.shape[0]):
+        j = index[i]
+        cy, cx = sub_y[j], sub_x[j]
+        f = values[cy, cx]
+        if with_return:
+            f = f * return_factor[cy // s, cx // s]
+        e[i] = e[i] * f
 
 
 def turbulence_switches(config: SimulationConfig) -> dict:

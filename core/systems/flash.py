@@ -157,8 +157,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             spread, range_hit, cos_hit = None, range_m[index], cos_theta[index]
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
                             range_hit, frac_hit)
-        if atm.pattern is not None:
-            e *= atm.scintillation_at(x_tan[index], y_tan[index], sub_x[index], sub_y[index])
+        atm.scale_by_scintillation(e, index, x_tan, y_tan, sub_x, sub_y)
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         local["radiometry"] = time.perf_counter() - t
         t = time.perf_counter()
