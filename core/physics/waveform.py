@@ -259,7 +259,7 @@ def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
     return start, length, offset, values, u, lo, hi, box_a, box_b, rect_boxed
 
 
-@kernel
+@kernel(inline=True)
 def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
     """One return's pulse CDF differences over its bins [b0, b1] added at ``values[base + j]``: the CDF at the
     b1 − b0 + 2 edges into ``buf``, one loop per kind (no branch inside), then the differences.  A Gaussian
