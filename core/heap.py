@@ -34,7 +34,7 @@ KEEP_BYTES = 128 << 20
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 
 _lock = threading.Lock()
-_state = {"checked": False, "kept": False}
+_state = {"checked": False, "kept": False, "libc": None}
 
 
 def _glibc():
@@ -62,11 +62,11 @@ def keep_freed_blocks() -> bool:
             if libc is not None:  # (the trim threshold first: with the mmap threshold alone freed blocks go back)
                 kept = bool(libc.mallopt(_M_TRIM_THRESHOLD, KEEP_BYTES)) and \
                     bool(libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
-            _state["kept"], _state["checked"] = kept, True
+            _state["kept"], _state["libc"], _state["checked"] = kept, libc if kept else None, True
     return _state["kept"]
 
 
 def release_freed_blocks() -> None:
     """Hand the heap's free pages back to the system (``malloc_trim(0)``) when freed blocks are kept."""
     if _state["kept"]:
-        _glibc().malloc_trim(0)
+        _state["libc"].malloc_trim(0)

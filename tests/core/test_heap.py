@@ -88,8 +88,8 @@ def test_other_c_libraries_are_left_alone(monkeypatch):
     """Where the C library is not glibc nothing is changed and release does nothing."""
     import core.heap as heap
 
-    monkeypatch.setattr(heap, "_state", {"checked": False, "kept": False})
+    monkeypatch.setattr(heap, "_state", {"checked": False, "kept": False, "libc": None})
     monkeypatch.setattr(heap, "_glibc", lambda: None)
     assert heap.keep_freed_blocks() is False
     heap.release_freed_blocks()  # no C library call
-    assert heap._state == {"checked": True, "kept": False}
+    assert heap._state == {"checked": True, "kept": False, "libc": None}
