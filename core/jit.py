@@ -1,53 +1,82 @@
 """The one home of the numba import: compiled kernels of the signal chain (waveforms, echo detection).
 
-Kernels are ``@kernel`` functions (numba ``njit(nogil=True, cache=True)``): they release the GIL, so the
-pipeline's thread pool runs them in parallel, and their machine code is cached on disk after the first run.
-The cache goes to a writable per-user folder — never into the package, which an installed Blender extension
-may not be allowed to write to:
+Kernels are ``@kernel`` functions (numba ``njit(nogil=True)``): they release the GIL, so the pipeline's thread
+pool runs them in parallel, and their machine code is kept on disk after the first run by this module's own
+cache (:class:`KernelCache`), which numba's ``cache=True`` would not do well for a Blender extension:
 
-* ``$NUMBA_CACHE_DIR`` if the user set it (a subfolder of it, below);
-* Linux: ``$XDG_CACHE_HOME/ladar_simulator/numba`` (default ``~/.cache/...``); macOS:
-  ``~/Library/Caches/ladar_simulator/numba``; Windows: ``%LOCALAPPDATA%\\ladar_simulator\\numba``.
+* **Found again wherever the same source is installed.**  numba files a cached kernel under the absolute path of
+  its source folder and checks it against the file's time stamp, so a new install folder (every run of
+  ``scripts/ladar_run.py`` installs the extension into a fresh temporary Blender user folder; a sweep worker
+  receives the core in a new folder) compiled every kernel again.  Here the cache folder is named after a
+  digest of the package's source (every ``.py`` file of core/, path within core/ and bytes) and the numba
+  version, and inside it after the core's import name (``core`` in a checkout, ``bl_ext.<repo>.ladar_simulator
+  .core`` as an extension, ``ladar_core_<digest>`` on a sweep worker: a compiled kernel refers to the modules
+  it was compiled in by name) and the file's folder *within* core/ — never by absolute path.  An entry's file
+  name is the kernel, its line and a digest of numba's key (signature, CPU name and features, bytecode), so
+  the CPU decides the machine code as before (``NUMBA_CPU_NAME`` included).  A change to any core file gives a
+  new digest: a kernel holds the kernels and module constants (tables) it calls from other files as they were
+  when compiled, so editing ``physics/laser.py`` alone must not leave ``physics/waveform.py``'s cached kernels
+  on the old tables.
+* **Per user, never in the package**: ``$LADAR_KERNEL_CACHE`` if set, else ``$NUMBA_CACHE_DIR/ladar_simulator``
+  if the user set ``NUMBA_CACHE_DIR``, else ``$XDG_CACHE_HOME/ladar_simulator/numba`` (default ``~/.cache``) on
+  Linux, ``~/Library/Caches/ladar_simulator/numba`` on macOS, ``%LOCALAPPDATA%\\ladar_simulator\\numba`` on
+  Windows.  If no folder there is writable the kernels are compiled and not kept (one line says so); nothing is
+  ever written into the installed package.  numba's own cache setting (``NUMBA_CACHE_DIR``) is not changed for
+  the rest of the process: another add-on's numba caches stay where they were.
+* **Safe**: an entry is written to a temporary file and renamed into place (a run killed while writing leaves no
+  half entry; two runs compiling at once each write whole entries, the last one wins); each entry carries a
+  SHA-256 of its contents and the key it was compiled for, checked before it is unpickled, so a truncated,
+  zeroed, random or bit-flipped file, or an entry another process wrote under the same name, costs a compile
+  (one line names it), never a failed run or a crash; a full disk or an unwritable folder while saving costs
+  only the saving.
+* **Bounded**: the digest folders are marked as this cache's own (a ``LADAR_KERNEL_CACHE`` file in each); at
+  import the folders so marked and unused for :data:`STALE_CACHE_DAYS`, and all but the
+  :data:`KEEP_CACHE_FOLDERS` most recently used, are removed — never a folder without the mark.
 
-The cache lives in a subfolder named after a digest of the package's source (every ``.py`` file of core/)
-and the numba version.  numba checks a cached kernel only against its own file's time stamp, but a kernel
-holds the kernels and module constants (tables, physical constants) it calls from other files as they were when
-it was compiled: without the digest, a change to ``physics/laser.py`` alone (a ``git pull``, a hand edit) would
-leave ``physics/waveform.py``'s cached kernels computing with the old tables.  Digest folders not used for
-:data:`STALE_CACHE_DAYS` are removed at import.
-
-The first run of a fresh installation compiles every kernel it calls (a few seconds, once per user and
-version: docs/performance.md); later runs load them from the cache.
+The first run of a fresh installation compiles the kernels it calls (seconds: docs/performance.md; ``python
+-m core.warmup`` or the add-on's preferences do it ahead, with progress); later runs load them from the cache.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import pickle
 import shutil
 import sys
+import threading
 import time
+import uuid
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+
+#: The core package's folder (this file's): kernels of files below it are cached here.
+ROOT = Path(__file__).resolve().parent
+#: The core package's import name (``core``, ``bl_ext.user_default.ladar_simulator.core``, ``ladar_core_…``).
+IMPORT_NAME = __name__.rpartition(".")[0] or "core"
+#: Marks a folder as this cache's own: only folders holding it are ever pruned.
+MARK = "LADAR_KERNEL_CACHE"
 
 
 def source_digest() -> str:
     """16 hex digits of SHA-256 over the numba version and every .py file of the core package (path and bytes)."""
-    root = Path(__file__).resolve().parent
     h = hashlib.sha256()
     try:
         h.update(version("numba").encode())
     except PackageNotFoundError:  # pragma: no cover - numba imported from a path without metadata
         pass
-    for path in sorted(root.rglob("*.py")):
-        h.update(path.relative_to(root).as_posix().encode("utf-8", "surrogateescape") + b"\0")
+    for path in sorted(ROOT.rglob("*.py")):
+        h.update(path.relative_to(ROOT).as_posix().encode("utf-8", "surrogateescape") + b"\0")
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
 def user_cache_dir() -> Path:
     """The per-user folder of compiled kernels, without the source digest (not created here)."""
+    if os.environ.get("LADAR_KERNEL_CACHE"):
+        return Path(os.environ["LADAR_KERNEL_CACHE"])
     if os.environ.get("NUMBA_CACHE_DIR"):
-        return Path(os.environ["NUMBA_CACHE_DIR"])
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "ladar_simulator"
     home = Path.home()
     if sys.platform == "win32":
         base = Path(os.environ.get("LOCALAPPDATA") or home / "AppData" / "Local")
@@ -60,51 +89,256 @@ def user_cache_dir() -> Path:
 
 #: Cache folders of other sources (other versions, older edits) unused this long are removed.
 STALE_CACHE_DAYS = 30
+#: At most this many source digests are kept (a developer's every edit is a new digest).
+KEEP_CACHE_FOLDERS = 8
 
 
-def prune_stale_caches(cache_dir: Path, max_age_days: float = STALE_CACHE_DAYS) -> list[Path]:
-    """Mark ``cache_dir`` as used now and remove the sibling digest folders (16 hex digits) not used for
-    ``max_age_days``; never anything else.  Errors are ignored (a cache is never worth failing a run)."""
+def _is_digest(name: str) -> bool:
+    return len(name) == 16 and all(c in "0123456789abcdef" for c in name)
+
+
+def prune_stale_caches(cache_dir: Path, max_age_days: float = STALE_CACHE_DAYS,
+                       keep: int = KEEP_CACHE_FOLDERS) -> list[Path]:
+    """Mark ``cache_dir`` as ours and used now; remove the sibling digest folders (16 hex digits) that hold
+    the mark and were not used for ``max_age_days``, or are beyond the ``keep`` most recently used; never
+    anything else.  Errors are ignored (a cache is never worth failing a run)."""
     removed = []
     try:
         cache_dir.mkdir(parents=True, exist_ok=True)
+        mark = cache_dir / MARK
+        if not mark.exists():
+            mark.write_text("compiled kernels of the ladar simulator; safe to delete\n")
         os.utime(cache_dir)
         limit = time.time() - max_age_days * 86400.0
+        ours = []
         for entry in os.scandir(cache_dir.parent):
-            name = entry.name
-            if (entry.is_dir(follow_symlinks=False) and len(name) == 16 and name != cache_dir.name
-                    and all(c in "0123456789abcdef" for c in name) and entry.stat().st_mtime < limit):
-                shutil.rmtree(entry.path, ignore_errors=True)
-                removed.append(Path(entry.path))
+            if (entry.is_dir(follow_symlinks=False) and _is_digest(entry.name) and entry.name != cache_dir.name
+                    and os.path.isfile(os.path.join(entry.path, MARK))):
+                ours.append((entry.stat().st_mtime, entry.path))
+        ours.sort(reverse=True)
+        for rank, (mtime, path) in enumerate(ours):
+            if mtime < limit or rank >= keep - 1:
+                shutil.rmtree(path, ignore_errors=True)
+                removed.append(Path(path))
     except OSError:
         pass
     return removed
 
 
 _DIGEST = source_digest()
-_BASE = user_cache_dir()
-#: This source's kernel cache (a child process inherits NUMBA_CACHE_DIR already ending in the digest).
-CACHE_DIR = _BASE if _BASE.name == _DIGEST else _BASE / _DIGEST
+#: This source's kernel cache.
+CACHE_DIR = user_cache_dir() / _DIGEST
 prune_stale_caches(CACHE_DIR)
-if "numba" not in sys.modules:
-    os.environ.setdefault("NUMBA_CACHE_DIR", str(CACHE_DIR))
 
 import numba  # noqa: E402
 import numba.extending  # noqa: E402
+from numba.core import caching as _caching  # noqa: E402
+from numba.core.serialize import dumps as _dumps  # noqa: E402
 
-if not numba.config.CACHE_DIR:  # numba was imported before us (another add-on): point its cache locator here
-    numba.config.CACHE_DIR = str(CACHE_DIR)
+#: What happened to the cache in this process (for the run's metadata and the tests): entries loaded,
+#: compiled and saved, and the notes printed.
+CACHE_STATS = {"loaded": 0, "compiled": 0, "saved": 0, "rejected": 0, "unsaved": 0, "seconds": 0.0}
+_notes_lock = threading.Lock()
+_noted: set[str] = set()
+
+
+def _note(kind: str, text: str) -> None:
+    """One line on stderr per kind of cache problem and process (a cache problem never fails a run)."""
+    with _notes_lock:
+        if kind in _noted:
+            return
+        _noted.add(kind)
+    print(f"ladar: note: {text}", file=sys.stderr, flush=True)
+
+
+class _Locator(_caching._CacheLocator):
+    """Files a kernel of core/ under CACHE_DIR / import name / its folder within core/ (module docstring)."""
+
+    def __init__(self, py_func, py_file):
+        self._py_file = py_file
+        self._lineno = py_func.__code__.co_firstlineno
+        rel = Path(py_file).resolve().parent.relative_to(ROOT).as_posix()
+        self._cache_path = str(CACHE_DIR / IMPORT_NAME / rel) if rel != "." else str(CACHE_DIR / IMPORT_NAME)
+
+    def ensure_cache_path(self):
+        os.makedirs(self._cache_path, exist_ok=True)
+
+    def get_cache_path(self):
+        return self._cache_path
+
+    def get_source_stamp(self):
+        return _DIGEST
+
+    def get_disambiguator(self):
+        return str(self._lineno)
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        try:
+            Path(py_file).resolve().relative_to(ROOT)
+        except ValueError:
+            return None
+        return cls(py_func, py_file)
+
+
+class _Impl(_caching.CompileResultCacheImpl):
+    _locator_classes = [_Locator]
+
+
+_MAGIC = b"LADARNB1"
+
+
+class _EntryFiles:
+    """One file per kernel and key: ``MAGIC | SHA-256 of the body | body``, the body a pickle of (source
+    digest, key text, numba's payload).  Written to a temporary file and renamed into place."""
+
+    def __init__(self, cache_path, filename_base):
+        self._cache_path = cache_path
+        self._base = filename_base
+
+    def _path(self, key) -> str:
+        h = hashlib.sha256(repr(key).encode()).hexdigest()[:16]
+        return os.path.join(self._cache_path, f"{self._base}.{h}.nbc")
+
+    def load(self, key):
+        path = self._path(key)
+        try:
+            with open(path, "rb") as f:
+                blob = f.read()
+        except OSError:  # no entry, or no readable cache folder: compiled (and saving says why it cannot keep it)
+            return None
+        body = blob[len(_MAGIC) + 32:]
+        if blob[:len(_MAGIC)] != _MAGIC or hashlib.sha256(body).digest() != blob[len(_MAGIC):len(_MAGIC) + 32]:
+            raise _Damaged(f"{os.path.basename(path)}: checksum mismatch")
+        digest, key_text, payload = pickle.loads(body)
+        if digest != _DIGEST or key_text != repr(key):
+            raise _Damaged(f"{os.path.basename(path)}: an entry of another key")
+        return payload
+
+    def save(self, key, payload):
+        body = _dumps((_DIGEST, repr(key), payload))
+        path = self._path(key)
+        tmp = f"{path}.tmp.{uuid.uuid4().hex[:12]}"
+        try:
+            with open(tmp, "wb") as f:
+                f.write(_MAGIC + hashlib.sha256(body).digest() + body)
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+
+    def flush(self):
+        pass
+
+
+class _Damaged(Exception):
+    pass
+
+
+_tls = threading.local()
+_stats_lock = threading.Lock()
+_active = [0, 0.0]  # threads inside a kernel load or compile, and when the first of them entered
+
+
+def _count(key: str, n: float = 1) -> None:
+    with _stats_lock:
+        CACHE_STATS[key] += n
+
+
+def kernel_seconds() -> float:
+    """Seconds this thread has spent loading and compiling kernels so far (:func:`stage_clock`)."""
+    return getattr(_tls, "seconds", 0.0)
+
+
+def stage_clock() -> float:
+    """``time.perf_counter()`` less this thread's kernel loading and compiling so far: the clock of the stage
+    times, which therefore exclude compile and load time (reported apart: :func:`kernel_report`)."""
+    return time.perf_counter() - getattr(_tls, "seconds", 0.0)
+
+
+def kernel_report(before: dict | None = None) -> dict:
+    """Kernels loaded from the cache, compiled, and the wall seconds during which any thread loaded or compiled
+    one, since ``before`` (an earlier report) or since the process started."""
+    with _stats_lock:
+        now = {"loaded": CACHE_STATS["loaded"], "compiled": CACHE_STATS["compiled"],
+               "load_and_compile_s": CACHE_STATS["seconds"]}
+    if before:
+        now = {k: v - before.get(k, 0) for k, v in now.items()}
+    return now
+
+
+def _timed(compile_method):
+    """A dispatcher's ``compile`` timed per thread (the outermost call: a kernel's callees compile inside it)."""
+
+    def compile(sig):
+        if getattr(_tls, "depth", 0):
+            return compile_method(sig)
+        _tls.depth = 1
+        t0 = time.perf_counter()
+        with _stats_lock:
+            _active[0] += 1
+            if _active[0] == 1:
+                _active[1] = t0
+        try:
+            return compile_method(sig)
+        finally:
+            _tls.depth = 0
+            t1 = time.perf_counter()
+            _tls.seconds = getattr(_tls, "seconds", 0.0) + (t1 - t0)
+            with _stats_lock:  # wall time during which any thread loads or compiles (they wait on numba's lock)
+                _active[0] -= 1
+                if _active[0] == 0:
+                    CACHE_STATS["seconds"] += t1 - _active[1]
+
+    return compile
+
+
+class KernelCache(_caching.FunctionCache):
+    """numba's per-function cache with this module's locator and entry files (module docstring)."""
+
+    _impl_class = _Impl
+
+    def __init__(self, py_func):
+        super().__init__(py_func)
+        self._cache_file = _EntryFiles(self._cache_path, self._impl.filename_base)
+
+    def load_overload(self, sig, target_context):
+        try:
+            data = super().load_overload(sig, target_context)
+        except Exception as exc:  # damaged, truncated, foreign: compile instead
+            _count("rejected")
+            _count("compiled")
+            _note("damaged", f"compiled-kernel cache entry unusable ({exc.__class__.__name__}: {exc}); "
+                             f"compiling it again ({self._cache_path})")
+            return None
+        _count("loaded" if data is not None else "compiled")
+        return data
+
+    def save_overload(self, sig, data):
+        try:
+            self._impl.locator.ensure_cache_path()
+            super().save_overload(sig, data)
+            _count("saved")
+        except Exception as exc:  # full disk, unwritable folder: the kernel runs, it is only not kept
+            _count("unsaved")
+            _note("unsaved", f"compiled kernels not kept ({exc.__class__.__name__}: {exc}); the next run "
+                             f"compiles them again")
 
 
 def kernel(fn=None, *, inline: bool = False):
-    """Compile ``fn`` in nopython mode, releasing the GIL, cached per user.
+    """Compile ``fn`` in nopython mode, releasing the GIL, kept in the per-user cache (:class:`KernelCache`).
 
     ``@kernel(inline=True)``: a helper that takes arrays and is called once per element of a loop, inlined
     into its callers' code (numba ``inline="always"``): a call that is not inlined counts references to each of
     its array arguments, a few ns per call and array (20 ns a ray for a material look-up)."""
     if fn is None:
         return lambda f: kernel(f, inline=inline)
-    return numba.njit(nogil=True, cache=True, inline="always" if inline else "never")(fn)
+    dispatcher = numba.njit(nogil=True, inline="always" if inline else "never")(fn)
+    if _Locator.from_function(fn, fn.__code__.co_filename) is not None:  # a test's own kernel is not kept
+        dispatcher._cache = KernelCache(dispatcher.py_func)
+    dispatcher.compile = _timed(dispatcher.compile)
+    return dispatcher
 
 
 #: numba's ``intrinsic`` decorator, for the kernels written in LLVM IR (:func:`fma`; the 4-lane binning in

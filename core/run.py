@@ -24,6 +24,7 @@ from .engine.products import label_points, record_pose
 from .fileio.run_folder import software_versions, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
+from .jit import kernel_report
 from .geometry.scene import SceneGeometry
 from .systems.flash import simulate_frame, simulate_profiler
 from .systems.gated import simulate_gated
@@ -46,10 +47,13 @@ def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, 
     system = SYSTEMS.get(config.system_type)
     if system is None:
         raise ConfigError("system_type", config.system_type, f"one of {', '.join(SYSTEMS)}")
+    kernels = kernel_report()
     result = system(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
                     start_time_s=start_time_s, progress=progress, cancel=cancel)
     label_points(result, scene, world_from_sensor, config)
     record_pose(result, world_from_sensor, trajectory if config.system_type == "scanner" else None)
+    # compiled kernels loaded from the cache or compiled during this frame (not in the stage times)
+    result.stats["kernels"] = kernel_report(kernels)
     return result
 
 

@@ -8,7 +8,8 @@ Every file in either folder (recursively) must exist in both and be byte-identic
 * ``*.json`` files (``metadata.json``, ``sequence.json``) are compared as JSON after dropping, at any depth, the
   keys that record when and with what the run was made: timing (``created_unix_s``, ``wall_time_s``,
   ``time_s`` (the BVH build), ``export_s`` and ``main_thread_s`` (the Blender export), any key ending in
-  ``_times_s``) and versions (``software``, ``simulator_version``, ``addon_version``), plus any ``--ignore KEY``;
+  ``_times_s``), the compiled kernels loaded or compiled (``kernels``) and versions (``software``,
+  ``simulator_version``, ``addon_version``), plus any ``--ignore KEY``;
 * ``*.npz`` archives are compared member by member (names and the bytes of each ``.npy`` member), because the
   zip container stamps each member with the time it was written;
 * ``*.las`` files are compared as header (all fields but the creation day/year and the offset to the points,
@@ -27,7 +28,7 @@ import sys
 import zipfile
 from pathlib import Path
 
-IGNORED_KEYS = {"created_unix_s", "wall_time_s", "time_s", "export_s", "main_thread_s", "software",
+IGNORED_KEYS = {"created_unix_s", "wall_time_s", "time_s", "export_s", "main_thread_s", "software", "kernels",
                 "simulator_version", "addon_version"}
 IGNORED_SUFFIXES = ("_times_s",)
 

@@ -24,6 +24,7 @@ from ..geometry.motion import split_pose
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer
 from ..heap import keep_freed_blocks
+from ..jit import stage_clock
 from .memory import check_memory
 
 
@@ -43,11 +44,11 @@ class StageLog:
     @contextmanager
     def timed(self, stage: str):
         """Time the ``with`` body as ``stage`` (replacing an earlier time of that stage)."""
-        t0 = time.perf_counter()
+        t0 = stage_clock()
         try:
             yield
         finally:
-            self.times[stage] = time.perf_counter() - t0
+            self.times[stage] = stage_clock() - t0
 
     def add_times(self, local: dict) -> None:
         """Add a block's stage times (blocks run in parallel: the sums are thread-seconds)."""
@@ -104,7 +105,7 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
     scene = scene.with_overrides(config.materials)
     scene.check()
     origin, rot = (None, None) if world_from_sensor is None and posed_by_trajectory else split_pose(world_from_sensor)
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     bvh = {}
     built = tracer is None or not tracer.serves(scene)
     if built:
@@ -112,7 +113,7 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
         if fov_culling:  # objects outside the field of view are not traced
             keep = frustum_triangles(scene.vertices_m, scene.triangles, origin, rot, *frustum_tan)
             bvh = {"triangles_traced": int(keep.sum()), "triangles_total": scene.n_triangles,
-                   "time_s": time.perf_counter() - t0}
+                   "time_s": stage_clock() - t0}
             log.ran.append("fov_culling")
         elif fov_culling is not None:
             log.skip("fov_culling", "fov_culling = False: the whole scene is traced")
@@ -125,6 +126,6 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
     else:
         bvh["bvh"] = "reused"
         log.skip("build_bvh", "the caller's BVH of this scene was reused")
-    log.times["build_bvh"] = time.perf_counter() - t0
+    log.times["build_bvh"] = stage_clock() - t0
     return Frame(config=config, scene=scene, tracer=tracer, origin=origin, rot=rot, built=built, bvh=bvh,
                  t_wall=t_wall, memory=memory, preflight=checked)

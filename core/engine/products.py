@@ -3,8 +3,6 @@ detected on the receiver's digital waveforms, and what every frame records after
 pose (and a moving scanner's trajectory) and the ground truth of its points."""
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from ..config.settings import SimulationConfig
@@ -14,6 +12,7 @@ from ..geometry.groundtruth import surface_material_ids
 from ..geometry.motion import split_pose
 from ..geometry.rays import tan_to_unit_direction
 from ..geometry.scene import SceneGeometry
+from ..jit import stage_clock
 from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
 from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
@@ -150,8 +149,8 @@ def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, c
         spread_rad = 0.5 * max(rx.fov_x_rad, rx.fov_y_rad)
     else:  # half a pixel
         spread_rad = 0.5 * max(rx.fov_x_rad / rx.width_px, rx.fov_y_rad / rx.height_px)
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     pts["material_id"] = surface_material_ids(result.tracer, scene.material_ids, origin, pts["position_world"],
                                               0.5 * SPEED_OF_LIGHT_M_S * spread_s, spread_rad)
     result.stats["material_names"] = list(scene.material_names)
-    result.stats.setdefault("stage_times_s", {})["ground_truth"] = time.perf_counter() - t0
+    result.stats.setdefault("stage_times_s", {})["ground_truth"] = stage_clock() - t0

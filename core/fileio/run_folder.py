@@ -241,6 +241,11 @@ def run_summary(run_path, result) -> str:
     lines.append(f"energy   {st['received_energy_j']:.4g} J received in total")
     times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
     lines.append(f"stages   {times} (s, summed over threads)")
+    k = st.get("kernels")
+    if k and (k["loaded"] or k["compiled"]):
+        lines.append(f"kernels  {k['loaded']} loaded from the cache, {k['compiled']} compiled: "
+                     f"{k['load_and_compile_s']:.2f} s (not in the stage times"
+                     + ("; compiled once per install and CPU)" if k["compiled"] else ")"))
     if st.get("stages_skipped"):
         lines.append("skipped  " + "; ".join(f"{k} ({v})" for k, v in st["stages_skipped"].items()))
     return "\n".join(lines)

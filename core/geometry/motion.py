@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from ..errors import ConfigError
 
@@ -62,6 +61,8 @@ class Trajectory:
         # a reflection (negative determinant) cannot be interpolated as a rotation
         if np.any(np.linalg.det(rots) < 0):
             raise ConfigError("trajectory.matrices", "a mirrored pose", "proper rotations (no negative scale)")
+        from scipy.spatial.transform import Rotation, Slerp  # here: 0.4 s of start-up for the runs without motion
+
         self._rotations = Rotation.from_matrix(rots)
         #: every pose has the same orientation (a static sensor, or one that only translates)
         self.rotation_is_constant = bool(np.all(rots == rots[0]))
