@@ -138,6 +138,8 @@ from numba.core.serialize import dumps as _dumps  # noqa: E402
 #: What happened to the cache in this process (for the run's metadata and the tests): entries loaded,
 #: compiled and saved, and the notes printed.
 CACHE_STATS = {"loaded": 0, "compiled": 0, "saved": 0, "rejected": 0, "unsaved": 0, "seconds": 0.0}
+#: The kernels (and signatures) this process compiled because the cache did not hold them.
+COMPILED: list[str] = []
 _notes_lock = threading.Lock()
 _noted: set[str] = set()
 
@@ -313,6 +315,9 @@ class KernelCache(_caching.FunctionCache):
                              f"compiling it again ({self._cache_path})")
             return None
         _count("loaded" if data is not None else "compiled")
+        if data is None:
+            with _stats_lock:
+                COMPILED.append(f"{self._py_func.__module__.rpartition('.')[2]}.{self._py_func.__qualname__}{sig}")
         return data
 
     def save_overload(self, sig, data):

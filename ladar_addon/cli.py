@@ -9,6 +9,7 @@ Commands::
     sweep            SWEEP.toml --out DIR [--scheduler tcp://HOST:8786] [--workers N] [--restart] [--sensor NAME]
     export-config    --out FILE.json|FILE.toml [--sensor NAME] [--overwrite]
     validate-config  FILE [--sensor NAME]
+    warm-up          (compile the kernels of every system ahead, with progress; no .blend file needed)
 
 Exit codes: 0 success, 1 user error (one line on stderr, naming the bad setting), 2 command-line usage error,
 130 interrupted (Ctrl-C), 143 terminated (SIGTERM, e.g. a batch scheduler or ``timeout``), 129 hung up (SIGHUP):
@@ -120,6 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     val.add_argument("file", metavar="FILE")
     val.add_argument("--sensor", default=None, metavar="NAME",
                      help="camera whose settings the file overrides (default: the active sensor, if any)")
+
+    sub.add_parser("warm-up", help="compile the simulator's kernels ahead (once per install and CPU), with progress",
+                   epilog=_EPILOG)
     return parser
 
 
@@ -242,8 +246,19 @@ def _cmd_validate_config(scene, args) -> int:
     return 0
 
 
+def _cmd_warm_up(scene, args) -> int:
+    """Compile (or load) every system's kernels on a tiny built-in scene (core/warmup.py); writes nothing."""
+    from ..core.warmup import warm_up
+
+    emit("ladar: compiling the kernels of every sensor system (once per install and CPU; later runs load them)")
+    k = warm_up(progress=emit)
+    emit(f"ladar: kernels ready: {k['compiled']} compiled, {k['loaded']} loaded from the cache "
+         f"({k['load_and_compile_s']:.1f} s)")
+    return 0
+
+
 COMMANDS = {"simulate": _cmd_simulate, "sweep": _cmd_sweep, "export-config": _cmd_export_config,
-            "validate-config": _cmd_validate_config}
+            "validate-config": _cmd_validate_config, "warm-up": _cmd_warm_up}
 
 
 def cli_handler(argv) -> int:

@@ -9,6 +9,7 @@
     python scripts/ladar_run.py scene.blend export-config --out settings.toml
     python scripts/ladar_run.py scene.blend validate-config settings.toml
     python scripts/ladar_run.py scene.blend simulate --help      (the command's full help)
+    python scripts/ladar_run.py warm-up     (compile every system's kernels ahead, with progress; no .blend)
 
 It does what ``blender -b scene.blend -c ladar ...`` does: with ``BLENDER_USER_RESOURCES`` pointing at a fresh
 temporary folder (set before ``import bpy``), it installs this repository as an extension in a local extension
@@ -44,6 +45,7 @@ if _EARLY_SIGINT:  # (the same, recorded by the handler above)
     sys.exit(130)
 
 USAGE = ("usage: ladar_run.py SCENE.blend {simulate,sweep,export-config,validate-config} [options]\n"
+         "       ladar_run.py warm-up\n"
          "       (ladar_run.py -h: this script; ladar_run.py SCENE.blend simulate -h: the command's options)")
 
 
@@ -83,7 +85,9 @@ def main(argv=None) -> int:
         process.emit(__doc__ if argv else USAGE, err=not argv)
         return 0 if argv else 2
     blend, command = Path(argv[0]), argv[1:]
-    if blend.suffix.lower() != ".blend" or not blend.is_file():
+    if argv[0] == "warm-up":  # needs no scene
+        blend, command = None, argv
+    elif blend.suffix.lower() != ".blend" or not blend.is_file():
         process.emit(f"ladar: error: {blend} is not an existing .blend file", err=True)
         return 1
 
@@ -96,7 +100,8 @@ def main(argv=None) -> int:
                 import bpy
 
                 addon = blender_env.install_extension()
-                open_blend(bpy, blend)
+                if blend is not None:
+                    open_blend(bpy, blend)
             return addon.ladar_addon.cli.cli_handler(command)
         except BlendFileError as exc:
             process.emit(f"ladar: error: {exc}", err=True)

@@ -30,7 +30,7 @@ CORE_LAYERS = {
     "core.physics": 3,
     "core.engine": 4,
     "core.systems": 5, "core.fileio": 5,
-    "core.run": 6, "core.sequence": 6,
+    "core.run": 6, "core.sequence": 6, "core.warmup": 6,
     "core.sweep": 7,
 }
 #: the sensor systems (modules that may not import each other); their helpers (scan_patterns) are ordinary modules
