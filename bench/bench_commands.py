@@ -1,0 +1,87 @@
+"""What the user waits for: the whole command's wall time of each README example, cold and warm.
+
+    .venv/bin/python bench/bench_commands.py [--out DIR] [--quick] [--repeat N]
+
+For each README example (``scripts/ladar_run.py sample_blends/<scene>.blend simulate --out …``) it times, in a
+fresh process each time:
+
+* **cold**: an empty kernel cache (``LADAR_KERNEL_CACHE`` pointing at a new folder): the first run after an
+  install, compiling every kernel it calls;
+* **warm**: the same cache again, from a new temporary Blender user folder (as every ``ladar_run.py`` run is):
+  every kernel loaded from the cache (the run's ``kernels`` record must say 0 compiled, else the benchmark fails).
+
+Next to each wall time it reports what the run itself records: the frame's wall time, the seconds loading or
+compiling kernels, and the stage times without them.  Writes ``commands.json`` into ``--out`` (default
+``runs/bench``; never into the committed ``bench/results`` unless given that folder).  ``--quick``: the flash
+demo only, one warm repeat.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile")
+
+
+def run_once(scene: str, cache: Path, work: Path) -> dict:
+    out = work / f"{scene}-{time.monotonic_ns()}"
+    env = dict(os.environ, LADAR_KERNEL_CACHE=str(cache))
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"),
+                           str(REPO / "sample_blends" / f"{scene}.blend"), "simulate", "--out", str(out)],
+                          capture_output=True, text=True, env=env, cwd=work)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"bench_commands: {scene} failed:\n{done.stderr[-2000:]}")
+    meta = json.loads((out / "metadata.json").read_text())
+    shutil.rmtree(out, ignore_errors=True)
+    return {"command_wall_s": wall, "frame_wall_s": meta["wall_time_s"], "kernels": meta["kernels"],
+            "stage_times_sum_s": sum(meta["stage_times_s"].values())}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=REPO / "runs" / "bench")
+    ap.add_argument("--quick", action="store_true", help="the flash demo only, one warm repeat")
+    ap.add_argument("--repeat", type=int, default=3, help="warm runs per example (the median is reported)")
+    args = ap.parse_args(argv)
+    scenes = EXAMPLES[:1] if args.quick else EXAMPLES
+    repeat = 1 if args.quick else args.repeat
+    results = {}
+    with tempfile.TemporaryDirectory(prefix="bench_commands_") as tmp:
+        work = Path(tmp)
+        for scene in scenes:
+            cache = work / f"cache-{scene}"
+            cold = run_once(scene, cache, work)
+            warm = [run_once(scene, cache, work) for _ in range(repeat)]
+            if any(w["kernels"]["compiled"] for w in warm):
+                raise SystemExit(f"bench_commands: a warm run of {scene} compiled kernels: {warm}")
+            warm.sort(key=lambda w: w["command_wall_s"])
+            median = warm[len(warm) // 2]
+            results[scene] = {"cold": cold, "warm_median": median,
+                              "warm_command_wall_s": [w["command_wall_s"] for w in warm]}
+            print(f"{scene:18s} cold {cold['command_wall_s']:6.1f} s (kernels {cold['kernels']['compiled']} "
+                  f"compiled, {cold['kernels']['load_and_compile_s']:.1f} s)   warm {median['command_wall_s']:5.1f} s "
+                  f"(frame {median['frame_wall_s']:.2f} s, kernels loaded in "
+                  f"{median['kernels']['load_and_compile_s']:.2f} s)", flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    record = {"benchmark": "commands", "machine": {"cpu": platform.processor() or platform.machine(),
+                                                    "cores": os.cpu_count()},
+              "quick": args.quick, "examples": results}
+    path = args.out / "commands.json"
+    path.write_text(json.dumps(record, indent=1) + "\n")
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
