@@ -11,7 +11,8 @@ sequence run (``ladar_addon.job.SimulationJob``, previews and import off):
 * static grid: exported once, one BVH for every frame;
 * moving grid (1 mm per frame): exported and its BVH rebuilt every frame.
 
-Then both as the modal operator runs them (worker thread, ``step()`` every 20 ms from the main thread): the
+A one-frame warm-up run first takes the kernels' compilation (or loading) out of the timings.  Then both as the
+modal operator runs them (worker thread, ``step()`` every 20 ms from the main thread): the
 set-up on the main thread (the first frame's export), the longest main-thread step (a moving scene's per-frame
 export), and for the static case the time from ``cancel()`` (at ~40 %) to the job having stopped and cleaned
 up.  Writes ``sequence.json`` to ``--out DIR`` (default runs/bench/; ``--update-committed``:
@@ -82,6 +83,11 @@ def main(argv=None) -> int:
             meta = json.loads((job.run_path / "metadata.json").read_text())
             return job, wall, meta
 
+        # warm-up: one frame, so that compiling (or loading) the kernels is in none of the timings below
+        t0 = time.perf_counter()
+        sim.SimulationJob(scene, frames=frames[:1], out_dir=tmp / "warm_up", import_results=False,
+                          previews=False).run()
+        out["warm_up_s"] = time.perf_counter() - t0
         job, wall, meta = run("static")
         n_tri = job.source.geometry.n_triangles
         out["triangles"] = n_tri

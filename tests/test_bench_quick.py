@@ -112,7 +112,12 @@ def test_every_benchmark_script_is_listed():
     assert scripts == sorted(BENCHMARKS), "a new benchmark needs a --quick entry in BENCHMARKS"
 
 
-@pytest.mark.parametrize("name", sorted(BENCHMARKS))
+#: quick modes that stay slow: bench_sequence starts Blender's Python module, whose add-on path compiles the kernels
+#: again in each new process (20 s on a quiet machine, 120 s with the cores busy)
+SLOW = {"bench_sequence"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in sorted(BENCHMARKS)])
 def test_quick_mode(name, tmp_path, git_before):
     json_name, positive, check = BENCHMARKS[name]
     proc = subprocess.run([sys.executable, str(REPO / "bench" / f"{name}.py"), "--quick", "--out", str(tmp_path)],

@@ -163,7 +163,8 @@ def git_before():
     return committed_state()
 
 
-@pytest.mark.parametrize("entry", _runs(), ids=[e["id"] for e in _runs()])
+@pytest.mark.parametrize("entry", [pytest.param(e, id=e["id"], marks=[pytest.mark.slow] if e.get("slow") else [])
+                                   for e in _runs()])
 def test_documented_command_runs(entry, tmp_path, git_before):
     argv = shlex.split(entry["run"].replace("{tmp}", str(tmp_path)))
     if argv[0] == ".venv/bin/python":
