@@ -64,6 +64,7 @@ def _shell_block(body: str) -> list[str]:
             pending = line[:-1] + " "
             continue
         pending = ""
+        line = line[2:] if line.startswith("$ ") else line  # a console prompt
         if line and not line.startswith("#"):
             out.append(_normalise(line))
     return out
@@ -116,6 +117,7 @@ def test_the_extractor_finds_commands_in_each_form():
     text = ("```bash\n.venv/bin/python a.py \\\n    --out runs/x   # note\n# comment\n```\n"
             "```\nblender -b s.blend -c ladar simulate [--out DIR]\n        [--seed N]\nladar: error: no\n```\n")
     assert _shell_block(FENCE.search(text).group(2)) == [".venv/bin/python a.py --out runs/x"]
+    assert _shell_block("$ bash scripts/demo.sh\n") == ["bash scripts/demo.sh"]
     assert _plain_block(list(FENCE.finditer(text))[1].group(2)) == [
         "blender -b s.blend -c ladar simulate [--out DIR] [--seed N]"]
     assert _is_command("scripts/sweep_plots.py DIR") and not _is_command("scripts/sweep_plots.py")
