@@ -1,22 +1,27 @@
 #!/usr/bin/env python3
 """Time the Blender → simulator scene export (``ladar_addon.export.scene_geometry_from_depsgraph``).
 
-    .venv/bin/python bench/bench_export.py [--triangles 1000000]
+    .venv/bin/python bench/bench_export.py [--triangles 1000000] [--out DIR | --update-committed] [--quick]
 
 Cases: one quad grid of ~N triangles (fan path), the same grid triangulated (all-triangle path), an n-gon mesh
 (Blender's loop_triangles fallback) and 1000 collection instances of a ~N/1000-triangle mesh.  Prints the best
-of three exports per case.  Target: a 1M-triangle mesh well under a second.
+of three exports per case and writes them to ``export.json`` in ``--out DIR`` (default runs/bench/;
+``--update-committed``: bench/results/export.json).  Target: a 1M-triangle mesh well under a second.
+``--quick``: 20 000 triangles per case (seconds).
 """
 from __future__ import annotations
 
 import argparse
 import math
+import time
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import blender_env  # noqa: E402
 from bench_flash import best_of  # noqa: E402  (bench/ is the script folder, first on sys.path)
+from benchio import add_output_arguments, output_path, write_json  # noqa: E402
+from machine import machine_info  # noqa: E402
 
 
 def _isolate(bpy, keep):
@@ -27,7 +32,11 @@ def _isolate(bpy, keep):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--triangles", type=int, default=1_000_000)
+    add_output_arguments(parser)
     args = parser.parse_args(argv)
+    results = output_path(parser, args, "export.json")
+    if args.quick:
+        args.triangles = 20_000
     blender_env.isolate_user_resources()
     import bpy
 
@@ -70,6 +79,9 @@ def main(argv=None) -> int:
              ("64-gons (loop_triangles fallback)", {"Ngon"}),
              ("1000 collection instances", set(holders))]
     print(f"Blender {bpy.app.version_string}, target ~{args.triangles:,} triangles per case")
+    report = {"benchmark": "Blender scene export (scene_geometry_from_depsgraph), best of 3", "quick": args.quick,
+              "blender": bpy.app.version_string, "target_triangles": args.triangles, "cases": {},
+              "created": time.strftime("%Y-%m-%d"), "machine": machine_info()}
     for label, keep in cases:
         _isolate(bpy, keep)
         depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -77,6 +89,9 @@ def main(argv=None) -> int:
         seconds, geometry = best_of(lambda: export.scene_geometry_from_depsgraph(depsgraph))
         print(f"{label:40s} {geometry.n_triangles:>10,d} triangles  {seconds * 1e3:8.1f} ms  "
               f"({geometry.n_triangles / seconds / 1e6:5.1f} M triangles/s)")
+        report["cases"][label] = {"n_triangles": int(geometry.n_triangles), "export_s": seconds,
+                                  "triangles_per_s": geometry.n_triangles / seconds}
+    print(f"wrote {write_json(results, report)}")
     return 0
 
 

@@ -7,9 +7,10 @@ saved), their ratios to the bare cast and the time of every stage; and on sample
 noisy receiver against the ideal one (``--no-flash-demo`` to skip: its export needs the ``bpy`` module once).
 The first call of each case (compiling or loading the compiled kernels) is timed separately from the best of
 ``--repeat`` runs.  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
-Writes JSON (default bench/results/flash.json).
+Writes ``flash.json`` to ``--out DIR`` (default runs/bench/); ``--update-committed`` regenerates
+bench/results/flash.json; ``--quick``: 32×32 px × 2×2 sub-rays, 256 bins, one run each (seconds).
 
-    python bench/bench_flash.py [--repeat 3] [--no-flash-demo] [--out bench/results/flash.json]
+    .venv/bin/python bench/bench_flash.py [--repeat 3] [--no-flash-demo] [--out DIR | --update-committed] [--quick]
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ from core.fileio.run_folder import software_versions  # noqa: E402
 from core.geometry.scene import SceneGeometry  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402
 from machine import machine_info  # noqa: E402  (bench/machine.py)
+from benchio import add_output_arguments, output_path, write_json  # noqa: E402
 
 
 def bench_scene(n_grid: int = 128) -> SceneGeometry:
@@ -67,21 +69,22 @@ def sensor_pose() -> np.ndarray:
     return pose
 
 
-def bench_config() -> SimulationConfig:
+def bench_config(quick: bool = False) -> SimulationConfig:
+    """128×128 px × 4×4 sub-rays, 1024 bins of 1 ns from 200 m (``quick``: 32×32 px × 2×2, 256 bins)."""
     cfg = SimulationConfig()
-    cfg.receiver.width_px = cfg.receiver.height_px = 128
-    cfg.receiver.subsamples = 4
+    cfg.receiver.width_px = cfg.receiver.height_px = 32 if quick else 128
+    cfg.receiver.subsamples = 2 if quick else 4
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(12.0)
-    cfg.gate.n_bins = 1024
+    cfg.gate.n_bins = 256 if quick else 1024
     cfg.gate.bin_width_s = 1e-9
     cfg.gate.gate_start_s = 2 * 200.0 / 299_792_458.0
     return cfg
 
 
-def full_physics_config() -> SimulationConfig:
+def full_physics_config(quick: bool = False) -> SimulationConfig:
     """The benchmark frame with every effect on: turbulence (Cn² 1e-14: broadening, scintillation both ways,
     wander, long-exposure blur), visibility 10 km, the noisy APD receiver with A/D; cube saved."""
-    cfg = bench_config()
+    cfg = bench_config(quick)
     cfg.atmosphere.cn2_m_23 = 1e-14
     cfg.atmosphere.visibility_m = 10e3
     cfg.detector.mode, cfg.detector.detector_type = "noisy", "apd"
@@ -103,7 +106,7 @@ def timed(fn):
     return time.perf_counter() - t, out
 
 
-def flash_demo_noisy_vs_ideal(repeat):
+def flash_demo_noisy_vs_ideal(repeat, min_repeat=9):
     """sample_blends/flash_demo.blend (as saved: ideal receiver) against the same frame with the noisy
     receiver chain, all cores."""
     import dataclasses
@@ -116,7 +119,7 @@ def flash_demo_noisy_vs_ideal(repeat):
     noisy = dataclasses.replace(cfg, detector=dataclasses.replace(cfg.detector, mode="noisy"))
     first_ideal, _ = timed(lambda: simulate_frame(scene, pose, cfg, tracer=tracer))
     first_noisy, _ = timed(lambda: simulate_frame(scene, pose, noisy, tracer=tracer))
-    repeat = max(repeat, 9)  # 0.1 s frames: more repeats against the shared machine's noise
+    repeat = max(repeat, min_repeat)  # 0.1 s frames: more repeats against the shared machine's noise
     ideal_s, _ = best_of(lambda: simulate_frame(scene, pose, cfg, tracer=tracer), repeat)
     noisy_s, res = best_of(lambda: simulate_frame(scene, pose, noisy, tracer=tracer), repeat)
     return {"ideal_s": ideal_s, "noisy_s": noisy_s, "ratio_noisy_to_ideal": noisy_s / ideal_s,
@@ -128,10 +131,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-flash-demo", action="store_true", help="skip the flash_demo.blend noisy/ideal case")
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "flash.json"))
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    out = output_path(ap, args, "flash.json")
+    if args.quick:
+        args.repeat = 1
 
-    scene, pose, cfg = bench_scene(), sensor_pose(), bench_config()
+    scene, pose, cfg = bench_scene(32 if args.quick else 128), sensor_pose(), bench_config(args.quick)
     tracer = SceneTracer(scene)
     det = Detector.from_settings(cfg.receiver)
     x_tan, y_tan, *_ = block_subray_tan(det, 0, det.n_pixels)
@@ -139,15 +145,17 @@ def main(argv=None):
     bare_s, prim = best_of(lambda: tracer.bare_cast(pose[:3, 3], dirs), args.repeat)
     first_s, _ = timed(lambda: simulate_frame(scene, pose, cfg, tracer=tracer))
     pipe_s, res = best_of(lambda: simulate_frame(scene, pose, cfg, tracer=tracer), args.repeat)
-    cfg_points = bench_config()
+    cfg_points = bench_config(args.quick)
     cfg_points.run.save_waveforms = False
     points_s, _ = best_of(lambda: simulate_frame(scene, pose, cfg_points, tracer=tracer), args.repeat)
-    cfg_full = full_physics_config()
+    cfg_full = full_physics_config(args.quick)
     first_full_s, _ = timed(lambda: simulate_frame(scene, pose, cfg_full, tracer=tracer))
     full_s, res_full = best_of(lambda: simulate_frame(scene, pose, cfg_full, tracer=tracer), args.repeat)
-    demo = None if args.no_flash_demo else flash_demo_noisy_vs_ideal(args.repeat)
+    demo = None if args.no_flash_demo else flash_demo_noisy_vs_ideal(args.repeat, 1 if args.quick else 9)
     report = {
-        "benchmark": "flash 128x128 px x 4x4 sub-rays, 1024 bins",
+        "benchmark": ("quick: flash 32x32 px x 2x2 sub-rays, 256 bins" if args.quick
+                      else "flash 128x128 px x 4x4 sub-rays, 1024 bins"),
+        "quick": args.quick, "repeat": args.repeat,
         "n_rays": int(len(dirs)), "n_triangles": scene.n_triangles,
         "hit_fraction": float(np.mean(prim >= 0)),
         "threads": os.cpu_count(),
@@ -167,10 +175,8 @@ def main(argv=None):
         "machine": machine_info(),
         "software": software_versions(),
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
+    print(f"wrote {write_json(out, report)}")
 
 
 if __name__ == "__main__":

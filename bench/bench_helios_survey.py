@@ -15,9 +15,12 @@ sub-rays, generated outside the timing, cast in the pipeline's blocks on 1 and 2
 pipeline to it.  The first call's latency (JIT compilation, or loading the compiled kernels from the per-user
 cache) is measured separately, in fresh processes, on a 4096-pulse scan: with an empty kernel cache and with
 the cache filled.  HELIOS++'s figures are the stated reference: 37.4k pulses/s on 2 threads, 20.1k on 1,
-4.4 GB peak memory, 18 s scene load.  Writes JSON (default bench/results/helios_survey.json).
+4.4 GB peak memory, 18 s scene load.  Writes ``helios_survey.json`` to ``--out DIR`` (default runs/bench/;
+``--update-committed``: bench/results/helios_survey.json).  ``--quick``: a 0.02 s survey (10 000 pulses) over a
+101 × 101-vertex terrain, no first-call latency runs (seconds; the comparison with HELIOS++ is meaningless there).
 
-    python bench/bench_helios_survey.py [--duration 3.0] [--grid 1000] [--repeat 1] [--out ...]
+    .venv/bin/python bench/bench_helios_survey.py [--duration 3.0] [--grid 1000] [--repeat 1] [--no-first-call]
+        [--out DIR | --update-committed] [--quick]
 """
 from __future__ import annotations
 
@@ -178,8 +181,14 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", type=int, default=1000, help="terrain vertices per side")
     ap.add_argument("--repeat", type=int, default=1, help="survey runs per thread count (best taken)")
     ap.add_argument("--no-first-call", action="store_true", help="skip the fresh-process first-call latency")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "helios_survey.json")
+    sys.path.insert(0, str(ROOT / "bench"))
+    from benchio import add_output_arguments, output_path, write_json
+
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    out_path = output_path(ap, args, "helios_survey.json")
+    if args.quick:
+        args.duration, args.grid, args.repeat, args.no_first_call = 0.02, 101, 1, True
 
     from core.fileio.run_folder import software_versions
     from core.geometry.trace import SceneTracer
@@ -212,7 +221,8 @@ def main(argv=None) -> int:
     bare, n_rays, bare_hits = bare_cast(tracer, args.duration, res1["pulses_per_block"], (1, 2))
     pps = {t: n_pulses / runs[t][0] for t in (1, 2)}
     report = {
-        "benchmark": "HELIOS++ airborne survey (issue 16)",
+        "benchmark": "HELIOS++ airborne survey (issue 16)" + (" (quick: not comparable)" if args.quick else ""),
+        "quick": args.quick, "duration_s": args.duration,
         "scene": {"vertices": int(scene.vertices_m.shape[0]), "n_triangles": scene.n_triangles,
                   "load_s (terrain built + BVH)": load_s},
         "survey": {"n_pulses": n_pulses, "subrays_per_pulse": res1["subrays_per_pulse"], "n_rays": n_rays,
@@ -243,9 +253,8 @@ def main(argv=None) -> int:
         "machine": machine_info(),
         "software": software_versions(),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
+    print(f"wrote {write_json(out_path, report)}")
     return 0
 
 

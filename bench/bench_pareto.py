@@ -20,10 +20,12 @@ machine has 2 shared cores).  ``grid (point sub-rays)`` is the paper's model: gr
 Scintillation (cheap, no ray tracing): log-normal patterns at σ² = 0.3 with 2, 4, 8 samples per correlation
 radius and 1, 4, 16 realisations: SI error against e^σ² − 1 and 1/e correlation radius error against ρ_l.
 
-Writes bench/results/pareto.json, docs/pareto.png and the tables between the ``pareto`` markers of
-docs/performance.md.
+Writes ``pareto.json``, ``pareto.png`` and ``pareto.md`` (the tables) to ``--out DIR`` (default runs/bench/).
+``--update-committed`` writes bench/results/pareto.json, docs/pareto.png and the tables between the ``pareto``
+markers of docs/performance.md instead.  ``--quick``: the unrolled scene only, a 16×16 Sobol reference, seven
+settings and a small scintillation sweep, one run each (under a minute; never committed).
 
-    .venv/bin/python bench/bench_pareto.py [--quick] [--repeat 3]
+    .venv/bin/python bench/bench_pareto.py [--quick] [--repeat 3] [--out DIR | --update-committed]
 """
 from __future__ import annotations
 
@@ -46,11 +48,12 @@ from core.systems.flash import simulate_frame  # noqa: E402
 from core.fileio.run_folder import software_versions  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402
 from sample_scenes import CACHE, flash_demo  # noqa: E402
+from benchio import add_output_arguments, output_folder, write_json  # noqa: E402
 
-RESULTS = ROOT / "bench" / "results"
 DOC = ROOT / "docs" / "performance.md"
 PLOT = ROOT / "docs" / "pareto.png"
 REF_SUBSAMPLES, REF_BIN_FACTOR = 64, 2
+QUICK_REF_SUBSAMPLES = 16
 
 
 def rolled(pose, deg):
@@ -71,9 +74,9 @@ def with_settings(cfg, *, pattern="grid", subsamples=4, bin_factor=1.0, spread=T
     return dataclasses.replace(cfg, receiver=rx, gate=gate, run=run)
 
 
-def reference(name, scene, pose, cfg, tracer):
+def reference(name, scene, pose, cfg, tracer, subsamples=REF_SUBSAMPLES):
     """The converged reference of a scene (cached): waveforms at bins 2× finer, energy, first-echo range."""
-    ref_cfg = with_settings(cfg, pattern="sobol", subsamples=REF_SUBSAMPLES, bin_factor=1.0 / REF_BIN_FACTOR)
+    ref_cfg = with_settings(cfg, pattern="sobol", subsamples=subsamples, bin_factor=1.0 / REF_BIN_FACTOR)
     ref_cfg.run.threads = 0  # all cores: the reference is not timed
     key = hashlib.sha1(json.dumps([dataclasses.asdict(ref_cfg), scene.vertices_m.tobytes().hex()[:4096],
                                    pose.tolist()], sort_keys=True, default=str).encode()).hexdigest()[:12]
@@ -82,7 +85,7 @@ def reference(name, scene, pose, cfg, tracer):
         data = np.load(path)
         return {k: data[k] for k in data.files}
     CACHE.mkdir(parents=True, exist_ok=True)
-    print(f"reference {name}: {REF_SUBSAMPLES}×{REF_SUBSAMPLES} Sobol sub-rays, bins ÷{REF_BIN_FACTOR} …", flush=True)
+    print(f"reference {name}: {subsamples}×{subsamples} Sobol sub-rays, bins ÷{REF_BIN_FACTOR} …", flush=True)
     t = time.perf_counter()
     res = simulate_frame(scene, pose, ref_cfg, tracer=tracer)
     out = {"waveforms": res.waveforms, "energy": res.energy_image, "range": res.range_image,
@@ -139,6 +142,13 @@ def best_time(fn, repeat):
 
 def series(quick):
     """(label, settings) of the sweep."""
+    if quick:
+        return [("grid (point sub-rays)", dict(pattern="grid", subsamples=2, spread=False)),
+                ("grid", dict(pattern="grid", subsamples=1)), ("grid", dict(pattern="grid", subsamples=2)),
+                ("stratified", dict(pattern="stratified", subsamples=2)),
+                ("sobol", dict(pattern="sobol", subsamples=2)),
+                ("adaptive", dict(pattern="adaptive", subsamples=2, refine=2)),
+                ("bins grid", dict(pattern="grid", subsamples=2, bin_factor=2.0))]
     s_grid = (1, 2, 4, 8) if quick else (1, 2, 4, 8, 16)
     s_other = (2, 4, 8) if quick else (2, 4, 8, 16)
     out = [("grid (point sub-rays)", dict(pattern="grid", subsamples=s, spread=False)) for s in (2, 4, 8)]
@@ -180,7 +190,7 @@ def summarise(scene_rows, key="waveform_l2"):
     return out
 
 
-def scintillation_sweep(repeat):
+def scintillation_sweep(repeat, quick=False):
     """Log-normal pattern statistics vs grid pitch and realisations (σ² = 0.3, ρ_l = 1 m, 64 ρ_l square).
 
     The pattern is exact at its nodes; the pipeline reads it by bilinear interpolation, which smooths it most
@@ -192,10 +202,10 @@ def scintillation_sweep(repeat):
     s2, rho = 0.3, 1.0
     si_exact = math.exp(s2) - 1.0
     rows = []
-    for spc in (2, 4, 8):
+    for spc in ((2, 4) if quick else (2, 4, 8)):
         pitch = rho / spc
         n = int(64 * spc)
-        for reals in (1, 4, 16):
+        for reals in ((1, 4) if quick else (1, 4, 16)):
             rng = np.random.default_rng(7)
 
             def make():
@@ -231,7 +241,8 @@ def markdown(report):
              f"({report['created']}, one thread, best of {report['repeat']}).", ""]
     for sc in report["scenes"]:
         lines += [f"**{sc['name']}** ({sc['n_pixels']} pixels, {sc['n_edge_pixels']} edge pixels; reference "
-                  f"{REF_SUBSAMPLES}×{REF_SUBSAMPLES} Sobol rays, {sc['reference_time_s']:.0f} s):", "",
+                  f"{report['reference_subsamples']}×{report['reference_subsamples']} Sobol rays, "
+                  f"{sc['reference_time_s']:.0f} s):", "",
                   "| series | S | refine | bin (ns) | time (s) | waveform L2 | energy RMS | range RMSE edges (m) "
                   "| echo-count mismatch |", "|---|---|---|---|---|---|---|---|---|"]
         for r in sc["rows"]:
@@ -273,7 +284,7 @@ def write_doc_block(text, marker="pareto"):
     DOC.write_text(f"{head}{begin}\n{text}\n{end}{tail}", encoding="utf-8")
 
 
-def plot(report):
+def plot(report, path=PLOT):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -311,25 +322,29 @@ def plot(report):
             if i == 0 and j == 0:
                 ax.legend(fontsize=7)
     fig.tight_layout()
-    PLOT.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(PLOT, dpi=110)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="fewer settings (a smoke run)")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", default=str(RESULTS / "pareto.json"))
-    ap.add_argument("--no-doc", action="store_true", help="do not rewrite docs/performance.md and docs/pareto.png")
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    folder = output_folder(ap, args)
+    if args.quick:
+        args.repeat = 1
+    ref_subsamples = QUICK_REF_SUBSAMPLES if args.quick else REF_SUBSAMPLES
 
     scene, pose, cfg = flash_demo()
     tracer = SceneTracer(scene)
     report = {"benchmark": "flash Pareto: run time vs error (issue 7)", "quick": args.quick, "repeat": args.repeat,
-              "created": time.strftime("%Y-%m-%d"), "scenes": [], "software": software_versions()}
-    for name, p in (("flash_demo", pose), ("flash_demo rolled 17°", rolled(pose, 17.0))):
-        ref = reference(name.replace(" ", "_").replace("°", "deg"), scene, p, cfg, tracer)
+              "created": time.strftime("%Y-%m-%d"), "reference_subsamples": ref_subsamples, "scenes": [],
+              "software": software_versions()}
+    scenes = [("flash_demo", pose)] + ([] if args.quick else [("flash_demo rolled 17°", rolled(pose, 17.0))])
+    for name, p in scenes:
+        ref = reference(name.replace(" ", "_").replace("°", "deg"), scene, p, cfg, tracer, ref_subsamples)
         edges = edge_pixels(ref)
         rows = []
         for label, kw in series(args.quick):
@@ -350,14 +365,17 @@ def main(argv=None):
                                  "reference_time_s": float(ref["time_s"]), "rows": rows,
                                  "summary_waveform_l2": summarise(rows, "waveform_l2"),
                                  "summary_range_rmse_edges_m": summarise(rows, "range_rmse_edges_m")})
-    report["scintillation"] = scintillation_sweep(args.repeat)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=1))
-    if not args.no_doc:
+    report["scintillation"] = scintillation_sweep(args.repeat, args.quick)
+    text = markdown(report)
+    write_json(folder / "pareto.json", report, indent=1)
+    if args.update_committed:
         plot(report)
-        write_doc_block(markdown(report))
-    print(markdown(report))
+        write_doc_block(text)
+    else:
+        plot(report, folder / "pareto.png")
+        (folder / "pareto.md").write_text(text + "\n", encoding="utf-8")
+    print(text)
+    print(f"wrote {folder / 'pareto.json'}")
 
 
 if __name__ == "__main__":

@@ -22,10 +22,10 @@ of docs/theory.md §12.
 ``diagnostics`` (not with --quick) separates the causes of an SI difference: split-step variants (subharmonics
 off, larger box, more screens, inner scale), the reference's log-irradiance variance, and first-order theory.
 
-The benchmark asserts nothing; it reports (``agrees`` per case).  Writes JSON (default
-bench/results/phasescreen.json) and prints it.
+The benchmark asserts nothing; it reports (``agrees`` per case).  Writes ``phasescreen.json`` to ``--out DIR``
+(default runs/bench/; ``--update-committed``: bench/results/phasescreen.json) and prints it.
 
-    python bench/bench_phasescreen.py [--quick] [--realizations N] [--out PATH]
+    .venv/bin/python bench/bench_phasescreen.py [--quick] [--realizations N] [--out DIR | --update-committed]
 """
 from __future__ import annotations
 
@@ -231,11 +231,14 @@ def run_case(name, cn2, args, grid):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small grids and few realisations (smoke run)")
     ap.add_argument("--realizations", type=int, default=None, help="per case and model (default 64; quick 4)")
     ap.add_argument("--seed", type=int, default=2024)
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "phasescreen.json"))
+    sys.path.insert(0, str(ROOT / "bench"))
+    from benchio import add_output_arguments, output_path, write_json
+
+    add_output_arguments(ap, "small grids and few realisations (a smoke run, never committed)")
     args = ap.parse_args(argv)
+    out = output_path(ap, args, "phasescreen.json")
     if args.realizations is None:
         args.realizations = 4 if args.quick else 64
     if args.realizations < 2:
@@ -289,10 +292,8 @@ def main(argv=None):
         "wall_time_s": time.perf_counter() - t_start,
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__},
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2, default=float) + "\n")
     print(json.dumps(report, indent=2, default=float))
+    print(f"wrote {write_json(out, report, default=float)}")
 
 
 if __name__ == "__main__":

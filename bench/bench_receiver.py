@@ -7,9 +7,11 @@ size, for several scenes.  Requirement: chain ≤ 3 × floor with noise on.  Eac
 Per scene: the chain on all cores, on one thread, and the per-bin route (``noise_table=False``: what the chain
 did before signal-free bins were drawn from the tabulated code distribution).  Scenes marked outside the 3×
 scope are measured and documented in docs/receiver.md (volume returns in every bin, A/D off, optics MTF).
-Writes JSON (default bench/results/receiver.json).
+Writes ``receiver.json`` to ``--out DIR`` (default runs/bench/; ``--update-committed``: bench/results/receiver.json).
+``--quick``: a 32×32×256 cube, one run per scene (seconds).
 
-    python bench/bench_receiver.py [--repeat 3] [--only NAME] [--no-per-bin] [--out bench/results/receiver.json]
+    .venv/bin/python bench/bench_receiver.py [--repeat 3] [--only NAME] [--no-per-bin] [--out DIR | --update-committed]
+        [--quick]
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 from core.physics.receiver.chain import ChainSettings, apply_receiver_chain  # noqa: E402
 from core.config.settings import DetectorSettings  # noqa: E402
+from benchio import add_output_arguments, output_path, write_json  # noqa: E402
 
 H = W = 128
 B = 1024
@@ -35,13 +38,14 @@ DT = 1e-9
 FWHM = 5e-9
 
 
-def cube_with_returns(seed=1) -> np.ndarray:
+def cube_with_returns(seed=1, shape=(H, W, B)) -> np.ndarray:
     """One Gaussian return per pixel (FWHM 5 ns, 1 ns bins) at a random delay, peak 0–1e-16 J/bin
     (0–214 photo-electrons at η 0.4, 1064 nm), float32 J per bin; exactly zero far from the pulse."""
+    h, w, b = shape
     rng = np.random.default_rng(seed)
-    x = np.arange(B, dtype=np.float64) + 0.5
-    centre = rng.uniform(100, 900, (H, W, 1))
-    peak = rng.uniform(0, 1e-16, (H, W, 1))
+    x = np.arange(b, dtype=np.float64) + 0.5
+    centre = rng.uniform(0.1 * b, 0.9 * b, (h, w, 1))
+    peak = rng.uniform(0, 1e-16, (h, w, 1))
     s = FWHM / 2.3548200450309493 / DT
     arg = (x - centre) / s
     return np.where(np.abs(arg) < 6, peak * np.exp(-0.5 * arg * arg), 0.0).astype(np.float32)
@@ -91,10 +95,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--only", default="", help="run only the scenes whose name contains this (no JSON written)")
     ap.add_argument("--no-per-bin", action="store_true", help="skip the per-bin route comparison")
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "receiver.json"))
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    path = None if args.only else output_path(ap, args, "receiver.json")
+    shape = (32, 32, 256) if args.quick else (H, W, B)
+    if args.quick:
+        args.repeat = 1
 
-    cube = cube_with_returns()
+    cube = cube_with_returns(shape=shape)
     n = cube.size
     rng = np.random.default_rng(123)
     floor_fn = lambda: rng.standard_normal(n, dtype=np.float32)  # noqa: E731
@@ -131,9 +139,9 @@ def main(argv=None) -> dict:
               f"  (1 thread {min(t_single) / f:5.2f}){per_bin}  [{out.report.get('noise_sampling')}]", flush=True)
     if args.only:
         return results
-    doc = {"benchmark": "receiver chain, 128x128x1024 float32 cube, noise on",
+    doc = {"benchmark": "receiver chain, {}x{}x{} float32 cube, noise on".format(*shape), "quick": args.quick,
            "requirement": "chain_s <= 3 x floor_s (floor: rng.standard_normal(size, dtype=float32))",
-           "shape": [H, W, B], "repeat": args.repeat, "cpu_count": os.cpu_count(),
+           "shape": list(shape), "repeat": args.repeat, "cpu_count": os.cpu_count(),
            "numpy": np.__version__, "python": platform.python_version(), "machine": platform.machine(),
            "floor_best_s": min(floors), "scenes": results,
            "max_ratio": max(r["ratio"] for r in results.values()),
@@ -141,12 +149,7 @@ def main(argv=None) -> dict:
            "max_ratio_1thread_in_scope": max(r["ratio_1thread"] for r in results.values()
                                              if r["inside_3x_target_scope"]),
            "typical_ratio": results[next(iter(SCENES))]["ratio"]}
-    path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(doc, indent=2))
-    tmp.replace(path)
-    print(f"wrote {path}")
+    print(f"wrote {write_json(path, doc)}")
     return doc
 
 

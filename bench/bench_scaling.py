@@ -5,10 +5,12 @@ benchmark terrain and on sample_blends/flash_demo.blend.
 
 Every case runs in its own Python process, so its peak resident memory (``ru_maxrss``) is its own; the
 baseline (the interpreter with NumPy, SciPy, embreex and core imported) is reported beside it.  Times are the best of ``--repeat`` runs
-inside that process (BVH built once unless the case is about building it).  Writes
-bench/results/scaling.json and the tables between the ``scaling`` markers of docs/performance.md.
+inside that process (BVH built once unless the case is about building it).  Writes ``scaling.json`` and
+``scaling.md`` (the tables) to ``--out DIR`` (default runs/bench/); ``--update-committed`` writes
+bench/results/scaling.json and the tables between the ``scaling`` markers of docs/performance.md instead.
+``--quick``: one case of each kind, small (10k / 20k triangles, 64² px), one run each (well under a minute).
 
-    .venv/bin/python bench/bench_scaling.py [--quick] [--repeat 3]
+    .venv/bin/python bench/bench_scaling.py [--quick] [--repeat 3] [--out DIR | --update-committed]
 """
 from __future__ import annotations
 
@@ -26,7 +28,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-RESULTS = ROOT / "bench" / "results"
 DOC = ROOT / "docs" / "performance.md"
 
 
@@ -105,7 +106,7 @@ def case_pipeline_vs_bare(repeat, threads):
         if threads == 1:
             return tracer.bare_cast(pose[:3, 3], dirs)
         return list(pool.map(lambda d: tracer.bare_cast(pose[:3, 3], d), parts))
-    repeat = max(repeat, 7)  # sub-second cases: more repeats against the shared machine's noise
+    repeat = max(repeat, 7) if repeat > 1 else 1  # sub-second cases: more repeats (--quick: one run)
     bare_s, _ = best_of(bare, repeat)
     pool.shutdown()
     pipe_s, res = best_of(lambda: simulate_frame(scene, pose, cfg, tracer=tracer), repeat)
@@ -180,7 +181,7 @@ def case_sample(repeat):
     scene, pose, cfg = flash_demo()
     cfg.run.threads = 1
     tracer = SceneTracer(scene)
-    repeat = max(repeat, 9)  # 0.1 s frames: more repeats against the shared machine's noise
+    repeat = max(repeat, 9) if repeat > 1 else 1  # 0.1 s frames: more repeats (--quick: one run)
     out = {"n_triangles": scene.n_triangles}
     base_s, _ = best_of(lambda: simulate_frame(scene, pose, cfg, tracer=tracer), repeat)
     rebuild_s, _ = best_of(lambda: simulate_frame(scene, pose, cfg), repeat)
@@ -297,31 +298,36 @@ def write_doc_block(text, marker="scaling"):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="smaller scenes and sensors (a smoke run)")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", default=str(RESULTS / "scaling.json"))
-    ap.add_argument("--no-doc", action="store_true")
+    from benchio import add_output_arguments, output_folder, write_json
+
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    folder = output_folder(ap, args)
     from core.fileio.run_folder import software_versions
 
-    scenes = (10_000, 100_000) if args.quick else (10_000, 100_000, 500_000, 2_000_000)
-    sensors = ((64, True), (128, True), (256, False)) if args.quick else \
+    if args.quick:
+        args.repeat = 1
+    threads = (1,) if args.quick else (1, 2)
+    scenes = (10_000,) if args.quick else (10_000, 100_000, 500_000, 2_000_000)
+    sensors = ((64, True),) if args.quick else \
         ((64, True), (128, True), (256, True), (512, True), (64, False), (128, False), (256, False), (512, False),
          (1024, False))
     rep = {"benchmark": "flash scaling (issue 7)", "quick": args.quick, "repeat": args.repeat,
            "created": time.strftime("%Y-%m-%d"), "cpu_count": os.cpu_count(), "software": software_versions()}
-    rep["pipeline_vs_bare"] = [run_child("pipeline_vs_bare", args.repeat, t) for t in (1, 2)]
+    rep["pipeline_vs_bare"] = [run_child("pipeline_vs_bare", args.repeat, t) for t in threads]
     rep["scene"] = [run_child("scene", args.repeat, n) for n in scenes]
     rep["sensor"] = [run_child("sensor", args.repeat, p, w) for p, w in sensors]
-    rep["culling"] = run_child("culling", args.repeat, 200_000 if args.quick else 2_000_000)
+    rep["culling"] = run_child("culling", args.repeat, 20_000 if args.quick else 2_000_000)
     rep["sample"] = run_child("sample", args.repeat)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rep, indent=1))
     text = markdown(rep)
-    if not args.no_doc:
+    write_json(folder / "scaling.json", rep, indent=1)
+    if args.update_committed:
         write_doc_block(text)
+    else:
+        (folder / "scaling.md").write_text(text + "\n", encoding="utf-8")
     print(text)
+    print(f"wrote {folder / 'scaling.json'}")
 
 
 if __name__ == "__main__":

@@ -16,9 +16,11 @@ in the split-step run against SI·A(D) of the table (A the aperture integral of 
 (all-regime SI × its aperture-averaging formula); and the footprint (return-path) variance factor of a square
 footprint p × p (p/F = 0.5 … 4), the rectangle average of the covariance, from the split-step covariance against
 the table's and the paper's (Gaussian box average with the eq. 3-6 radius).  Writes
-bench/results/scintillation_accuracy.json and prints markdown tables.
+``scintillation_accuracy.json`` to ``--out DIR`` (default runs/bench/; ``--update-committed``:
+bench/results/scintillation_accuracy.json) and prints markdown tables.  ``--quick``: the first two cases, two
+patterns each (the errors of two patterns are noisy; seconds).
 
-    python bench/bench_scintillation_accuracy.py [--patterns 16]
+    .venv/bin/python bench/bench_scintillation_accuracy.py [--patterns 16] [--out DIR | --update-committed] [--quick]
 """
 from __future__ import annotations
 
@@ -41,8 +43,7 @@ from core.atmosphere import wave_optics as wo  # noqa: E402
 from core.atmosphere.derived import derived_turbulence  # noqa: E402
 from core.physics.propagation import box_average_variance_factor  # noqa: E402
 
-RUNS = ROOT / "bench" / "results" / "scintillation_wave_optics.json"
-OUT = ROOT / "bench" / "results" / "scintillation_accuracy.json"
+RUNS = ROOT / "bench" / "results" / "scintillation_wave_optics.json"  # input (scripts/tabulate_scintillation.py)
 EXTENT = (-0.4, 0.4, -0.4, 0.4)
 FOOTPRINTS_F = (0.5, 1.0, 2.0, 4.0)
 
@@ -96,10 +97,18 @@ def errors(v, si, lnv, radius, lags, cov):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--patterns", type=int, default=16)
+    sys.path.insert(0, str(ROOT / "bench"))
+    from benchio import add_output_arguments, output_path, write_json
+
+    add_output_arguments(ap)
     a = ap.parse_args(argv)
+    out_path = output_path(ap, a, "scintillation_accuracy.json")
     runs = json.loads(RUNS.read_text())
+    validation = runs["validation"]
+    if a.quick:
+        a.patterns, validation = 2, validation[:2]
     cases = []
-    for v in runs["validation"]:
+    for v in validation:
         t0 = time.perf_counter()
         st = wo.statistics(v["cn2_m_23"], v["wavelength_m"], v["range_m"], v["wave"], v["inner_scale_m"])
         table = errors(v, st["scintillation_index"], st["sigma2_lnI"], st["correlation_radius_m"], st["lags_m"],
@@ -147,10 +156,10 @@ def main(argv=None):
         for m in ("table", "paper"):
             rows = [x for c in cases for x in c[kind] if kind == "footprint" or x["wave_optics_si"] >= 0.01]
             worst[f"{kind}_{m}"] = max(abs(x[f"{m}_rel_error"]) for x in rows)
-    out = {"description": __doc__.split("\n")[0], "patterns": a.patterns, "extent_m": EXTENT, "cases": cases,
+    out = {"description": __doc__.split("\n")[0], "quick": a.quick, "patterns": a.patterns, "extent_m": EXTENT, "cases": cases,
            "max_abs_error": worst, "date": time.strftime("%Y-%m-%d %H:%M", time.gmtime())}
-    OUT.write_text(json.dumps(out, indent=1))
     print(markdown(out))
+    print(f"wrote {write_json(out_path, out, indent=1)}")
     return 0
 
 

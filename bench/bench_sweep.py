@@ -2,7 +2,7 @@
 """Sweep throughput on Dask: points/s with 1, 2 and 4 worker processes against the same points run serially in
 one process, and the scheduler's overhead per point.
 
-    .venv/bin/python bench/bench_sweep.py [--points 16] [--workers 1,2,4]
+    .venv/bin/python bench/bench_sweep.py [--points 16] [--workers 1,2,4] [--out DIR | --update-committed] [--quick]
 
 Scene: the bundled flash demo (bench/sample_scenes.py: 80 triangles; its sensor cut to 32×32 pixels).  The sweep: a
 ``sensor.range_m`` × ``atmosphere.visibility_m`` grid with seeds, noisy receiver, save_waveforms off — the
@@ -20,8 +20,9 @@ worked example of docs/sweeps.md, cut to ``--points`` tasks.
 The serial pass runs before and after the Dask runs (the machine's load drifts; both are reported, the ratios use
 their mean).
 
-Writes ``bench/results/sweep.json``.  On a machine with fewer cores than workers the extra processes share
-cores: compare the ratios with ``cpu_count``.
+Writes ``sweep.json`` to ``--out DIR`` (default runs/bench/; ``--update-committed``: bench/results/sweep.json).  On
+a machine with fewer cores than workers the extra processes share cores: compare the ratios with ``cpu_count``.
+``--quick``: 4 tasks, one 1-worker cluster, 10 and 20 no-op round trips (seconds; a smoke run).
 """
 from __future__ import annotations
 
@@ -38,7 +39,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-RESULTS = ROOT / "bench" / "results" / "sweep.json"
 
 
 def sweep_spec(n_points: int):
@@ -62,7 +62,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--points", type=int, default=16, help="tasks (points × seeds) per run")
     ap.add_argument("--workers", default="1,2,4")
+    from benchio import add_output_arguments, output_path, write_json
+
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    results = output_path(ap, args, "sweep.json")
+    if args.quick:
+        args.points, args.workers = 4, "1"
+    n_trips, n_batch = (10, 20) if args.quick else (50, 200)
     from core.sweep.runner import open_client, plan_sweep, run_sweep
     from core.sweep.scene import SweepScene
     from core.sweep.shipping import stage_core
@@ -77,7 +84,7 @@ def main(argv=None) -> int:
     out = {"scene": "sample_blends/flash_demo.blend", "load_average_start": os.getloadavg(),
            "receiver": f"32×32 px × {cfg.receiver.subsamples}×{cfg.receiver.subsamples} sub-rays, "
                        f"{cfg.gate.n_bins} bins, noisy",
-           "cpu_count": os.cpu_count(), "sweep": spec.normalized()}
+           "cpu_count": os.cpu_count(), "quick": args.quick, "sweep": spec.normalized()}
     try:
         def serial(tag):  # every task in this process, one after the other (the scene read once, one BVH)
             plan = plan_sweep(spec, scene, cfg, work / tag)
@@ -113,12 +120,12 @@ def main(argv=None) -> int:
                          "client_and_scheduler_cpu_s_per_point": cpu / n}
                 if w == 1:
                     t0 = time.perf_counter()
-                    for i in range(50):
+                    for i in range(n_trips):
                         client.submit(abs, -i, pure=False).result()
-                    entry["noop_round_trip_s"] = (time.perf_counter() - t0) / 50
+                    entry["noop_round_trip_s"] = (time.perf_counter() - t0) / n_trips
                     t0 = time.perf_counter()
-                    client.gather(client.map(abs, range(-200, 0), pure=False))
-                    entry["noop_batch_per_task_s"] = (time.perf_counter() - t0) / 200
+                    client.gather(client.map(abs, range(-n_batch, 0), pure=False))
+                    entry["noop_batch_per_task_s"] = (time.perf_counter() - t0) / n_batch
                 out["dask"][str(w)] = entry
                 print(f"dask {w}w   {n} tasks in {wall:.2f} s: {n / wall:.2f} points/s (cluster start-up "
                       f"{startup:.1f} s)", flush=True)
@@ -142,13 +149,11 @@ def main(argv=None) -> int:
         if one:
             print(f"overhead  {one['overhead_per_point_s'] * 1e3:.0f} ms per point (1 worker vs serial); no-op task "
                   f"round trip {one['noop_round_trip_s'] * 1e3:.1f} ms, {one['noop_batch_per_task_s'] * 1e3:.2f} ms "
-                  f"per task in a batch of 200", flush=True)
+                  f"per task in a batch of {n_batch}", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     out["load_average_end"] = os.getloadavg()
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(out, indent=2) + "\n")
-    print(f"wrote {RESULTS}")
+    print(f"wrote {write_json(results, out)}")
     return 0
 
 

@@ -8,10 +8,11 @@ rays/s and their ratio, and the stage times.
 Gated viewing: a 30-slice sweep over the same scene from a camera, against a 1-slice run (the slices must reuse
 the one ray trace: the number of traced rays is counted and the extra time per slice reported).
 
-Writes JSON (default bench/results/systems.json).  Absolute times on a shared 2-core machine are noisy; the
-ratios measured in the same run are the figures to track.
+Writes ``systems.json`` to ``--out DIR`` (default runs/bench/; ``--update-committed``: bench/results/systems.json).
+Absolute times on a shared 2-core machine are noisy; the ratios measured in the same run are the figures to track.
+``--quick``: 20 000 pulses over 20 000 triangles, a 64×64 px × 2×2 gated camera (seconds).
 
-    python bench/bench_systems.py [--pulses 1000000] [--grid 708] [--out bench/results/systems.json]
+    .venv/bin/python bench/bench_systems.py [--pulses 1000000] [--grid 708] [--out DIR | --update-committed] [--quick]
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ from core.systems.scan_patterns import scan_rays  # noqa: E402
 from core.systems.scanner import simulate_scan  # noqa: E402
 from core.geometry.scene import SceneGeometry  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402
+from benchio import add_output_arguments, output_path, write_json  # noqa: E402
 
 C = 299_792_458.0
 
@@ -99,7 +101,7 @@ def bench_scanner(n_pulses: int, n_grid: int) -> dict:
             "stage_times_s": res.stats["stage_times_s"]}
 
 
-def bench_gated(n_grid: int) -> dict:
+def bench_gated(n_grid: int, pixels: int = 256, subsamples: int = 4) -> dict:
     scene = terrain(n_grid)
     tracer = SceneTracer(scene)
     calls = []
@@ -111,8 +113,8 @@ def bench_gated(n_grid: int) -> dict:
 
     tracer.intersect = counting
     cfg = SimulationConfig(system_type="gated")
-    cfg.receiver.width_px = cfg.receiver.height_px = 256
-    cfg.receiver.subsamples = 4
+    cfg.receiver.width_px = cfg.receiver.height_px = pixels
+    cfg.receiver.subsamples = subsamples
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.05
     cfg.laser.pulse_fwhm_s = 10e-9
     g = cfg.gated
@@ -135,7 +137,7 @@ def bench_gated(n_grid: int) -> dict:
         res = simulate_gated(scene, pose, cfg, tracer=tracer)
         out[f"{n_slices}_slices"] = {"wall_s": time.perf_counter() - t0, "rays_traced": int(sum(calls)),
                                      "stage_times_s": res.stats["stage_times_s"]}
-    n_rays = 256 * 256 * 16
+    n_rays = pixels * pixels * subsamples ** 2
     one, many = out["1_slices"], out["30_slices"]
     out.update(n_rays=n_rays, traced_once=bool(many["rays_traced"] == n_rays),
                extra_s_per_slice=(many["wall_s"] - one["wall_s"]) / 29,
@@ -148,12 +150,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pulses", type=int, default=1_000_000)
     ap.add_argument("--grid", type=int, default=708, help="terrain grid side (2·grid² triangles)")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "systems.json")
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
-    result = {"benchmark": "systems", "software": software_versions(),
-              "scanner": bench_scanner(args.pulses, args.grid), "gated": bench_gated(args.grid)}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
+    out = output_path(ap, args, "systems.json")
+    if args.quick:
+        args.pulses, args.grid = 20_000, 100
+    gated = bench_gated(args.grid, 64, 2) if args.quick else bench_gated(args.grid)
+    result = {"benchmark": "systems", "quick": args.quick, "software": software_versions(),
+              "scanner": bench_scanner(args.pulses, args.grid), "gated": gated}
+    write_json(out, result)
     sc, gv = result["scanner"], result["gated"]
     print(f"scanner: {sc['n_pulses']} pulses × {sc['subrays_per_pulse']} sub-rays on {sc['n_triangles']} "
           f"triangles: {sc['pipeline_s']:.2f} s → {sc['pulses_per_s']:.3g} pulses/s, {sc['rays_per_s']:.3g} rays/s "
@@ -162,7 +167,7 @@ def main(argv=None) -> int:
     print(f"gated: 30 slices traced {gv['30_slices']['rays_traced']} rays (= {gv['n_rays']}: "
           f"{'once' if gv['traced_once'] else 'MORE THAN ONCE'}); {gv['30_slices']['wall_s']:.2f} s vs "
           f"{gv['1_slices']['wall_s']:.2f} s for one slice ({gv['extra_s_per_slice'] * 1e3:.1f} ms per extra slice)")
-    print(f"wrote {args.out}")
+    print(f"wrote {out}")
     return 0
 
 

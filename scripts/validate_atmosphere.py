@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Validate the atmosphere module and write plots + a Markdown summary (docs/theory.md §1–6, §11, §12).
 
-    .venv/bin/python scripts/validate_atmosphere.py [OUT_DIR] [--seed N] [--quick]
+    .venv/bin/python scripts/validate_atmosphere.py [OUT_DIR | --update-committed] [--seed N] [--quick]
 
-OUT_DIR defaults to docs/validation/atmosphere/.  Writes scintillation_pdf.png, correlation.png, mtf.png,
+OUT_DIR defaults to runs/validation/atmosphere/ (not committed); ``--update-committed`` regenerates the committed
+report in docs/validation/atmosphere/ (the only way this script writes there).  Writes scintillation_pdf.png, correlation.png, mtf.png,
 transmission.png, si_vs_rytov.png, si_vs_beta2.png, radius_vs_beta2.png and summary.md.  The wave-optics
 comparison reads the split-step runs of scripts/tabulate_scintillation.py (bench/results/scintillation_wave_optics.json).  Runtime ≈ 1 min on 2 cores (--quick: ≈ 20 s).
 """
@@ -28,6 +29,8 @@ from scipy import stats  # noqa: E402
 from core import atmosphere as atm  # noqa: E402
 
 DPI = 72
+ROOT = Path(__file__).resolve().parents[1]
+COMMITTED = ROOT / "docs" / "validation" / "atmosphere"
 
 
 def profile(ac, n):
@@ -125,11 +128,26 @@ def wave_optics_section(out, nreal_patterns=8):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("out", nargs="?", default="docs/validation/atmosphere")
+    ap.add_argument("out", nargs="?", default=None, metavar="OUT_DIR",
+                    help="folder for the plots and summary.md (default runs/validation/atmosphere/)")
+    ap.add_argument("--update-committed", action="store_true",
+                    help=f"regenerate the committed report in {COMMITTED.relative_to(ROOT)}/")
     ap.add_argument("--seed", type=int, default=20240601)
     ap.add_argument("--quick", action="store_true", help="fewer realisations")
     args = ap.parse_args(argv)
-    out = Path(args.out)
+    if args.update_committed:
+        if args.out is not None:
+            ap.error(f"OUT_DIR = {args.out} and --update-committed: choose one")
+        if args.quick:
+            ap.error("--quick and --update-committed: a quick run's report is never committed")
+        out = COMMITTED
+    else:
+        out = Path(args.out) if args.out is not None else ROOT / "runs" / "validation" / "atmosphere"
+        try:
+            out.resolve().relative_to(COMMITTED.resolve())
+            ap.error(f"OUT_DIR = {args.out} is the committed report: use --update-committed to regenerate it")
+        except ValueError:
+            pass
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(args.seed)
     nreal = 6 if args.quick else 16
