@@ -9,8 +9,10 @@ a panel value becomes an SI value and back (:meth:`FieldMap.to_blender`, :meth:`
 
 Properties whose stored unit changed (issue 27: times were stored in seconds, energies in joules, ...) got a new
 name (``pulse_fwhm_s`` → ``pulse_fwhm_ns``); :attr:`FieldMap.legacy_attr` names the old property, which a
-.blend saved before the change still holds: :func:`ladar_addon.blend_config.migrate_legacy_units` converts it.  ``properties.py`` builds the
-PropertyGroups from these maps; ``blend_config.py`` reads and writes a SimulationConfig through them.
+.blend saved before the change still holds (read as before: :func:`legacy_si`; the panel properties are set from
+it on load: :func:`ladar_addon.blend_config.migrate_legacy_units`) and which :func:`write_value` uses to keep the
+exact double-precision SI value.  ``properties.py`` builds the PropertyGroups from these maps;
+``blend_config.py`` reads and writes a SimulationConfig through them.
 """
 from __future__ import annotations
 

@@ -37,7 +37,8 @@ Scripts set settings in SI through :func:`set_settings` (``{"atmosphere.cn2_m_23
 writing an SI value into a scaled property.
 
 Blender stores floats in single precision; :func:`config_from_blender` returns the shortest decimal that
-rounds to the stored float32, so a value typed as 1e-3 comes back as exactly 1e-3.
+rounds to the stored float32 (scaled from the panel unit), so a value typed as 1e-3 comes back as exactly 1e-3;
+a renamed setting keeps the exact SI value set through the API beside it (:func:`ladar_addon.fields.write_value`).
 """
 from __future__ import annotations
 
