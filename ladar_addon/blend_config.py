@@ -11,7 +11,7 @@ from ..core.config.files import config_from_dict, config_to_dict
 from ..core.errors import ConfigError
 from .errors import LadarError
 from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS, SENSOR_GROUPS,
-                     TOP_FIELDS, shortest_float32)
+                     TOP_FIELDS, migrate_group, read_value, shortest_float32, write_value)
 from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
 
 
@@ -60,12 +60,44 @@ def brdf_from_material(material) -> BRDFSettings:
 
 
 def read_group(props, fields, unit_scale_m):
-    return {f.name: f.to_core(getattr(props, f.attr), unit_scale_m) for f in fields}
+    return {f.name: read_value(props, f, unit_scale_m) for f in fields}
 
 
 def write_group(props, fields, settings, unit_scale_m):
     for f in fields:
-        setattr(props, f.attr, f.to_blender(getattr(settings, f.name), unit_scale_m))
+        write_value(props, f, getattr(settings, f.name), unit_scale_m)
+
+
+def migrate_legacy_units() -> int:
+    """Properties of every ladar sensor (camera object) and scene of the open file whose stored unit changed
+    (issue 27: ``pulse_fwhm_s`` in seconds became ``pulse_fwhm_ns``) get the value a file saved before the
+    change holds (:func:`ladar_addon.fields.migrate_group`); run on every file load.  Returns how many were
+    set."""
+    n = 0
+    for obj in bpy.data.objects:
+        if obj.type != "CAMERA" or obj.library is not None:
+            continue
+        for group in SENSOR_GROUPS:
+            n += migrate_group(getattr(obj.ladar, group), SENSOR_FIELDS[group])
+    for scene in bpy.data.scenes:
+        if scene.library is None:
+            n += migrate_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS)
+    return n
+
+
+@bpy.app.handlers.persistent
+def _migrate_on_load(*_args):
+    migrate_legacy_units()
+
+
+def register():
+    if _migrate_on_load not in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.append(_migrate_on_load)
+
+
+def unregister():
+    if _migrate_on_load in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_migrate_on_load)
 
 
 def check_sensor(sensor_obj) -> None:

@@ -1,10 +1,18 @@
 """The mapping between core settings and Blender properties, without Blender (testable in plain Python).
 
 One :class:`FieldMap` per core setting that has a home in a .blend: which group and property it is stored in,
-its kind, default, range and unit, and the conversion between the SI value of the core and the value Blender
-stores (nanometres for wavelengths, powers of ten for tiny values, Blender units for distances, MiB for large
-byte counts; ``ladar_addon.properties`` documents where every setting lives).  ``properties.py`` builds the
-PropertyGroups from these maps; ``blend_config.py`` reads and writes a SimulationConfig through them.
+its kind, default, range, label and unit, and the conversion between the SI value of the core and the value
+Blender stores: the setting's *panel unit* (``core.config.settings.PANEL_UNITS``: ns, mJ, fJ, mrad, nm, 1/km,
+kHz, pA, ...; a decimal power of ten, converted exactly), Blender units for distances, MiB for large byte
+counts; ``ladar_addon.properties`` documents where every setting lives.  This module is the one place where
+a panel value becomes an SI value and back (:meth:`FieldMap.to_blender`, :meth:`FieldMap.to_core`).
+
+Properties whose stored unit changed (issue 27: times were stored in seconds, energies in joules, ...) got a new
+name (``pulse_fwhm_s`` → ``pulse_fwhm_ns``); :attr:`FieldMap.legacy_attr` names the old property, which a
+.blend saved before the change still holds (read as before: :func:`legacy_si`; the panel properties are set from
+it on load: :func:`ladar_addon.blend_config.migrate_legacy_units`) and which :func:`write_value` uses to keep the
+exact double-precision SI value.  ``properties.py`` builds the PropertyGroups from these maps;
+``blend_config.py`` reads and writes a SimulationConfig through them.
 """
 from __future__ import annotations
 
@@ -14,7 +22,7 @@ from decimal import Decimal
 
 import numpy as np
 
-from ..core.config.settings import BRDFSettings, GROUPS, RunSettings, SimulationConfig, field_specs
+from ..core.config.settings import PANEL_UNITS, BRDFSettings, GROUPS, RunSettings, SimulationConfig, field_specs
 from ..core.errors import ConfigError
 
 INT32_MAX = 2**31 - 1
@@ -40,6 +48,7 @@ _ACRONYMS = {"Fwhm": "FWHM", "Fov": "FOV", "Brdf": "BRDF", "Cn2": "Cn²", "Apd":
 
 
 def label(name: str, unit: str = "") -> str:
+    """A title made from a setting's name (only for settings the schema gives no ``label``)."""
     suffix = _UNIT_SUFFIXES.get(unit)
     if suffix and name.endswith(suffix) and len(name) > len(suffix):
         name = name[: -len(suffix)]
@@ -62,8 +71,10 @@ class FieldMap:
     kind: str              # "float", "int", "bool" or "enum"
     default: object        # core default (SI)
     meta: dict
-    conversion: str = ""   # "", "nm", "pow10", "distance" or "mib"
-    exponent: int = 0      # "nm": −9; "pow10": Blender stores the value in units of 10^exponent
+    conversion: str = ""   # "", "pow10", "distance" or "mib"
+    exponent: int = 0      # "pow10": Blender stores the value in units of 10^exponent (the panel unit)
+    legacy_attr: str = ""  # the property that held this setting before its stored unit changed ("" if none)
+    legacy_exponent: int = 0  # ... in units of 10^legacy_exponent (0: SI)
 
     @property
     def path(self) -> str:
@@ -71,18 +82,25 @@ class FieldMap:
 
     @property
     def subtype(self) -> str:
-        """The Blender subtype the core asks for ("NONE" if none); properties.py falls back to "NONE" where this
-        Blender lacks it."""
+        """The Blender subtype: "NONE" for a setting with a panel unit (Blender's units cannot show ns, fJ, ...:
+        the unit is in the label), else the one the core asks for ("NONE" if none); properties.py falls back to
+        "NONE" where this Blender lacks it."""
+        if self.meta.get("panel_unit"):
+            return "NONE"
         return self.meta.get("subtype") or "NONE"
 
+    @property
+    def label(self) -> str:
+        """The name a person reads in the panels (the schema's ``label``), without the unit."""
+        return self.meta.get("label") or label(self.name, self.meta.get("unit") or "")
+
+    def choice_label(self, choice: str) -> str:
+        return (self.meta.get("choice_labels") or {}).get(choice) or choice.replace("_", " ").capitalize()
+
     def unit_text(self) -> str:
-        if self.conversion == "nm":
-            return "nm"
-        if self.conversion == "pow10":
-            unit = self.meta.get("unit") or ""
-            return f"×1e{self.exponent} {unit}".rstrip()
-        if self.conversion == "mib":
-            return "MiB"
+        """The unit of the stored (and shown) value."""
+        if self.meta.get("panel_unit"):
+            return self.meta["panel_unit"]
         if self.conversion == "distance":
             return "Blender units = m / unit scale"
         return self.meta.get("unit") or ""
@@ -91,7 +109,7 @@ class FieldMap:
     def to_blender(self, value, unit_scale: float = 1.0):
         if self.kind == "float":
             value = float(value)
-            if self.conversion in ("nm", "pow10"):
+            if self.conversion == "pow10":
                 return float(Decimal(repr(value)).scaleb(-self.exponent))
             if self.conversion == "distance":
                 return value / unit_scale
@@ -109,7 +127,7 @@ class FieldMap:
     def to_core(self, value, unit_scale: float = 1.0):
         if self.kind == "float":
             text = shortest_float32(value)
-            if self.conversion in ("nm", "pow10"):
+            if self.conversion == "pow10":
                 return float(Decimal(text).scaleb(self.exponent))
             if self.conversion == "distance":
                 return float(text) * unit_scale
@@ -127,6 +145,15 @@ class FieldMap:
         if self.kind == "bool":
             return bool(value)
         return str(value)
+
+    def legacy_to_core(self, value) -> float:
+        """The SI value held in the legacy property (``legacy_attr``): a single-precision float of a file saved
+        before the change, read as the add-on read it then (shortest decimal of the float32, scaled by
+        10^legacy_exponent), or the double-precision SI value :func:`write_value` keeps there since."""
+        value = float(value)
+        if float(np.float32(value)) != value:  # a double: the exact SI value written by write_value
+            return value
+        return float(Decimal(shortest_float32(value)).scaleb(self.legacy_exponent))
 
     def description(self) -> str:
         doc = self.meta.get("doc", "")
@@ -148,22 +175,46 @@ def field_map(group, name, default, meta) -> FieldMap:
     else:  # pragma: no cover - the core declares only these
         raise TypeError(f"setting {group}.{name} has an unsupported type {type(default).__name__}")
     default = SENSOR_DEFAULT_OVERRIDES.get((group, name), default)
-    conversion, attr, exponent = "", name, 0
-    hi = meta.get("hi")
-    if kind == "float" and meta.get("subtype") == "WAVELENGTH":
-        conversion, exponent = "nm", -9
-    elif kind == "float" and (meta.get("subtype") or "NONE") == "NONE" and hi is not None and 0 < hi < 1e-3:
-        # Values far below what a six-decimal field shows (Cn² ~ 1e-14): store them in units of 10^exponent,
-        # so the largest allowed value shows as 1000.
-        conversion, exponent = "pow10", int(math.floor(math.log10(hi))) - 3
-    elif kind == "float" and (meta.get("subtype") or "NONE") == "NONE" and 0 < abs(default) < 1e-4:
-        # A tiny default (dark current ~ 1e-12 A): the default shows as 1 in units of 10^exponent.
-        conversion, exponent = "pow10", int(math.floor(math.log10(abs(default))))
-    elif kind == "float" and meta.get("subtype") == "DISTANCE":
+    conversion, attr, exponent, legacy_attr, legacy_exponent = "", name, 0, "", 0
+    panel_unit = meta.get("panel_unit") or ""
+    power = PANEL_UNITS[panel_unit][1] if panel_unit else 0
+    if kind == "float" and power:
+        # Stored and shown in the panel unit (ns, mJ, ...): SI value = stored value × 10^power, exactly.
+        conversion, exponent = "pow10", power
+        old = _stored_exponent_before_issue_27(meta, default)
+        if old != exponent:  # a new name, so that a .blend holding the old value is not misread
+            attr = _renamed(name, meta.get("unit") or "", panel_unit)
+            legacy_attr, legacy_exponent = name, old
+    elif kind == "float" and meta.get("subtype") == "DISTANCE" and not panel_unit:
         conversion = "distance"
     elif kind == "int" and meta.get("unit") == "B" and (meta.get("hi") or 0) > INT32_MAX:
         conversion, attr = "mib", name.removesuffix("_bytes") + "_mib"
-    return FieldMap(group, name, attr, kind, default, meta, conversion, exponent)
+    return FieldMap(group, name, attr, kind, default, meta, conversion, exponent, legacy_attr, legacy_exponent)
+
+
+#: Name suffix of a property stored in a panel unit, replacing the SI suffix of the setting's name.
+_PANEL_SUFFIXES = {"ns": "_ns", "µJ": "_uj", "fJ": "_fj", "mrad": "_mrad", "1/km": "_per_km", "kHz": "_khz",
+                   "pA": "_pa", "nA": "_na", "nm": "_nm"}
+
+
+def _renamed(name: str, unit: str, panel_unit: str) -> str:
+    suffix = _UNIT_SUFFIXES.get(unit) or ("_hz" if unit == "Hz" else "")
+    base = name[: -len(suffix)] if suffix and name.endswith(suffix) else name
+    return base + _PANEL_SUFFIXES[panel_unit]
+
+
+def _stored_exponent_before_issue_27(meta: dict, default) -> int:
+    """The power of ten a float setting was stored in before the panel units (what old .blend files hold):
+    nanometres for wavelengths, a power of ten for tiny unit-less values, else SI.  Frozen: only migration uses
+    it."""
+    subtype, hi = meta.get("subtype") or "NONE", meta.get("hi")
+    if subtype == "WAVELENGTH":
+        return -9
+    if subtype == "NONE" and hi is not None and 0 < hi < 1e-3:
+        return int(math.floor(math.log10(hi))) - 3
+    if subtype == "NONE" and isinstance(default, float) and 0 < abs(default) < 1e-4:
+        return int(math.floor(math.log10(abs(default))))
+    return 0
 
 
 def group_field_maps(group: str, cls, skip=()) -> list[FieldMap]:
@@ -189,3 +240,64 @@ def all_core_paths() -> set:
     return paths
 
 
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Reading and writing a property group (duck-typed: a Blender PropertyGroup, or anything with getattr/get)
+# ------------------------------------------------------------------------------------------------------------
+def _stored(props, key):
+    """The raw value stored under ``key`` in a property group's ID properties (None when it holds none)."""
+    try:
+        return props.get(key)
+    except (AttributeError, TypeError):
+        return None
+
+
+def legacy_si(props, f: FieldMap):
+    """The SI value held in ``f.legacy_attr`` (the property's name before its stored unit changed), while it
+    stands: the panel property is not stored yet, or holds exactly the float32 of that value in the panel unit (a
+    value typed in the panel since then wins).  A .blend saved before the change holds the old single-precision
+    SI value there, read as the add-on read it then, so an old file gives the same SI values bit for bit;
+    :func:`write_value` keeps the exact double-precision SI value there, so an SI value set through the API or a
+    config file comes back bit for bit whatever its digits (None when there is none)."""
+    if not f.legacy_attr:
+        return None
+    old = _stored(props, f.legacy_attr)
+    if old is None:
+        return None
+    si = f.legacy_to_core(old)
+    new = _stored(props, f.attr)
+    if new is None or np.float32(new) == np.float32(f.to_blender(si)):
+        return si
+    return None
+
+
+def read_value(props, f: FieldMap, unit_scale: float = 1.0):
+    """The SI value of setting ``f`` held by ``props`` (the one place a stored value becomes an SI value)."""
+    si = legacy_si(props, f)
+    return si if si is not None else f.to_core(getattr(props, f.attr), unit_scale)
+
+
+def write_value(props, f: FieldMap, value, unit_scale: float = 1.0) -> None:
+    """Store the SI ``value`` of setting ``f`` in ``props``: in its stored (panel) unit, and where the setting
+    has a legacy property, the exact SI value in it too (:func:`legacy_si`)."""
+    setattr(props, f.attr, f.to_blender(value, unit_scale))
+    if f.legacy_attr:
+        if float(np.float32(value)) != float(value):
+            props[f.legacy_attr] = float(value)  # an ID property of double precision
+        elif _stored(props, f.legacy_attr) is not None:
+            del props[f.legacy_attr]  # single precision: the panel value holds it exactly
+
+
+def migrate_group(props, fields) -> int:
+    """Give the properties of ``props`` whose stored unit changed the value their legacy property holds (a .blend
+    saved before the change), so the panels show it; the legacy value is kept (it is the exact SI value,
+    :func:`legacy_si`).  Returns how many properties were set."""
+    n = 0
+    for f in fields:
+        if f.legacy_attr and _stored(props, f.attr) is None:
+            si = legacy_si(props, f)
+            if si is not None:
+                setattr(props, f.attr, f.to_blender(si))
+                n += 1
+    return n

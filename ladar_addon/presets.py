@@ -4,8 +4,8 @@ Shipped presets live in the extension's ``presets/ladar_simulator/<kind>/`` fold
 ``bpy.utils.register_preset_path``, read-only); presets a user adds with the "+" button go to
 ``<user scripts>/presets/ladar_simulator/<kind>/``.  A preset is a Python file that sets the same properties
 the panels draw (``Scene.ladar_atmosphere.*``, ``Object.ladar.<group>.*``, ``Material.ladar_brdf.*``), in their
-*stored* units (see ``ladar_addon.properties``: wavelengths in nm, Cn² and dark currents stored scaled,
-distances in Blender units).
+*stored* units (see ``ladar_addon.properties``: panel units such as ns, µJ, nm and ×1e-14 m^-2/3, distances in
+Blender units).
 
 * ``sensor``: a whole sensor — system type, laser, receiver, range gate, scanner, gated viewing, detection and
   detector settings, and the camera's lens (which sets the receiver's field of view); the run settings (seed,
@@ -19,7 +19,7 @@ import os
 import bpy
 from bl_operators.presets import AddPresetBase
 
-from .fields import ATMOSPHERE_FIELDS, BRDF_FIELDS, SENSOR_FIELDS, SYSTEM_TYPE_FIELD
+from .fields import ATMOSPHERE_FIELDS, BRDF_FIELDS, SENSOR_FIELDS, SYSTEM_TYPE_FIELD, write_value
 
 #: The extension root (holds ``presets/``).
 EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -145,7 +145,7 @@ def apply_sensor_preset(settings: dict, context=None):
         for name in values:
             f = fields[group].get(name)
             if f is not None:
-                setattr(props, f.attr, f.to_blender(getattr(getattr(cfg, group), name), scale))
+                write_value(props, f, getattr(getattr(cfg, group), name), scale)
     rx = cfg.receiver
     if "fov_x_rad" in settings.get("receiver", {}):
         set_camera_receiver_fov(obj.data, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)

@@ -16,15 +16,18 @@ group the core adds)
                                             (a measured table as rows: ``ladar_addon.materials``)
 ==========================================  ==============================================================
 
-Every other plain setting of the core becomes a property of the same name, with its default, range (``lo``/
-``hi``), description (doc + unit) and Blender subtype (guarded against subtypes an older Blender lacks).
+Every other plain setting of the core becomes a property with its label (the schema's ``label``: "Pulse
+Width (FWHM)"), default, range (``lo``/``hi``), description (doc + unit) and Blender subtype (guarded against
+subtypes an older Blender lacks); enum items carry the schema's ``choice_labels`` ("PIN photodiode").
 Where a Blender property cannot hold the SI value as is, the stored value is scaled, and the mapping
 (:class:`FieldMap`) converts both ways:
 
-* ``WAVELENGTH`` settings are stored in nanometres (Blender's wavelength unit);
-* tiny settings without a Blender unit (largest allowed value < 1e-3, e.g. Cn², or a default < 1e-4, e.g. a
-  dark current of 1e-12 A) are stored in units of a power of ten (label "×1e-14 m^-2/3"), so the panel shows
-  their digits;
+* a setting with a *panel unit* (``core.config.settings.PANEL_UNITS``) is stored and shown in it, with the unit
+  in the label: times in ns (``pulse_fwhm_ns``, ``gate_start_ns``, ...), energies in µJ or fJ, the beam
+  divergence in mrad, wavelengths in nm, extinction in 1/km, the scanner's pulse rate in kHz, Cn² in
+  ×1e-14 m^-2/3, dark currents in pA and nA (Blender's unit system prints "0 s" for a nanosecond); a property
+  whose stored unit changed got a new name, and a .blend holding the old one is migrated on load
+  (:func:`ladar_addon.blend_config.migrate_legacy_units`);
 * ``DISTANCE`` settings are stored in Blender units (metres / ``scene.unit_settings.scale_length``);
 * byte counts above the 32-bit range of an ``IntProperty`` (``run.max_memory_bytes``) are stored in whole
   MiB (``max_memory_mib``; a config value that is not a whole number of MiB is rounded);
@@ -34,7 +37,8 @@ Scripts set settings in SI through :func:`set_settings` (``{"atmosphere.cn2_m_23
 writing an SI value into a scaled property.
 
 Blender stores floats in single precision; :func:`config_from_blender` returns the shortest decimal that
-rounds to the stored float32, so a value typed as 1e-3 comes back as exactly 1e-3.
+rounds to the stored float32 (scaled from the panel unit), so a value typed as 1e-3 comes back as exactly 1e-3;
+a renamed setting keeps the exact SI value set through the API beside it (:func:`ladar_addon.fields.write_value`).
 """
 from __future__ import annotations
 
@@ -42,7 +46,7 @@ import bpy
 
 from ..core.config.settings import BRDFSettings
 from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, INT32_MAX, MIB, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS,
-                     SENSOR_GROUPS, TOP_FIELDS, FieldMap, label)
+                     SENSOR_GROUPS, TOP_FIELDS, FieldMap)
 from .moved import moved_names
 
 
@@ -60,16 +64,14 @@ def _subtype(f: FieldMap) -> str:
 
 def blender_property(f: FieldMap):
     """The bpy property that stores the setting ``f`` (its range, default, unit label and description)."""
-    name = label(f.name, f.meta.get("unit") or "")
-    # Show the unit in the label where Blender shows none (no unit subtype, or a scaled storage unit).
-    if f.conversion in ("mib", "pow10") or (_subtype(f) == "NONE" and f.kind in ("float", "int")
-                                               and (f.meta.get("unit") or f.conversion == "nm")):
+    name = f.label
+    # Show the unit in the label where Blender shows none (no unit subtype: a panel unit such as ns, or MiB).
+    if f.kind in ("float", "int") and _subtype(f) == "NONE" and f.unit_text():
         name += f" ({f.unit_text()})"
     desc = f.description()
     lo, hi = f.meta.get("lo"), f.meta.get("hi")
     if f.kind == "enum":
-        items = [(c, c.replace("_", " ").title(), f"{f.meta.get('doc', '')}: {c}")
-                 for c in f.meta["choices"]]
+        items = [(c, f.choice_label(c), f"{f.meta.get('doc', '')}: {c}") for c in f.meta["choices"]]
         return bpy.props.EnumProperty(name=name, description=desc, items=items, default=f.default)
     if f.kind == "bool":
         return bpy.props.BoolProperty(name=name, description=desc, default=bool(f.default))
@@ -94,8 +96,8 @@ def blender_property(f: FieldMap):
     default = f.to_blender(f.default)
     hi_b = kwargs.get("max")
     magnitude = abs(default) if default else (abs(hi_b) if hi_b is not None else 1.0)
-    # Small SI values (J, 1/m, ...) have no unit display in Blender: show six decimals for them.
-    precision = 6 if _subtype(f) == "NONE" and magnitude <= 1.0 else 3
+    # Small unit-less values (k_eff 0.02, ...): six decimals; values in a panel unit read 1 … 1e6 or so: three.
+    precision = 6 if _subtype(f) == "NONE" and magnitude <= 1.0 and not f.meta.get("panel_unit") else 3
     return bpy.props.FloatProperty(name=name, description=desc, subtype=_subtype(f), default=default,
                                    precision=precision, **kwargs)
 
@@ -284,9 +286,13 @@ def register():
     bpy.types.Scene.ladar_atmosphere = bpy.props.PointerProperty(type=LadarAtmosphereSettings,
                                                                  name="Ladar Atmosphere")
     bpy.types.Material.ladar_brdf = bpy.props.PointerProperty(type=LadarBRDFSettings, name="Ladar BRDF")
+    from . import blend_config
+    blend_config.register()
 
 
 def unregister():
+    from . import blend_config
+    blend_config.unregister()
     del bpy.types.Material.ladar_brdf
     del bpy.types.Scene.ladar_atmosphere
     del bpy.types.Scene.ladar

@@ -60,11 +60,9 @@ def sensor_config(scene, obj):
 
 def atmosphere_settings(scene):
     from ..core.config.settings import AtmosphereSettings
-    from ..ladar_addon.blend_config import unit_scale
+    from ..ladar_addon.blend_config import read_group, unit_scale
     from ..ladar_addon.fields import ATMOSPHERE_FIELDS
-    scale = unit_scale(scene)
-    props = scene.ladar_atmosphere
-    return AtmosphereSettings(**{f.name: f.to_core(getattr(props, f.attr), scale) for f in ATMOSPHERE_FIELDS})
+    return AtmosphereSettings(**read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, unit_scale(scene)))
 
 
 def draw_lines(layout, lines, icon="INFO"):

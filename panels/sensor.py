@@ -11,17 +11,22 @@ import bpy
 from ..core.constants import SPEED_OF_LIGHT_M_S
 from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_detector_presets, LADAR_MT_sensor_presets, draw_preset_header
-from ..ladar_addon.fields import SENSOR_FIELDS, TOP_FIELDS
+from ..ladar_addon.fields import SENSOR_FIELDS, TOP_FIELDS, read_value
 from ..ladar_addon.sensor import camera_receiver_fov_rad, field_used, group_used
 from .common import (atmosphere_settings, draw_lines, reference_range_m, sensor_config, simulate_button,
                      simulate_options)
+
+
+def si_values(props, group) -> dict:
+    """The SI values of a sensor group's settings (the panels store them in panel units: ns, µJ, ...)."""
+    return {f.name: read_value(props, f) for f in SENSOR_FIELDS[group] if f.conversion != "distance"}
 
 
 def draw_group_fields(layout, props, group, system_type, skip=(), scan_pattern=None):
     """One row per setting of ``group`` that ``system_type`` uses (labels, units and ranges come from the
     property definitions)."""
     for f in SENSOR_FIELDS[group]:
-        if f.attr not in skip and field_used(system_type, group, f.name, scan_pattern):
+        if f.attr not in skip and f.name not in skip and field_used(system_type, group, f.name, scan_pattern):
             layout.prop(props, f.attr)
 
 
@@ -53,10 +58,10 @@ def _system_lines(obj, cfg) -> list[str]:
     if kind == "profiler":
         lines.append("One detector element over the whole field of view")
     elif kind == "gated":
-        g = obj.ladar.gated
-        first = 0.5 * SPEED_OF_LIGHT_M_S * g.first_delay_s
-        last = first + 0.5 * SPEED_OF_LIGHT_M_S * g.delay_step_s * (g.n_slices - 1)
-        lines.append(f"{g.n_slices} slices, gates opening at {first:.5g} … {last:.5g} m")
+        g = si_values(obj.ladar.gated, "gated")
+        first = 0.5 * SPEED_OF_LIGHT_M_S * g["first_delay_s"]
+        last = first + 0.5 * SPEED_OF_LIGHT_M_S * g["delay_step_s"] * (g["n_slices"] - 1)
+        lines.append(f"{g['n_slices']} slices, gates opening at {first:.5g} … {last:.5g} m")
     return lines
 
 
@@ -124,7 +129,7 @@ class LADAR_PT_sensor_laser(_SensorGroupPanel, bpy.types.Panel):
         draw_group_fields(layout, props, "laser", kind, skip={"beam_divergence_rad"})
         row = layout.row()
         row.active = kind == "scanner" or not props.divergence_fills_fov
-        row.prop(props, "beam_divergence_rad")
+        row.prop(props, next(f.attr for f in SENSOR_FIELDS["laser"] if f.name == "beam_divergence_rad"))
 
 
 class LADAR_PT_sensor_receiver(_SensorGroupPanel, bpy.types.Panel):
@@ -146,9 +151,10 @@ class LADAR_PT_sensor_gate(_SensorGroupPanel, bpy.types.Panel):
 
     def draw_group(self, context, layout, props):
         draw_group_fields(layout, props, "gate", self.system_type(context))
-        start = 0.5 * SPEED_OF_LIGHT_M_S * props.gate_start_s
-        end = start + 0.5 * SPEED_OF_LIGHT_M_S * props.bin_width_s * props.n_bins
-        layout.label(text=f"Ranges {start:.4g} m … {end:.4g} m, {0.5 * SPEED_OF_LIGHT_M_S * props.bin_width_s:.3g} m per bin")
+        g = si_values(props, "gate")
+        start = 0.5 * SPEED_OF_LIGHT_M_S * g["gate_start_s"]
+        per_bin = 0.5 * SPEED_OF_LIGHT_M_S * g["bin_width_s"]
+        layout.label(text=f"Ranges {start:.4g} m … {start + per_bin * g['n_bins']:.4g} m, {per_bin:.3g} m per bin")
 
 
 class LADAR_PT_sensor_scanner(_SensorGroupPanel, bpy.types.Panel):
@@ -169,8 +175,9 @@ class LADAR_PT_sensor_gated(_SensorGroupPanel, bpy.types.Panel):
 
     def draw_group(self, context, layout, props):
         draw_group_fields(layout, props, "gated", self.system_type(context))
-        spacing_m = 0.5 * SPEED_OF_LIGHT_M_S * props.delay_step_s
-        depth_m = 0.5 * SPEED_OF_LIGHT_M_S * props.gate_width_s
+        g = si_values(props, "gated")
+        spacing_m = 0.5 * SPEED_OF_LIGHT_M_S * g["delay_step_s"]
+        depth_m = 0.5 * SPEED_OF_LIGHT_M_S * g["gate_width_s"]
         layout.label(text=f"Slice spacing {spacing_m:.4g} m, gate depth {depth_m:.4g} m", icon="INFO")
 
 

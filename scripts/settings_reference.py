@@ -19,6 +19,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from core.config import GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig  # noqa: E402
+from core.config.settings import panel_unit  # noqa: E402
 
 OUT = REPO / "docs" / "settings.md"
 THEORY = REPO / "docs" / "theory.md"
@@ -65,7 +66,8 @@ def allowed(f: dataclasses.Field) -> str:
     """The allowed values of a setting as the validator checks them."""
     meta = f.metadata
     if meta.get("choices"):
-        return ", ".join(f"`{c}`" for c in meta["choices"])
+        names = meta.get("choice_labels") or {}
+        return ", ".join(f"`{c}`" + (f" ({names[c]})" if c in names else "") for c in meta["choices"])
     if isinstance(f.default, bool):
         return "true, false"
     if f.default is dataclasses.MISSING and f.default_factory is list:
@@ -83,13 +85,28 @@ def _cell(text: str) -> str:
     return link_theory(text.replace("|", "\\|").replace("\n", " "))
 
 
+HEADER = ["| setting | default | unit | in the panels | allowed | description |", "|---|---|---|---|---|---|"]
+
+
+def panel(f: dataclasses.Field) -> str:
+    """The label of the setting's panel field and the unit the panel shows its value in."""
+    label = f.metadata.get("label") or ""
+    unit = panel_unit(f.metadata)
+    if f.metadata.get("subtype") == "DISTANCE" and not f.metadata.get("panel_unit"):
+        unit = "m, the scene's length unit"
+    return f"{label} ({unit})" if unit and label else label
+
+
+def row(f: dataclasses.Field, name: str, default) -> str:
+    return (f"| `{name}` | {_cell(_number(default))} | {f.metadata.get('unit') or ''} | {_cell(panel(f))} | "
+            f"{_cell(allowed(f))} | {_cell(f.metadata.get('doc', ''))} |")
+
+
 def table(cls, prefix: str) -> list[str]:
-    rows = ["| setting | default | unit | allowed | description |", "|---|---|---|---|---|"]
+    rows = list(HEADER)
     obj = cls()
     for f in dataclasses.fields(cls):
-        default = getattr(obj, f.name)
-        rows.append(f"| `{prefix}{f.name}` | {_cell(_number(default))} | {f.metadata.get('unit') or ''} | "
-                    f"{_cell(allowed(f))} | {_cell(f.metadata.get('doc', ''))} |")
+        rows.append(row(f, f"{prefix}{f.name}", getattr(obj, f.name)))
     return rows
 
 
@@ -119,17 +136,18 @@ def render() -> str:
         f"settings), schema version {SCHEMA_VERSION}. The same names are the keys of a config file "
         "(`[laser]`, `[receiver]`, … tables in TOML, or nested objects in JSON; `blender -c ladar export-config` "
         "writes one) and of `metadata.json`'s `settings`; in Blender they are the ladar panels' fields. Values are "
-        "SI (seconds, metres, radians, joules); the panels may show them in scene units. A value outside "
+        "SI (seconds, metres, radians, joules); *in the panels* gives the label of the Blender field and the unit "
+        "it shows the value in (ns, µJ, fJ, mrad, …: the add-on converts exactly, `ladar_addon/fields.py`). A value "
+        "outside "
         "*allowed* is refused with a message naming the setting, the value and the allowed range.",
         "",
         "## System",
         "",
     ]
     top = [f for f in dataclasses.fields(SimulationConfig) if f.name not in GROUPS and f.name != "materials"]
-    lines += ["| setting | default | unit | allowed | description |", "|---|---|---|---|---|"]
+    lines += list(HEADER)
     for f in top:
-        lines.append(f"| `{f.name}` | {_cell(_number(f.default))} | {f.metadata.get('unit') or ''} | "
-                     f"{_cell(allowed(f))} | {_cell(f.metadata.get('doc', ''))} |")
+        lines.append(row(f, f.name, f.default))
     for g in GROUPS:
         cls = type(getattr(cfg, g))
         doc = link_theory(" ".join((cls.__doc__ or "").split()))

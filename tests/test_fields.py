@@ -50,9 +50,16 @@ def _field(fields, path):
 
 
 @pytest.mark.parametrize("path, si, stored, conversion", [
-    ("laser.wavelength_m", 1.064e-6, 1064.0, "nm"),              # WAVELENGTH: nanometres
-    ("atmosphere.cn2_m_23", 5e-15, 0.5, "pow10"),                # hi 1e-12 → units of 1e-14 (label ×1e-14)
-    ("detector.dark_current_bulk_a", 1e-12, 1.0, "pow10"),       # tiny default: units of 1e-12
+    ("laser.wavelength_m", 1.064e-6, 1064.0, "pow10"),           # nanometres
+    ("atmosphere.cn2_m_23", 5e-15, 0.5, "pow10"),                # units of 1e-14 (label ×1e-14 m^-2/3)
+    ("detector.dark_current_bulk_a", 1e-12, 1.0, "pow10"),       # pA
+    ("laser.pulse_fwhm_s", 5e-9, 5.0, "pow10"),                  # ns
+    ("gate.gate_start_s", 6.67e-7, 667.0, "pow10"),              # ns
+    ("laser.pulse_energy_j", 2e-7, 0.2, "pow10"),                # µJ
+    ("detection.threshold_j", 2.5e-15, 2.5, "pow10"),            # fJ
+    ("laser.beam_divergence_rad", 2.2e-4, 0.22, "pow10"),        # mrad
+    ("atmosphere.extinction_per_m", 1.2e-4, 0.12, "pow10"),      # 1/km
+    ("scanner.pulse_rate_hz", 100_000.0, 100.0, "pow10"),        # kHz
     ("run.max_memory_bytes", 4 * 2**30, 4096, "mib"),            # beyond int32: MiB
 ])
 def test_scaled_settings_convert_both_ways(fields, path, si, stored, conversion):
@@ -73,7 +80,7 @@ def _all(fields):
 
 
 def test_float32_storage_reads_back_as_the_shortest_decimal(fields):
-    f = _field(fields, "laser.pulse_energy_j")
+    f = _field(fields, "receiver.system_efficiency")
     import numpy as np
     assert f.to_core(np.float32(1e-3)) == 1e-3                 # not 0.0010000000474974513
     assert fields.shortest_float32(0.1) == "0.1"

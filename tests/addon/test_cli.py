@@ -84,7 +84,7 @@ def test_user_errors(lad, scene, tmp_path, capsys):
 @pytest.mark.parametrize("suffix", [".json", ".toml"])
 def test_export_config_round_trips(lad, plate_scene, tmp_path, capsys, suffix):
     cam = bpy.data.objects["Ladar"]
-    cam.ladar.laser.pulse_energy_j = 0.003
+    cam.ladar.laser.pulse_energy_uj = 3000.0
     path = tmp_path / f"settings{suffix}"
     code, _, err = _run(lad, capsys, "export-config", "--out", str(path))
     assert code == 0, err

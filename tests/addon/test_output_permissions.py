@@ -24,7 +24,7 @@ def _mode(path):
 
 def test_run_export_and_render_follow_the_umask(lad, scene, tmp_path, umask):
     cam = add_camera(scene, width_px=4, height_px=4, fov_rad=0.004)
-    cam.ladar.gate.gate_start_s = 2 * 90 / 299_792_458.0
+    cam.ladar.gate.gate_start_ns = 2e9 * 90 / 299_792_458.0
     cam.ladar.gate.n_bins = 128
     add_plate(scene, size=4.0)
     run, _ = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "run", previews=True)

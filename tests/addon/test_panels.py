@@ -186,7 +186,7 @@ def test_scan_pattern_settings(lad, scene, pattern, shown, hidden):
     cam.ladar.scanner.pattern = pattern
     drawn = _props(_draw(panels.sensor.LADAR_PT_sensor_scanner, _context(scene, cam)))
     assert shown <= drawn and not (hidden & drawn)
-    assert {"pattern", "pulse_rate_hz", "scan_rate_hz", "beam_subray_rings", "motion_samples_per_s"} <= drawn
+    assert {"pattern", "pulse_rate_khz", "scan_rate_hz", "beam_subray_rings", "motion_samples_per_s"} <= drawn
 
 
 def test_results_panel_legend_and_running_job(lad, scene, tmp_path):
@@ -240,15 +240,15 @@ def test_panel_polls(lad, scene):
 
 def test_config_operators(lad, scene, tmp_path):
     cam = add_camera(scene)
-    cam.ladar.laser.pulse_energy_j = 0.006
+    cam.ladar.laser.pulse_energy_uj = 6000.0
     path = tmp_path / "sensor.toml"
     assert bpy.ops.ladar.export_config(filepath=str(path)) == {"FINISHED"}
     text = path.read_text()
     assert "pulse_energy_j = 0.006" in text
     path.write_text(text.replace("pulse_energy_j = 0.006", "pulse_energy_j = 0.002"))
     assert bpy.ops.ladar.load_config(filepath=str(path)) == {"FINISHED"}
-    assert cam.ladar.laser.pulse_energy_j == pytest.approx(0.002)
+    assert cam.ladar.laser.pulse_energy_uj == pytest.approx(2000.0)
     path.write_text("[laser]\npulse_energy_j = -5.0\n")
     with pytest.raises(RuntimeError, match="laser.pulse_energy_j"):
         bpy.ops.ladar.load_config(filepath=str(path))
-    assert cam.ladar.laser.pulse_energy_j == pytest.approx(0.002)  # unchanged
+    assert cam.ladar.laser.pulse_energy_uj == pytest.approx(2000.0)  # unchanged

@@ -37,16 +37,15 @@ def test_property_definitions_follow_the_core_metadata(lad):
         elif f.kind == "bool":
             assert rna.default == f.default
         elif f.kind == "float":
-            assert rna.subtype == (f.meta["subtype"] or "NONE")
+            assert rna.subtype == f.subtype
             if f.meta["lo"] is not None and f.conversion == "":
                 assert rna.hard_min == pytest.approx(f.meta["lo"], rel=1e-6)
             if f.meta["hi"] is not None and f.conversion == "":
                 assert rna.hard_max == pytest.approx(f.meta["hi"], rel=1e-6)
             assert f.to_core(rna.default) == pytest.approx(f.default, rel=1e-6)
-            if f.conversion == "pow10":  # tiny values shown in a power-of-ten unit: 1e-12 A reads "1"
-                assert f"×1e{f.exponent}" in rna.name
-                shown = rna.default or rna.hard_max
-                assert shown >= 1.0 and shown <= 1000.0
+            if f.conversion == "pow10":  # stored and shown in the panel unit: 1e-12 A reads "1 pA"
+                assert f"({f.meta['panel_unit']})" in rna.name
+                assert f.to_blender(f.default) == pytest.approx(f.default / 10.0 ** f.exponent, rel=1e-12)
         elif f.kind == "int" and f.conversion == "":
             assert rna.default == f.default
             assert rna.hard_min == f.meta["lo"]
@@ -55,9 +54,11 @@ def test_property_definitions_follow_the_core_metadata(lad):
             assert f"({f.unit_text()})" in rna.name  # unit in the label where Blender shows none
     # specific mappings
     laser = props.LadarLaserSettings.bl_rna.properties
-    assert laser["wavelength_m"].subtype == "WAVELENGTH" and laser["wavelength_m"].default == pytest.approx(1064.0)
-    assert laser["pulse_fwhm_s"].subtype == "TIME_ABSOLUTE"
-    assert laser["beam_divergence_rad"].subtype == "ANGLE"
+    assert laser["wavelength_m"].subtype == "NONE" and laser["wavelength_m"].default == pytest.approx(1064.0)
+    assert laser["wavelength_m"].name == "Wavelength (nm)"
+    assert laser["pulse_fwhm_ns"].subtype == "NONE" and laser["pulse_fwhm_ns"].default == pytest.approx(5.0)
+    assert laser["beam_divergence_mrad"].subtype == "NONE" and laser["beam_divergence_mrad"].default == pytest.approx(20.0)
+    assert props.property_group_class("scanner").bl_rna.properties["scan_width_rad"].subtype == "ANGLE"  # degrees
     assert props.LadarReceiverSettings.bl_rna.properties["aperture_diameter_m"].subtype == "DISTANCE"
     assert props.LadarRunSettings.bl_rna.properties["max_memory_mib"].default == 4096
     assert "seed" not in props.LadarRunSettings.bl_rna.properties  # lives on Scene.ladar
@@ -99,7 +100,7 @@ def _non_default_config(lad):
                    "Grey10": c.BRDFSettings(reflectance=0.1)})
     # settings stored in powers of ten (tiny values such as Cn²) get a non-default value too
     for f in lad.fields.ATMOSPHERE_FIELDS + [f for fs in lad.fields.SENSOR_FIELDS.values() for f in fs]:
-        if f.conversion == "pow10":
+        if f.conversion == "pow10" and f.meta.get("subtype") != "WAVELENGTH":
             setattr(getattr(cfg, f.group), f.name, float(f"{(f.default or f.meta['hi'] / 400) * 2.5:.3g}"))
     # any other fields the core grows keep their defaults
     c.validate(cfg)
@@ -132,12 +133,12 @@ def test_blender_to_core_to_blender(lad, scene):
     cam = add_camera(scene, width_px=20, height_px=10, fov_rad=0.05)
     brdf_material("Board", model="steinvall", specular_a=0.05, slope_s=0.2, diffuse_b=0.08, diffuse_m=1.0)
     laser = cam.ladar.laser
-    laser.pulse_energy_j, laser.pulse_fwhm_s, laser.pulse_shape = 0.004, 3e-9, "rectangular"
-    cam.ladar.gate.gate_start_s, cam.ladar.gate.n_bins = 1e-6, 777
+    laser.pulse_energy_uj, laser.pulse_fwhm_ns, laser.pulse_shape = 4000.0, 3.0, "rectangular"
+    cam.ladar.gate.gate_start_ns, cam.ladar.gate.n_bins = 1000.0, 777
     cam.ladar.detection.interpolation = "none"
     cam.ladar.receiver.aperture_diameter_m = 0.2
     scene.ladar.seed = 42
-    scene.ladar_atmosphere.extinction_per_m = 3e-4
+    scene.ladar_atmosphere.extinction_per_km = 0.3
     cfg1 = lad.blend_config.config_from_blender(scene, cam)
 
     bpy.ops.wm.read_homefile(use_empty=True)

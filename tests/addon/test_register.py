@@ -62,17 +62,17 @@ def test_enable_disable_twice(addon, scene):
 def test_settings_survive_save_and_reload(addon, scene, tmp_path):
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     scene.collection.objects.link(cam)
-    cam.ladar.laser.pulse_energy_j = 0.002
+    cam.ladar.laser.pulse_energy_uj = 2000.0
     scene.ladar.seed = 1234
-    scene.ladar_atmosphere.extinction_per_m = 1e-4
+    scene.ladar_atmosphere.extinction_per_km = 0.1
     path = tmp_path / "saved.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.wm.open_mainfile(filepath=str(path))
     cam = bpy.data.objects["cam"]
-    assert abs(cam.ladar.laser.pulse_energy_j - 0.002) < 1e-9
+    assert cam.ladar.laser.pulse_energy_uj == 2000.0
     assert bpy.context.scene.ladar.seed == 1234
-    assert abs(bpy.context.scene.ladar_atmosphere.extinction_per_m - 1e-4) < 1e-10
+    assert abs(bpy.context.scene.ladar_atmosphere.extinction_per_km - 0.1) < 1e-7
 
 
 def test_old_core_paths_resolve_inside_the_installed_package(addon):

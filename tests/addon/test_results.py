@@ -20,7 +20,7 @@ def _staircase_run(lad, scene, tmp_path, name="stairs", noisy=False):
     """Two steps (left half at 100 m, right half at 103 m): two ranges, two intensities."""
     cam = add_camera(scene, width_px=8, height_px=8, fov_rad=FOV)
     cam.ladar.receiver.subsamples = 1
-    cam.ladar.gate.gate_start_s = 2 * 90 / 299_792_458.0
+    cam.ladar.gate.gate_start_ns = 2e9 * 90 / 299_792_458.0
     cam.ladar.gate.n_bins = 200
     if noisy:
         cam.ladar.detector.mode = "noisy"

@@ -1,5 +1,5 @@
-"""Properties whose Blender storage differs from the core's SI value (issue 14): nm, powers of ten, Blender units,
-MiB.  Each is set in SI through the Python API (``properties.set_settings``), simulated, and read back from the
+"""Properties whose Blender storage differs from the core's SI value (issues 14, 27): panel units (nm, ns, µJ, fJ,
+mrad, 1/km, kHz, pA, ...), Blender units, MiB.  Each is set in SI through the Python API (``properties.set_settings``), simulated, and read back from the
 run's metadata.json exactly."""
 import json
 
@@ -25,6 +25,20 @@ SCALED = {
     "atmosphere.inner_scale_m": 0.005,
     "atmosphere.outer_scale_m": 50.0,
     "materials.Paint.table_wavelength_m": 905e-9,
+    # issue 27: stored and shown in panel units (ns, µJ, fJ, mrad, 1/km, kHz)
+    "laser.pulse_energy_j": 0.0025,
+    "laser.pulse_fwhm_s": 3e-9,
+    "laser.beam_divergence_rad": 2.2e-4,
+    "gate.gate_start_s": 6.1e-7,
+    "gate.bin_width_s": 1.5e-9,
+    "scanner.pulse_rate_hz": 50_000.0,
+    "gated.first_delay_s": 6.5e-7,
+    "gated.delay_step_s": 2.5e-9,
+    "gated.gate_width_s": 3e-8,
+    "gated.shutter_edge_s": 1e-9,
+    "gated.min_signal_j": 1e-18,
+    "detection.threshold_j": 1e-18,
+    "atmosphere.extinction_per_m": 1e-4,
 }
 
 

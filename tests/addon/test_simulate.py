@@ -152,7 +152,7 @@ def test_materials_change_the_intensity(lad, scene, tmp_path):
 
 def test_zero_echoes_import_an_empty_cloud(lad, scene, tmp_path):
     cam = _plate_scene(scene, tmp_path)
-    cam.ladar.detection.threshold_j = 1.0  # nothing reaches 1 J per bin
+    cam.ladar.detection.threshold_fj = 1e15  # nothing reaches 1 J per bin
     _, result = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "none")
     assert len(result.points["range_m"]) == 0
     assert len(bpy.data.objects["none"].data.vertices) == 0
@@ -164,7 +164,7 @@ ERROR_CASES = {
                      setattr(scene, "camera", bpy.data.objects["Plate"])),
     "no geometry": ("no geometry", lambda scene, cam: bpy.data.objects.remove(bpy.data.objects["Plate"])),
     "sees nothing": ("sees nothing", lambda scene, cam: setattr(cam, "rotation_euler", (math.pi, 0, 0))),
-    "bad setting": ("laser.pulse_energy_j", lambda scene, cam: setattr(cam.ladar.laser, "pulse_energy_j", 0.0)),
+    "bad setting": ("laser.pulse_energy_j", lambda scene, cam: setattr(cam.ladar.laser, "pulse_energy_uj", 0.0)),
     "memory": ("gate.n_bins", lambda scene, cam: (setattr(cam.ladar.gate, "n_bins", 1_000_000),
                                                   setattr(cam.ladar.receiver, "width_px", 1024),
                                                   setattr(cam.ladar.receiver, "height_px", 1024))),

@@ -29,11 +29,11 @@ def _attribute(obj, name, dtype=np.float32):
 def _scanner(cam):
     cam.ladar.system_type = "scanner"
     sc = cam.ladar.scanner
-    sc.pattern, sc.n_lines, sc.pulse_rate_hz, sc.scan_rate_hz = "raster", 5, 2000.0, 100.0  # 0.05 s, 100 pulses
+    sc.pattern, sc.n_lines, sc.pulse_rate_khz, sc.scan_rate_hz = "raster", 5, 2.0, 100.0  # 0.05 s, 100 pulses
     sc.scan_width_rad = sc.scan_height_rad = 0.1
     sc.beam_subray_rings = 0
-    cam.ladar.laser.beam_divergence_rad = 1e-3
-    cam.ladar.gate.gate_start_s = 6.0e-7   # 90 m …
+    cam.ladar.laser.beam_divergence_mrad = 1.0
+    cam.ladar.gate.gate_start_ns = 600.0   # 90 m …
     cam.ladar.gate.n_bins = 200            # … 120 m
 
 
@@ -89,7 +89,7 @@ def test_gated_slices_load_as_an_image_sequence(lad, scene, tmp_path):
     add_plate(scene, size=4.0, location=(0, 0, -150))
     cam.ladar.system_type = "gated"
     g = cam.ladar.gated
-    g.n_slices, g.first_delay_s, g.delay_step_s, g.gate_width_s = 6, 2 * 145 / 299_792_458.0, 10e-9, 20e-9
+    g.n_slices, g.first_delay_ns, g.delay_step_ns, g.gate_width_ns = 6, 2e9 * 145 / 299_792_458.0, 10.0, 20.0
     run, result = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "gated")
     names = sorted(p.name for p in (run / "slices").iterdir())
     assert names == [f"slice_{k:04d}.{ext}" for k in range(1, 7) for ext in ("exr", "png")]
@@ -105,7 +105,7 @@ def test_profiler_waveform_view(lad, scene, tmp_path):
     cam = add_camera(scene, width_px=8, height_px=8, fov_rad=0.01)
     cam.ladar.system_type = "profiler"
     cam.ladar.receiver.subsamples = 16
-    cam.ladar.gate.gate_start_s = 2 * 95 / 299_792_458.0
+    cam.ladar.gate.gate_start_ns = 2e9 * 95 / 299_792_458.0
     cam.ladar.gate.n_bins = 128
     add_plate(scene, size=4.0, location=(0, 0, -100), rotation=(math.radians(30), 0, 0))
     run, result = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "prof")
@@ -129,7 +129,7 @@ def test_gated_sequence_loads_each_frames_slices(lad, scene, tmp_path):
     add_plate(scene, size=4.0, location=(0, 0, -150))
     cam.ladar.system_type = "gated"
     g = cam.ladar.gated
-    g.n_slices, g.first_delay_s, g.delay_step_s, g.gate_width_s = 3, 2 * 145 / 299_792_458.0, 20e-9, 40e-9
+    g.n_slices, g.first_delay_ns, g.delay_step_ns, g.gate_width_ns = 3, 2e9 * 145 / 299_792_458.0, 20.0, 40.0
     run, _ = lad.simulate.simulate_sequence(scene, [1, 2], out_dir=tmp_path / "gseq", clouds="FRAME")
     for f in (1, 2):
         img = bpy.data.images[f"gseq_frame_{f:04d}.slices"]
