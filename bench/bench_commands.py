@@ -1,6 +1,6 @@
 """What the user waits for: the whole command's wall time of each README example, cold and warm.
 
-    .venv/bin/python bench/bench_commands.py [--out DIR] [--quick] [--repeat N]
+    .venv/bin/python bench/bench_commands.py [--out DIR | --update-committed] [--quick] [--repeat N]
 
 For each README example (``scripts/ladar_run.py sample_blends/<scene>.blend simulate --out …``) it times, in a
 fresh process each time:
@@ -12,8 +12,8 @@ fresh process each time:
 
 Next to each wall time it reports what the run itself records: the frame's wall time, the seconds loading or
 compiling kernels, and the stage times without them.  Writes ``commands.json`` into ``--out`` (default
-``runs/bench``; never into the committed ``bench/results`` unless given that folder).  ``--quick``: the flash
-demo only, one warm repeat.
+``runs/bench``; ``--update-committed``: ``bench/results``, bench/benchio.py).  ``--quick``: the flash demo only,
+one warm repeat.
 """
 from __future__ import annotations
 
@@ -29,6 +29,9 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+from benchio import add_output_arguments, output_path, write_json  # noqa: E402
+
 EXAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile")
 
 
@@ -50,10 +53,10 @@ def run_once(scene: str, cache: Path, work: Path) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=REPO / "runs" / "bench")
-    ap.add_argument("--quick", action="store_true", help="the flash demo only, one warm repeat")
+    add_output_arguments(ap, quick_help="the flash demo only, one warm repeat")
     ap.add_argument("--repeat", type=int, default=3, help="warm runs per example (the median is reported)")
     args = ap.parse_args(argv)
+    path = output_path(ap, args, "commands.json")
     scenes = EXAMPLES[:1] if args.quick else EXAMPLES
     repeat = 1 if args.quick else args.repeat
     results = {}
@@ -73,12 +76,10 @@ def main(argv=None) -> int:
                   f"compiled, {cold['kernels']['load_and_compile_s']:.1f} s)   warm {median['command_wall_s']:5.1f} s "
                   f"(frame {median['frame_wall_s']:.2f} s, kernels loaded in "
                   f"{median['kernels']['load_and_compile_s']:.2f} s)", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
     record = {"benchmark": "commands", "machine": {"cpu": platform.processor() or platform.machine(),
                                                     "cores": os.cpu_count()},
               "quick": args.quick, "examples": results}
-    path = args.out / "commands.json"
-    path.write_text(json.dumps(record, indent=1) + "\n")
+    write_json(path, record, indent=1)
     print(f"wrote {path}")
     return 0
 

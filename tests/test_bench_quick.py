@@ -78,6 +78,10 @@ BENCHMARKS = {
     "bench_pareto": ("pareto.json", ["scenes/0/reference_time_s"],
                      lambda d: all(_positive(r["time_s"]) and math.isfinite(r["errors"]["waveform_l2"])
                                    for r in d["scenes"][0]["rows"]) and len(d["scintillation"]["rows"]) == 4),
+    "bench_commands": ("commands.json", ["examples/flash_demo/cold/command_wall_s",
+                                         "examples/flash_demo/warm_median/command_wall_s"],
+                       lambda d: d["examples"]["flash_demo"]["cold"]["kernels"]["compiled"] > 0
+                       and d["examples"]["flash_demo"]["warm_median"]["kernels"]["compiled"] == 0),
     "bench_scaling": ("scaling.json", ["pipeline_vs_bare/0/ratio_pipeline_to_bare", "scene/0/bvh_build_s",
                                        "sensor/0/frame_s", "culling/frame_culled_s", "sample/frame_s"],
                       lambda d: d["culling"]["identical_products"] is True),
