@@ -28,7 +28,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import polygamma
 
 from . import turbulence as tb
@@ -182,6 +181,8 @@ def gamma_gamma_fit(scintillation_index, sigma2_lnI):
         t = t_min if abs(target - v0) <= abs(target - v1) else t_max
         matched = False
     else:
+        from scipy.optimize import brentq  # here: scipy.optimize is 0.2 s of every run's start-up
+
         t = brentq(lambda x: lnv(x) - target, t_min, t_max, xtol=1e-14) if v0 != v1 else t_min
         matched = True
     u = (1.0 + si) / (1.0 + t) - 1.0
@@ -229,5 +230,7 @@ def gamma_lognormal_fit(scintillation_index, sigma2_lnI):
     elif target >= v1:
         t, matched = t_max, target <= v1 * (1 + 1e-9)
     else:
+        from scipy.optimize import brentq
+
         t, matched = brentq(lambda x: lnv(x) - target, t_min, t_max, xtol=1e-14 * si), True
     return 1.0 / t, math.log((1.0 + si) / (1.0 + t)), matched
