@@ -248,6 +248,14 @@ def _count(key: str, n: float = 1) -> None:
         CACHE_STATS[key] += n
 
 
+def cpu_key() -> str:
+    """12 hex digits naming the machine code's target: numba's CPU name and features (``NUMBA_CPU_NAME``)."""
+    from numba.core.registry import cpu_target
+
+    magic = cpu_target.target_context.codegen().magic_tuple()
+    return hashlib.sha256(repr(magic).encode()).hexdigest()[:12]
+
+
 def kernel_seconds() -> float:
     """Seconds this thread has spent loading and compiling kernels so far (:func:`stage_clock`)."""
     return getattr(_tls, "seconds", 0.0)

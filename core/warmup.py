@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import time
 from copy import deepcopy
+from pathlib import Path
 
 import numpy as np
 
 from .config.settings import BRDFSettings, SimulationConfig
 from .geometry.motion import Trajectory
 from .geometry.scene import SceneGeometry
-from .jit import kernel_report
+from .jit import CACHE_DIR, IMPORT_NAME, cpu_key, kernel_report
 from .run import simulate
 
 C = 299_792_458.0
@@ -124,9 +125,23 @@ def _trajectory(cfg: SimulationConfig) -> Trajectory:
     return Trajectory(times, np.array(mats))
 
 
-def warm_up(progress=print, cancel=None) -> dict:
-    """Run every case of :func:`cases` once (nothing is written); ``progress(line)`` after each.  Returns the
-    kernel report (loaded, compiled, seconds) of the whole warm-up."""
+def marker() -> Path:
+    """The file a finished warm-up leaves in this source's cache, for this import name and CPU."""
+    return CACHE_DIR / IMPORT_NAME / f"WARM-{cpu_key()}"
+
+
+def is_warm() -> bool:
+    """A warm-up of this source, import name and CPU has finished (its kernels are in the cache)."""
+    try:
+        return marker().is_file()
+    except OSError:
+        return False
+
+
+def warm_up(progress=print, cancel=None, fraction=None) -> dict:
+    """Run every case of :func:`cases` once (nothing is written); ``progress(line)`` after each (and
+    ``fraction(done / total)``).  ``cancel()`` true stops between cases.  Returns the kernel report (loaded,
+    compiled, seconds) of the whole warm-up; a finished one leaves :func:`marker`."""
     before = kernel_report()
     scene = _plate()
     pose = np.eye(4)
@@ -141,4 +156,12 @@ def warm_up(progress=print, cancel=None) -> dict:
         k = kernel_report(before)
         progress(f"warm-up  [{i}/{len(todo)}] {name}: {k['compiled']} kernels compiled, {k['loaded']} loaded "
                  f"so far ({time.perf_counter() - t0:.1f} s)")
+        if fraction is not None:
+            fraction(i / len(todo))
+    else:
+        try:
+            marker().parent.mkdir(parents=True, exist_ok=True)
+            marker().write_text("every case of core/warmup.py ran\n")
+        except OSError:  # an unwritable cache: nothing is kept anyway
+            pass
     return kernel_report(before)

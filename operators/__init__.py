@@ -3,9 +3,9 @@ import bpy
 
 from .config_io import LADAR_OT_export_config, LADAR_OT_load_config
 from .results import CLASSES as RESULT_CLASSES
-from .simulate import LADAR_OT_simulate, LADAR_OT_simulate_cancel
+from .simulate import LADAR_OT_simulate, LADAR_OT_simulate_cancel, LADAR_OT_warm_up
 
-CLASSES = (LADAR_OT_simulate, LADAR_OT_simulate_cancel, LADAR_OT_export_config, LADAR_OT_load_config,
+CLASSES = (LADAR_OT_simulate, LADAR_OT_simulate_cancel, LADAR_OT_warm_up, LADAR_OT_export_config, LADAR_OT_load_config,
            *RESULT_CLASSES)
 from . import materials  # noqa: E402 - material BRDF operators (table import, Principled mapping, plot)
 CLASSES += materials.CLASSES

@@ -142,6 +142,46 @@ cloud and images.  ESC cancels"""
         return f"Ladar: {job.run_name} cancelled, nothing written"
 
 
+class LADAR_OT_warm_up(JobModal, bpy.types.Operator):
+    """Compile the simulator's kernels now (once per install and CPU; later runs load them from the cache) so that
+    no simulation waits for the compiler.  Runs in the background with progress in the status bar; ESC cancels"""
+
+    bl_idname = "ladar.warm_up"
+    bl_label = "Compile Ladar Kernels"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if current_job() is not None:
+            cls.poll_message_set("A ladar job is running (ESC cancels it)")
+            return False
+        return True
+
+    def execute(self, context):
+        """Blocking run (scripts, background mode): the progress lines are printed."""
+        from ..ladar_addon.warmup import WarmUpJob
+
+        job = WarmUpJob()
+        job.start(threaded=False)
+        if job.state != "done":
+            self.report({"ERROR"}, job.summary())
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Ladar: {job.summary()}")
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        from ..ladar_addon.warmup import WarmUpJob
+
+        job = WarmUpJob()
+        job.start(threaded=True)
+        return self._watch(context, job, 0.2)
+
+    def cancelled_text(self, job) -> str:
+        return "Ladar: kernel warm-up stopped; what it compiled is kept, the rest compiles on first use"
+
+
 class LADAR_OT_simulate_cancel(bpy.types.Operator):
     """Cancel the running ladar simulation (nothing of it is written or imported)"""
 

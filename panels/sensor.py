@@ -93,6 +93,12 @@ class LADAR_PT_sensor(_SensorPanel, bpy.types.Panel):
             col.label(text="Not the scene's active ladar sensor", icon="INFO")
         simulate_options(layout, scene)
         simulate_button(layout, obj.name)
+        from ..core.warmup import is_warm
+
+        if not is_warm():  # the first simulation would wait for the compiler: offer to do it now
+            box = layout.box()
+            box.label(text="Kernels not compiled yet on this computer", icon="INFO")
+            box.operator("ladar.warm_up", text="Compile Kernels Now (about a minute, once)", icon="SCRIPTPLUGINS")
         row = layout.row(align=True)
         row.operator("ladar.export_config", text="Export Config", icon="EXPORT")
         row.operator("ladar.load_config", text="Load Config", icon="IMPORT")
