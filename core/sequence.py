@@ -21,7 +21,7 @@ from .config.validate import validate_config
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
-from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
+from .fileio.run_folder import json_default, run_warnings, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
@@ -122,6 +122,9 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                     "sensor_poses": {str(f): st["sensor_pose"]["world_from_sensor"]
                                      for f, st in zip(frames, all_stats) if "sensor_pose" in st},
                     "wall_time_s": time.perf_counter() - t_wall, "units": dict(units), "files": files}
+            warnings = [f"frame {f}: {w}" for f, st in zip(frames, all_stats) for w in run_warnings(st)]
+            if warnings:
+                meta["warnings"] = warnings
             if bvh_builds < len(frames):
                 meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
                                                        f"({bvh_builds} built)"}

@@ -217,7 +217,8 @@ def json_default(obj):
 
 
 def run_summary(run_path, result) -> str:
-    """A few lines a person reads after a run: what was seen, what ran, what was skipped, where it went."""
+    """A few lines a person reads after a run: what was seen (points, false alarms, SNR), how much of what the
+    rays hit the range gate covers (with a warning below 90 %), what ran, what was skipped, where it went."""
     st = result.stats
     pts = result.points
     lines = [f"run      {run_path}"]
@@ -231,6 +232,8 @@ def run_summary(run_path, result) -> str:
         lines.append(f"slices   {len(d)} gates, delays {d[0] * 1e9:.1f} – {d[-1] * 1e9:.1f} ns; range by "
                      f"{st['range_method']}")
     unit = "pulses" if "n_pulses" in st else "pixels"
+    n_cells = st["n_pulses"] if "n_pulses" in st else (
+        result.range_image.size if getattr(result, "range_image", None) is not None else 1)
     if len(pts["range_m"]):
         first = pts["echo_index"] == 1
         lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} {unit} with an echo, "
@@ -238,9 +241,38 @@ def run_summary(run_path, result) -> str:
                      f"{pts['range_m'].min():.3f} – {pts['range_m'].max():.3f} m")
     else:
         lines.append("echoes   none detected")
-    lines.append(f"energy   {st['received_energy_j']:.4g} J received in total")
+    fa = pts.get("false_alarm")
+    if fa is not None:
+        n_fa = int(np.count_nonzero(fa))
+        lines.append(f"false    {n_fa} false alarms of {len(fa)} points ({n_fa / max(n_cells, 1):.3g} per "
+                     f"{unit[:-1]}; {len(fa) - n_fa} true returns)")
+    snr = pts.get("snr")
+    if snr is not None and len(snr):
+        true = snr[fa == 0] if fa is not None else snr
+        part = [f"true returns {true.min():.3g} – {true.max():.3g}" if len(true) else "no true return"]
+        if fa is not None and np.count_nonzero(fa):
+            part.append(f"false alarms {snr[fa != 0].min():.3g} – {snr[fa != 0].max():.3g}")
+        lines.append("snr      " + "; ".join(part))
+    cov = st.get("gate_coverage")
+    lines.append(f"energy   {st['received_energy_j']:.4g} J at the aperture from every hit sub-ray (before the range "
+                 "gate and time binning)")
+    if cov and cov.get("hit_subrays"):
+        ef, sf = cov["energy_fraction"], cov["subray_fraction"]
+        g0, g1 = cov["gate_range_m"]
+        h0, h1 = cov["hit_range_m"]
+        lines.append(f"gate     {g0:.1f} – {g1:.1f} m holds {100 * ef['inside']:.1f} % of the hit energy "
+                     f"({100 * ef['before']:.1f} % before, {100 * ef['after']:.1f} % after) and "
+                     f"{100 * sf['inside']:.1f} % of the hit sub-rays; hits at {h0:.1f} – {h1:.1f} m")
     times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
     lines.append(f"stages   {times} (s, summed over threads)")
     if st.get("stages_skipped"):
         lines.append("skipped  " + "; ".join(f"{k} ({v})" for k, v in st["stages_skipped"].items()))
+    for w in run_warnings(st):
+        lines.append("WARNING  " + w)
     return "\n".join(lines)
+
+
+def run_warnings(stats: dict) -> list[str]:
+    """The warnings a person must see after a run (one line each): today the range gate's coverage."""
+    cov = stats.get("gate_coverage") or {}
+    return [f"range gate: {cov['warning']}"] if cov.get("warning") else []
