@@ -104,7 +104,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             merged = merge_points(point_sets)
             files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
             if merged:
-                write_ply(tmp / "points_merged.ply", merged)
+                ply = write_ply(tmp / "points_merged.ply", merged, units.get("intensity"))
                 np.savez(tmp / "points_merged.npz", **merged)
                 files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
                 files["points_merged.npz"] = "the same as NumPy arrays"
@@ -125,6 +125,8 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             warnings = [f"frame {f}: {w}" for f, st in zip(frames, all_stats) for w in run_warnings(st)]
             if warnings:
                 meta["warnings"] = warnings
+            if merged:
+                meta["ply"] = ply
             if bvh_builds < len(frames):
                 meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
                                                        f"({bvh_builds} built)"}
