@@ -18,6 +18,7 @@ import time
 from .config.settings import SimulationConfig
 from .config.validate import validate_config
 from .config.files import config_to_dict
+from .engine.compile_clock import compile_seconds_total, stage_clock
 from .engine.result import FrameResult
 from .errors import Cancelled, ConfigError
 from .engine.products import label_points, record_pose
@@ -46,10 +47,14 @@ def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, 
     system = SYSTEMS.get(config.system_type)
     if system is None:
         raise ConfigError("system_type", config.system_type, f"one of {', '.join(SYSTEMS)}")
+    stage_clock()  # installs the compile-time listener (engine/compile_clock.py)
+    compiled = compile_seconds_total()
     result = system(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
                     start_time_s=start_time_s, progress=progress, cancel=cancel)
     label_points(result, scene, world_from_sensor, config)
     record_pose(result, world_from_sensor, trajectory if config.system_type == "scanner" else None)
+    # compiling kernels on first use, summed over threads: not in the stage times
+    result.stats["compile_times_s"] = {"kernels": compile_seconds_total() - compiled}
     return result
 
 

@@ -318,7 +318,9 @@ def run_summary(run_path, result) -> str:
                      f"({100 * ef['before']:.1f} % before, {100 * ef['after']:.1f} % after) and "
                      f"{100 * sf['inside']:.1f} % of the hit sub-rays; hits at {h0:.1f} – {h1:.1f} m")
     times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
-    lines.append(f"stages   {times} (s, summed over threads)")
+    compiled = (st.get("compile_times_s") or {}).get("kernels", 0.0)
+    lines.append(f"stages   {times} (s, summed over threads; without compiling kernels on first use"
+                 + (f": {compiled:.2f} s)" if compiled >= 5e-3 else ")"))
     if st.get("stages_skipped"):
         lines.append("skipped  " + "; ".join(f"{k} ({v})" for k, v in st["stages_skipped"].items()))
     for w in run_warnings(st):

@@ -17,6 +17,7 @@ from ..config.settings import SimulationConfig
 from ..config.validate import validate_config
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
+from ..engine.compile_clock import stage_clock
 from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
 from ..engine.blocks import balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
@@ -137,21 +138,21 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     def process(block):
         a, b = block
         local = {}
-        t = time.perf_counter()
+        t = stage_clock()
         smp = sampler.block(a, b)  # receiver.subray_pattern (core/physics/sampling.py)
-        local["rays"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["rays"] = stage_clock() - t
+        t = stage_clock()
         prim, range_m, cos_theta = trace_tan(smp.x_tan, smp.y_tan)
-        local["trace"] = time.perf_counter() - t
+        local["trace"] = stage_clock() - t
         if sampler.adaptive:  # second pass over the pixels whose rays disagree
-            t = time.perf_counter()
+            t = stage_clock()
             smp, (prim, range_m, cos_theta), bad = sampler.refine_pass(
                 smp, (prim, range_m, cos_theta), trace_tan, lambda p: rows_matmul(tracer.unit_normal[p], rot),
                 scene.material_ids, adaptive_tolerance_m(config.laser, gate))
             refined.append((len(bad), (b - a) * s2 + len(bad) * (det.subsamples * rx.subray_refine) ** 2))
-            local["refine"] = time.perf_counter() - t
+            local["refine"] = stage_clock() - t
         x_tan, y_tan, pixel, sub_x, sub_y, fraction = smp.x_tan, smp.y_tan, smp.pixel, smp.sub_x, smp.sub_y, smp.weight
-        t = time.perf_counter()
+        t = stage_clock()
         index, pix_local, mat_hit, frac_hit = block_hits(prim, pixel, a, scene.material_ids, fraction)
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
             spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta, prim, tracer.unit_normal, rot,
@@ -163,21 +164,21 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         atm.scale_by_scintillation(e, index, x_tan, y_tan, sub_x, sub_y)
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         tallies[a] = gate_tally(range_hit, e, window)
-        local["radiometry"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["radiometry"] = stage_clock() - t
+        t = stage_clock()
         # one window of bins per pixel: a short return in a long gate costs its window only, a pixel without
         # returns nothing (its row of the cube stays zero)
         wf = accumulate_waveform_windows(pix_local, round_trip_time_s(range_hit), e, b - a, config.laser, gate,
                                          method, spread_s=spread)
         if waveforms is not None:
             wf.write_rows(waveforms, np.arange(a, b))
-        local["waveform"] = time.perf_counter() - t
+        local["waveform"] = stage_clock() - t
         if whole_cube:  # echoes are detected after the whole-cube stages
             return None, len(index), local
-        t = time.perf_counter()
+        t = stage_clock()
         echoes = detect_echoes_windows(wf, config.detection)
         echoes.pixel += a
-        local["echoes"] = time.perf_counter() - t
+        local["echoes"] = stage_clock() - t
         return echoes, len(index), local
 
     results = run_blocks(process, blocks, threads, progress, cancel=cancel)
@@ -219,7 +220,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         echo_parts = [r[0] for r in results]
     if whole_cube and not config.run.save_waveforms:
         waveforms = None
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     snr = np.concatenate([e.snr for e in echo_parts]) if noisy else None
     pixel = np.concatenate([e.pixel for e in echo_parts])
     pos_bins = np.concatenate([e.position_bins for e in echo_parts])
@@ -241,7 +242,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     intensity_echoes[pixel, echo_index] = amp
     range_echoes = range_echoes.reshape(h, w, e_max)
     intensity_echoes = intensity_echoes.reshape(h, w, e_max)
-    log.times["products"] = time.perf_counter() - t0
+    log.times["products"] = stage_clock() - t0
 
     stats = {"n_rays": det.n_pixels * s2, "n_hits": n_hits, "n_points": int(len(range_m)),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pixels_per_block": per_block,

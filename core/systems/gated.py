@@ -41,6 +41,7 @@ from scipy.special import ndtri
 from ..config.settings import LaserSettings, SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
+from ..engine.compile_clock import stage_clock
 from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
@@ -265,7 +266,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     n_sl = g.n_slices
 
     # atmosphere: deterministic parts once, random parts (wander, scintillation) per slice (one pulse each)
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     switches = turbulence_switches(config)
     needs_ref = any(s not in switches for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
     r_ref = reference_range_m(tracer, det, origin, rot, worker_threads(config.run.threads)) if needs_ref else None
@@ -277,7 +278,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                    for k in (range(1, n_sl) if per_slice_random else [])]
     atm = atm_slices[0]
     fractions = [cell_energy_fractions(laser, det, a.beam_offset_tan, a.beam_width_scale) for a in atm_slices]
-    times["atmosphere"] = time.perf_counter() - t0
+    times["atmosphere"] = stage_clock() - t0
 
     s2 = det.rays_per_pixel
     per_block = max(1, config.run.chunk_rays // s2)
@@ -291,14 +292,14 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     def process(block):
         a, b = block
         local = {}
-        t = time.perf_counter()
+        t = stage_clock()
         x_tan, y_tan, pixel, sub_x, sub_y = block_subray_tan(det, a, b)
         d_world = tan_to_unit_direction(x_tan, y_tan) @ rot.T
-        local["rays"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["rays"] = stage_clock() - t
+        t = stage_clock()
         prim, range_m, cos_theta = tracer.intersect(origin, d_world)
-        local["trace"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["trace"] = stage_clock() - t
+        t = stage_clock()
         hit = prim >= 0
         e_unit = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials,
                                  scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], 1.0)
@@ -312,8 +313,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
             energy[j, a:b] = np.bincount(pix, weights=e, minlength=b - a)
             per_slice.append(e)
         tallies[a] = gate_tally(range_m[hit], per_slice[0], window)
-        local["radiometry"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["radiometry"] = stage_clock() - t
+        t = stage_clock()
         t_rt = round_trip_time_s(range_m[hit])
         # only the slices whose gate can see a ray: d_k − support < t − … < d_k + W + support
         lo = np.searchsorted(delays, t_rt - g.gate_width_s - support, side="left")
@@ -337,7 +338,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                 flat = kc * (b - a) + pix[sl, None]
                 out += np.bincount(flat[ok], weights=w_e[ok], minlength=n_sl * (b - a)).reshape(n_sl, b - a)
         slices[:, a:b] = out
-        local["gating"] = time.perf_counter() - t
+        local["gating"] = stage_clock() - t
         return int(hit.sum()), local
 
     threads = worker_threads(config.run.threads)
@@ -367,7 +368,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
             data, receiver_report = out.data, out.report
     else:
         log.skip("receiver_chain", "detector.mode = ideal: noise-free slice energies")
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     stack = np.moveaxis(np.asarray(data, dtype=np.float32), 2, 0)  # (slices, H, W)
     noise_sigma = None
     if receiver_report is not None and receiver_report.get("noise_sigma") is not None:
@@ -387,7 +388,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     zeros = np.zeros(len(pix), np.int16)
     points = points_along_rays(det, origin, rot, pix, rng_m, amp, zeros, zeros + 1, 2 * rng_m / SPEED_OF_LIGHT_M_S,
                                frame)
-    times["products"] = time.perf_counter() - t0
+    times["products"] = stage_clock() - t0
     log.skip("waveform", "gated viewing: the gate response is evaluated in closed form per ray, no time bins")
     stats = {"n_rays": det.n_pixels * s2, "n_hits": n_hits, "n_points": int(len(pix)),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "n_slices": n_sl,

@@ -24,6 +24,7 @@ from ..config.derived import n_scan_pulses, scan_duration_s
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import turbulence_switches
+from ..engine.compile_clock import stage_clock
 from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
@@ -302,11 +303,11 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     method = binning_method(laser, gate)
     table = PulseTable(laser, gate.bin_width_s) if laser.pulse_shape == "gaussian" and method == "exact" else None
 
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     needs_ref = any(s not in turbulence_switches(config)
                     for s in ("beam_broadening", "scintillation", "beam_wander"))
     atm = scan_atmosphere(config, _reference_range(tracer, trajectory, config, n_pulses) if needs_ref else None)
-    times["atmosphere"] = time.perf_counter() - t0
+    times["atmosphere"] = stage_clock() - t0
     for stage, reason in atm.skipped.items():
         log.skip(stage, reason)
     if not noisy:
@@ -339,7 +340,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         a, b = block
         n = b - a
         local = {}
-        t = time.perf_counter()
+        t = stage_clock()
         wander = np.zeros((n, 2))
         scint = np.ones(n)
         for ta in range(a, b, tile):  # random streams per fixed tile of pulses
@@ -348,12 +349,12 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             wander[ta - a:tb - a], scint[ta - a:tb - a] = w_t, s_t
         t_s, channel, angle, origin, axis_world, d_world = scan_beams(
             config, trajectory, a, b, wander_rad=wander, width_scale=atm.width_scale)
-        local["rays"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["rays"] = stage_clock() - t
+        t = stage_clock()
         prim, range_m, cos_theta = tracer.intersect(origin, d_world)
         del d_world
-        local["trace"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["trace"] = stage_clock() - t
+        t = stage_clock()
         n_hit = int(np.count_nonzero(prim >= 0))
         p_hit, mat_hit = np.empty(n_hit, np.int64), np.empty(n_hit, scene.material_ids.dtype)
         cos_hit, range_hit, frac_hit = np.empty(n_hit), np.empty(n_hit), np.empty(n_hit)
@@ -364,17 +365,17 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                             range_hit, frac_hit)
         _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
         tallies[a] = gate_tally(range_hit, e, window)
-        local["radiometry"] = time.perf_counter() - t
-        t = time.perf_counter()
+        local["radiometry"] = stage_clock() - t
+        t = stage_clock()
         t_rt = round_trip_time_s(range_hit)
         dig = None
         if save or noisy:
             wf = accumulate_waveforms(p_hit, t_rt, e, n, laser, gate, method)
             if save:
                 waveforms[a:b] = wf
-            local["waveform"] = time.perf_counter() - t
+            local["waveform"] = stage_clock() - t
             if noisy:
-                t = time.perf_counter()
+                t = stage_clock()
                 parts = []
                 for ta in range(0, n, tile):
                     tb = min(ta + tile, n)
@@ -387,23 +388,23 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                     parts.append(ech)
                     if dig is None:
                         dig = chain.report
-                local["receiver_chain"] = time.perf_counter() - t
+                local["receiver_chain"] = stage_clock() - t
                 echoes = _merge_echoes(parts)
             else:
-                t = time.perf_counter()
+                t = stage_clock()
                 echoes = detect_echoes(wf, config.detection)
-                local["echoes"] = time.perf_counter() - t
+                local["echoes"] = stage_clock() - t
         else:
             echoes = windowed_echoes(p_hit, t_rt, e, n, config, method, table)
-            local["waveform"] = time.perf_counter() - t  # waveform windows and echo detection together
-        t = time.perf_counter()
+            local["waveform"] = stage_clock() - t  # waveform windows and echo detection together
+        t = stage_clock()
         pts = _block_points(echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame)
         pulses["time_s"][a:b], pulses["gps_time_s"][a:b] = t_s, start_time_s + t_s
         pulses["origin_world"][a:b], pulses["direction_world"][a:b] = origin, axis_world
         pulses["channel"][a:b], pulses["scan_angle_rad"][a:b] = channel, angle
         first = echoes.echo_index == 0
         pulses["n_echoes"][a:b][echoes.pixel[first]] = echoes.n_echoes[first]
-        local["products"] = time.perf_counter() - t
+        local["products"] = stage_clock() - t
         return pts, n_hit, local, dig
 
     threads = worker_threads(config.run.threads)
@@ -412,11 +413,11 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     for r in results:
         log.add_times(r[2])
     digitizer = results[0][3] if results else None
-    t0 = time.perf_counter()
+    t0 = stage_clock()
     points = _concatenate_points([r[0] for r in results])
     del results
     n_echo_per_pulse = pulses["n_echoes"]
-    times["products"] += time.perf_counter() - t0
+    times["products"] += stage_clock() - t0
     stats = {"n_pulses": n_pulses, "subrays_per_pulse": m, "n_rays": n_pulses * m, "n_hits": n_hits,
              "n_points": int(len(points["range_m"])), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
