@@ -147,3 +147,51 @@ def test_run_folder_and_summary_carry_the_warning_false_alarms_and_snr(tmp_path)
     assert f"snr      true returns {snr.min():.3g} – {snr.max():.3g}" in text
     assert "WARNING  range gate: only 80.0 % of the hit energy" in text
     assert "holds 80.0 % of the hit energy (0.0 % before, 20.0 % after) and 50.0 % of the hit sub-rays" in text
+
+
+def _sensor_preset(name):
+    """The settings a shipped sensor preset applies (presets/ladar_simulator/sensor/<name>.py), as a config."""
+    import runpy
+    import sys
+    import types
+    from pathlib import Path
+
+    from core.config.files import config_from_dict
+
+    got = {}
+    mod = types.ModuleType("stand_in.ladar_simulator.ladar_addon.presets")
+    mod.apply_sensor_preset = got.update
+    sys.modules[mod.__name__] = mod
+    try:
+        runpy.run_path(str(Path(__file__).resolve().parents[3] / "presets" / "ladar_simulator" / "sensor"
+                           / f"{name}.py"))
+    finally:
+        del sys.modules[mod.__name__]
+    return config_from_dict({"schema_version": 1, **got})
+
+
+@pytest.mark.parametrize("name,design_m", [
+    ("Airborne_1064_nm_full_waveform", (1000.0, 1000.0 / np.cos(np.radians(20.0)))),  # 1 km AGL, ±20° off nadir
+    ("Gated_viewing_532_nm_at_1_km", (990.0, 999.0)),
+    ("InGaAs_3D_flash_128x128_1570_nm", (1.0, 300.0)),
+    ("Spinning_905_nm_automotive_16_channels", (1.0, 200.0)),  # VLP-16 class: 100 m specified, 200 m margin
+])
+def test_sensor_presets_gates_cover_their_design_ranges(name, design_m):
+    start, end = gate_window_s(_sensor_preset(name))
+    assert start * C / 2 <= design_m[0] and design_m[1] <= end * C / 2
+
+
+def test_airborne_preset_over_ground_120_m_below_warns_and_1_km_below_does_not():
+    """The airborne preset (gate 899–1130 m) scanning flat ground: from 1 km up every hit is inside; from 120 m
+    up (forest_scan.blend's flying height) none is, and the warning names the gate settings for 120 m."""
+    cfg = _sensor_preset("Airborne_1064_nm_full_waveform")
+    cfg.scanner.duration_s = 0.002  # 200 pulses
+    cfg.run.threads = 1
+    down = np.eye(4)  # the sensor looks along −Z: a ground plate "below" is a plate in front
+    high = simulate(plate(1000.0, 500.0), down, cfg).stats["gate_coverage"]
+    assert high["energy_fraction"]["inside"] == 1.0 and high["warning"] is None
+    low = simulate(plate(120.0, 100.0), down, cfg).stats["gate_coverage"]
+    assert low["energy_fraction"]["before"] == 1.0
+    assert "899.4–1129.6 m" in low["warning"] and "the hits are at 120.0–12" in low["warning"]
+    fix = low["suggested_settings"]
+    assert fix["gate.gate_start_s"] * C / 2 < 120.0 and fix["gate.n_bins"] < 1536
