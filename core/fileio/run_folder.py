@@ -73,7 +73,8 @@ _PLY_TYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.
               np.dtype(np.uint8): "uchar"}
 _PLY_INVERSE = {"double": "<f8", "float": "<f4", "int": "<i4", "short": "<i2", "uchar": "u1", "char": "i1",
                 "ushort": "<u2", "uint": "<u4"}
-_SI_PREFIXES = {0: "", -3: "m", -6: "µ", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y", -27: "r",
+#: SI prefixes in ASCII (a PLY header is ASCII): "u" for micro.
+_SI_PREFIXES = {0: "", -3: "m", -6: "u", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y", -27: "r",
                 -30: "q"}
 
 
@@ -132,7 +133,7 @@ def write_ply(path, points: dict, intensity_unit: str | None = None) -> dict:
     header += [f"property {_PLY_TYPES[np.dtype(a.dtype)]} {n}" for n, a in fields]
     header.append("end_header")
     with open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("utf-8"))
+        f.write(("\n".join(header) + "\n").encode("ascii", errors="replace"))
         f.write(table.tobytes())
     return {"intensity_scale": scale, "intensity_unit": stored_unit}
 

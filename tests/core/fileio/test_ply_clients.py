@@ -73,6 +73,7 @@ def test_intensity_is_stored_on_a_prefixed_scale_stated_in_header_and_metadata(n
     ([4.2e-17, 8e-15], "J per bin", 1e-18, "aJ per bin"),   # smallest 42 aJ
     ([1e-18, 1.0], "J per bin", 1e-18, "aJ per bin"),       # exactly 1 aJ
     ([9.99e-13], "J", 1e-15, "fJ"),                         # 999 fJ
+    ([2e-6, 1e-3], "J", 1e-6, "uJ"),                         # micro in ASCII: the PLY header is ASCII
     ([0.5, 300.0], "counts", 1e-3, "0.001 counts"),
     ([3.0, 4000.0], "counts", 1.0, "counts"),                 # already ≥ 1: unscaled
     ([0.0, -1.0], "J per bin", 1.0, "J per bin"),           # nothing positive: unscaled
