@@ -161,12 +161,15 @@ def _sensor_preset(name):
     got = {}
     mod = types.ModuleType("stand_in.ladar_simulator.ladar_addon.presets")
     mod.apply_sensor_preset = got.update
+    # the preset takes the first module named *ladar_simulator.ladar_addon.presets: the stand-in only
+    real = {n: sys.modules.pop(n) for n in list(sys.modules) if n.endswith("ladar_simulator.ladar_addon.presets")}
     sys.modules[mod.__name__] = mod
     try:
         runpy.run_path(str(Path(__file__).resolve().parents[3] / "presets" / "ladar_simulator" / "sensor"
                            / f"{name}.py"))
     finally:
         del sys.modules[mod.__name__]
+        sys.modules.update(real)
     return config_from_dict({"schema_version": 1, **got})
 
 
