@@ -198,3 +198,18 @@ def test_airborne_preset_over_ground_120_m_below_warns_and_1_km_below_does_not()
     assert "899.4–1129.6 m" in low["warning"] and "the hits are at 120.0–12" in low["warning"]
     fix = low["suggested_settings"]
     assert fix["gate.gate_start_s"] * C / 2 < 120.0 and fix["gate.n_bins"] < 1536
+
+
+def test_sequence_metadata_lists_each_frames_warning(tmp_path):
+    import json
+
+    from core import sequence
+
+    cfg = config_for(100.0, pixels=4)  # gate 90.4–128.8 m
+    path, stats = sequence.run_sequence([1, 2], lambda f: plate(100.0 if f == 1 else 300.0, 5.0),
+                                        lambda f: np.eye(4), cfg, tmp_path / "seq")
+    meta = json.loads((path / "metadata.json").read_text())
+    assert [s["gate_coverage"]["warning"] is None for s in stats] == [True, False]
+    assert len(meta["warnings"]) == 1 and meta["warnings"][0].startswith("frame 2: range gate: only 0.0 %")
+    frame2 = json.loads((path / "frame_0002" / "metadata.json").read_text())
+    assert frame2["warnings"] == [meta["warnings"][0].removeprefix("frame 2: ")]
