@@ -21,7 +21,7 @@ from .config.files import config_to_dict
 from .engine.result import FrameResult
 from .errors import Cancelled, ConfigError
 from .engine.products import label_points, record_pose
-from .fileio.run_folder import software_versions, write_run_files
+from .fileio.run_folder import run_warnings, software_versions, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .jit import kernel_report
@@ -64,6 +64,9 @@ def run_metadata(config: SimulationConfig, result: FrameResult, frame: int, extr
             "settings": config_to_dict(config), "software": software_versions(),
             "created_unix_s": time.time()}
     meta.update(result.stats)
+    warnings = run_warnings(result.stats)
+    if warnings:
+        meta["warnings"] = warnings
     if extra:
         meta.update(extra)
     return meta

@@ -21,7 +21,7 @@ from .config.validate import validate_config
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
-from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
+from .fileio.run_folder import json_default, run_warnings, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
@@ -104,7 +104,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             merged = merge_points(point_sets)
             files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
             if merged:
-                write_ply(tmp / "points_merged.ply", merged)
+                ply = write_ply(tmp / "points_merged.ply", merged, units.get("intensity"))
                 np.savez(tmp / "points_merged.npz", **merged)
                 files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
                 files["points_merged.npz"] = "the same as NumPy arrays"
@@ -122,6 +122,11 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                     "sensor_poses": {str(f): st["sensor_pose"]["world_from_sensor"]
                                      for f, st in zip(frames, all_stats) if "sensor_pose" in st},
                     "wall_time_s": time.perf_counter() - t_wall, "units": dict(units), "files": files}
+            warnings = [f"frame {f}: {w}" for f, st in zip(frames, all_stats) for w in run_warnings(st)]
+            if warnings:
+                meta["warnings"] = warnings
+            if merged:
+                meta["ply"] = ply
             if bvh_builds < len(frames):
                 meta["stages_skipped"] = {"build_bvh": f"static geometry: one BVH for {len(frames)} frames "
                                                        f"({bvh_builds} built)"}

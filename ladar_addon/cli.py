@@ -202,6 +202,8 @@ def _cmd_simulate(scene, args) -> int:
              f"frames   {len(frames)} ({frames[0]} … {frames[-1]}), {n_points} points, "
              f"{meta.get('bvh_builds')} BVH build(s), {job.source.exports} geometry export(s)\n"
              f"time     {job.t_end - job.t_start:.2f} s")
+        for w in job.warnings():
+            emit("WARNING  " + w)
     return EXIT_OK
 
 

@@ -337,10 +337,24 @@ class SimulationJob(BackgroundJob):
             if self.sequence:
                 n = sum(s.get("n_points", 0) for s in self.frame_stats)
                 return f"{n} points in {len(self.frames)} frames in {self.run_path}"
-            return f"{len(self.result.points['range_m'])} points in {self.run_path}"
+            pts = self.result.points
+            fa = pts.get("false_alarm")
+            what = f"{len(pts['range_m'])} points" + (f" ({int(fa.sum())} false alarms)" if fa is not None else "")
+            return f"{what} in {self.run_path}"
         if self.state == "failed":
             return str(self.error) or type(self.error).__name__
         return self.state
+
+    def warnings(self) -> list[str]:
+        """What a finished run warns about (core.fileio.run_folder.run_warnings: the range gate's coverage), one
+        line each; a sequence's per frame."""
+        from ..core.fileio.run_folder import run_warnings
+
+        if self.state != "done":
+            return []
+        if self.sequence:
+            return [f"frame {f}: {w}" for f, st in zip(self.frames, self.frame_stats) for w in run_warnings(st)]
+        return run_warnings(self.result.stats)
 
     def status_text(self) -> str:
         """One line for the status bar."""

@@ -55,6 +55,8 @@ class JobModal:
         self._end(context)
         if outcome == "FINISHED":
             self.report({"INFO"}, f"{self.FINISHED_PREFIX}{job.summary()}")
+            for w in job.warnings():
+                self.report({"WARNING"}, f"Ladar: {w}")
             return {"FINISHED"}
         if job.state == "failed":
             self.report({"ERROR"}, job.summary())
@@ -125,6 +127,8 @@ cloud and images.  ESC cancels"""
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
         self.report({"INFO"}, f"Ladar: {job.summary()}")
+        for w in job.warnings():
+            self.report({"WARNING"}, f"Ladar: {w}")
         return {"FINISHED"}
 
     def invoke(self, context, event):

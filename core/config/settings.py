@@ -161,7 +161,8 @@ class RangeGateSettings:
     bin_width_s: float = setting(1e-9, lo=1e-12, hi=1e-6, unit="s", subtype="TIME_ABSOLUTE",
                                  doc="Duration of one waveform time bin",
                                  label="Bin Width", panel_unit="ns")
-    n_bins: int = setting(1024, lo=1, hi=1_000_000, doc="Number of time bins in the range gate",
+    n_bins: int = setting(2048, lo=1, hi=1_000_000, doc="Number of time bins in the range gate (the default "
+                                                      "2048 bins of 1 ns from 0 s cover 0–307 m)",
                           label="Number of Bins")
 
 

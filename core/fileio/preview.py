@@ -27,11 +27,16 @@ from ..physics.brdf import evaluate_brdf
 from .staging import write_file_atomically
 from .run_folder import read_exr
 
-#: What each image product shows: (title, colour map, scale starts at zero).  Units come from the run's
+#: What each image product shows: (title, colour map, logarithmic colour scale).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
+#: Intensity and energy span several decades across a frame (inverse-square law, reflectance, incidence): on a
+#: linear scale the weak half of the echoes would share the lowest colour with the pixels without one.
 PRODUCTS = {"range": ("Range", "viridis", False), "intensity": ("Intensity", "inferno", True),
             "energy": ("Received energy", "inferno", True), "slices": ("Gated slice", "inferno", True)}
-NO_DATA_RGB = (0.35, 0.35, 0.35)  # pixels without a value (NaN range): grey
+NO_DATA_RGB = (0.35, 0.35, 0.35)  # pixels without a value (NaN range, no echo, no return): grey
+#: The intensity and energy previews' logarithmic colour scale spans at most this many decades below the
+#: image's maximum (weaker echoes show in the scale's lowest colour, still not the no-echo grey).
+IMAGE_DECADES = 6.0
 #: Gated slices share one logarithmic colour scale over this many decades below the sweep's maximum, so the
 #: faint first and last slices (the gate's edges on the return) still show their data.
 SLICE_DECADES = 4.0
@@ -111,16 +116,34 @@ def angle_extent(settings: dict | None, shape) -> tuple[list | None, str, str]:
     return [-0.5, w - 0.5, h - 0.5, -0.5], "pixel column", "pixel row"
 
 
+def log_scale(image, decades: float = IMAGE_DECADES) -> tuple[float, float]:
+    """(vmin, vmax) of a logarithmic colour scale over an image's positive values: its maximum and its smallest
+    positive value, at most ``decades`` decades below the maximum (a flat image: one decade below)."""
+    img = np.asarray(image, dtype=np.float64)
+    positive = img[np.isfinite(img) & (img > 0)]
+    if positive.size == 0:
+        return 0.1, 1.0
+    vmax = float(positive.max())
+    vmin = max(float(positive.min()), vmax * 10.0 ** -decades)
+    return (vmin if vmin < vmax else 0.1 * vmax), vmax
+
+
 def false_colour_figure(image, *, title: str, unit: str, cmap: str = "viridis", vmin=None, vmax=None,
-                        zero_based: bool = False, log: bool = False, settings: dict | None = None):
+                        zero_based: bool = False, log: bool = False, settings: dict | None = None,
+                        no_data: str | None = None):
     """A matplotlib Figure of a 2-D image (row 0 at the top): title, angle axes (:func:`angle_extent`) and a
-    colour bar labelled with ``unit``.  ``log``: a logarithmic colour scale from ``vmin`` (> 0) to ``vmax``;
-    values at or below zero show in the map's lowest colour."""
+    colour bar labelled with ``unit``.  ``log``: a logarithmic colour scale from ``vmin`` (> 0) to ``vmax``
+    (default :func:`log_scale`), the colour bar's label says so; values at or below zero show in the no-data grey
+    with NaN, values between 0 and ``vmin`` in the map's lowest colour.  ``no_data``: what the grey means
+    ("no echo"), added to the colour bar's label."""
     from matplotlib.colors import LogNorm, Normalize
 
     image = np.asarray(image, dtype=np.float64)
     if image.ndim != 2:
         raise ValueError(f"expected a 2-D image, got shape {image.shape}")
+    if log and (vmin is None or vmax is None):
+        lo, hi = log_scale(image)
+        vmin, vmax = (lo if vmin is None else vmin), (hi if vmax is None else vmax)
     extent, xlabel, ylabel = angle_extent(settings, image.shape)
     h, w = image.shape
     (x0, x1, y0, y1) = extent
@@ -129,7 +152,7 @@ def false_colour_figure(image, *, title: str, unit: str, cmap: str = "viridis", 
     ax = fig.add_subplot()
     if log:
         norm = LogNorm(vmin=vmin, vmax=vmax, clip=True)
-        shown = np.where(image > 0, image, vmin)
+        shown = _log_shown(image)
     else:
         lo, hi = value_range(image, vmin, vmax, zero_based)
         norm = Normalize(vmin=lo, vmax=hi)
@@ -140,15 +163,23 @@ def false_colour_figure(image, *, title: str, unit: str, cmap: str = "viridis", 
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     bar = fig.colorbar(im, ax=ax)
-    bar.set_label(unit)
+    label = unit + (", logarithmic scale" if log else "") if unit else ("logarithmic scale" if log else "")
+    if no_data:
+        label += f" (grey: {no_data})"
+    bar.set_label(label)
     if not log:
         bar.formatter.set_useOffset(False)  # 299.98 m, not "+2.9998e2" above the bar
     return fig
 
 
+def _log_shown(image: np.ndarray):
+    """The pixels a log scale draws: values ≤ 0 (no echo, no return) masked like NaN (the no-data grey)."""
+    return np.ma.masked_where(~(image > 0), image)
+
+
 def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str = "viridis", vmin=None,
                      vmax=None, zero_based: bool = False, log: bool = False, settings: dict | None = None,
-                     overwrite: bool = False, reuse: dict | None = None) -> Path:
+                     overwrite: bool = False, reuse: dict | None = None, no_data: str | None = None) -> Path:
     """Write :func:`false_colour_figure` as a PNG; returns the path.
 
     ``reuse``: a dict kept by the caller across images of one shape and colour scale (a slice sweep): the first
@@ -156,12 +187,12 @@ def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str 
     fig = reuse.get("figure") if reuse is not None else None
     if fig is None:
         fig = false_colour_figure(image, title=title, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
-                                  zero_based=zero_based, log=log, settings=settings)
+                                  zero_based=zero_based, log=log, settings=settings, no_data=no_data)
         if reuse is not None:
             reuse["figure"] = fig
     else:
         image = np.asarray(image, dtype=np.float64)
-        shown = np.where(image > 0, image, vmin) if log else image
+        shown = _log_shown(image) if log else image
         fig.axes[0].images[0].set_data(np.ma.masked_invalid(shown))
         fig.axes[0].set_title(title, fontsize=10)
     return save_figure(fig, path, overwrite)
@@ -261,22 +292,49 @@ def scan_figure(points: dict, world_from_sensor, *, title: str = "Scanner points
 # ----------------------------------------------------------------------------------------------------------
 # Sweep plots
 # ----------------------------------------------------------------------------------------------------------
-def sweep_figure(series, *, xlabel: str, ylabel: str, log_x: bool = False):
+#: A sweep figure gets a logarithmic y axis when its drawn means span more than this many decades.
+SWEEP_LOG_Y_DECADES = 2.0
+
+
+def sweep_log_y(series) -> bool:
+    """True when the means of the drawn ``series`` are all ≥ 0 and their positive values span more than
+    :data:`SWEEP_LOG_Y_DECADES` decades (received energy against range: a linear axis puts the far points on
+    zero).  Zero means (no points at all) are then not drawn: the title says so."""
+    means = np.concatenate([np.asarray(s[2], dtype=np.float64).ravel() for s in series[:12]])
+    means = means[np.isfinite(means)]
+    positive = means[means > 0]
+    return bool(positive.size >= 2 and means.min() >= 0
+                and positive.max() > positive.min() * 10.0 ** SWEEP_LOG_Y_DECADES)
+
+
+def sweep_figure(series, *, xlabel: str, ylabel: str, log_x: bool = False, log_y: bool | None = None):
     """A summary figure of a sweep against one swept axis: ``series`` = [(label, x values, mean, std, n)], one per
     combination of the other axes (at most 12 drawn); the mean across seeds as a line with markers and mean ± one
-    standard deviation as a band."""
+    standard deviation as a band.  ``log_y``: a logarithmic y axis (None: :func:`sweep_log_y` decides; the
+    axis label says "log scale")."""
     if not series:
         raise ValueError("no series to plot")
+    if log_y is None:
+        log_y = sweep_log_y(series)
     fig = new_figure(7.2, 4.4)
     ax = fig.add_subplot()
+    zeros = False
     for label, x, mean, std, _ in series[:12]:
         x, mean, std = (np.asarray(a, dtype=np.float64) for a in (x, mean, std))
+        if log_y:
+            zeros |= bool(np.any(mean <= 0))
+            mean = np.where(mean > 0, mean, np.nan)  # not drawn on a log axis
+            low = np.where(mean - std > 0, mean - std, mean * 0.1)  # the band's lower edge, kept on the axis
+        else:
+            low = mean - std
         line, = ax.plot(x, mean, marker="o", ms=4, lw=1.2, label=label or None)
-        ax.fill_between(x, mean - std, mean + std, color=line.get_color(), alpha=0.2, lw=0)
+        ax.fill_between(x, low, mean + std, color=line.get_color(), alpha=0.2, lw=0)
     if log_x:
         ax.set_xscale("log")
+    if log_y:
+        ax.set_yscale("log")
     ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
+    ax.set_ylabel(ylabel + (" (log scale" + ("; zeros not drawn)" if zeros else ")") if log_y else ""))
     counts = sorted({int(k) for s in series for k in s[4]})
     ax.set_title(f"{ylabel} vs {xlabel}: mean ± std over "
                  + (f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}–{counts[-1]}") + " seeds", fontsize=10)
@@ -287,9 +345,11 @@ def sweep_figure(series, *, xlabel: str, ylabel: str, log_x: bool = False):
     return fig
 
 
-def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = False, overwrite: bool = False) -> Path:
+def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = False, log_y: bool | None = None,
+                   overwrite: bool = False) -> Path:
     """Write :func:`sweep_figure` as a PNG; returns the path."""
-    return save_figure(sweep_figure(series, xlabel=xlabel, ylabel=ylabel, log_x=log_x), path, overwrite)
+    return save_figure(sweep_figure(series, xlabel=xlabel, ylabel=ylabel, log_x=log_x, log_y=log_y), path,
+                       overwrite)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -324,9 +384,10 @@ def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
         image = _first_channel(read_exr(exr))
         if image.size <= 1:  # the profiler's one pixel: its waveform plot is the preview
             continue
-        title, cmap, zero_based = PRODUCTS[product]
+        title, cmap, log = PRODUCTS[product]
+        no_data = "no return" if product == "energy" else "no echo"
         written.append(false_colour_png(png, image, title=title, unit=units.get(product, ""), cmap=cmap,
-                                        zero_based=zero_based, settings=settings))
+                                        log=log, settings=settings, no_data=no_data))
     slices = sorted((run_dir / "slices").glob("slice_*.exr")) if (run_dir / "slices").is_dir() else []
     if slices and not stop():
         written += _slice_previews(run_dir, slices, meta, units.get("slices", ""), stop)
@@ -375,7 +436,8 @@ def _slice_previews(run_dir, slice_files, meta, unit, stop) -> list[Path]:
         if delays is not None and k < len(delays):
             name += ", " + gate_label(float(delays[k]), width)
         written.append(false_colour_png(png, stack[k], title=name, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
-                                        log=True, settings=meta.get("settings"), reuse=reuse))
+                                        log=True, settings=meta.get("settings"), reuse=reuse,
+                                        no_data="no signal"))
     return written
 
 

@@ -7,6 +7,7 @@ previous run of this tool): the run folder rules are fileio.staging's.
 from __future__ import annotations
 
 import json
+import math
 import platform
 import sys
 import time
@@ -66,47 +67,99 @@ def read_exr(path) -> dict:
         return {name: np.array(ch.pixels) for name, ch in f.channels().items()}
 
 
+#: PLY property types every common client reads (Open3D 0.20 skips short, ushort, char and uint properties;
+#: CloudCompare, plyfile, trimesh and Blender read all of these): doubles, floats, 32-bit ints and uchar.
 _PLY_TYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dtype(np.int32): "int",
-              np.dtype(np.int16): "short", np.dtype(np.uint8): "uchar", np.dtype(np.int64): "int"}
+              np.dtype(np.uint8): "uchar"}
+_PLY_INVERSE = {"double": "<f8", "float": "<f4", "int": "<i4", "short": "<i2", "uchar": "u1", "char": "i1",
+                "ushort": "<u2", "uint": "<u4"}
+#: SI prefixes in ASCII (a PLY header is ASCII): "u" for micro.
+_SI_PREFIXES = {0: "", -3: "m", -6: "u", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y", -27: "r",
+                -30: "q"}
 
 
-def write_ply(path, points: dict):
-    """Binary little-endian PLY: x, y, z (world, double) and every 1-D per-point attribute."""
+def _ply_column(arr: np.ndarray) -> np.ndarray:
+    """A 1-D attribute in a type of :data:`_PLY_TYPES`: other integers (int16 …) as int32, bool as uchar,
+    half floats as float."""
+    if arr.dtype in _PLY_TYPES:
+        return arr
+    if arr.dtype == np.bool_:
+        return arr.astype(np.uint8)
+    if arr.dtype.kind in "iu":
+        return arr.astype(np.int32)
+    return arr.astype(np.float32)
+
+
+def ply_intensity_scale(intensity, unit: str | None = None) -> tuple[float, str]:
+    """The power of ten (10^(3k), k ≤ 0) the PLY's ``intensity`` is stored in, so that its smallest positive
+    value is at least 1 (clients printing 6 decimals show no zeros), and the stored unit (``unit`` with its SI
+    prefix, e.g. "aJ per bin" for 1e-18 of "J per bin").  1 when the smallest positive value is already ≥ 1."""
+    v = np.abs(np.asarray(intensity, dtype=np.float64))
+    v = v[np.isfinite(v) & (v > 0)]
+    k = 0 if v.size == 0 or v.min() >= 1.0 else max(-30, 3 * math.floor(math.log10(v.min()) / 3))
+    scale = float(f"1e{k}")
+    unit = unit or ""
+    if unit.startswith("J") and k in _SI_PREFIXES:
+        stored = _SI_PREFIXES[k] + unit
+    else:
+        stored = (f"{scale:g} " if k else "") + unit
+    return scale, stored.strip()
+
+
+def write_ply(path, points: dict, intensity_unit: str | None = None) -> dict:
+    """Binary little-endian PLY: x, y, z (world, double) and every 1-D per-point attribute, in types every common
+    client reads (:data:`_PLY_TYPES`); ``intensity`` stored divided by :func:`ply_intensity_scale` (stated in the
+    header's comments ``intensity_scale`` and ``intensity_unit``).  Returns {"intensity_scale", "intensity_unit"}."""
     pos = points["position_world"]
     fields = [("x", pos[:, 0]), ("y", pos[:, 1]), ("z", pos[:, 2])]
+    scale, stored_unit = 1.0, intensity_unit or ""
+    if "intensity" in points:
+        scale, stored_unit = ply_intensity_scale(points["intensity"], intensity_unit)
     for name, arr in points.items():
         if arr.ndim == 1:
-            fields.append((name, arr.astype(np.int32) if arr.dtype == np.int64 else arr))
+            col = _ply_column(arr)
+            if name == "intensity" and scale != 1.0:
+                col = (col / scale).astype(col.dtype)
+            fields.append((name, col))
     dtype = np.dtype([(n, a.dtype.newbyteorder("<")) for n, a in fields])
     table = np.empty(len(pos), dtype=dtype)
     for n, a in fields:
         table[n] = a
     header = ["ply", "format binary_little_endian 1.0", "comment ladar simulator point cloud",
+              f"comment intensity_scale {scale:g}",
+              f"comment intensity_unit {stored_unit or 'none'} (intensity x {scale:g} = the run's intensity"
+              + (f" in {intensity_unit})" if intensity_unit else ")"),
               f"element vertex {len(pos)}"]
     header += [f"property {_PLY_TYPES[np.dtype(a.dtype)]} {n}" for n, a in fields]
     header.append("end_header")
     with open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(("\n".join(header) + "\n").encode("ascii", errors="replace"))
         f.write(table.tobytes())
+    return {"intensity_scale": scale, "intensity_unit": stored_unit}
 
 
-def read_ply(path) -> dict:
-    """Read a PLY written by :func:`write_ply` (binary little-endian vertices only)."""
-    inverse = {"double": "<f8", "float": "<f4", "int": "<i4", "short": "<i2", "uchar": "u1"}
+def read_ply(path, *, raw: bool = False) -> dict:
+    """Read a PLY written by :func:`write_ply` (binary little-endian vertices only).  ``intensity`` is returned in
+    the run's unit (the stored values times the header's ``intensity_scale``) unless ``raw``."""
     with open(path, "rb") as f:
-        names, types, n = [], [], 0
+        names, types, n, scale = [], [], 0, 1.0
         while True:
-            line = f.readline().decode("ascii").strip()
+            line = f.readline().decode("utf-8").strip()
             if line.startswith("element vertex"):
                 n = int(line.split()[-1])
+            elif line.startswith("comment intensity_scale"):
+                scale = float(line.split()[-1])
             elif line.startswith("property"):
                 _, t, name = line.split()
                 names.append(name)
-                types.append(inverse[t])
+                types.append(_PLY_INVERSE[t])
             elif line == "end_header":
                 break
         table = np.frombuffer(f.read(), dtype=np.dtype(list(zip(names, types))), count=n)
-    return {name: table[name] for name in names}
+    out = {name: table[name] for name in names}
+    if "intensity" in out and scale != 1.0 and not raw:
+        out["intensity"] = out["intensity"] * out["intensity"].dtype.type(scale)
+    return out
 
 
 def software_versions() -> dict:
@@ -151,9 +204,10 @@ def write_run_files(folder, result, metadata: dict) -> Path:
         files.update({"range.exr": f"{what['range']} ({units['range']}), NaN where none; row 0 = top",
                       "intensity.exr": f"{what['intensity']} ({units['intensity']})",
                       "energy.exr": f"{what['energy']} ({units['energy']})"})
-    write_ply(tmp / "points.ply", result.points)
+    ply = write_ply(tmp / "points.ply", result.points, units.get("intensity"))
     np.savez(tmp / "points.npz", **result.points)
-    files["points.ply"] = "point cloud, world coordinates + per-point attributes"
+    files["points.ply"] = (f"point cloud, world coordinates + per-point attributes (intensity in "
+                           f"{ply['intensity_unit']}: × {ply['intensity_scale']:g})")
     files["points.npz"] = "the same point cloud as NumPy arrays"
     if len(result.points.get("range_m", ())):
         write_las(tmp / "points.las", result.points, **las_run_facts(dict(metadata, units=units)))
@@ -193,6 +247,7 @@ def write_run_files(folder, result, metadata: dict) -> Path:
     meta = dict(metadata)
     meta["units"] = dict(units)
     meta["files"] = files
+    meta["ply"] = ply
     meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
     with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
         json.dump(meta, f, indent=2, default=json_default)
@@ -217,7 +272,8 @@ def json_default(obj):
 
 
 def run_summary(run_path, result) -> str:
-    """A few lines a person reads after a run: what was seen, what ran, what was skipped, where it went."""
+    """A few lines a person reads after a run: what was seen (points, false alarms, SNR), how much of what the
+    rays hit the range gate covers (with a warning below 90 %), what ran, what was skipped, where it went."""
     st = result.stats
     pts = result.points
     lines = [f"run      {run_path}"]
@@ -231,6 +287,8 @@ def run_summary(run_path, result) -> str:
         lines.append(f"slices   {len(d)} gates, delays {d[0] * 1e9:.1f} – {d[-1] * 1e9:.1f} ns; range by "
                      f"{st['range_method']}")
     unit = "pulses" if "n_pulses" in st else "pixels"
+    n_cells = st["n_pulses"] if "n_pulses" in st else (
+        result.range_image.size if getattr(result, "range_image", None) is not None else 1)
     if len(pts["range_m"]):
         first = pts["echo_index"] == 1
         lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} {unit} with an echo, "
@@ -238,9 +296,30 @@ def run_summary(run_path, result) -> str:
                      f"{pts['range_m'].min():.3f} – {pts['range_m'].max():.3f} m")
     else:
         lines.append("echoes   none detected")
-    lines.append(f"energy   {st['received_energy_j']:.4g} J received in total")
+    fa = pts.get("false_alarm")
+    if fa is not None:
+        n_fa = int(np.count_nonzero(fa))
+        lines.append(f"false    {n_fa} false alarms of {len(fa)} points ({n_fa / max(n_cells, 1):.3g} per "
+                     f"{unit[:-1]}; {len(fa) - n_fa} true returns)")
+    snr = pts.get("snr")
+    if snr is not None and len(snr):
+        true = snr[fa == 0] if fa is not None else snr
+        part = [f"true returns {true.min():.3g} – {true.max():.3g}" if len(true) else "no true return"]
+        if fa is not None and np.count_nonzero(fa):
+            part.append(f"false alarms {snr[fa != 0].min():.3g} – {snr[fa != 0].max():.3g}")
+        lines.append("snr      " + "; ".join(part))
+    cov = st.get("gate_coverage")
+    lines.append(f"energy   {st['received_energy_j']:.4g} J at the aperture from every hit sub-ray (before the range "
+                 "gate and time binning)")
+    if cov and cov.get("hit_subrays"):
+        ef, sf = cov["energy_fraction"], cov["subray_fraction"]
+        g0, g1 = cov["gate_range_m"]
+        h0, h1 = cov["hit_range_m"]
+        lines.append(f"gate     {g0:.1f} – {g1:.1f} m holds {100 * ef['inside']:.1f} % of the hit energy "
+                     f"({100 * ef['before']:.1f} % before, {100 * ef['after']:.1f} % after) and "
+                     f"{100 * sf['inside']:.1f} % of the hit sub-rays; hits at {h0:.1f} – {h1:.1f} m")
     times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
-    lines.append(f"stages   {times} (s, summed over threads)")
+    lines.append(f"stages   {times} (s, summed over threads; without loading or compiling kernels)")
     k = st.get("kernels")
     if k and (k["loaded"] or k["compiled"]):
         lines.append(f"kernels  {k['loaded']} loaded from the cache, {k['compiled']} compiled: "
@@ -248,4 +327,12 @@ def run_summary(run_path, result) -> str:
                      + ("; compiled once per install and CPU)" if k["compiled"] else ")"))
     if st.get("stages_skipped"):
         lines.append("skipped  " + "; ".join(f"{k} ({v})" for k, v in st["stages_skipped"].items()))
+    for w in run_warnings(st):
+        lines.append("WARNING  " + w)
     return "\n".join(lines)
+
+
+def run_warnings(stats: dict) -> list[str]:
+    """The warnings a person must see after a run (one line each): today the range gate's coverage."""
+    cov = stats.get("gate_coverage") or {}
+    return [f"range gate: {cov['warning']}"] if cov.get("warning") else []

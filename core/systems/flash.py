@@ -17,6 +17,7 @@ from ..config.settings import SimulationConfig
 from ..config.validate import validate_config
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
+from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
 from ..engine.blocks import balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import BLOCK_WAVEFORM_BYTES
@@ -127,6 +128,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                             beam_offset_tan=atm.beam_offset_tan, beam_width_scale=atm.beam_width_scale,
                             refine=rx.subray_refine, fine_fractions=fine)
     refined = []  # (refined pixels, rays) per block, adaptive pattern
+    window = gate_window_s(config)
+    tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
 
     def trace_tan(x_tan, y_tan):
         return tracer.intersect(origin, rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T))
@@ -159,6 +162,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                             range_hit, frac_hit)
         atm.scale_by_scintillation(e, index, x_tan, y_tan, sub_x, sub_y)
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
+        tallies[a] = gate_tally(range_hit, e, window)
         local["radiometry"] = stage_clock() - t
         t = stage_clock()
         # one window of bins per pixel: a short return in a long gate costs its window only, a pixel without
@@ -244,6 +248,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
              "threads": min(threads, len(blocks)), "waveform_binning": method,
              "stage_times_s": log.times, "wall_time_s": time.perf_counter() - fr.t_wall,
              "received_energy_j": float(energy_image.sum())}
+    stats["gate_coverage"] = coverage_record(config, add_tallies(tallies[k] for k in sorted(tallies)))
     stats.update(stages_run=log.ran, stages_skipped=log.skipped)
     stats["bvh"] = fr.bvh  # built, culled or reused (static geometry)
     stats["memory_estimate_bytes"] = memory["total"]

@@ -41,6 +41,7 @@ from scipy.special import ndtri
 from ..config.settings import LaserSettings, SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
+from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import GATE_MAX_TERMS, check_memory, estimate_gated_memory, held_bytes
@@ -285,6 +286,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     slices = np.zeros((n_sl, det.n_pixels))
     energy = np.zeros((len(atm_slices), det.n_pixels))
     support = pulse_half_support_s(laser) + 0.5 * g.shutter_edge_s
+    window = gate_window_s(config)
+    tallies = {}  # block start → its hits against the slice sweep (engine/coverage.py)
 
     def process(block):
         a, b = block
@@ -309,6 +312,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                 e = e * atm_slices[j].scintillation_at(xt, yt, sx, sy)
             energy[j, a:b] = np.bincount(pix, weights=e, minlength=b - a)
             per_slice.append(e)
+        tallies[a] = gate_tally(range_m[hit], per_slice[0], window)
         local["radiometry"] = stage_clock() - t
         t = stage_clock()
         t_rt = round_trip_time_s(range_m[hit])
@@ -396,7 +400,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                                    + ("k_sigma × noise σ" if noise_sigma is not None else "min_signal_j") + ")"},
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(energy_image.sum()),
              "stages_run": log.ran, "stages_skipped": log.skipped, "memory_estimate_bytes": memory["total"],
-             "work_estimate_samples": memory["work"]}
+             "work_estimate_samples": memory["work"],
+             "gate_coverage": coverage_record(config, add_tallies(tallies[k] for k in sorted(tallies)))}
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
         if per_slice_random:

@@ -24,6 +24,7 @@ from ..config.derived import n_scan_pulses, scan_duration_s
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import turbulence_switches
+from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import SCAN_NOISE_TILE_PULSES
@@ -331,6 +332,9 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
               "scan_angle_rad": np.zeros(n_pulses, np.float32), "n_echoes": np.zeros(n_pulses, np.int16),
               "received_energy_j": np.zeros(n_pulses)}
 
+    window = gate_window_s(config)
+    tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
+
     def process(block):
         a, b = block
         n = b - a
@@ -359,6 +363,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
                             range_hit, frac_hit)
         _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
+        tallies[a] = gate_tally(range_hit, e, window)
         local["radiometry"] = stage_clock() - t
         t = stage_clock()
         t_rt = round_trip_time_s(range_hit)
@@ -419,6 +424,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
              "scan_duration_s": scan_duration_s(config), "stage_times_s": log.times,
              "wall_time_s": time.perf_counter() - fr.t_wall,
              "received_energy_j": float(pulses["received_energy_j"].sum()),
+             "gate_coverage": coverage_record(config, add_tallies(tallies[k] for k in sorted(tallies))),
              "stages_run": log.ran, "stages_skipped": log.skipped, "memory_estimate_bytes": fr.memory["total"],
              "work_estimate_samples": fr.memory["work"],
              "notes": {"divergence_fills_fov": "ignored by the scanner: the beam is laser.beam_divergence_rad",

@@ -202,3 +202,40 @@ def test_a_folder_created_during_the_run_is_not_replaced(lad, scene, tmp_path):
     assert "created by someone else" in job.summary()
     assert [p.name for p in (tmp_path / "runs").iterdir()] == ["taken"]
     assert [p.name for p in (tmp_path / "runs" / "taken").iterdir()] == ["mine.txt"]
+
+
+def test_operator_warns_when_the_range_gate_misses_the_scene(lad, scene, tmp_path):
+    """A plate at 400 m, the default gate 0–307 m: the run finishes with 0 points and the operator reports a
+    WARNING naming the gate, the hits' range and the settings that cover them (as metadata.json does)."""
+    cam = add_camera(scene, width_px=8, height_px=8, fov_rad=0.004)
+    cam.ladar.receiver.subsamples = 1
+    cam.ladar.run.threads = 1
+    add_plate(scene, size=8.0, location=(0, 0, -400))
+    scene.ladar.output_dir = str(tmp_path / "runs")
+    op_cls = lad.package.operators.simulate.LADAR_OT_simulate
+    wm = types.SimpleNamespace(windows=[], event_timer_remove=lambda t: None)
+    ctx = types.SimpleNamespace(window_manager=wm)
+    job = lad.job.SimulationJob(scene)
+    job.start(threaded=True)
+    lad.job.set_current_job(job)
+    reports = []
+    op = types.SimpleNamespace(_job_ref=job, _timer="timer", report=lambda kind, msg: reports.append((kind, msg)))
+    for name in ("_end", "cancelled_text"):
+        setattr(op, name, types.MethodType(getattr(op_cls, name), op))
+    op.FINISHED_PREFIX = op_cls.FINISHED_PREFIX
+    timer = types.SimpleNamespace(type="TIMER", value="NOTHING")
+    result = {"PASS_THROUGH"}
+    for _ in range(6000):
+        result = op_cls.modal(op, ctx, timer)
+        if result != {"PASS_THROUGH"}:
+            break
+        time.sleep(0.01)
+    assert result == {"FINISHED"}
+    assert reports[0][0] == {"INFO"} and "0 points" in reports[0][1]
+    assert [k for k, _ in reports[1:]] == [{"WARNING"}]
+    text = reports[1][1]
+    assert text.startswith("Ladar: range gate: only 0.0 % of the hit energy") and "0.0–307.0 m" in text
+    assert "the hits are at 400.0–400.0 m" in text and "gate.gate_start_s" in text and "gate.n_bins" in text
+    import json
+    meta = json.loads((job.run_path / "metadata.json").read_text())
+    assert meta["warnings"] == [text.removeprefix("Ladar: ")]
