@@ -52,7 +52,7 @@ RANGE_LIMITS_M = (0.0, 1e7)
 #: first task within 30 s (tests/core/sweep/test_sweep.py; docs/sweeps.md has the times measured).  A sweep of
 #: 10⁶ tasks took minutes to plan (issue 31): split it into sweeps of other seeds or axis ranges.
 MAX_TASKS = 100_000
-MAX_POINTS = 2_000
+MAX_POINTS = 1_000
 _TOP_KEYS = ("sweep_version", "seed", "seeds", "combine", "frames", "base", "target", "settings", "axes")
 _RANGE_KEYS = ("start", "stop", "num", "step", "spacing")
 
