@@ -215,7 +215,7 @@ def _cmd_sweep(scene, args) -> int:
         raise ConfigError("workers", args.workers, "a whole number ≥ 1")
     outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
                           restart=args.restart, sensor=_sensor(scene, args.sensor),
-                          progress=progress_printer("ladar: sweep "))
+                          progress=progress_printer("ladar: sweep ", every_s=30.0))
     emit(outcome.summary())
     return EXIT_OK if outcome.n_failed == 0 else EXIT_USER_ERROR
 

@@ -2,6 +2,7 @@
 the messages a run prints."""
 from __future__ import annotations
 
+import math
 import re
 import threading
 import time
@@ -78,15 +79,19 @@ def build_config(scene, sensor, *, config_path=None, seed=None):
     return cfg, blender_materials
 
 
-def progress_printer(prefix="ladar: "):
-    """A progress callback that prints a line at most every 10 % (background mode: Blender draws nothing)."""
-    state = {"next": 0.0, "t0": time.perf_counter(), "lock": threading.Lock()}
+def progress_printer(prefix="ladar: ", every_s=None):
+    """A progress callback that prints a line at most every 10 % (background mode: Blender draws nothing), and
+    also when ``every_s`` seconds passed since the last line (long sweeps)."""
+    state = {"next": 0.0, "t0": time.perf_counter(), "last": -math.inf, "lock": threading.Lock()}
 
     def progress(fraction, message=""):
         with state["lock"]:
-            if fraction + 1e-9 >= state["next"] or fraction >= 1.0:
-                emit(f"{prefix}{100 * fraction:5.1f}% {message} ({time.perf_counter() - state['t0']:.2f} s)")
-                state["next"] = min(1.0, fraction + 0.1)
+            now = time.perf_counter()
+            if (fraction + 1e-9 >= state["next"] or fraction >= 1.0
+                    or (every_s is not None and now - state["last"] >= every_s)):
+                emit(f"{prefix}{100 * fraction:5.1f}% {message} ({now - state['t0']:.2f} s)")
+                state["next"] = min(1.0, max(state["next"], fraction + 0.1))
+                state["last"] = now
     return progress
 
 

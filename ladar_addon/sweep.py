@@ -22,7 +22,7 @@ from pathlib import Path
 import bpy
 
 from ..core.errors import Cancelled
-from ..core.sweep.runner import plan_sweep, run_sweep
+from ..core.sweep.runner import plan_sweep, run_sweep, scheduler_address
 from ..core.sweep.scene import SweepScene
 from ..core.sweep.spec import load_sweep
 from .background import BackgroundJob
@@ -70,6 +70,8 @@ class SweepJob(BackgroundJob):
                  progress=None):
         self.scene = scene
         self.sensor = sensor if sensor is not None else active_sensor(scene)
+        if scheduler:
+            scheduler_address(scheduler)  # a malformed address: one line before the scene is exported
         spec = load_sweep(sweep_file)
         if out_dir is None or not str(out_dir):
             raise LadarError("no sweep folder: pass --out DIR")
@@ -89,6 +91,7 @@ class SweepJob(BackgroundJob):
         self.base = dataclasses.replace(cfg, materials={})
         plan = plan_sweep(self.spec, self.sweep_scene, self.base, self.out_dir)  # every point validated now
         self.n_tasks = len(plan.tasks)
+        self.n_points = plan.manifest["n_points"]
         self.scheduler, self.n_workers, self.restart = scheduler, n_workers, restart
         self.user_progress = progress
         self.state, self.error, self.outcome = "ready", None, None
@@ -124,7 +127,10 @@ class SweepJob(BackgroundJob):
         self.state = "running"
         self.t_start = time.perf_counter()
         if bpy.app.background:
-            print(f"ladar: sweep {self.spec.source}: {self.n_tasks} tasks into {self.out_dir}", flush=True)
+            frames = self.spec.frames
+            shown = ", ".join(str(f) for f in frames[:5]) + (f", … ({len(frames)} frames)" if len(frames) > 5 else "")
+            print(f"ladar: sweep {self.spec.source}: {self.n_tasks} tasks ({self.n_points} points × {self.spec.seeds} "
+                  f"seeds × frame{'s' if len(frames) > 1 else ''} {shown}) into {self.out_dir}", flush=True)
         if threaded:
             self._thread = threading.Thread(target=self._work, name="ladar-sweep", daemon=True)
             self._thread.start()

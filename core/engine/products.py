@@ -126,6 +126,21 @@ def record_pose(result: FrameResult, world_from_sensor, trajectory=None) -> None
                                               "pulse's origin and direction"}
 
 
+def ground_truth_tolerance(config: SimulationConfig) -> tuple:
+    """(range tolerance m, angular spread rad) within which a point is on a surface (:func:`label_points`)."""
+    spread_s = 2.0 * config.laser.pulse_fwhm_s + 4.0 * config.gate.bin_width_s
+    if config.system_type == "gated":
+        spread_s += config.gated.gate_width_s + config.gated.delay_step_s
+    rx = config.receiver
+    if config.system_type == "scanner":  # the beam's footprint half-width
+        spread_rad = 0.5 * config.laser.beam_divergence_rad
+    elif config.system_type == "profiler":  # one element over the whole field of view
+        spread_rad = 0.5 * max(rx.fov_x_rad, rx.fov_y_rad)
+    else:  # half a pixel
+        spread_rad = 0.5 * max(rx.fov_x_rad / rx.width_px, rx.fov_y_rad / rx.height_px)
+    return 0.5 * SPEED_OF_LIGHT_M_S * spread_s, spread_rad
+
+
 def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, config: SimulationConfig) -> None:
     """Ground truth of the frame's points (core.geometry.groundtruth): ``points["material_id"]`` (−1: no surface near)
     and the scene's material names in ``stats["material_names"]``; a false alarm keeps its label (its flag says
@@ -139,18 +154,9 @@ def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, c
         origin = np.asarray(result.pulses["origin_world"])[pts["pulse_index"]]
     else:
         origin = np.asarray(world_from_sensor, dtype=np.float64)[:3, 3]
-    spread_s = 2.0 * config.laser.pulse_fwhm_s + 4.0 * config.gate.bin_width_s
-    if config.system_type == "gated":
-        spread_s += config.gated.gate_width_s + config.gated.delay_step_s
-    rx = config.receiver
-    if config.system_type == "scanner":  # the beam's footprint half-width
-        spread_rad = 0.5 * config.laser.beam_divergence_rad
-    elif config.system_type == "profiler":  # one element over the whole field of view
-        spread_rad = 0.5 * max(rx.fov_x_rad, rx.fov_y_rad)
-    else:  # half a pixel
-        spread_rad = 0.5 * max(rx.fov_x_rad / rx.width_px, rx.fov_y_rad / rx.height_px)
+    tolerance_m, spread_rad = ground_truth_tolerance(config)
     t0 = stage_clock()
     pts["material_id"] = surface_material_ids(result.tracer, scene.material_ids, origin, pts["position_world"],
-                                              0.5 * SPEED_OF_LIGHT_M_S * spread_s, spread_rad)
+                                              tolerance_m, spread_rad)
     result.stats["material_names"] = list(scene.material_names)
     result.stats.setdefault("stage_times_s", {})["ground_truth"] = stage_clock() - t0

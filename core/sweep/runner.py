@@ -29,6 +29,7 @@ import io
 import json
 import math
 import os
+import pickle
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -42,10 +43,12 @@ from ..errors import Cancelled, ConfigError
 from ..fileio.preview import sweep_plot_png
 from ..fileio.run_folder import software_versions
 from ..fileio.staging import remove_abandoned_staging, write_file_atomically
+from ..geometry.motion import split_pose
+from ..geometry.trace import SceneTracer
 from ..version import __version__
-from .scene import SweepScene, boresight_point, write_json_atomically
-from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seed
-from .shipping import ship_core, stage_core
+from .scene import SweepScene, boresight_point, json_default, write_json_atomically
+from .spec import RANGE_AXIS, SweepSpec, base_config, load_sweep, point_configs, task_seeds
+from .shipping import ship_core, shipped_call, stage_core
 from .task import FIGURES, finished_row
 
 SWEEP_FORMAT = "ladar-sweep"
@@ -66,13 +69,15 @@ class SweepOutcome:
     wall_time_s: float = 0.0
     n_workers: int = 0
     plots: list = field(default_factory=list)
+    target: dict = field(default_factory=dict)   # sweep_target: the material the figures measure, and why
 
     def summary(self) -> str:
         return (f"sweep    {self.path}\n"
                 f"tasks    {self.n_done}/{self.n_tasks} done, {self.n_failed} failed; {self.n_run} run now on "
                 f"{self.n_workers} worker(s), {self.n_resumed} finished before; {self.wall_time_s:.1f} s\n"
-                f"table    {self.path / 'results.csv'}" + (f"\nplots    {len(self.plots)} in {self.path / 'plots'}"
-                                                             if self.plots else ""))
+                + (f"target   {self.target.get('material')!r} ({self.target.get('chosen')})\n" if self.target else "")
+                + f"table    {self.path / 'results.csv'}" + (f"\nplots    {len(self.plots)} in {self.path / 'plots'}"
+                                                               if self.plots else ""))
 
 
 @dataclass
@@ -101,19 +106,23 @@ def plan_sweep(spec: SweepSpec, scene: SweepScene, base: SimulationConfig | None
     targets = {}
     if RANGE_AXIS in spec.axis_names:
         targets = {f: boresight_point(scene, f).tolist() for f in frames}
+    target = sweep_target(spec, scene, frames[0])
     wp = max(4, len(str(len(configs) - 1)))
     ws = max(2, len(str(spec.seeds - 1)))
     tasks = []
     out = Path(out_dir).resolve() if out_dir is not None else Path("sweep")
+    runs = str(out / "runs") + os.sep
+    seed_indices = np.arange(spec.seeds)
     for p, (values, cfg, range_m) in enumerate(configs):
         cfg_dict = config_to_dict(cfg)
+        seeds = task_seeds(spec.seed, np.full(spec.seeds, p), seed_indices).tolist()
         for s in range(spec.seeds):
-            seed = task_seed(spec.seed, p, s)
+            seed = seeds[s]
             for f in frames:
                 name = f"p{p:0{wp}d}-s{s:0{ws}d}" + (f"-f{f:04d}" if len(frames) > 1 else "")
                 tasks.append({"name": name, "point": p, "seed_index": s, "seed": seed, "frame": f,
                               "values": values, "config": cfg_dict, "range_m": range_m,
-                              "target_m": targets.get(f), "out": str(out / "runs" / name)})
+                              "target_m": targets.get(f), "target": target["material"], "out": runs + name})
     normal = spec.normalized()
     normal["frames"] = frames
     fp_data = {"spec": normal, "base": config_to_dict(base), "scene": scene.digest()}
@@ -121,11 +130,40 @@ def plan_sweep(spec: SweepSpec, scene: SweepScene, base: SimulationConfig | None
     manifest = {"format": SWEEP_FORMAT, "format_version": SWEEP_FORMAT_VERSION, "fingerprint": fingerprint,
                 "sweep": normal, "base_settings": fp_data["base"], "scene_digest": fp_data["scene"],
                 "source": spec.source, "n_points": len(configs), "n_tasks": len(tasks),
-                "axes": spec.axis_names, "figures": list(FIGURES), "simulator_version": __version__,
+                "axes": spec.axis_names, "figures": list(FIGURES), "target": target,
+                "simulator_version": __version__,
                 "software": software_versions(), "created_unix_s": time.time(),
                 "tasks": [{k: t[k] for k in ("name", "point", "seed_index", "seed", "frame", "values")}
                           for t in tasks]}
     return SweepPlan(spec, scene, base, tasks, fingerprint, manifest)
+
+
+def sweep_target(spec: SweepSpec, scene: SweepScene, frame: int) -> dict:
+    """The surface whose detection the figures measure: ``{"material": name or None, "chosen": how}`` — the sweep
+    file's ``target`` (a material of the scene), else the material of the nearest surface at the image centre (the
+    centre ray's first hit) at the base pose of the sweep's first frame.  Raises ConfigError for an unknown name."""
+    names = sorted(set().union(*(g.material_names for g in scene.geometries)))
+    if spec.target is not None:
+        if spec.target not in names:
+            raise ConfigError("target", spec.target, "the name of a material in the scene: " + ", ".join(names))
+        return {"material": spec.target, "chosen": "the sweep file's target"}
+    origin, rot = split_pose(scene.poses[scene.frame_index(frame)])
+    geometry = scene.geometry(frame)
+    prim, _, _ = SceneTracer(geometry).intersect(origin, (rot @ np.array([0.0, 0.0, -1.0]))[None])
+    if prim[0] < 0:
+        return {"material": None, "chosen": "default: nothing at the image centre (no target: its figures are empty)"}
+    return {"material": geometry.material_names[int(geometry.material_ids[prim[0]])],
+            "chosen": f"default: the nearest surface at the image centre at frame {frame}"}
+
+
+def manifest_text(manifest: dict) -> str:
+    """``sweep.json``: indented JSON, with one line per task (JSON's C encoder: 10⁵ tasks in well under a second,
+    against seconds for the indenting encoder)."""
+    head = {k: v for k, v in manifest.items() if k != "tasks"}
+    text = json.dumps(head, indent=2, default=json_default)
+    encode = json.JSONEncoder(default=json_default).encode  # one encoder (json.dumps makes one per call)
+    tasks = ",\n    ".join(map(encode, manifest.get("tasks", ())))
+    return text[:-2] + (',\n  "tasks": [\n    ' + tasks + "\n  ]\n}" if tasks else ',\n  "tasks": []\n}')
 
 
 def _differences(old: dict, plan: SweepPlan) -> str:
@@ -171,7 +209,8 @@ def prepare_folder(plan: SweepPlan, out_dir, *, restart: bool = False) -> Path:
             shutil.copyfile(src, out / ("sweep_file" + src.suffix.lower()))
         scene_dir = out / "scene"
         plan.scene.save(scene_dir)
-        write_json_atomically(manifest_path, plan.manifest)  # last: a folder without it is not a sweep yet
+        text = manifest_text(plan.manifest)  # last: a folder without it is not a sweep yet
+        write_file_atomically(manifest_path, lambda f: f.write(text.encode("utf-8")))
     elif not (out / "scene" / "scene.json").is_file():
         plan.scene.save(out / "scene")
     remove_abandoned_staging(out / "runs")  # what workers killed while writing left (their claims are gone)
@@ -183,16 +222,17 @@ def prepare_folder(plan: SweepPlan, out_dir, *, restart: bool = False) -> Path:
 # --------------------------------------------------------------------------------------------------------------
 def table_columns(axis_names) -> list:
     return (["task", "point", "seed_index", "frame", *axis_names, "seed", "status", "error", "run_time_s",
-             *FIGURES, "run"])
+             "target", *FIGURES, "run"])
 
 
 def task_row(task: dict, result: dict | None, root: Path) -> dict:
     """A results-table row: the task's identity and swept values, then its result (or status "pending")."""
     row = {"task": task["name"], "point": task["point"], "seed_index": task["seed_index"], "frame": task["frame"],
-           **task["values"], "seed": task["seed"], "status": "pending", "error": "", "run_time_s": math.nan}
+           **task["values"], "seed": task["seed"], "status": "pending", "error": "", "run_time_s": math.nan,
+           "target": task.get("target") or ""}
     row.update(dict.fromkeys(FIGURES, math.nan))
     if result:
-        row.update({k: v for k, v in result.items() if k in row and k not in ("task",)})
+        row.update({k: v for k, v in result.items() if k in row and k not in ("task", "target")})
     row["run"] = os.path.relpath(task["out"], root) if row["status"] == "done" else ""
     return row
 
@@ -297,19 +337,95 @@ def replot(folder) -> list:
 # --------------------------------------------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------------------------------------------
+#: Most bytes the client reads from a scheduler address before it knows a Dask scheduler answers there: a Dask
+#: peer's first message (its handshake, about 100 bytes) starts with its length, which distributed's client
+#: allocates as read — a wrong or hostile service could make it allocate anything (issue 31).
+HANDSHAKE_MAX_BYTES = 64 * 1024
+#: Seconds to connect to a scheduler (and to hear its handshake).
+CONNECT_TIMEOUT_S = 20.0
+_ADDRESS_FORM = "a Dask scheduler's address tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786; PORT in [1, 65535])"
+
+
+def scheduler_address(address) -> tuple:
+    """(``scheme://host:port``, scheme, host, port) of a scheduler address given as ``tcp://HOST:PORT``,
+    ``tls://HOST:PORT`` or ``HOST:PORT`` (IPv6 hosts in brackets).  Raises ConfigError if it is not one."""
+    text = str(address).strip()
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "tcp", text
+    host, colon, port = rest.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if (scheme not in ("tcp", "tls") or not colon or not host or not port.isdigit() or not 0 < int(port) < 65536
+            or any(c in host for c in "/[]@? \t")):
+        raise ConfigError("scheduler", address, _ADDRESS_FORM)
+    shown = f"[{host}]" if ":" in host else host
+    return f"{scheme}://{shown}:{int(port)}", scheme, host, int(port)
+
+
+def _recv_exactly(sock, n: int, deadline: float) -> bytes:
+    import socket
+
+    data = bytearray()
+    while len(data) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise socket.timeout()
+        sock.settimeout(left)
+        chunk = sock.recv(min(n - len(data), 65536))
+        if not chunk:
+            raise ConnectionResetError("the connection was closed")
+        data += chunk
+    return bytes(data)
+
+
+def probe_scheduler(address, timeout_s: float = CONNECT_TIMEOUT_S) -> str:
+    """Check that a Dask peer answers at ``address`` (a TCP one: its handshake, at most
+    :data:`HANDSHAKE_MAX_BYTES` read, within ``timeout_s``) before a ``distributed.Client`` trusts it; returns
+    the normalised address.  Raises ConfigError with one line saying what was found instead."""
+    import socket
+    import struct
+
+    normal, scheme, host, port = scheduler_address(address)
+    if scheme != "tcp":  # TLS frames its records itself; its own handshake refuses a service that is not TLS
+        return normal
+    deadline = time.monotonic() + timeout_s
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as sock:
+            (n,) = struct.unpack("<Q", _recv_exactly(sock, 8, deadline))
+            if not 0 < n <= HANDSHAKE_MAX_BYTES:
+                raise ConfigError("scheduler", address, f"{_ADDRESS_FORM}: something answers there that is not a "
+                                  f"Dask scheduler (its first message claims {n} bytes; a Dask handshake is at "
+                                  f"most {HANDSHAKE_MAX_BYTES})")
+            body = _recv_exactly(sock, n, deadline)
+    except socket.timeout:
+        raise ConfigError("scheduler", address, f"{_ADDRESS_FORM}: no Dask scheduler answered there within "
+                                                f"{timeout_s:g} s") from None
+    except OSError as exc:
+        raise ConfigError("scheduler", address, f"{_ADDRESS_FORM}: cannot connect "
+                                                f"({exc.strerror or type(exc).__name__})") from None
+    if b"pickle-protocol" not in body:
+        raise ConfigError("scheduler", address, f"{_ADDRESS_FORM}: something answers there that is not a Dask "
+                                                f"scheduler (no Dask handshake)")
+    return normal
+
+
 def open_client(scheduler: str | None = None, n_workers: int | None = None):
-    """(client, cluster or None): a Client of the scheduler at ``scheduler`` or of a new LocalCluster of
-    ``n_workers`` single-threaded worker processes (default: one per core)."""
+    """(client, cluster or None): a Client of the scheduler at ``scheduler`` (checked first by
+    :func:`probe_scheduler`) or of a new LocalCluster of ``n_workers`` single-threaded worker processes (default:
+    one per core)."""
     try:
         from distributed import Client, LocalCluster
     except ImportError as exc:  # pragma: no cover - dask/distributed are requirements
         raise ConfigError("scheduler", "dask", "an installed dask/distributed (pip install -r "
                                                "requirements-worker.txt)") from exc
     if scheduler:
+        address = probe_scheduler(scheduler)
         try:
-            return Client(scheduler, timeout="20s"), None
-        except (OSError, TimeoutError) as exc:
-            raise ConfigError("scheduler", scheduler, f"the address of a running Dask scheduler ({exc})") from None
+            return Client(address, timeout=f"{CONNECT_TIMEOUT_S:g}s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ConfigError("scheduler", scheduler, f"the address of a running Dask scheduler "
+                                                      f"({' '.join(str(exc).split())[:300]})") from None
     n = n_workers or os.cpu_count() or 1
     stage_core()  # before the workers start: they inherit its folder on sys.path (no upload, no restart)
     # (the nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536; their frames set glibc's thresholds themselves:
@@ -333,20 +449,33 @@ def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | Non
     bad, or Cancelled.
     """
     t0 = time.perf_counter()
+    if scheduler and client is None:
+        scheduler_address(scheduler)  # a malformed address: one line, before anything else
     spec = sweep if isinstance(sweep, SweepSpec) else load_sweep(sweep)
     plan = plan_sweep(spec, scene, base, out_dir)
-    out = prepare_folder(plan, out_dir, restart=restart)
+    own_client, cluster = None, None
+    if scheduler and client is None:  # an unreachable or wrong scheduler is refused before anything is written
+        own_client, _ = open_client(scheduler)
+        client = own_client
+    try:
+        out = prepare_folder(plan, out_dir, restart=restart)
+    except BaseException:
+        if own_client is not None:
+            own_client.close()
+        raise
     tasks = plan.tasks
     results = {}
+    with os.scandir(out / "runs") as entries:  # one listing, not one failed open per task of a new sweep
+        present = {e.name for e in entries if not e.name.startswith(".")}
     for t in tasks:
-        row = _read_finished(t)
-        if row is not None:
-            results[t["name"]] = row
+        if t["name"] in present:
+            row = _read_finished(t)
+            if row is not None:
+                results[t["name"]] = row
     pending = [t for t in tasks if t["name"] not in results]
     n_total, n_before = len(tasks), len(results)
     failed_dir = out / "failed"
-    outcome = SweepOutcome(out, [], n_tasks=n_total)
-    own_client, cluster = None, None
+    outcome = SweepOutcome(out, [], n_tasks=n_total, target=plan.manifest["target"])
     try:
         if pending:
             if client is None:
@@ -376,21 +505,50 @@ def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | Non
     return outcome
 
 
+#: Tasks submitted to the scheduler at a time: the client keeps between one and two batches in flight and submits
+#: the next as tasks finish (a large sweep starts at once and the client's and scheduler's memory stay bounded).
+SUBMIT_BATCH = 500
+
+
 def _run_tasks(client, run_task, out, plan, pending, results, failed_dir, n_total, n_before, progress, cancel):
+    from itertools import islice
+
     from distributed import as_completed
 
     digest = plan.manifest["scene_digest"]
     scene_dir = str(out / "scene")
     tag = plan.fingerprint[:10]
-    futures = {}
-    for t in pending:
-        fut = client.submit(run_task, scene_dir, digest, t, key=f"ladar-sweep-{tag}-{t['name']}", pure=False)
-        futures[fut.key] = (fut, t)
-    ac = as_completed([f for f, _ in futures.values()])
+    queue = iter(pending)
+    futures = {}  # in flight: key -> (future, task)
+    ac = as_completed()
+
+    def submit(n):
+        batch = list(islice(queue, n))
+        if not batch:
+            return
+        # the scheduler unpickles what it receives: pickle.loads and bytes (shipping.shipped_call), never the core
+        futs = client.map(pickle.loads, [shipped_call(run_task, scene_dir, digest, t) for t in batch],
+                          key=[f"ladar-sweep-{tag}-{t['name']}" for t in batch], pure=False)
+        for fut, t in zip(futs, batch):
+            futures[fut.key] = (fut, t)
+            ac.add(fut)
+
     t_start = time.perf_counter()
     n_failed = 0
+    n_done = len(results)
+
+    def report():
+        run_now = n_done - n_before
+        elapsed = time.perf_counter() - t_start
+        eta = (n_total - n_done) * elapsed / run_now if run_now else math.nan
+        progress(n_done / n_total, f"{n_done}/{n_total} tasks" + (f", {n_failed} failed" if n_failed else "")
+                 + (f", ETA {eta:.0f} s" if math.isfinite(eta) else ""))
+
     try:
-        while not ac.is_empty():
+        submit(2 * SUBMIT_BATCH)
+        if progress is not None:
+            report()  # at once: the sweep has started
+        while futures:
             batch = ac.next_batch(block=False)
             if not batch:
                 if cancel is not None and cancel():
@@ -398,13 +556,14 @@ def _run_tasks(client, run_task, out, plan, pending, results, failed_dir, n_tota
                 time.sleep(0.05)
                 continue
             for fut in batch:
-                _, task = futures[fut.key]
+                _, task = futures.pop(fut.key)
                 try:
                     row = fut.result()
                 except Exception as exc:  # the task never returned (e.g. its workers kept dying)
                     row = {"task": task["name"], "status": "failed",
                            "error": " ".join(f"{type(exc).__name__}: {exc}".split())[:2000], "run_time_s": math.nan}
                 results[task["name"]] = row
+                n_done += 1
                 fail_file = failed_dir / f"{task['name']}.json"
                 if row["status"] == "done":
                     fail_file.unlink(missing_ok=True)
@@ -415,13 +574,10 @@ def _run_tasks(client, run_task, out, plan, pending, results, failed_dir, n_tota
                                                                                     "seed", "frame", "values")},
                                                       "error": row["error"]})
                 fut.release()
+            if len(futures) <= SUBMIT_BATCH:
+                submit(SUBMIT_BATCH)
             if progress is not None:
-                done = len(results)
-                run_now = done - n_before
-                elapsed = time.perf_counter() - t_start
-                eta = (n_total - done) * elapsed / run_now if run_now else math.nan
-                progress(done / n_total, f"{done}/{n_total} tasks" + (f", {n_failed} failed" if n_failed else "")
-                         + (f", ETA {eta:.0f} s" if math.isfinite(eta) else ""))
+                report()
     except BaseException:
         client.cancel([f for f, _ in futures.values()])
         raise

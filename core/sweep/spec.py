@@ -47,9 +47,13 @@ COMBINE = ("grid", "zip")
 #: The pseudo-setting that moves the sensor along its line of sight (metres to the boresight point).
 RANGE_AXIS = "sensor.range_m"
 RANGE_LIMITS_M = (0.0, 1e7)
-#: Most tasks (points × seeds × frames) one sweep may hold.
-MAX_TASKS = 1_000_000
-_TOP_KEYS = ("sweep_version", "seed", "seeds", "combine", "frames", "base", "settings", "axes")
+#: Most tasks (points × seeds × frames) one sweep may hold, and most points (each point's settings are built and
+#: validated before anything runs, a few ms each on a loaded 2-core machine): the largest sweep accepted starts its
+#: first task within 30 s (tests/core/sweep/test_sweep.py; docs/sweeps.md has the times measured).  A sweep of
+#: 10⁶ tasks took minutes to plan (issue 31): split it into sweeps of other seeds or axis ranges.
+MAX_TASKS = 100_000
+MAX_POINTS = 1_000
+_TOP_KEYS = ("sweep_version", "seed", "seeds", "combine", "frames", "base", "target", "settings", "axes")
 _RANGE_KEYS = ("start", "stop", "num", "step", "spacing")
 
 
@@ -69,6 +73,7 @@ class SweepSpec:
     base: Path | None = None        # a config file (absolute path) over the caller's base settings
     settings: dict = field(default_factory=dict)
     source: str = ""                # where the spec came from (file path), for messages
+    target: str | None = None       # the material whose detection the figures measure (None: at the image centre)
 
     @property
     def axis_names(self) -> list:
@@ -76,9 +81,12 @@ class SweepSpec:
 
     def normalized(self) -> dict:
         """What defines the sweep's results (the fingerprint of a sweep folder), JSON-ready."""
-        return {"sweep_version": SWEEP_VERSION, "combine": self.combine, "seeds": self.seeds, "seed": self.seed,
-                "frames": self.frames, "settings": self.settings,
-                "axes": [[a.name, a.values] for a in self.axes]}
+        out = {"sweep_version": SWEEP_VERSION, "combine": self.combine, "seeds": self.seeds, "seed": self.seed,
+               "frames": self.frames, "settings": self.settings,
+               "axes": [[a.name, a.values] for a in self.axes]}
+        if self.target is not None:  # (absent when not set: the fingerprints of older sweep folders stay)
+            out["target"] = self.target
+        return out
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -133,6 +141,10 @@ def sweep_from_dict(data: dict, root: Path | None = None) -> SweepSpec:
             base = root / base
         if not base.is_file():
             raise ConfigError("base", str(base), "an existing .toml or .json config file")
+    target = data.get("target")
+    if target is not None and (not isinstance(target, str) or not target.strip() or len(target) > 1000):
+        raise ConfigError("target", target, "the name of a material in the scene (the surface whose detection "
+                                            "the sweep measures)")
     settings = data.get("settings", {})
     if not isinstance(settings, dict):
         raise ConfigError("settings", settings, "a table of settings (as in a config file)")
@@ -142,16 +154,21 @@ def sweep_from_dict(data: dict, root: Path | None = None) -> SweepSpec:
                                              '[1000, 5000]')
     axes = [Axis(name, _axis_values(name, spec)) for name, spec in _flatten_axes(axes_data, "")]
     spec = SweepSpec(axes=axes, combine=combine, seeds=seeds, seed=seed, frames=frames, base=base,
-                     settings=settings)
+                     settings=settings, target=target)
     if combine == "zip":
         n = len(axes[0].values)
         for a in axes[1:]:
             if len(a.values) != n:
                 raise ConfigError(f"axes.{a.name}", f"{len(a.values)} values",
                                   f"{n} values, as many as axes.{axes[0].name} (combine = \"zip\")")
-    n_tasks = n_points(spec) * seeds * len(frames or [0])
+    n_pts = n_points(spec)
+    if n_pts > MAX_POINTS:
+        raise ConfigError("axes", f"{n_pts} points", f"at most {MAX_POINTS} points (combinations of the axes' "
+                                                     f"values; split the sweep)")
+    n_tasks = n_pts * seeds * len(frames or [0])
     if n_tasks > MAX_TASKS:
-        raise ConfigError("axes", f"{n_tasks} tasks", f"at most {MAX_TASKS} points × seeds × frames")
+        raise ConfigError("axes", f"{n_tasks} tasks", f"at most {MAX_TASKS} points × seeds × frames (split the "
+                                                      f"sweep)")
     return spec
 
 
@@ -314,6 +331,54 @@ def point_configs(spec: SweepSpec, base: SimulationConfig, material_brdfs: dict 
                 raise ConfigError(f"materials.{name}", cfg.materials[name], "BRDF settings")
         out.append((values, cfg, range_m))
     return out
+
+
+# numpy's SeedSequence (M. E. O'Neill's seed_seq_fe): its hash constants, pool size and shift
+_SS_INIT_A, _SS_MULT_A, _SS_INIT_B, _SS_MULT_B = 0x43B0D7E5, 0x931E8875, 0x8B51F9DD, 0x58F38DED
+_SS_MIX_L, _SS_MIX_R, _SS_SHIFT, _SS_POOL = 0xCA01F9DD, 0x4973F715, 16, 4
+
+
+def task_seeds(sweep_seed: int, point_indices, seed_indices) -> np.ndarray:
+    """:func:`task_seed` of many (point, seed index) pairs at once (int64 array), bit for bit: numpy's
+    ``SeedSequence([sweep_seed, p, s]).generate_state(2, np.uint64)[0] >> 1`` computed on arrays (the same uint32
+    hashing; the entropy of a sweep seed < 2**64 and indices < 2**32 fits the pool of 4 words, so only the pool's
+    first mixing round applies).  A million seeds take about 0.4 s instead of minutes."""
+    u = np.uint32
+    p = np.asarray(point_indices, dtype=np.int64)
+    s = np.asarray(seed_indices, dtype=np.int64)
+    if p.shape != s.shape or (p.size and (p.min() < 0 or s.min() < 0 or max(p.max(), s.max()) >= 2**32)):
+        raise ValueError("point and seed indices: arrays of one shape, each in [0, 2**32)")
+    seed = int(sweep_seed)
+    if not 0 <= seed < 2**64:
+        raise ValueError("the sweep seed: in [0, 2**64)")
+    words = [(seed >> (32 * k)) & 0xFFFFFFFF for k in range(max(1, (seed.bit_length() + 31) // 32))]
+    entropy = [np.full(p.shape, w, u) for w in words] + [p.astype(u), s.astype(u)]
+    hash_const = [_SS_INIT_A]
+
+    def hashmix(v):
+        v = v ^ u(hash_const[0])
+        hash_const[0] = (hash_const[0] * _SS_MULT_A) & 0xFFFFFFFF
+        v = v * u(hash_const[0])
+        return v ^ (v >> u(_SS_SHIFT))
+
+    def mix(x, y):
+        r = u(_SS_MIX_L) * x - u(_SS_MIX_R) * y
+        return r ^ (r >> u(_SS_SHIFT))
+
+    zero = np.zeros(p.shape, u)
+    pool = [hashmix(entropy[i] if i < len(entropy) else zero) for i in range(_SS_POOL)]
+    for i_src in range(_SS_POOL):
+        for i_dst in range(_SS_POOL):
+            if i_src != i_dst:
+                pool[i_dst] = mix(pool[i_dst], hashmix(pool[i_src]))
+    state, hash_b = [], _SS_INIT_B
+    for i in range(2):  # two uint32 words: one uint64 (little-endian)
+        v = pool[i] ^ u(hash_b)
+        hash_b = (hash_b * _SS_MULT_B) & 0xFFFFFFFF
+        v = v * u(hash_b)
+        state.append(v ^ (v >> u(_SS_SHIFT)))
+    word = state[0].astype(np.uint64) | (state[1].astype(np.uint64) << np.uint64(32))
+    return (word >> np.uint64(1)).astype(np.int64)
 
 
 def task_seed(sweep_seed: int, point_index: int, seed_index: int) -> int:

@@ -23,15 +23,19 @@ from ..errors import ConfigError
 from ..fileio.locks import OWNERLESS_GRACE_S
 from ..fileio.run_folder import write_run
 from ..fileio.staging import BUSY
-from ..geometry.motion import Trajectory
+from ..engine.products import ground_truth_tolerance
+from ..geometry.groundtruth import surface_material_ids
+from ..geometry.motion import Trajectory, split_pose
+from ..geometry.rays import Detector, tan_to_unit_direction
 from ..geometry.trace import SceneTracer
 from ..physics.detection.peaks import detect_echoes
 from ..run import run_metadata, simulate
 from .scene import SweepScene, pose_at_range
 
 #: Summary figures of a task, in table order (docs/sweeps.md explains each).
-FIGURES = ("points", "pixels_with_echo", "received_energy_j", "detection_probability", "range_error_mean_m",
-           "range_error_rms_m", "range_error_p95_abs_m", "false_alarms")
+FIGURES = ("points", "pixels_with_echo", "received_energy_j", "target_pixels", "detection_probability",
+           "range_error_mean_m", "range_error_rms_m", "range_error_p95_abs_m", "target_snr_mean", "false_alarms",
+           "false_alarms_per_pixel")
 #: Systems whose noise-free truth (the waveform cube before the receiver chain) the range error is measured on.
 TRUTH_SYSTEMS = ("flash", "profiler")
 _TRUTH_BLOCK_BYTES = 64 * 2**20
@@ -72,7 +76,32 @@ def truth_echo_ranges(waveforms, config: SimulationConfig) -> np.ndarray:
     return out.reshape(h, w, -1)
 
 
-def summarize(result, config: SimulationConfig, truth=None) -> dict:
+def truth_materials(truth, config: SimulationConfig, geometry, tracer, world_from_sensor) -> np.ndarray:
+    """The material index (int16, −1: none) of the surface under each noise-free echo (``truth`` (H, W, E) of
+    :func:`truth_echo_ranges`): the echo placed along its pixel's centre ray (a profiler's one element: the
+    boresight) and labelled as the frame's points are (``core.geometry.groundtruth.surface_material_ids``, with the
+    tolerances of ``core.engine.products.label_points``)."""
+    truth = np.asarray(truth, dtype=np.float64)
+    h, w, e = truth.shape
+    flat = truth.reshape(h * w, e)
+    origin, rot = split_pose(np.asarray(world_from_sensor, dtype=np.float64))
+    tol_m, spread_rad = ground_truth_tolerance(config)
+    det = Detector.from_settings(config.receiver)
+    if det.n_pixels == h * w:
+        pix = np.arange(h * w)
+        xt, yt = det.pixel_center_tan(pix % det.width_px, pix // det.width_px)
+    else:  # one element over the field of view (profiler)
+        xt, yt = np.zeros(h * w), np.zeros(h * w)
+    dirs = tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float)) @ rot.T
+    labels = np.full((h * w, e), -1, np.int16)
+    pi, ei = np.nonzero(np.isfinite(flat))
+    if len(pi):
+        pos = origin + dirs[pi] * flat[pi, ei][:, None]
+        labels[pi, ei] = surface_material_ids(tracer, geometry.material_ids, origin, pos, tol_m, spread_rad)
+    return labels.reshape(h, w, e)
+
+
+def summarize(result, config: SimulationConfig, truth=None, on_target=None) -> dict:
     """The summary figures of one simulated frame (:data:`FIGURES`); NaN where a figure is not defined.
 
     ``points``: echoes (points of the cloud); ``pixels_with_echo``: first echoes (pixels, or pulses of a scanner,
@@ -80,26 +109,33 @@ def summarize(result, config: SimulationConfig, truth=None) -> dict:
     ``false_alarms``: echoes the noisy receiver flagged as noise (no true return near them).
 
     ``truth`` (H, W, E): the noise-free echo ranges (:func:`truth_echo_ranges`), given for noisy flash/profiler
-    points.  A reported true (not false-alarm) echo *matches* a noise-free echo of its pixel within
-    :func:`match_window_m` (the pulse's half width in range); ``detection_probability`` = pixels with a noise-free
-    echo that report a matching echo / pixels with a noise-free echo, and the range error is each matching
-    echo's range minus its noise-free echo's: mean, root mean square, and the 95th percentile of its magnitude
-    over the matching echoes.  (A true echo matching none — a weaker surface the noise-free detection's relative
-    threshold leaves out, or the far part of a long return from a grazing surface — is neither.)"""
+    points; ``on_target`` (H, W, E) bool: which of them are echoes of the sweep's target (None: all are).  The
+    target's pixels are those with a noise-free echo of the target (``target_pixels``).  A reported true (not
+    false-alarm) echo *matches* a target echo of its pixel within :func:`match_window_m` (the pulse's half width
+    in range); ``detection_probability`` = target pixels that report a matching echo / target pixels, and the
+    range error is each matching echo's range minus its noise-free echo's: mean, root mean square, and the 95th
+    percentile of its magnitude over the matching echoes; ``target_snr_mean``: the mean detection SNR
+    (``points["snr"]``) of the matching echoes.  ``false_alarms_per_pixel``: false alarms / pixels of the frame.
+    (A true echo matching none — another surface, a weaker one the noise-free detection's relative threshold leaves
+    out, or the far part of a long return from a grazing surface — is neither.)"""
     pts = result.points
     echo_index = np.asarray(pts.get("echo_index", ()))
     row = {"points": int(len(pts.get("range_m", ()))), "pixels_with_echo": int((echo_index == 1).sum()),
            "received_energy_j": float(result.stats.get("received_energy_j", np.nan))}
-    row.update(dict.fromkeys(("detection_probability", "range_error_mean_m", "range_error_rms_m",
-                              "range_error_p95_abs_m", "false_alarms"), np.nan))
+    row.update(dict.fromkeys(FIGURES[3:], np.nan))
     false_alarm = np.asarray(pts["false_alarm"], dtype=bool) if "false_alarm" in pts else None
     if false_alarm is not None:
         row["false_alarms"] = int(false_alarm.sum())
     if truth is not None:
         truth = np.asarray(truth, dtype=np.float64)
         h, w = truth.shape[:2]
+        if on_target is not None:
+            truth = np.where(np.asarray(on_target, dtype=bool), truth, np.nan)
         truth = truth.reshape(h * w, -1)
-        has_truth = np.isfinite(truth[:, 0])
+        if false_alarm is not None:
+            row["false_alarms_per_pixel"] = row["false_alarms"] / (h * w)
+        has_truth = np.isfinite(truth).any(axis=1)
+        row["target_pixels"] = int(has_truth.sum())
         if has_truth.any():
             pixel = np.asarray(pts["pixel_y"], np.int64) * w + np.asarray(pts["pixel_x"], np.int64)
             keep = has_truth[pixel] if false_alarm is None else has_truth[pixel] & ~false_alarm
@@ -114,6 +150,8 @@ def summarize(result, config: SimulationConfig, truth=None) -> dict:
                 row["range_error_mean_m"] = float(err.mean())
                 row["range_error_rms_m"] = float(np.sqrt(np.mean(err ** 2)))
                 row["range_error_p95_abs_m"] = float(np.percentile(np.abs(err), 95))
+                if "snr" in pts:
+                    row["target_snr_mean"] = float(np.mean(np.asarray(pts["snr"], np.float64)[keep][matched]))
     return row
 
 
@@ -180,7 +218,13 @@ def run_task(scene_dir: str, scene_digest: str, task: dict) -> dict:
         truth = truth_echo_ranges(result.waveforms, cfg) if truth_wanted else None
         if not cfg.run.save_waveforms:
             result.waveforms = None
-        row.update(summarize(result, cfg, truth))
+        on_target = None
+        if truth is not None and task.get("target") is not None:
+            geometry = scene.geometry(frame)
+            labels = truth_materials(truth, cfg, geometry, _tracer(scene, frame), pose)
+            names = list(geometry.material_names)
+            on_target = labels == (names.index(task["target"]) if task["target"] in names else -2)
+        row.update(summarize(result, cfg, truth, on_target))
         row.update(status="done", run_time_s=time.perf_counter() - t0)
         meta = run_metadata(cfg, result, frame, {"sweep": {"task": task["name"], "point": task["point"],
                                                            "values": task["values"], "row": row}})

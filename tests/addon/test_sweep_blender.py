@@ -97,3 +97,84 @@ def test_threaded_sweep_job_reports_progress_for_the_status_bar(lad, plate_scene
     assert seen[-1].startswith("3/3 tasks") and job.fraction == 1.0
     assert job.summary().startswith("sweep: 3/3 tasks done, 0 failed")
     assert bpy.context.scene.ladar.last_run == str(tmp_path / "sw")
+
+
+def _one_error_line(err, start):
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(start), err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("address", ["nonsense", "tcp://127.0.0.1", "tcp://127.0.0.1:99999", "udp://host:8786"])
+def test_a_malformed_scheduler_address_is_one_line_before_anything(lad, plate_scene, tmp_path, capsys, address):
+    code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(tmp_path / "sw"),
+                          "--scheduler", address)
+    assert code == 1
+    _one_error_line(err, f"ladar: error: scheduler = {address!r} is not allowed: a Dask scheduler's address "
+                         f"tcp://HOST:PORT")
+    assert not (tmp_path / "sw").exists() and "ladar: sweep" not in out
+
+
+@pytest.mark.parametrize("banner, words", [(b"SSH-2.0-OpenSSH_9.2p1\r\n", "its first message claims"),
+                                           (b"HTTP/1.1 400 Bad Request\r\n\r\n", "its first message claims")])
+def test_a_scheduler_address_where_another_service_answers_is_one_line(lad, plate_scene, tmp_path, capsys, banner,
+                                                                       words):
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)
+    srv.settimeout(30)
+
+    def serve():
+        try:
+            conn, _ = srv.accept()
+            conn.sendall(banner)
+            conn.recv(1)  # until the client leaves
+            conn.close()
+        except OSError:
+            pass
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(tmp_path / "sw"),
+                              "--scheduler", f"tcp://127.0.0.1:{srv.getsockname()[1]}")
+    finally:
+        srv.close()
+        thread.join(5)
+    assert code == 1
+    _one_error_line(err, "ladar: error: scheduler = ")
+    assert words in err and "not a Dask scheduler" in err
+    assert not (tmp_path / "sw").exists()
+
+
+def test_frames_of_a_sweep_file_are_simulated_each(lad, plate_scene, tmp_path, capsys):
+    """``frames = 99999`` is frame 99999 (the plate is keyed 100 m away at frame 1 and 150 m at frame 99999): its
+    echo is at 150 m, the table says frame 99999 and the first line names it; ``frames = [1, 99999]`` is two tasks
+    per point, one per frame."""
+    plate = plate_scene.objects["Plate"]
+    plate.location.z = -100.0
+    plate.keyframe_insert("location", frame=1)
+    plate.location.z = -150.0
+    plate.keyframe_insert("location", frame=99999)
+    for frames, expect in (("99999", {99999: 150.0}), ("[1, 99999]", {1: 100.0, 99999: 150.0})):
+        f = tmp_path / f"frames{len(expect)}.toml"
+        f.write_text(f'sweep_version = 1\nseed = 3\nframes = {frames}\n[settings]\nrun = {{ save_waveforms = false }}'
+                     '\ngate = { gate_start_s = 4e-7, n_bins = 1024 }\n[axes]\n"laser.pulse_energy_j" = [1e-3]\n',
+                     encoding="utf-8")
+        out_dir = tmp_path / f"sw{len(expect)}"
+        code, out, err = _run(lad, capsys, "sweep", str(f), "--out", str(out_dir), "--workers", "1")
+        assert code == 0, err
+        shown = ", ".join(str(k) for k in expect)
+        assert (f"{len(expect)} tasks (1 points × 1 seeds × frame{'s' if len(expect) > 1 else ''} {shown})"
+                in out), out
+        rows = _rows(out_dir / "results.csv")
+        assert sorted(int(r["frame"]) for r in rows) == sorted(expect)
+        for r in rows:
+            frame = int(r["frame"])
+            meta = json.loads((out_dir / r["run"] / "metadata.json").read_text())
+            assert meta["frame"] == frame
+            pts = np.load(out_dir / r["run"] / "points.npz")
+            assert np.median(pts["range_m"]) == pytest.approx(expect[frame], abs=0.05)

@@ -7,10 +7,12 @@ import os
 import shutil
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from core.config.settings import BRDFSettings
 from core.engine.memory import estimate_memory
 from core.errors import ConfigError
 from core.run import run_simulation
@@ -174,15 +176,89 @@ def test_summary_figures_against_a_known_truth():
     pts = {"range_m": np.array([100.1, 104.0, 109.8, 70.0, 30.0]), "pixel_x": np.array([0, 0, 0, 1, 2]),
            "pixel_y": np.zeros(5, int), "echo_index": np.array([1, 2, 3, 1, 1]),
            "false_alarm": np.array([0, 0, 0, 1, 1])}
+    pts["snr"] = np.array([5.0, 6.0, 7.0, 8.0, 9.0])
     row = summarize(SimpleNamespace(points=pts, stats={"received_energy_j": 2.5e-12}), cfg, truth)
     assert (row["points"], row["pixels_with_echo"], row["false_alarms"]) == (5, 3, 2)
-    assert row["received_energy_j"] == 2.5e-12
-    assert row["detection_probability"] == 0.5
+    assert row["received_energy_j"] == 2.5e-12 and row["false_alarms_per_pixel"] == 2 / 3
+    assert row["target_pixels"] == 2 and row["detection_probability"] == 0.5
     assert row["range_error_mean_m"] == pytest.approx(-0.05, abs=1e-12)
     assert row["range_error_rms_m"] == pytest.approx(math.sqrt(0.025), abs=1e-12)
     assert row["range_error_p95_abs_m"] == pytest.approx(0.195, abs=1e-12)
+    assert row["target_snr_mean"] == 6.0  # the matching echoes 100.1 m (SNR 5) and 109.8 m (SNR 7)
+    # the target is the surface at 100 m in pixel 0 and the one at 50 m in pixel 1 (the 110 m echo is another's):
+    # 109.8 m matches no target echo; pixel 1 reports none of its target
+    on_target = np.zeros((1, 3, 2), bool)
+    on_target[0, 0, 0] = on_target[0, 1, 0] = True
+    row = summarize(SimpleNamespace(points=pts, stats={}), cfg, truth, on_target)
+    assert row["target_pixels"] == 2 and row["detection_probability"] == 0.5
+    assert row["range_error_mean_m"] == pytest.approx(0.1, abs=1e-12) and row["target_snr_mean"] == 5.0
+    on_target[0, 0, 0] = False  # only pixel 1's surface, never reported
+    row = summarize(SimpleNamespace(points=pts, stats={}), cfg, truth, on_target)
+    assert row["target_pixels"] == 1 and row["detection_probability"] == 0.0
+    assert math.isnan(row["range_error_rms_m"]) and math.isnan(row["target_snr_mean"])
     ideal = summarize(SimpleNamespace(points={k: v for k, v in pts.items() if k != "false_alarm"}, stats={}), None)
     assert math.isnan(ideal["detection_probability"]) and math.isnan(ideal["false_alarms"])
+
+
+def board_and_wall():
+    """A 0.98 m board 200 m away in front of an 8 m wall at 210 m (8×8 pixels of 1.25 mrad: 0.25 m at 200 m, so
+    the board covers pixels 2–5 of both axes, 98 % of their area)."""
+    from core.geometry.scene import merge_meshes
+
+    parts = []
+    for name, g in (("Board", plate(200.0, 0.49)), ("Wall", plate(210.0, 4.0))):
+        parts.append((g.vertices_m, g.triangles, [0, 0], [name], [BRDFSettings(reflectance=0.5)]))
+    return merge_meshes(parts)
+
+
+def test_the_target_is_the_material_at_the_image_centre_or_the_one_named(tmp_path):
+    from core.sweep.runner import sweep_target
+
+    sc = SweepScene.single(board_and_wall(), np.eye(4))
+    spec = sweep_from_dict({"sweep_version": 1, "axes": {"laser.pulse_energy_j": [1e-3]}})
+    assert sweep_target(spec, sc, 0) == {"material": "Board", "chosen": "default: the nearest surface at the "
+                                                                        "image centre at frame 0"}
+    spec = sweep_from_dict({"sweep_version": 1, "target": "Wall", "axes": {"laser.pulse_energy_j": [1e-3]}})
+    assert sweep_target(spec, sc, 0) == {"material": "Wall", "chosen": "the sweep file's target"}
+    spec = sweep_from_dict({"sweep_version": 1, "target": "Steel", "axes": {"laser.pulse_energy_j": [1e-3]}})
+    with pytest.raises(ConfigError) as err:
+        plan_sweep(spec, sc, base_config(), tmp_path / "sw")
+    assert err.value.field == "target" and "Board, Wall" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        sweep_from_dict({"sweep_version": 1, "target": 3, "axes": {"laser.pulse_energy_j": [1e-3]}})
+    assert err.value.field == "target"
+    plan = plan_sweep(sweep_from_dict({"sweep_version": 1, "axes": {"laser.pulse_energy_j": [1e-3]}}), sc,
+                      base_config(), tmp_path / "sw")
+    assert plan.tasks[0]["target"] == "Board" and plan.manifest["target"]["material"] == "Board"
+
+
+def test_target_figures_count_the_targets_pixels_in_the_noise_free_truth():
+    """Board and wall, noisy receiver, 1 mJ: the noise-free echoes are labelled Board in exactly the 4×4 pixels the
+    board covers and Wall in the other 48; the Board's detection probability is over those 16 pixels, and its
+    range error is measured against the board's echoes only (the wall's are 10 m away)."""
+    from core.run import simulate
+    from core.sweep.task import truth_materials
+
+    geometry = board_and_wall()
+    cfg = config_for(200.0, pixels=8, subsamples=2, fov_rad=0.01, bins=192, margin_bins=48)
+    cfg.detector.mode = "noisy"
+    cfg.laser.pulse_energy_j = 1e-3
+    cfg.run.save_waveforms = True
+    result = simulate(geometry, np.eye(4), cfg)
+    truth = truth_echo_ranges(result.waveforms, cfg)
+    labels = truth_materials(truth, cfg, geometry, result.tracer, np.eye(4))
+    first = labels[:, :, 0]
+    board = np.zeros((8, 8), bool)
+    board[2:6, 2:6] = True
+    assert np.all(first[board] == 0) and np.all(first[~board] == 1)  # Board = material 0, Wall = 1
+    on_board = labels == 0
+    assert np.all(np.abs(truth[on_board] - 200.0) < 0.5) and np.all(np.abs(truth[labels == 1] - 210.0) < 0.5)
+    row = summarize(result, cfg, truth, on_board)
+    everything = summarize(result, cfg, truth)
+    assert row["target_pixels"] == 16 and everything["target_pixels"] == 64
+    assert row["detection_probability"] == 1.0
+    assert abs(row["range_error_mean_m"]) < match_window_m(cfg) and row["target_snr_mean"] > 5
+    assert row["false_alarms_per_pixel"] == row["false_alarms"] / 64
 
 
 def test_scene_round_trips_through_its_files(tmp_path):
@@ -251,14 +327,14 @@ def test_results_do_not_depend_on_the_number_of_workers(client, tmp_path, monkey
     with an ETA."""
     import re
 
-    import distributed.diagnostics.plugin as plugin
+    import core.sweep.shipping as shipping
 
     def no_upload(*args, **kwargs):
         raise AssertionError("the workers of the sweep's own local cluster should not need the core uploaded")
 
     spec = sweep_from_dict(spec_dict(seeds=3))  # 12 tasks
     two = run_sweep(spec, scene(), tmp_path / "two", base=base_config(noisy=True), client=client, plots=False)
-    monkeypatch.setattr(plugin, "UploadDirectory", no_upload)
+    monkeypatch.setattr(shipping, "core_plugin", no_upload)
     _, outer = stage_core()
     monkeypatch.setattr(sys, "path", [p for p in sys.path if p != str(outer)])  # as in a fresh process
     seen = []
@@ -272,7 +348,8 @@ def test_results_do_not_depend_on_the_number_of_workers(client, tmp_path, monkey
                                                             for r in read_table(tmp_path / "two" / "results.csv")]
     assert len({r["seed"] for r in rows_one}) == 12 and all(as_number(r["false_alarms"]) >= 0 for r in rows_one)
     assert [f for f, _ in seen] == sorted(f for f, _ in seen) and seen[-1][0] == 1.0 and len(seen) >= 2
-    assert all(re.fullmatch(r"\d+/12 tasks, ETA \d+ s", text) for _, text in seen), seen
+    assert seen[0] == (0.0, "0/12 tasks")  # at once, when the first tasks are submitted
+    assert all(re.fullmatch(r"\d+/12 tasks, ETA \d+ s", text) for _, text in seen[1:]), seen
     assert seen[-1][1] == "12/12 tasks, ETA 0 s"
 
 
@@ -349,6 +426,46 @@ def test_killing_a_worker_mid_sweep_loses_no_finished_point(client, tmp_path):
     assert ref.n_done == 16
 
 
+def test_the_shipped_core_unpacks_into_a_per_user_folder_once_and_imports(tmp_path, monkeypatch):
+    """What the worker plugin does on a worker of another machine: the zipped core is unpacked (hidden folder,
+    renamed into place) under the temporary folder, put on the path and importable under its versioned name; a
+    second install (another worker process, a restarted one) finds it and writes nothing."""
+    import importlib
+
+    import core.sweep.shipping as shipping
+
+    name, outer = stage_core()
+    data = shipping.core_zip(outer / name)
+    monkeypatch.setattr(shipping.tempfile, "gettempdir", lambda: str(tmp_path))
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p != str(outer)])
+    for mod in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+        monkeypatch.delitem(sys.modules, mod)
+    folder = shipping.install_core(name, data)
+    assert folder == tmp_path / f"ladar-sweep-core-{os.getuid()}" / f"{name}-pkg" and str(folder) in sys.path
+    files = sorted(p.relative_to(folder / name) for p in (folder / name).rglob("*.py"))
+    assert files == sorted(p.relative_to(outer / name) for p in (outer / name).rglob("*.py")) and len(files) > 50
+    assert [p.name for p in folder.iterdir()] == [name]  # no staging folder left
+    stamp = (folder / name / "__init__.py").stat().st_mtime_ns
+    assert shipping.install_core(name, data) == folder and (folder / name / "__init__.py").stat().st_mtime_ns == stamp
+    task = importlib.import_module(f"{name}.sweep.task")
+    assert Path(task.__file__).is_relative_to(folder) and callable(task.run_task)
+
+
+def test_a_task_is_a_standard_library_call_on_bytes():
+    """What the scheduler unpickles: ``pickle.loads`` and bytes, never a function of the shipped core (a separately
+    started scheduler cannot import it); loading the bytes makes the call."""
+    import pickle
+    import pickletools
+
+    from core.sweep.shipping import shipped_call
+
+    payload = shipped_call(math.hypot, 3.0, 4.0)
+    assert isinstance(payload, bytes) and pickle.loads(payload) == 5.0
+    ops = [(op.name, arg) for op, arg, _ in pickletools.genops(payload)]
+    assert ("SHORT_BINUNICODE", "math") in ops and ("SHORT_BINUNICODE", "hypot") in ops
+    assert not any(isinstance(arg, str) and "shipping" in arg for _, arg in ops)  # no class of this project
+
+
 def test_the_core_is_shipped_to_workers_that_cannot_import_it(tmp_path, monkeypatch):
     """The remote-cluster path: workers started without the staged core on their path get it uploaded, and a
     sweep given the scheduler's address runs on them."""
@@ -368,3 +485,179 @@ def test_the_core_is_shipped_to_workers_that_cannot_import_it(tmp_path, monkeypa
         assert [r["status"] for r in read_table(tmp_path / "sw" / "results.csv")] == ["done", "done"]
     finally:
         cluster.close()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Scheduler addresses, large sweeps (issue 31)
+# ----------------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("address", ["nonsense", "tcp://", "tcp://host", "tcp://:8786", "tcp://host:0",
+                                     "tcp://host:99999", "tcp://host:port", "udp://host:8786", "inproc://x",
+                                     "tcp://a b:8786", "tcp://host:8786/path"])
+def test_a_malformed_scheduler_address_is_one_line_and_nothing_is_written(tmp_path, address):
+    from core.sweep.runner import scheduler_address
+
+    with pytest.raises(ConfigError) as err:
+        scheduler_address(address)
+    assert err.value.field == "scheduler" and "tcp://HOST:PORT" in str(err.value) and "\n" not in str(err.value)
+    spec = sweep_from_dict({"sweep_version": 1, "axes": {"laser.pulse_energy_j": [1e-4]}})
+    with pytest.raises(ConfigError):
+        run_sweep(spec, scene(), tmp_path / "sw", base=base_config(), scheduler=address)
+    assert not (tmp_path / "sw").exists()
+
+
+@pytest.mark.parametrize("address, normal", [("tcp://127.0.0.1:8786", "tcp://127.0.0.1:8786"),
+                                             ("127.0.0.1:8786", "tcp://127.0.0.1:8786"),
+                                             (" tcp://head.example:18786 ", "tcp://head.example:18786"),
+                                             ("tcp://[::1]:8786", "tcp://[::1]:8786"),
+                                             ("tls://head:8786", "tls://head:8786")])
+def test_scheduler_addresses_that_are_accepted(address, normal):
+    from core.sweep.runner import scheduler_address
+
+    assert scheduler_address(address)[0] == normal
+
+
+def _service(answer: bytes | None):
+    """A loopback TCP service that sends ``answer`` to every connection (None: says nothing), then holds it open
+    until the client leaves.  Returns (address, stop)."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    srv.settimeout(0.2)
+    stop = threading.Event()
+
+    def serve():
+        conns = []
+        while not stop.is_set():
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                continue
+            conns.append(conn)
+            if answer is not None:
+                try:
+                    conn.sendall(answer)
+                except OSError:
+                    pass
+        for c in conns:
+            c.close()
+        srv.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+
+    def halt():
+        stop.set()
+        thread.join(5)
+
+    return f"tcp://127.0.0.1:{srv.getsockname()[1]}", halt
+
+
+@pytest.mark.parametrize("answer, words", [
+    (b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n", "its first message claims"),          # an SSH server's banner
+    (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", "its first message claims"),
+    ((1 << 40).to_bytes(8, "little") + b"x" * 64, "claims 1099511627776 bytes"),   # "allocate 1 TiB"
+    ((1000).to_bytes(8, "little") + bytes(1000), "no Dask handshake"),            # plausible length, not Dask
+    (None, "no Dask scheduler answered there within 1 s"),                          # e.g. an HTTP server
+])
+def test_a_service_that_is_not_a_dask_scheduler_is_one_line_within_a_bounded_allocation_and_time(answer, words):
+    """The probe reads at most HANDSHAKE_MAX_BYTES of what the peer says before trusting it (distributed's client
+    allocates whatever length a peer's first 8 bytes claim): measured with tracemalloc, the peak allocation while a
+    probe is refused stays below 1 MiB (16 × that bound: tracemalloc counts every thread's allocations, and a
+    running Dask client's event loop allocates meanwhile — 0.29 MB measured with one; a 1 TiB claim is refused
+    without allocating it); the time below the timeout + 1 s."""
+    import time
+    import tracemalloc
+
+    from core.sweep.runner import HANDSHAKE_MAX_BYTES, probe_scheduler
+
+    address, halt = _service(answer)
+    try:
+        tracemalloc.start()
+        t0 = time.perf_counter()
+        with pytest.raises(ConfigError) as err:
+            probe_scheduler(address, timeout_s=1.0)
+        elapsed = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    finally:
+        halt()
+    assert err.value.field == "scheduler" and words in str(err.value) and "\n" not in str(err.value)
+    assert peak < 16 * HANDSHAKE_MAX_BYTES and elapsed < 2.0
+
+
+def test_a_port_where_nothing_listens_is_one_line():
+    import socket
+
+    from core.sweep.runner import probe_scheduler
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed again: nothing listens there
+    with pytest.raises(ConfigError) as err:
+        probe_scheduler(f"tcp://127.0.0.1:{port}", timeout_s=2.0)
+    assert "cannot connect (Connection refused)" in str(err.value)
+
+
+def test_the_probe_accepts_a_real_scheduler(client):
+    from core.sweep.runner import probe_scheduler
+
+    address = client.scheduler.address
+    assert probe_scheduler(address) == address
+
+
+def test_task_seeds_on_arrays_equal_numpys_seed_sequence():
+    from core.sweep.spec import task_seeds
+
+    rng = np.random.default_rng(5)
+    for sweep_seed in (0, 1, 2026, 2**32 - 1, 2**32, 2**63 - 1, int(rng.integers(0, 2**63 - 1))):
+        p = np.concatenate([[0, 0, 1, 1999], rng.integers(0, 2000, 300)])
+        s = np.concatenate([[0, 1, 0, 99999], rng.integers(0, 100_000, 300)])
+        assert task_seeds(sweep_seed, p, s).tolist() == [task_seed(sweep_seed, int(a), int(b)) for a, b in zip(p, s)]
+
+
+@pytest.mark.parametrize("data, words", [
+    ({"seeds": 100_000, "axes": {"laser.pulse_energy_j": [1e-4, 2e-4]}}, "200000 tasks"),
+    ({"axes": {"laser.pulse_energy_j": {"start": 1e-4, "stop": 1e-3, "num": 100},
+               "receiver.width_px": {"start": 8, "stop": 28, "step": 1}}}, "2100 points"),
+])
+def test_sweeps_above_the_limits_are_refused(data, words):
+    from core.sweep.spec import MAX_POINTS, MAX_TASKS
+
+    with pytest.raises(ConfigError) as err:
+        sweep_from_dict({"sweep_version": 1, **data})
+    assert err.value.field == "axes" and words in str(err.value)
+    assert f"at most {MAX_TASKS}" in str(err.value) or f"at most {MAX_POINTS} points" in str(err.value)
+
+
+def test_the_largest_sweep_accepted_starts_within_30_s_with_bounded_submission(client, tmp_path):
+    """MAX_POINTS points × (MAX_TASKS / MAX_POINTS) seeds: every point validated, every task named and seeded,
+    sweep.json written, the first batch submitted and a progress line — within 30 s (issue 31: 10⁶ tasks were
+    accepted and ran nothing for 300 s).  The client never holds more than two batches of futures."""
+    import re
+    import time
+
+    from core.sweep.runner import SUBMIT_BATCH
+    from core.sweep.spec import MAX_POINTS, MAX_TASKS
+    from core.errors import Cancelled
+
+    spec = sweep_from_dict({"sweep_version": 1, "seeds": MAX_TASKS // MAX_POINTS,
+                            "axes": {"laser.pulse_energy_j": {"start": 1e-4, "stop": 1e-3, "num": MAX_POINTS}}})
+    seen, in_flight = [], []
+    t0 = time.perf_counter()
+
+    def progress(fraction, text):
+        seen.append((time.perf_counter() - t0, text))
+        in_flight.append(len(client.futures))
+
+    with pytest.raises(Cancelled):
+        run_sweep(spec, scene(), tmp_path / "big", base=base_config(), client=client, plots=False,
+                  progress=progress, cancel=lambda: len(seen) >= 2)
+    print(f"first progress line after {seen[0][0]:.1f} s; first task done after {seen[1][0]:.1f} s")
+    assert seen[0][1] == f"0/{MAX_TASKS} tasks" and seen[0][0] < 30.0
+    assert re.match(rf"[1-9]\d*/{MAX_TASKS} tasks", seen[1][1])
+    assert max(in_flight) <= 2 * SUBMIT_BATCH
+    rows = read_table(tmp_path / "big" / "results.csv")  # cancelled: every task in the table, most pending
+    assert len(rows) == MAX_TASKS and sum(r["status"] == "pending" for r in rows) >= MAX_TASKS - 2 * SUBMIT_BATCH
