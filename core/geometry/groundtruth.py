@@ -12,21 +12,40 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..threads import map_list
+
 NO_SURFACE = -1
 #: Step past a crossed surface before tracing on (m): above the float32 BVH's resolution at kilometres.
 STEP_PAST_M = 1e-3
+#: A line of sight ends at its first crossing at or past the point (the same labels as tracing on to the
+#: tolerance: tests/core/engine/test_planner.py; False only for that test's reference).
+STOP_AT_POINT = True
+#: Fewest points a thread labels at a time, and the parts a thread gets when there are enough points.
+MIN_PART, PARTS_PER_THREAD = 2048, 4
 
 
 def surface_material_ids(tracer, material_ids, origin, position, tolerance_m: float, spread_rad: float = 0.0,
-                         max_surfaces: int = 8) -> np.ndarray:
+                         max_surfaces: int = 8, threads: int = 1) -> np.ndarray:
     """Material index (int16, −1 for none) of the surface under each point (module docstring).
 
     ``tracer``: a :class:`core.trace.SceneTracer` of the scene; ``material_ids``: the scene's material index per
     triangle; ``origin``: the sensor position (3,) or one per point (n, 3); ``position``: the points (n, 3),
-    world coordinates (m).
+    world coordinates (m).  ``threads``: the points are labelled in parts of at least ``MIN_PART`` points on up
+    to that many threads of the shared pool (core/threads.py); each point's label does not depend on the parts.
     """
     position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
     origin = np.broadcast_to(np.asarray(origin, dtype=np.float64), position.shape)
+    n = len(position)
+    parts = max(1, min(int(threads) * PARTS_PER_THREAD, n // MIN_PART))
+    if parts == 1:
+        return _material_ids(tracer, material_ids, origin, position, tolerance_m, spread_rad, max_surfaces)
+    bounds = [(n * i // parts, n * (i + 1) // parts) for i in range(parts)]
+    out = map_list(lambda ab: _material_ids(tracer, material_ids, origin[ab[0]:ab[1]], position[ab[0]:ab[1]],
+                                            tolerance_m, spread_rad, max_surfaces), bounds, threads)
+    return np.concatenate(out)
+
+
+def _material_ids(tracer, material_ids, origin, position, tolerance_m, spread_rad, max_surfaces):
     best_err, best_prim = _nearest_crossing(tracer, origin, position, tolerance_m, max_surfaces, None)
     # the lines around the centre only for points whose centre line found no surface (edges of objects)
     rest = np.flatnonzero(~(best_err <= tolerance_m))
@@ -83,7 +102,10 @@ def _nearest_crossing(tracer, origin, position, tolerance_m, max_surfaces, direc
         better = hit & (err < best_err[active])
         best_err[active[better]] = err[better]
         best_prim[active[better]] = prim[better]
-        go_on = hit & (total < target[active] + tolerance_m)
+        # a line goes on past a crossing before the point (up to ``tolerance_m`` past it, without
+        # STOP_AT_POINT): a crossing at or past the point ends it, since every later crossing lies farther from the
+        # point (its range exceeds this one's by ≥ STEP_PAST_M) and cannot win; the labels are the same
+        go_on = hit & (total < target[active] + (0.0 if STOP_AT_POINT else tolerance_m))
         travelled[active[go_on]] = total[go_on] + STEP_PAST_M
         active = active[go_on]
     return best_err, best_prim
