@@ -107,9 +107,9 @@ def bench_gated(n_grid: int, pixels: int = 256, subsamples: int = 4) -> dict:
     calls = []
     original = tracer.intersect
 
-    def counting(origin, directions):
+    def counting(origin, directions, **kwargs):
         calls.append(len(directions))
-        return original(origin, directions)
+        return original(origin, directions, **kwargs)
 
     tracer.intersect = counting
     cfg = SimulationConfig(system_type="gated")

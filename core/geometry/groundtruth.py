@@ -4,9 +4,12 @@ A point is an echo placed along a line of sight from the sensor (a flash pixel's
 axis), but its energy came from the whole pixel or beam footprint.  Its ground truth is the surface crossed
 nearest to the point's range by the line of sight or, when that line crosses none near the point (the edge of
 an object), by 8 lines around it at ``spread_rad`` (the footprint's half-width: half a pixel, half the beam
-divergence), each traced from the sensor through every surface it meets
-(up to ``max_surfaces``): the crossing whose range is closest to the point's wins if it lies within
-``tolerance_m``; otherwise the point has no surface (−1), as a false alarm in empty air.  Never imports bpy.
+divergence), each traced from the sensor through every surface it meets (up to ``max_surfaces``) until a crossing
+at or past the point, and no farther than a crossing can still win (a later crossing lies farther from the point
+and cannot win): the crossing whose range is
+closest to the point's wins if it lies within ``tolerance_m``; otherwise the point has no surface (−1), as a
+false alarm in empty air.  The points are independent: labelled in parts on the run's threads.  Never imports
+bpy.
 """
 from __future__ import annotations
 
@@ -17,9 +20,13 @@ from ..threads import map_list
 NO_SURFACE = -1
 #: Step past a crossed surface before tracing on (m): above the float32 BVH's resolution at kilometres.
 STEP_PAST_M = 1e-3
-#: A line of sight ends at its first crossing at or past the point (the same labels as tracing on to the
-#: tolerance: tests/core/engine/test_planner.py; False only for that test's reference).
-STOP_AT_POINT = True
+#: Lines of sight traced only as far as a crossing can still win: a line ends at its first crossing at or past
+#: the point, and each cast looks no farther than the point's range plus the best error so far (at most the
+#: tolerance), with a margin for Embree's float32 distances.  The same labels as tracing every line on to the
+#: tolerance and beyond (tests/core/engine/test_planner.py; False only for that test's reference).
+PRUNE_LINES = True
+#: The margin on a cast's reach: relative, and absolute (m), far above float32 rounding at 100 km (≈ 8 mm).
+REACH_MARGIN_REL, REACH_MARGIN_M = 1e-5, 0.05
 #: Fewest points a thread labels at a time, and the parts a thread gets when there are enough points.
 MIN_PART, PARTS_PER_THREAD = 2048, 4
 
@@ -95,7 +102,11 @@ def _nearest_crossing(tracer, origin, position, tolerance_m, max_surfaces, direc
         if len(active) == 0:
             break
         start = origin[active] + direction[active] * travelled[active, None]
-        prim, rng, _ = tracer.intersect(start, np.ascontiguousarray(direction[active]))
+        reach = None
+        if PRUNE_LINES:  # a crossing beyond the point's range + min(best error, tolerance) cannot change the label
+            bound = target[active] + np.minimum(best_err[active], tolerance_m) - travelled[active]
+            reach = bound * (1.0 + REACH_MARGIN_REL) + REACH_MARGIN_M
+        prim, rng, _ = tracer.intersect(start, np.ascontiguousarray(direction[active]), max_range_m=reach)
         hit = prim >= 0
         total = travelled[active] + np.where(hit, rng, np.inf)
         err = np.abs(total - target[active])
@@ -103,9 +114,9 @@ def _nearest_crossing(tracer, origin, position, tolerance_m, max_surfaces, direc
         best_err[active[better]] = err[better]
         best_prim[active[better]] = prim[better]
         # a line goes on past a crossing before the point (up to ``tolerance_m`` past it, without
-        # STOP_AT_POINT): a crossing at or past the point ends it, since every later crossing lies farther from the
+        # PRUNE_LINES): a crossing at or past the point ends it, since every later crossing lies farther from the
         # point (its range exceeds this one's by ≥ STEP_PAST_M) and cannot win; the labels are the same
-        go_on = hit & (total < target[active] + (0.0 if STOP_AT_POINT else tolerance_m))
+        go_on = hit & (total < target[active] + (0.0 if PRUNE_LINES else tolerance_m))
         travelled[active[go_on]] = total[go_on] + STEP_PAST_M
         active = active[go_on]
     return best_err, best_prim

@@ -259,9 +259,9 @@ def test_the_scene_is_checked_once_not_every_frame(monkeypatch):
 
 def test_ground_truth_is_the_same_on_any_thread_count_and_skipped_when_not_needed(monkeypatch):
     """surface_material_ids labels each point on its own: 1, 2 and 3 threads give the same labels, on points on
-    both materials, at object edges (the lines around the centre line) and in empty air (−1); and a line that
-    ends at its first crossing past the point (STOP_AT_POINT) gives the labels of tracing on to the tolerance
-    (with fewer casts).  simulate(..., ground_truth=False) skips it and says so; by default the stage plan lists
+    both materials, at object edges (the lines around the centre line) and in empty air (−1); and lines that end
+    at their first crossing past the point and cast no farther than a crossing can win (PRUNE_LINES) give the
+    labels of tracing on to the tolerance (with fewer casts).  simulate(..., ground_truth=False) skips it and says so; by default the stage plan lists
     it as run."""
     from core.geometry import groundtruth
     from core.run import simulate
@@ -284,12 +284,12 @@ def test_ground_truth_is_the_same_on_any_thread_count_and_skipped_when_not_neede
     casts = []
     real = tracer.intersect
 
-    def counting(origin, directions):
+    def counting(origin, directions, **kwargs):
         casts.append(len(directions))
-        return real(origin, directions)
+        return real(origin, directions, **kwargs)
     monkeypatch.setattr(tracer, "intersect", counting)
     for stop in (True, False):
-        monkeypatch.setattr(groundtruth, "STOP_AT_POINT", stop)
+        monkeypatch.setattr(groundtruth, "PRUNE_LINES", stop)
         casts.clear()
         # a tolerance of 3 m: the plate's points see the ground behind it within reach when traced on
         labels = groundtruth.surface_material_ids(tracer, scene.material_ids, np.zeros(3), pos, 3.0, 0.01)
