@@ -163,14 +163,15 @@ def main(argv=None):
     blocks = flash_floor_blocks(tracer, det, pose, res.stats["pixels_per_block"])
     # interleaved: each repeat casts the floor, then runs the three frames (the load of a shared machine
     # changes between runs, not between the floor and the frames of one repeat)
-    casts, times = [], {"pipeline": [], "points_only": [], "full_physics": []}
+    casts, casts1, times = [], [], {"pipeline": [], "points_only": [], "full_physics": []}
     last = {}
     for _ in range(args.repeat):
         casts.append(floor.bare_cast(tracer, blocks, threads))
+        casts1.append(floor.bare_cast(tracer, blocks, 1))  # the cast's own thread scaling (the machine's load)
         for name, c in (("pipeline", cfg), ("points_only", cfg_points), ("full_physics", cfg_full)):
             s, last[name] = timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))
             times[name].append(s)
-    fl = floor.best(casts)
+    fl, fl1 = floor.best(casts), floor.best(casts1)
     bare_s = fl["wall_s"]
     pipe_s, points_s, full_s = (min(times[k]) for k in ("pipeline", "points_only", "full_physics"))
     res, res_points, res_full = last["pipeline"], last["points_only"], last["full_physics"]
@@ -184,6 +185,8 @@ def main(argv=None):
         "threads": threads,
         "floor_definition": floor.DEFINITION,
         "floor": fl,
+        "floor_one_thread": fl1,
+        "floor_thread_scaling": fl1["wall_s"] / bare_s,
         "bare_embreex_cast_s": bare_s,
         "pipeline_s": pipe_s,
         "pipeline_points_only_s": points_s,

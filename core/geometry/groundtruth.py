@@ -27,8 +27,10 @@ STEP_PAST_M = 1e-3
 PRUNE_LINES = True
 #: The margin on a cast's reach: relative, and absolute (m), far above float32 rounding at 100 km (≈ 8 mm).
 REACH_MARGIN_REL, REACH_MARGIN_M = 1e-5, 0.05
-#: Fewest points a thread labels at a time, and the parts a thread gets when there are enough points.
-MIN_PART, PARTS_PER_THREAD = 2048, 4
+#: Fewest points a thread labels at a time, and the parts a thread gets when there are enough points: one (the
+#: NumPy work on a part holds the GIL; four parts a thread were slower on 2 threads than 1 thread, one faster:
+#: 14k flash points 42-44 → 26-38 ms with a free second core).
+MIN_PART, PARTS_PER_THREAD = 2048, 1
 
 
 def surface_material_ids(tracer, material_ids, origin, position, tolerance_m: float, spread_rad: float = 0.0,
