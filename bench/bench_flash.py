@@ -1,12 +1,12 @@
 """Flash-ladar benchmark: 128×128 pixels × 4×4 sub-rays, 1024 time bins (issues 2, 16).
 
-Measures in one run, on the same rays: the bare embreex ray cast (one call, one thread: the floor any
-pipeline pays), the full pipeline (`simulate_frame`, all cores) with the cube saved, points only, and with
-full physics (Cn² 1e-14 with every turbulence effect, visibility 10 km, the noisy APD receiver with A/D, cube
-saved), their ratios to the bare cast and the time of every stage; and on sample_blends/flash_demo.blend the
+Measures in one run, on the same rays: the floor (bench/floor.py: the bare embreex cast of the frame's rays in the
+pipeline's blocks on the pipeline's threads), the full pipeline (`simulate_frame`, all cores) with the cube saved,
+points only, and with full physics (Cn² 1e-14 with every turbulence effect, visibility 10 km, the noisy APD receiver with A/D, cube
+saved), their ratios to the floor, and the time of every stage and its ratio to the floor's thread-seconds; and on sample_blends/flash_demo.blend the
 noisy receiver against the ideal one (``--no-flash-demo`` to skip: its export needs the ``bpy`` module once).
 The first call of each case (compiling or loading the compiled kernels) is timed separately from the best of
-``--repeat`` runs.  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
+``--repeat`` runs, the floor and the frames interleaved (one of each per repeat; the medians are reported too).  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
 Writes ``flash.json`` to ``--out DIR`` (default runs/bench/); ``--update-committed`` regenerates
 bench/results/flash.json; ``--quick``: 32×32 px × 2×2 sub-rays, 256 bins, one run each (seconds).
 
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -34,6 +33,7 @@ from core.geometry.scene import SceneGeometry  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402
 from machine import machine_info  # noqa: E402  (bench/machine.py)
 from benchio import add_output_arguments, output_path, write_json  # noqa: E402
+import floor  # noqa: E402  (bench/floor.py)
 
 
 def bench_scene(n_grid: int = 128) -> SceneGeometry:
@@ -127,6 +127,18 @@ def flash_demo_noisy_vs_ideal(repeat, min_repeat=9):
             "stage_times_s noisy (summed over threads, last run)": res.stats["stage_times_s"]}
 
 
+def flash_floor_blocks(tracer, det, pose, pixels_per_block):
+    """The frame's rays (every pixel's sub-rays, row-major) in the pipeline's blocks of ``pixels_per_block``
+    pixels, as Embree casts them (bench/floor.py)."""
+    from core.engine.blocks import item_blocks
+
+    x_tan, y_tan, *_ = block_subray_tan(det, 0, det.n_pixels)
+    dirs = tan_to_unit_direction(x_tan, y_tan) @ pose[:3, :3].T
+    s2 = det.rays_per_pixel
+    bounds = [(a * s2, b * s2) for a, b in item_blocks(det.n_pixels, pixels_per_block)]
+    return floor.float32_blocks(tracer, pose[:3, 3], dirs, bounds)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
@@ -138,27 +150,43 @@ def main(argv=None):
         args.repeat = 1
 
     scene, pose, cfg = bench_scene(32 if args.quick else 128), sensor_pose(), bench_config(args.quick)
-    tracer = SceneTracer(scene)
+    tracer = SceneTracer(scene)  # the BVH, built before every clock
     det = Detector.from_settings(cfg.receiver)
-    x_tan, y_tan, *_ = block_subray_tan(det, 0, det.n_pixels)
-    dirs = (tan_to_unit_direction(x_tan, y_tan) @ pose[:3, :3].T).astype(np.float32)
-    bare_s, prim = best_of(lambda: tracer.bare_cast(pose[:3, 3], dirs), args.repeat)
-    first_s, _ = timed(lambda: simulate_frame(scene, pose, cfg, tracer=tracer))
-    pipe_s, res = best_of(lambda: simulate_frame(scene, pose, cfg, tracer=tracer), args.repeat)
     cfg_points = bench_config(args.quick)
     cfg_points.run.save_waveforms = False
-    points_s, _ = best_of(lambda: simulate_frame(scene, pose, cfg_points, tracer=tracer), args.repeat)
     cfg_full = full_physics_config(args.quick)
+    # first calls (compiling or loading the kernels), timed apart
+    first_s, res = timed(lambda: simulate_frame(scene, pose, cfg, tracer=tracer))
+    first_points_s, _ = timed(lambda: simulate_frame(scene, pose, cfg_points, tracer=tracer))
     first_full_s, _ = timed(lambda: simulate_frame(scene, pose, cfg_full, tracer=tracer))
-    full_s, res_full = best_of(lambda: simulate_frame(scene, pose, cfg_full, tracer=tracer), args.repeat)
+    threads = res.stats["threads"]
+    blocks = flash_floor_blocks(tracer, det, pose, res.stats["pixels_per_block"])
+    # interleaved: each repeat casts the floor, then runs the three frames (the load of a shared machine
+    # changes between runs, not between the floor and the frames of one repeat)
+    casts, casts1, times = [], [], {"pipeline": [], "points_only": [], "full_physics": []}
+    last = {}
+    for _ in range(args.repeat):
+        casts.append(floor.bare_cast(tracer, blocks, threads))
+        casts1.append(floor.bare_cast(tracer, blocks, 1))  # the cast's own thread scaling (the machine's load)
+        for name, c in (("pipeline", cfg), ("points_only", cfg_points), ("full_physics", cfg_full)):
+            s, last[name] = timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))
+            times[name].append(s)
+    fl, fl1 = floor.best(casts), floor.best(casts1)
+    bare_s = fl["wall_s"]
+    pipe_s, points_s, full_s = (min(times[k]) for k in ("pipeline", "points_only", "full_physics"))
+    res, res_points, res_full = last["pipeline"], last["points_only"], last["full_physics"]
     demo = None if args.no_flash_demo else flash_demo_noisy_vs_ideal(args.repeat, 1 if args.quick else 9)
     report = {
         "benchmark": ("quick: flash 32x32 px x 2x2 sub-rays, 256 bins" if args.quick
                       else "flash 128x128 px x 4x4 sub-rays, 1024 bins"),
         "quick": args.quick, "repeat": args.repeat,
-        "n_rays": int(len(dirs)), "n_triangles": scene.n_triangles,
-        "hit_fraction": float(np.mean(prim >= 0)),
-        "threads": os.cpu_count(),
+        "n_rays": fl["n_rays"], "n_triangles": scene.n_triangles,
+        "hit_fraction": fl["n_hits"] / fl["n_rays"],
+        "threads": threads,
+        "floor_definition": floor.DEFINITION,
+        "floor": fl,
+        "floor_one_thread": fl1,
+        "floor_thread_scaling": fl1["wall_s"] / bare_s,
         "bare_embreex_cast_s": bare_s,
         "pipeline_s": pipe_s,
         "pipeline_points_only_s": points_s,
@@ -166,9 +194,14 @@ def main(argv=None):
         "ratio_points_only_to_bare_cast": points_s / bare_s,
         "pipeline_full_physics_s": full_s,
         "ratio_full_physics_to_bare_cast": full_s / bare_s,
-        "first_call_s": {"pipeline": first_s, "full_physics": first_full_s},
+        "median_s": {k: float(np.median(v)) for k, v in times.items()},
+        "first_call_s": {"pipeline": first_s, "points_only": first_points_s, "full_physics": first_full_s},
         "stage_times_s (summed over threads, last run)": res.stats["stage_times_s"],
+        "stage_times_s points only (summed over threads, last run)": res_points.stats["stage_times_s"],
         "stage_times_s full physics (summed over threads, last run)": res_full.stats["stage_times_s"],
+        "stage_ratio_to_floor": {"pipeline": floor.stage_ratios(res.stats["stage_times_s"], fl),
+                                 "points_only": floor.stage_ratios(res_points.stats["stage_times_s"], fl),
+                                 "full_physics": floor.stage_ratios(res_full.stats["stage_times_s"], fl)},
         "flash_demo_noisy_vs_ideal": demo,
         "waveform_binning": res.stats["waveform_binning"],
         "n_points": res.stats["n_points"],

@@ -11,10 +11,10 @@ Measured in one run (one process): the scene load (terrain built and its BVH), t
 (``simulate_scan``, BVH built beforehand) at 1 and 2 threads, pulses/s, the thread scaling, the peak resident
 memory of the process up to the end of the survey runs (scene, BVH, kernels and the surveys) with the resident
 memory at the stage boundaries, the bare embreex cast of as many rays along the same scan lines (the very same
-sub-rays, generated outside the timing, cast in the pipeline's blocks on 1 and 2 threads) and the ratio of the
-pipeline to it.  The first call's latency (JIT compilation, or loading the compiled kernels from the per-user
-cache) is measured separately, in fresh processes, on a 4096-pulse scan: with an empty kernel cache and with
-the cache filled.  HELIOS++'s figures are the stated reference: 37.4k pulses/s on 2 threads, 20.1k on 1,
+sub-rays, generated outside the timing, cast in the pipeline's blocks on 1 and 2 threads of the shared pool: the
+floor of bench/floor.py) and the ratio of the pipeline, and of each stage, to it.  The first call's latency
+(JIT compilation, or loading the compiled kernels from the per-user cache) is measured separately, in fresh
+processes, on a 4096-pulse scan: with an empty kernel cache and with the cache filled.  HELIOS++'s figures are the stated reference: 37.4k pulses/s on 2 threads, 20.1k on 1,
 4.4 GB peak memory, 18 s scene load.  Writes ``helios_survey.json`` to ``--out DIR`` (default runs/bench/;
 ``--update-committed``: bench/results/helios_survey.json).  ``--quick``: a 0.02 s survey (10 000 pulses) over a
 101 × 101-vertex terrain, no first-call latency runs (seconds; the comparison with HELIOS++ is meaningless there).
@@ -32,7 +32,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -109,8 +108,9 @@ def run_survey(scene, tracer, duration_s, threads):
 
 
 def bare_cast(tracer, duration_s, per_block, threads_list):
-    """The bare embreex cast of the survey's sub-rays (generated first, outside the timing) in the pipeline's
-    blocks, on each thread count: seconds per thread count, rays, hits."""
+    """The floor (bench/floor.py): the bare embreex cast of the survey's sub-rays (generated first, outside the
+    timing) in the pipeline's blocks, on each thread count of the shared pool: {threads: floor.bare_cast report}."""
+    import floor
     from core.config.derived import n_scan_pulses
     from core.systems.scan_patterns import scan_rays
 
@@ -119,21 +119,8 @@ def bare_cast(tracer, duration_s, per_block, threads_list):
     blocks = []
     for a in range(0, n, per_block):
         *_, o_world, d_world = scan_rays(cfg, traj, a, min(a + per_block, n))
-        blocks.append((np.ascontiguousarray(o_world - tracer.reference_m, dtype=np.float32),
-                       np.ascontiguousarray(d_world, dtype=np.float32)))
-    n_rays = sum(len(d) for _, d in blocks)
-
-    def cast(block):
-        return int((np.asarray(tracer._embree.run(block[0], block[1], query="INTERSECT")) >= 0).sum())
-
-    out = {}
-    hits = 0
-    for threads in threads_list:
-        t0 = time.perf_counter()
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            hits = sum(pool.map(cast, blocks))
-        out[threads] = time.perf_counter() - t0
-    return out, n_rays, hits
+        blocks += floor.float32_blocks(tracer, o_world, d_world, [(0, len(d_world))])
+    return {threads: floor.best([floor.bare_cast(tracer, blocks, threads)]) for threads in threads_list}
 
 
 _FIRST_CALL = r"""
@@ -182,6 +169,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="survey runs per thread count (best taken)")
     ap.add_argument("--no-first-call", action="store_true", help="skip the fresh-process first-call latency")
     sys.path.insert(0, str(ROOT / "bench"))
+    import floor
     from benchio import add_output_arguments, output_path, write_json
 
     add_output_arguments(ap)
@@ -218,7 +206,9 @@ def main(argv=None) -> int:
     memory["after_surveys"] = (rss_bytes(), peak)
     res1 = runs[1][1]
     n_pulses = res1["n_pulses"]
-    bare, n_rays, bare_hits = bare_cast(tracer, args.duration, res1["pulses_per_block"], (1, 2))
+    floors = bare_cast(tracer, args.duration, res1["pulses_per_block"], (1, 2))
+    bare = {t: floors[t]["wall_s"] for t in (1, 2)}
+    n_rays, bare_hits = floors[1]["n_rays"], floors[1]["n_hits"]
     pps = {t: n_pulses / runs[t][0] for t in (1, 2)}
     report = {
         "benchmark": "HELIOS++ airborne survey (issue 16)" + (" (quick: not comparable)" if args.quick else ""),
@@ -235,6 +225,9 @@ def main(argv=None) -> int:
         "bare_cast_s": {str(t): bare[t] for t in (1, 2)},
         "bare_rays_per_s_per_thread": n_rays / bare[1],
         "ratio_pipeline_to_bare_cast": {str(t): runs[t][0] / bare[t] for t in (1, 2)},
+        "floor_definition": floor.DEFINITION,
+        "floor": {str(t): floors[t] for t in (1, 2)},
+        "stage_ratio_to_floor": {str(t): floor.stage_ratios(runs[t][1]["stage_times_s"], floors[t]) for t in (1, 2)},
         "peak_rss_bytes (scene, kernels and one survey run)": peak,
         "peak_rss_includes": "the whole process up to the end of the survey runs: interpreter and libraries, the "
                              "terrain and its BVH, the compiled kernels, the warm-up scan and the full surveys at 1 "

@@ -41,8 +41,11 @@ SYSTEMS = {
 
 
 def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
-             trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None) -> FrameResult:
-    """Simulate one frame of the sensor system ``config.system_type`` (:data:`SYSTEMS`)."""
+             trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None,
+             ground_truth: bool = True) -> FrameResult:
+    """Simulate one frame of the sensor system ``config.system_type`` (:data:`SYSTEMS`), with the ground truth of
+    its points (``points["material_id"]``, core/engine/products.py label_points) unless ``ground_truth`` is false
+    (a caller that writes no product holding it: the stage plan records the skip)."""
     validate_config(config)  # a SimulationConfig (not None or a dict) with valid settings, e.g. its system type
     system = SYSTEMS.get(config.system_type)
     if system is None:
@@ -50,7 +53,7 @@ def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, 
     kernels = kernel_report()
     result = system(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
                     start_time_s=start_time_s, progress=progress, cancel=cancel)
-    label_points(result, scene, world_from_sensor, config)
+    label_points(result, scene, world_from_sensor, config, needed=ground_truth)
     record_pose(result, world_from_sensor, trajectory if config.system_type == "scanner" else None)
     # compiled kernels loaded from the cache or compiled during this frame (not in the stage times)
     result.stats["kernels"] = kernel_report(kernels)

@@ -39,6 +39,8 @@ def _get(doc, dotted):
 BENCHMARKS = {
     "bench_flash": ("flash.json", ["bare_embreex_cast_s", "pipeline_s", "ratio_pipeline_to_bare_cast",
                                    "ratio_points_only_to_bare_cast", "ratio_full_physics_to_bare_cast",
+                                   "floor/thread_s", "stage_ratio_to_floor/pipeline/trace",
+                                   "stage_ratio_to_floor/full_physics/receiver_chain",
                                    "flash_demo_noisy_vs_ideal/ratio_noisy_to_ideal", "n_points"],
                     lambda d: d["hit_fraction"] > 0),
     "bench_turbulence": ("turbulence.json", ["cases/wide_12deg/calm_s", "cases/wide_12deg/turbulent_s",
@@ -51,10 +53,12 @@ BENCHMARKS = {
                        lambda d: len(d["scenes"]) >= 5 and all(_positive(s["ratio"]) and _positive(s["ratio_1thread"])
                                                                for s in d["scenes"].values())),
     "bench_systems": ("systems.json", ["scanner/pulses_per_s", "scanner/rays_per_s",
-                                       "scanner/ratio_pipeline_to_bare_single_thread", "gated/ratio_30_to_1_slices"],
+                                       "scanner/ratio_pipeline_to_bare_cast", "scanner/floor/thread_s",
+                                       "gated/ratio_30_to_1_slices"],
                       lambda d: d["gated"]["traced_once"] is True),
     "bench_helios_survey": ("helios_survey.json", ["pulses_per_s/1", "pulses_per_s/2", "thread_scaling_1_to_2",
                                                    "ratio_pipeline_to_bare_cast/1", "ratio_pipeline_to_bare_cast/2",
+                                                   "floor/2/thread_s", "stage_ratio_to_floor/2/trace",
                                                    "vs_helios/pulses_per_s_2_threads",
                                                    "peak_rss_bytes (scene, kernels and one survey run)"],
                             lambda d: d["survey"]["n_pulses"] == 10_000),
@@ -82,7 +86,8 @@ BENCHMARKS = {
                                          "examples/flash_demo/warm_median/command_wall_s"],
                        lambda d: d["examples"]["flash_demo"]["cold"]["kernels"]["compiled"] > 0
                        and d["examples"]["flash_demo"]["warm_median"]["kernels"]["compiled"] == 0),
-    "bench_scaling": ("scaling.json", ["pipeline_vs_bare/0/ratio_pipeline_to_bare", "scene/0/bvh_build_s",
+    "bench_scaling": ("scaling.json", ["pipeline_vs_bare/0/ratio_pipeline_to_bare",
+                                       "pipeline_vs_bare/0/floor/thread_s", "scene/0/bvh_build_s",
                                        "sensor/0/frame_s", "culling/frame_culled_s", "sample/frame_s"],
                       lambda d: d["culling"]["identical_products"] is True),
 }

@@ -2,7 +2,7 @@
 
     open_frame: validate the settings → the memory and work plan (refuses what would not fit or not end) →
                 (the system's own preflight) → material overrides →
-                scene check → sensor pose → BVH (reuse the caller's when it serves this scene, else build it,
+                scene check (once per scene: SceneGeometry.ensure_checked) → sensor pose → BVH (reuse the caller's when it serves this scene, else build it,
                 on the triangles inside the field of view when the system culls)
     StageLog:   stage times, the stages run (in order) and the stages skipped with the reason, for metadata.json
 
@@ -102,8 +102,14 @@ def open_frame(scene: SceneGeometry, world_from_sensor, config: SimulationConfig
     validate_config(config)  # a SimulationConfig (not None, a dict or a settings group) with valid settings
     memory = check_memory(config)
     checked = preflight(config) if preflight is not None else None
-    scene = scene.with_overrides(config.materials)
-    scene.check()
+    given, scene = scene, scene.with_overrides(config.materials)
+    if scene.ensure_checked():  # once per scene: again only if an array was replaced (SceneGeometry docstring)
+        log.ran.append("scene_check")
+        if scene is not given and scene._arrays_key() == given._arrays_key():
+            given._checked_arrays = scene._checked_arrays  # the caller's scene: its next frame's copy is checked
+    else:
+        log.skip("scene_check", "the scene's arrays were checked at an earlier frame and not replaced since "
+                                "(materials checked again)")
     origin, rot = (None, None) if world_from_sensor is None and posed_by_trajectory else split_pose(world_from_sensor)
     t0 = stage_clock()
     bvh = {}

@@ -141,14 +141,20 @@ def ground_truth_tolerance(config: SimulationConfig) -> tuple:
     return 0.5 * SPEED_OF_LIGHT_M_S * spread_s, spread_rad
 
 
-def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, config: SimulationConfig) -> None:
+def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *,
+                 needed: bool = True) -> None:
     """Ground truth of the frame's points (core.geometry.groundtruth): ``points["material_id"]`` (−1: no surface near)
     and the scene's material names in ``stats["material_names"]``; a false alarm keeps its label (its flag says
     it is noise).  The tolerance: c/2 × (2 pulse widths + 4 bins, + the gate width and delay step when gated);
     the lines of sight spread over half a pixel (the beam's half divergence for the scanner, half the field of
-    view for the profiler)."""
+    view for the profiler).  The points are labelled on the run's threads (``run.threads``) of the shared pool.
+    In the stage plan (``stages_run`` / ``stages_skipped``): skipped when ``needed`` is false (the caller writes
+    no product that holds it) or when there is no traced scene or no point positions."""
     pts = result.points
-    if result.tracer is None or "position_world" not in pts:
+    if not needed or result.tracer is None or "position_world" not in pts:
+        result.stats.setdefault("stages_skipped", {})["ground_truth"] = (
+            "no product of this run uses the points' materials" if not needed
+            else "no traced scene or no point positions")
         return
     if result.pulses is not None and "pulse_index" in pts:
         origin = np.asarray(result.pulses["origin_world"])[pts["pulse_index"]]
@@ -157,6 +163,8 @@ def label_points(result: FrameResult, scene: SceneGeometry, world_from_sensor, c
     tolerance_m, spread_rad = ground_truth_tolerance(config)
     t0 = stage_clock()
     pts["material_id"] = surface_material_ids(result.tracer, scene.material_ids, origin, pts["position_world"],
-                                              tolerance_m, spread_rad)
+                                              tolerance_m, spread_rad,
+                                              threads=worker_threads(config.run.threads))
+    result.stats.setdefault("stages_run", []).append("ground_truth")
     result.stats["material_names"] = list(scene.material_names)
     result.stats.setdefault("stage_times_s", {})["ground_truth"] = stage_clock() - t0

@@ -18,6 +18,12 @@ class SceneGeometry:
     triangles     (M, 3) int32 vertex indices
     material_ids  (M,)   int32 index into ``materials`` (and ``material_names``)
     materials     BRDF of each material; ``material_names`` their names (config overrides match by name)
+
+    Checked once: :meth:`check` validates everything and remembers the arrays it validated (their memory, shape,
+    strides and dtype); :meth:`ensure_checked` (every frame, core/engine/frame.py) repeats the array checks only
+    when an array was replaced since, and the materials (a few settings) every time.  An array changed *in place*
+    (the same memory written through ``scene.vertices_m[...] = …`` or any other view of it) is not seen: call
+    :meth:`check` after such a change (it always validates), or make a new SceneGeometry.
     """
 
     vertices_m: np.ndarray
@@ -38,8 +44,15 @@ class SceneGeometry:
     def n_triangles(self) -> int:
         return int(self.triangles.shape[0])
 
+    def _arrays_key(self) -> tuple:
+        """What identifies the arrays :meth:`check` validated: each one's memory address, shape, strides, dtype
+        (and the number of materials, the range of the material indices)."""
+        return tuple((a.__array_interface__["data"][0], a.shape, a.strides, a.dtype.str)
+                     for a in (self.vertices_m, self.triangles, self.material_ids)) + (len(self.materials),)
+
     def check(self) -> None:
         """Validate shapes, indices and values; raise ConfigError naming the bad part."""
+        self._checked_arrays = None
         if self.n_triangles == 0:
             raise ConfigError("scene.triangles", 0, "at least one triangle of a visible mesh object")
         if not np.all(np.isfinite(self.vertices_m)):
@@ -50,12 +63,29 @@ class SceneGeometry:
         if self.material_ids.shape[0] != self.n_triangles:
             raise ConfigError("scene.material_ids", self.material_ids.shape[0],
                               f"one material index per triangle ({self.n_triangles})")
-        if len(self.materials) != len(self.material_names):
-            raise ConfigError("scene.material_names", len(self.material_names),
-                              f"one name per material ({len(self.materials)})")
+        self._check_names()
         if self.material_ids.min() < 0 or self.material_ids.max() >= len(self.materials):
             raise ConfigError("scene.material_ids", "index out of range",
                               f"material indices in [0, {len(self.materials) - 1}]")
+        self._check_materials()
+        self._checked_arrays = self._arrays_key()
+
+    def ensure_checked(self) -> bool:
+        """:meth:`check`, unless these very arrays passed it before (class docstring): then only the materials are
+        checked again (a few settings).  Returns True if the arrays were checked now."""
+        if getattr(self, "_checked_arrays", None) is not None and self._checked_arrays == self._arrays_key():
+            self._check_names()
+            self._check_materials()
+            return False
+        self.check()
+        return True
+
+    def _check_names(self) -> None:
+        if len(self.materials) != len(self.material_names):
+            raise ConfigError("scene.material_names", len(self.material_names),
+                              f"one name per material ({len(self.materials)})")
+
+    def _check_materials(self) -> None:
         for name, brdf in zip(self.material_names, self.materials):
             if not isinstance(brdf, BRDFSettings):
                 raise ConfigError(f"materials.{name}", brdf, "BRDF settings")
@@ -70,7 +100,10 @@ class SceneGeometry:
             raise ConfigError("materials", sorted(unknown)[0],
                               "the name of a material in the scene: " + ", ".join(self.material_names))
         mats = [overrides.get(n, m) for n, m in zip(self.material_names, self.materials)]
-        return SceneGeometry(self.vertices_m, self.triangles, self.material_ids, mats, list(self.material_names))
+        out = SceneGeometry(self.vertices_m, self.triangles, self.material_ids, mats, list(self.material_names))
+        if out._arrays_key() == getattr(self, "_checked_arrays", None):  # the same arrays: checked already
+            out._checked_arrays = self._checked_arrays
+        return out
 
 
 def _as_array(path: str, value, allowed: str) -> np.ndarray:

@@ -72,9 +72,11 @@ class SceneTracer:
         return np.asarray(self._embree.run(np.ascontiguousarray(o), np.ascontiguousarray(directions, np.float32),
                                            query="INTERSECT"), dtype=np.int32)
 
-    def intersect(self, origin_m, directions):
+    def intersect(self, origin_m, directions, max_range_m=None):
         """Trace rays along unit directions (n, 3) float64 from one origin (3,), one origin per ray (n, 3), or one
         origin per group of consecutive rays (n/k, 3) — the k sub-rays of a beam — (world, float64).
+        ``max_range_m`` (n,), optional: Embree looks for each ray's nearest hit up to that distance only (its
+        float32 distance; a caller that needs every hit up to a range adds a margin for the float32 rounding).
 
         Returns (prim (n,) int32, −1 on a miss; range_m (n,) float64, NaN on a miss; cos_theta (n,) float64,
         the cosine of the incidence angle, |d·n|, 0 on a miss).
@@ -91,7 +93,8 @@ class SceneTracer:
         if self._embree is None:
             prim = np.full(n, -1, np.int32)
         else:
-            prim = np.asarray(self._embree.run(o32, d32, query="INTERSECT"), dtype=np.int32)
+            far = None if max_range_m is None else np.ascontiguousarray(max_range_m, dtype=np.float32)
+            prim = np.asarray(self._embree.run(o32, d32, dists=far, query="INTERSECT"), dtype=np.int32)
         del o32, d32
         range_m, cos_theta = np.empty(n), np.empty(n)
         ids = self.triangle_ids if self.triangle_ids is not None else np.zeros(0, np.int64)

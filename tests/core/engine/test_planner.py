@@ -208,3 +208,97 @@ def test_the_available_memory_limits_a_run(monkeypatch):
         simulate_frame(plate(100.0, 10.0), np.eye(4), cfg)
     assert "the memory available now" in str(info.value)
     assert estimate_flash_memory(cfg)["total"] > 100 * 2 ** 20
+
+
+def test_the_scene_is_checked_once_not_every_frame(monkeypatch):
+    """open_frame checks a scene's arrays at its first frame only (also through a material-override copy, which
+    shares them); a replaced array is checked again at the next frame, the materials at every frame; a change made
+    in place is not seen (the documented limit) until ``check()`` is called, which always validates."""
+    from core.run import simulate
+
+    scene = plate(100.0, 10.0)
+    cfg = config_for(100.0, pixels=4)
+    calls = []
+    real = SceneGeometry.check
+
+    def counting(self):
+        calls.append(self)
+        return real(self)
+    monkeypatch.setattr(SceneGeometry, "check", counting)
+    tracer = SceneTracer(scene)
+    first = simulate(scene, np.eye(4), cfg, tracer=tracer)
+    assert len(calls) == 1 and "scene_check" in first.stats["stages_run"]
+    cfg.materials = {"plate": BRDFSettings(reflectance=0.6)}
+    second = simulate(scene, np.eye(4), cfg, tracer=tracer)
+    third = simulate(scene, np.eye(4), cfg, tracer=tracer)
+    assert len(calls) == 1
+    for res in (second, third):
+        assert "scene_check" in res.stats["stages_skipped"] and "scene_check" not in res.stats["stages_run"]
+    # a replaced array: checked again, and refused
+    bad = scene.vertices_m.copy()
+    bad[1, 2] = np.nan
+    scene.vertices_m = bad
+    with pytest.raises(ConfigError, match="scene.vertices_m"):
+        simulate(scene, np.eye(4), cfg, tracer=tracer)
+    # the materials are checked at every frame
+    scene = plate(100.0, 10.0)
+    simulate(scene, np.eye(4), config_for(100.0, pixels=4))
+    scene.materials[0] = "not a BRDF"
+    with pytest.raises(ConfigError, match="materials.plate"):
+        simulate(scene, np.eye(4), config_for(100.0, pixels=4))
+    # in place: not seen by the per-frame check (documented), seen by check()
+    scene = plate(100.0, 10.0)
+    assert scene.ensure_checked() is True and scene.ensure_checked() is False
+    scene.triangles[0, 0] = 99
+    assert scene.ensure_checked() is False
+    with pytest.raises(ConfigError, match="scene.triangles"):
+        scene.check()
+    with pytest.raises(ConfigError, match="scene.triangles"):  # and stays refused until the arrays pass again
+        scene.ensure_checked()
+
+
+def test_ground_truth_is_the_same_on_any_thread_count_and_skipped_when_not_needed(monkeypatch):
+    """surface_material_ids labels each point on its own: 1, 2 and 3 threads give the same labels, on points on
+    both materials, at object edges (the lines around the centre line) and in empty air (−1); and lines that end
+    at their first crossing past the point and cast no farther than a crossing can win (PRUNE_LINES) give the
+    labels of tracing on to the tolerance (with fewer casts).  simulate(..., ground_truth=False) skips it and says so; by default the stage plan lists
+    it as run."""
+    from core.geometry import groundtruth
+    from core.run import simulate
+
+    scene = _crowded_scene()
+    tracer = SceneTracer(scene)
+    rng = np.random.default_rng(7)
+    n = 5 * groundtruth.MIN_PART
+    # points on the plate (z = −100, |x|, |y| ≤ 3 + a margin: edges), on the ground (y = −5) and in the air
+    on_plate = np.column_stack([rng.uniform(-3.5, 3.5, n // 2), rng.uniform(-3.5, 3.5, n // 2),
+                                np.full(n // 2, -100.0) + rng.normal(0, 0.05, n // 2)])
+    on_ground = np.column_stack([rng.uniform(-60, 60, n // 4), np.full(n // 4, -5.0), rng.uniform(-300, -20, n // 4)])
+    in_air = rng.uniform([-50, 10, -300], [50, 50, -20], (n - n // 2 - n // 4, 3))
+    pos = np.concatenate([on_plate, on_ground, in_air])
+    one = groundtruth.surface_material_ids(tracer, scene.material_ids, np.zeros(3), pos, 0.3, 0.01, threads=1)
+    assert set(np.unique(one)) == {-1, 0, 1}
+    for threads in (2, 3):
+        assert np.array_equal(groundtruth.surface_material_ids(tracer, scene.material_ids, np.zeros(3), pos, 0.3,
+                                                               0.01, threads=threads), one)
+    casts = []
+    real = tracer.intersect
+
+    def counting(origin, directions, **kwargs):
+        casts.append(len(directions))
+        return real(origin, directions, **kwargs)
+    monkeypatch.setattr(tracer, "intersect", counting)
+    for stop in (True, False):
+        monkeypatch.setattr(groundtruth, "PRUNE_LINES", stop)
+        casts.clear()
+        # a tolerance of 3 m: the plate's points see the ground behind it within reach when traced on
+        labels = groundtruth.surface_material_ids(tracer, scene.material_ids, np.zeros(3), pos, 3.0, 0.01)
+        if stop:
+            stopped, n_stopped = labels, sum(casts)
+    assert np.array_equal(stopped, labels) and n_stopped < 0.95 * sum(casts)  # 46 224 against 51 695 rays
+    monkeypatch.undo()
+    cfg = config_for(100.0, pixels=8)
+    labelled = simulate(scene, np.eye(4), cfg, tracer=tracer)
+    assert "ground_truth" in labelled.stats["stages_run"] and "material_id" in labelled.points
+    skipped = simulate(scene, np.eye(4), cfg, tracer=tracer, ground_truth=False)
+    assert "ground_truth" in skipped.stats["stages_skipped"] and "material_id" not in skipped.points
