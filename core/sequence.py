@@ -21,7 +21,7 @@ from .config.validate import validate_config
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
-from .fileio.run_folder import json_default, software_versions, write_ply, write_run_files
+from .fileio.run_folder import json_default, naming, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
@@ -105,7 +105,8 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
             if merged:
                 write_ply(tmp / "points_merged.ply", merged)
-                np.savez(tmp / "points_merged.npz", **merged)
+                with naming(tmp / "points_merged.npz"):
+                    np.savez(tmp / "points_merged.npz", **merged)
                 files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
                 files["points_merged.npz"] = "the same as NumPy arrays"
                 if len(merged.get("range_m", ())):
@@ -127,7 +128,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                                                        f"({bvh_builds} built)"}
             if extra_metadata:
                 meta.update(extra_metadata)
-            with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+            with naming(tmp / "metadata.json"), open(tmp / "metadata.json", "w", encoding="utf-8") as f:
                 json.dump(meta, f, indent=2, default=json_default)
             if cancel is not None and cancel():
                 raise Cancelled()
