@@ -18,6 +18,7 @@ import numpy as np
 from .errors import ConfigError
 from .config.settings import SimulationConfig
 from .config.validate import validate_config
+from .engine.memory import check_memory
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
@@ -72,6 +73,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     if len(set(frames)) != len(frames):
         raise ConfigError("frames", frames, "distinct frame numbers")
     validate_config(config)  # a SimulationConfig (not None or a dict), before the folder is claimed
+    check_memory(config, frames=len(frames))  # every frame's work within run.max_work_s, before the first one
     try:
         with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
             tmp = claim.work
