@@ -135,6 +135,8 @@ import numba.extending  # noqa: E402
 from numba.core import caching as _caching  # noqa: E402
 from numba.core.serialize import dumps as _dumps  # noqa: E402
 
+from .process import deferred as _deferred  # noqa: E402
+
 #: What happened to the cache in this process (for the run's metadata and the tests): entries loaded,
 #: compiled and saved, and the notes printed.
 CACHE_STATS = {"loaded": 0, "compiled": 0, "saved": 0, "rejected": 0, "unsaved": 0, "seconds": 0.0}
@@ -279,11 +281,20 @@ def kernel_report(before: dict | None = None) -> dict:
 
 
 def _timed(compile_method):
-    """A dispatcher's ``compile`` timed per thread (the outermost call: a kernel's callees compile inside it)."""
+    """A dispatcher's ``compile`` timed per thread (the outermost call: a kernel's callees compile inside it),
+    and not cut by a signal: SIGINT/SIGTERM/SIGHUP arriving while the main thread loads or compiles a kernel is
+    raised when the load or compile ends (core.process.deferred).  Inside, llvmlite calls Python back from C
+    (``ExecutionEngine._raw_object_cache_notify``); an exception raised there by the signal handler is printed
+    and dropped: the signal was lost and the kernel's library left without machine code ("RuntimeError: no
+    compiled object yet for <Library ...>" at its next use, issue 31)."""
 
     def compile(sig):
         if getattr(_tls, "depth", 0):
             return compile_method(sig)
+        with _deferred():
+            return _outermost(sig)
+
+    def _outermost(sig):
         _tls.depth = 1
         t0 = time.perf_counter()
         with _stats_lock:

@@ -8,8 +8,8 @@ those signals raises :class:`Interrupted` (a ``KeyboardInterrupt``, so every ``e
 ``finally`` clean-up runs: the hidden staging folder is removed, nothing of the run is left).  Batch schedulers
 and ``timeout`` send SIGTERM, a closed terminal SIGHUP.  While the clean-up runs, further signals are ignored
 for :data:`CLEANUP_GRACE_S` (one clean-up, not an interrupted one).  Code that must not be cut in two (creating
-a claim, the renames that put a run in place) runs in :func:`deferred`: a signal arriving inside waits until the
-block ends.  SIGKILL cannot be caught: what a killed run leaves is recognised and removed by the next run
+a claim, the renames that put a run in place, a kernel's compile or load: core.jit) runs in :func:`deferred`: a
+signal arriving inside waits until the block ends.  SIGKILL cannot be caught: what a killed run leaves is recognised and removed by the next run
 (core.fileio.staging).
 
 Library code never installs handlers: without :func:`interrupts_as_exceptions` (Blender's interface, scripts)

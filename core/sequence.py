@@ -18,10 +18,11 @@ import numpy as np
 from .errors import ConfigError
 from .config.settings import SimulationConfig
 from .config.validate import validate_config
+from .engine.memory import check_memory
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
-from .fileio.run_folder import json_default, run_warnings, software_versions, write_ply, write_run_files
+from .fileio.run_folder import json_default, naming, run_warnings, software_versions, write_ply, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
@@ -72,6 +73,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     if len(set(frames)) != len(frames):
         raise ConfigError("frames", frames, "distinct frame numbers")
     validate_config(config)  # a SimulationConfig (not None or a dict), before the folder is claimed
+    check_memory(config, frames=len(frames))  # every frame's work within run.max_work_s, before the first one
     try:
         with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
             tmp = claim.work
@@ -105,7 +107,8 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
             files = {f"frame_{f:04d}/": "the run folder of one frame" for f in frames}
             if merged:
                 ply = write_ply(tmp / "points_merged.ply", merged, units.get("intensity"))
-                np.savez(tmp / "points_merged.npz", **merged)
+                with naming(tmp / "points_merged.npz"):
+                    np.savez(tmp / "points_merged.npz", **merged)
                 files["points_merged.ply"] = "all frames' points in world coordinates (attribute frame)"
                 files["points_merged.npz"] = "the same as NumPy arrays"
                 if len(merged.get("range_m", ())):
@@ -132,7 +135,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                                                        f"({bvh_builds} built)"}
             if extra_metadata:
                 meta.update(extra_metadata)
-            with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+            with naming(tmp / "metadata.json"), open(tmp / "metadata.json", "w", encoding="utf-8") as f:
                 json.dump(meta, f, indent=2, default=json_default)
             if cancel is not None and cancel():
                 raise Cancelled()

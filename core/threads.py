@@ -10,7 +10,10 @@ and grows to the largest thread count asked for; a call runs on at most ``thread
 items with work taken from the longest stretch left (the stages that fill a fresh output); :func:`imap` runs them
 on ``threads`` workers and yields the results in item order while the caller reports progress (the frame
 blocks).  In both the first error (by item) is raised after the running items have finished, so a caller never
-returns while its items still write to its arrays.  Called from one of the pool's own workers (a stage inside a
+returns while its items still write to its arrays — except for a signal (KeyboardInterrupt, core.process's
+Interrupted, which wins over any item's error): the process is ending, and a worker in the middle of a kernel's
+compile (up to ≈ 30 s on a first run) is not waited for; the command line then exits without joining the pool
+(scripts/ladar_run.py).  Called from one of the pool's own workers (a stage inside a
 stage) either runs the items in that thread, one after the other: a worker never waits for the pool it belongs
 to.  A forked child process starts a pool of its own.  Results never depend on the thread count (each caller's
 items are independent).
@@ -89,7 +92,7 @@ def imap(fn, items, threads: int):
 
     pool = _executor(k)
     futures = [pool.submit(runner) for _ in range(k)]
-    finished = False
+    finished = interrupted = False
     try:
         for i in range(n):
             with cond:
@@ -101,12 +104,16 @@ def imap(fn, items, threads: int):
             yield value
         else:
             finished = True
+    except KeyboardInterrupt:  # a signal (core.process): the process is ending, its items are not waited for
+        interrupted = True
+        raise
     finally:
         stop.set()
-        for f in futures:  # the running items finish before the caller goes on (or unwinds)
-            f.result()
+        if not interrupted:
+            for f in futures:  # the running items finish before the caller goes on (or unwinds)
+                f.result()
     if not finished and errors:
-        raise errors[min(errors)]
+        raise _first(errors)
 
 
 def map_list(fn, items, threads: int) -> list:
@@ -152,11 +159,25 @@ def map_list(fn, items, threads: int) -> list:
 
     pool = _executor(k - 1)
     futures = [pool.submit(run, t) for t in range(1, k)]
+    interrupted = False
     try:
         run(0)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
-        for f in futures:  # (a worker that has not started takes nothing: every item is done or stopped)
-            f.result()
+        if not interrupted and not any(isinstance(e, KeyboardInterrupt) for e in list(errors.values())):
+            for f in futures:  # (a worker that has not started takes nothing: every item is done or stopped)
+                f.result()
     if errors:
-        raise errors[min(errors)]
+        raise _first(errors)
     return results
+
+
+def _first(errors: dict) -> BaseException:
+    """The error to raise: a signal's (KeyboardInterrupt, core.process.Interrupted) before any item's, else the
+    first item's."""
+    for i in sorted(errors):
+        if isinstance(errors[i], KeyboardInterrupt):
+            return errors[i]
+    return errors[min(errors)]

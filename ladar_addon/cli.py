@@ -282,8 +282,12 @@ def cli_handler(argv) -> int:
         except (ConfigError, LadarError) as exc:
             emit(f"ladar: error: {exc}", err=True)
             return EXIT_USER_ERROR
-        except OSError as exc:
-            emit(f"ladar: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), err=True)
+        except OSError as exc:  # a full disk, a vanished folder, a permission changed, in any writer
+            job = getattr(args, "job", None)
+            nothing = (args.command == "simulate" and not (job is not None and job.claim is not None
+                                                           and job.claim.committed))
+            emit(f"ladar: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")
+                 + ("; nothing of the run was written" if nothing else ""), err=True)
             return EXIT_USER_ERROR
         except (KeyboardInterrupt, Cancelled) as exc:
             how = f" ({exc.signal_name})" if isinstance(exc, Interrupted) and exc.signum != signal.SIGINT else ""

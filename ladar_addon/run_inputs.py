@@ -3,6 +3,7 @@ the messages a run prints."""
 from __future__ import annotations
 
 import math
+import os
 import re
 import threading
 import time
@@ -12,6 +13,7 @@ import bpy
 
 from ..core.config.validate import validate
 from ..core.config.files import config_from_dict, read_config_file
+from ..core.fileio.staging import refuse_symlink
 from ..core.process import emit
 from .errors import LadarError
 from .blend_config import check_sensor, config_from_blender
@@ -55,7 +57,9 @@ def resolve_run_dir(scene, sensor, frame: int, out_dir=None, last_frame: int | N
             raise LadarError(f"the output folder {path!r} is relative to the .blend file, which is not saved: "
                              f"save it or choose an absolute folder")
         path = bpy.path.abspath(path)
-    return Path(path).expanduser().resolve()
+    path = Path(path).expanduser()
+    refuse_symlink(Path(os.path.abspath(path)))  # (before resolve(), which would follow it)
+    return path.resolve()
 
 
 def build_config(scene, sensor, *, config_path=None, seed=None):

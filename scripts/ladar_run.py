@@ -113,5 +113,24 @@ def main(argv=None) -> int:
             return process.exit_code(exc)
 
 
+def exit_now_if_interrupted(code: int) -> None:
+    """After an interruption (exit 129/130/143, clean-up done, the line printed): exit without waiting for the
+    worker threads (core/threads.py), which may be in the middle of a kernel's compile for seconds.  The exit
+    handlers run (bpy's, then the removal of the temporary Blender user folder); the threads end with the
+    process."""
+    if code in (128 + int(_signal.SIGINT), 128 + int(_signal.SIGTERM), 128 + int(getattr(_signal, "SIGHUP", 1))):
+        import atexit
+
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        atexit._run_exitfuncs()
+        os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    _code = main()
+    exit_now_if_interrupted(_code)
+    sys.exit(_code)

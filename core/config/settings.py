@@ -442,6 +442,11 @@ class RunSettings:
     max_memory_bytes: int = setting(4 * 2**30, lo=2**20, hi=2**44, unit="B",
                                     doc="Largest waveform cube (bytes) a run may allocate",
                                     label="Memory Limit", panel_unit="MiB")
+    max_work_s: float = setting(3600.0, lo=1.0, hi=1e7, unit="s",
+                                doc="Longest computing time a run may be estimated to take on this machine (its "
+                                    "work at measured rates, over run.threads); a longer run is refused before "
+                                    "it starts: raise this to run it anyway",
+                                label="Work Limit")
 
 
 @dataclass

@@ -30,7 +30,9 @@ int64 histogram, then the detection).
 
 Every system also estimates its work — elementary samples: rays traced, (pixel, bin) samples through the
 waveform, receiver chain and detection, Geiger per-pulse arrival searches, gated (ray, slice) terms — and a
-run above ``MAX_WORK_SAMPLES`` is refused, naming the setting that drives it.
+run whose work would take longer than ``run.max_work_s`` on this machine (rays at :data:`RAYS_PER_S`, samples at
+:data:`SAMPLES_PER_S`, per thread, over the run's threads) is refused, naming the setting that drives it, the
+estimated time, and ``run.max_work_s``.
 
 The limit is ``run.max_memory_bytes`` and the memory the system has available (Linux: MemAvailable).
 """
@@ -69,9 +71,15 @@ GEIGER_BYTES_PER_SAMPLE = 48
 #: Gated viewing: bytes per (ray, slice) gate term alive at once (indices, responses, weights and their
 #: hit-filtered copies).
 BYTES_PER_GATE_TERM = 80
-#: Work above this many elementary samples is refused before anything runs (measured 1–5e7 samples/s on one
-#: core: noisy flash 2.5e7, scanner 0.8e7, Geiger per-pulse 1.2–2.2e7 — about an hour or more).
-MAX_WORK_SAMPLES = 5e10
+#: Elementary samples (waveform, receiver chain, detection, gate terms) computed per second by one thread
+#: (measured 1–5e7 on one core: noisy flash 2.5e7, scanner 0.8e7, Geiger per-pulse 1.2–2.2e7).
+SAMPLES_PER_S = 2.5e7
+#: Rays (sub-rays) traced per second by one thread, with their radiometry and waveform splatting (measured on
+#: the flash demo, 64² px × 4² sub-rays: trace + rays + radiometry + waveform stages 0.38 s summed over threads
+#: for 65 536 rays: 1.7e5 rays/s).
+RAYS_PER_S = 1.7e5
+#: Work parts counted in rays (the others in samples).
+RAY_PARTS = ("rays",)
 
 
 def available_memory_bytes() -> int | None:
@@ -167,6 +175,10 @@ def _estimate(parts: dict, work: dict, advice: dict, **extra) -> dict:
            "work_fields": {k: v[1] for k, v in work.items()},
            "work": float(sum(v[0] for v in work.values())), "advice": advice}
     out.update(extra)
+    threads = int(extra.get("threads", 1))
+    out["work_threads"] = threads
+    out["seconds_parts"] = work_seconds(out["work_parts"], threads)
+    out["seconds"] = float(sum(out["seconds_parts"].values()))
     return out
 
 
@@ -288,11 +300,13 @@ def _value(config, field):
     return getattr(getattr(config, group), name)
 
 
-def check_memory(config: SimulationConfig, available: int | None = -1, estimate: dict | None = None) -> dict:
+def check_memory(config: SimulationConfig, available: int | None = -1, estimate: dict | None = None,
+                 frames: int = 1) -> dict:
     """Raise ConfigError, naming the setting that drives the largest part, if the run's estimated memory
     exceeds ``run.max_memory_bytes`` or the available memory (``available``: bytes, None = unknown, −1 = ask
     the system), or its work exceeds ``MAX_WORK_SAMPLES``.  Returns the estimate (``estimate``: one already
-    made, e.g. with the first atmosphere realisation's size)."""
+    made, e.g. with the first atmosphere realisation's size).  ``frames``: the work of that many frames (a
+    sequence, checked before its first frame) is compared with ``run.max_work_s``."""
     est = estimate if estimate is not None else estimate_memory(config)
     limit, where = config.run.max_memory_bytes, "run.max_memory_bytes"
     if available == -1:
@@ -309,12 +323,32 @@ def check_memory(config: SimulationConfig, available: int | None = -1, estimate:
                           f"a run that fits in {where} = {limit / gib:.2f} GiB: this one needs ≈ "
                           f"{est['total'] / gib:.2f} GiB ({detail} GiB); use {est['advice'][big]}, or raise "
                           f"run.max_memory_bytes")
-    if est["work"] > MAX_WORK_SAMPLES:
-        work = est["work_parts"]
-        big = max(work, key=work.get)
+    limit_s = config.run.max_work_s
+    frames = max(1, int(frames))
+    if est["seconds"] * frames > limit_s:
+        secs = est["seconds_parts"]
+        big = max(secs, key=secs.get)
         field = est["work_fields"][big]
-        detail = ", ".join(f"{k} {v:.2g}" for k, v in work.items() if v)
+        detail = ", ".join(f"{est['work_parts'][k]:.2g} {'rays' if k in RAY_PARTS else k + ' samples'}"
+                           for k, v in secs.items() if v)
         raise ConfigError(field, _value(config, field),
-                          f"a run of at most {MAX_WORK_SAMPLES:.0e} samples (about an hour of computing): this one "
-                          f"needs ≈ {est['work']:.2g} ({detail}); use {est['advice'][big]}")
+                          f"a run estimated to take at most run.max_work_s = {limit_s:.0f} s: this one would take "
+                          f"≈ {_duration(est['seconds'] * frames)} on {est['work_threads']} thread(s) of this "
+                          f"machine ({detail}{f' per frame, {frames} frames' if frames > 1 else ''}); use {est['advice'][big]}, or raise run.max_work_s")
     return est
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 172800:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
+
+
+def work_seconds(work_parts: dict, threads: int) -> dict:
+    """Estimated seconds of each work part on ``threads`` threads (:data:`RAYS_PER_S`, :data:`SAMPLES_PER_S`)."""
+    return {k: float(v) / ((RAYS_PER_S if k in RAY_PARTS else SAMPLES_PER_S) * max(1, threads))
+            for k, v in work_parts.items()}

@@ -79,7 +79,10 @@ class FolderLock:
             self.locked = _try_lock(self.fd)
             record = {"tool": "ladar-simulator", "pid": os.getpid(), "host": socket.gethostname(),
                       "process_start": _process_start(os.getpid()), "started_unix_s": time.time(), **info}
-            os.write(self.fd, json.dumps(record).encode("utf-8"))
+            try:
+                os.write(self.fd, json.dumps(record).encode("utf-8"))
+            except OSError as exc:  # a full disk: named, as every writer's failure (core.fileio.run_folder.naming)
+                raise OSError(exc.errno, exc.strerror, str(path)) from None
             os.rename(partial, path)
         except BaseException:
             os.close(self.fd)

@@ -6,8 +6,10 @@ previous run of this tool): the run folder rules are fileio.staging's.
 """
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -16,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..constants import SPEED_OF_LIGHT_M_S
-from .staging import claim_run_dir
+from .staging import claim_run_dir, naming
 from ..version import __version__
 from .las import las_run_facts, write_las
 
@@ -31,7 +33,41 @@ def write_exr(path, channels: dict, attributes: dict | None = None):
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update(attributes or {})
     data = {name: np.ascontiguousarray(arr, dtype=np.float32) for name, arr in channels.items()}
-    OpenEXR.File(header, data).write(str(path))
+    shapes = {name: arr.shape for name, arr in data.items()}  # (the binding turns data's values into Channels)
+    try:
+        OpenEXR.File(header, data).write(str(path))
+    except RuntimeError as exc:  # the binding reports every I/O failure so: an OSError like every other writer's
+        raise exr_os_error(exc, path) from None
+    # and some not at all: on a full disk it can leave an empty file and return (measured: a 16 × 16 image with
+    # 0 bytes free); the file is read back whole, or the write failed
+    try:
+        with OpenEXR.File(str(path)) as f:
+            whole = all(np.asarray(f.channels()[name].pixels).shape == shape for name, shape in shapes.items())
+    except (RuntimeError, KeyError, OSError):
+        whole = False
+    if not whole:
+        try:
+            full = os.statvfs(Path(path).parent).f_bavail == 0
+        except (OSError, AttributeError):
+            full = False
+        code = errno.ENOSPC if full else errno.EIO
+        raise OSError(code, f"{os.strerror(code)} (the EXR file was not written whole)", str(path))
+
+
+#: The C library's messages of the errors a writer meets, as OpenEXR quotes them at the end of its message.
+_ERRNO_TEXTS = tuple((code, os.strerror(code)) for code in (errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM,
+                                                             errno.ENOENT, errno.EROFS, errno.EIO, errno.EFBIG))
+
+
+def exr_os_error(exc: RuntimeError, path) -> OSError:
+    """An OpenEXR RuntimeError as OSError(errno, strerror, path): "Failed to write pixel data to image file
+    "…/range.exr". No space left on device." → ENOSPC; a message naming no such error → EIO with OpenEXR's text."""
+    text = str(exc)
+    for code, strerror in _ERRNO_TEXTS:
+        if strerror in text:
+            return OSError(code, strerror, str(path))
+    return OSError(errno.EIO, f"the EXR writer failed ({text.splitlines()[0][:200] if text else 'no reason'})",
+                   str(path))
 
 
 def exr_attributes(metadata: dict, product: str, unit: str, **more) -> dict:
@@ -132,7 +168,7 @@ def write_ply(path, points: dict, intensity_unit: str | None = None) -> dict:
               f"element vertex {len(pos)}"]
     header += [f"property {_PLY_TYPES[np.dtype(a.dtype)]} {n}" for n, a in fields]
     header.append("end_header")
-    with open(path, "wb") as f:
+    with naming(path), open(path, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii", errors="replace"))
         f.write(table.tobytes())
     return {"intensity_scale": scale, "intensity_unit": stored_unit}
@@ -205,7 +241,8 @@ def write_run_files(folder, result, metadata: dict) -> Path:
                       "intensity.exr": f"{what['intensity']} ({units['intensity']})",
                       "energy.exr": f"{what['energy']} ({units['energy']})"})
     ply = write_ply(tmp / "points.ply", result.points, units.get("intensity"))
-    np.savez(tmp / "points.npz", **result.points)
+    with naming(tmp / "points.npz"):
+        np.savez(tmp / "points.npz", **result.points)
     files["points.ply"] = (f"point cloud, world coordinates + per-point attributes (intensity in "
                            f"{ply['intensity_unit']}: × {ply['intensity_scale']:g})")
     files["points.npz"] = "the same point cloud as NumPy arrays"
@@ -214,17 +251,21 @@ def write_run_files(folder, result, metadata: dict) -> Path:
         files["points.las"] = ("the point cloud as LAS 1.4 (point format 6, world coordinates, GPS time, "
                                "scan angle, classes from the scene's materials, synthetic flag)")
     if result.range_echoes is not None:
-        np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
+        with naming(tmp / "echoes.npz"):
+            np.savez(tmp / "echoes.npz", range_m=result.range_echoes, intensity=result.intensity_echoes)
         files["echoes.npz"] = "range_m and intensity (H, W, max_echoes), echoes in time order, NaN/0 if none"
     if getattr(result, "digital_waveforms", None) is not None:
-        np.save(tmp / "counts.npy", result.digital_waveforms)
+        with naming(tmp / "counts.npy"):
+            np.save(tmp / "counts.npy", result.digital_waveforms)
         files["counts.npy"] = f"receiver output per pixel and bin ({units['counts']})"
     if result.waveforms is not None:
-        np.save(tmp / "waveforms.npy", result.waveforms)
+        with naming(tmp / "waveforms.npy"):
+            np.save(tmp / "waveforms.npy", result.waveforms)
         files["waveforms.npy"] = ("waveforms (n_pulses, n_bins)" if result.waveforms.ndim == 2
                                   else "waveform cube (H, W, n_bins)") + f" float32, {units['waveforms']}"
     if getattr(result, "pulses", None) is not None:
-        np.savez(tmp / "pulses.npz", **result.pulses)
+        with naming(tmp / "pulses.npz"):
+            np.savez(tmp / "pulses.npz", **result.pulses)
         files["pulses.npz"] = "every pulse fired (also those without an echo): time, pose, direction, energy"
     if getattr(result, "slices", None) is not None:
         (tmp / "slices").mkdir()
@@ -238,7 +279,8 @@ def write_run_files(folder, result, metadata: dict) -> Path:
             write_exr(tmp / "slices" / f"slice_{k + 1:04d}.exr", {"Y": img},
                       exr_attributes(metadata, f"gated slice {k + 1} of {len(result.slices)}",
                                      f"{units['slices']} per pixel", **more))
-        np.save(tmp / "slices.npy", result.slices)
+        with naming(tmp / "slices.npy"):
+            np.save(tmp / "slices.npy", result.slices)
         files["slices/slice_NNNN.exr"] = f"gated slices as an image sequence ({units['slices']} per pixel), 1-based"
         files["slices.npy"] = f"gated slices (n_slices, H, W) float32, {units['slices']} per pixel"
     if metadata.get("system_type") == "profiler" and result.waveforms is not None:
@@ -249,7 +291,7 @@ def write_run_files(folder, result, metadata: dict) -> Path:
     meta["files"] = files
     meta["ply"] = ply
     meta.setdefault("stage_times_s", {})["write"] = time.perf_counter() - t0
-    with open(tmp / "metadata.json", "w", encoding="utf-8") as f:
+    with naming(tmp / "metadata.json"), open(tmp / "metadata.json", "w", encoding="utf-8") as f:
         json.dump(meta, f, indent=2, default=json_default)
     return tmp
 
@@ -258,7 +300,8 @@ def _write_profile_csv(path, waveform, metadata):
     gate = metadata["settings"]["gate"]
     t = gate["gate_start_s"] + (np.arange(len(waveform)) + 0.5) * gate["bin_width_s"]
     table = np.column_stack([t, 0.5 * SPEED_OF_LIGHT_M_S * t, waveform])
-    np.savetxt(path, table, delimiter=",", header="time_s,range_m,energy_j", comments="", fmt="%.10g")
+    with naming(path):
+        np.savetxt(path, table, delimiter=",", header="time_s,range_m,energy_j", comments="", fmt="%.10g")
 
 
 def json_default(obj):

@@ -30,6 +30,7 @@ import os
 import secrets
 import shutil
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -71,6 +72,22 @@ def new_temp_file(parent, prefix: str, suffix: str = "") -> tuple[int, Path]:
     raise FileExistsError(f"no free temporary file name {prefix}…{suffix} in {parent}")
 
 
+@contextmanager
+def naming(path):
+    """An OSError raised in the block names ``path`` (``np.save``, ``np.savez`` and ``json.dump`` raise a full disk
+    as ``[Errno 28] No space left on device`` without the file): every writer's failure reads the same."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None:
+            raise
+        if exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        if "requested and" in str(exc):  # NumPy's short write ("65536 requested and 8160 written"): a full disk
+            raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} ({exc})", str(path)) from None
+        raise OSError(errno.EIO, str(exc), str(path)) from None
+
+
 def write_file_atomically(path, write, *, overwrite: bool = True, suffix: str = ".tmp") -> Path:
     """Write the single file ``path`` complete or not at all: ``write(f)`` fills a hidden temporary file
     ``.<name>.<random><suffix>`` in the same folder (binary, the user's umask), which then takes the name.
@@ -84,7 +101,7 @@ def write_file_atomically(path, write, *, overwrite: bool = True, suffix: str = 
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = new_temp_file(path.parent, f".{path.name[:100]}.", suffix)
     try:
-        with os.fdopen(fd, "wb") as f:
+        with naming(path), os.fdopen(fd, "wb") as f:
             write(f)
         if overwrite:
             os.replace(tmp, path)
@@ -135,6 +152,19 @@ def _refuse(out: Path, allowed: str):
     raise ConfigError("out", str(out), allowed)
 
 
+def refuse_symlink(out: Path) -> None:
+    """A run folder given as a symbolic link is refused (ConfigError naming where it points), dangling or not:
+    the run would be written wherever the link points (a dangling link's target created without a word).  Links
+    among the folders above it are followed as usual."""
+    if out.is_symlink():
+        try:
+            target = os.readlink(out)
+        except OSError:
+            target = "?"
+        _refuse(out, f"a folder path that is not a symbolic link (this one points to {target}"
+                     f"{'' if out.exists() else ', which does not exist'}): give the real folder's path")
+
+
 def _checked_name(out_dir) -> Path:
     """The absolute path, if its name fits the file system (else ConfigError)."""
     out = Path(os.path.abspath(Path(out_dir).expanduser()))
@@ -169,6 +199,7 @@ def check_run_dir(out_dir, overwrite: bool) -> Path:
     exists and ``overwrite`` is off, or it exists and is not a run of this tool that may be replaced (see
     :func:`check_replaceable`).  Returns the absolute path."""
     out = _checked_name(out_dir)
+    refuse_symlink(out)
     if out.exists() or out.is_symlink():
         if not out.is_dir():
             _refuse(out, "a folder path (a file of that name exists)")

@@ -218,7 +218,14 @@ def test_expected_false_alarms_against_the_quadrature_at_every_threshold():
     assert abs(float(ref["noisy/expected_false_alarms"]) - exact) <= 1e-4 * exact
 
 
-def test_compiled_chain_matches_the_numpy_reference():
+def test_compiled_chain_matches_the_numpy_reference(monkeypatch):
+    """(The reference was made with the far-field aperture factor π r_a²/R²; the radiometry now uses the
+    projected solid angle π r_a²/(R² + r_a²) (issue 31, tests/core/physics/test_energy_conservation.py), a
+    relative (r_a/R)² ≈ 3e-8 here.  With r_a² = 0 in that factor the kernel evaluates the far-field form with
+    the same operations as before, so the chain is compared with the reference's own model.)"""
+    import core.physics.radiometry as radiometry
+
+    monkeypatch.setattr(radiometry, "aperture_r2", lambda receiver: 0.0)
     ref = np.load(DATA)
     new = products()
     for case in FLASH_CASES:

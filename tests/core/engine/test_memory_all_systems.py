@@ -12,7 +12,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from core.engine.memory import (MAX_WORK_SAMPLES, NOISY_BYTES_PER_SAMPLE, check_memory, estimate_gated_memory,
+from core.engine.memory import (RAYS_PER_S, SAMPLES_PER_S, NOISY_BYTES_PER_SAMPLE, check_memory, estimate_gated_memory,
                                 estimate_memory, held_bytes)
 from core.errors import ConfigError
 from core.geometry.rays import Detector
@@ -119,9 +119,9 @@ def test_geiger_per_pulse_work_is_refused(tmp_path):
     cfg = _cfg(pixels=64, bins=512)
     cfg.detector.mode, cfg.detector.detector_type = "noisy", "geiger"
     cfg.detector.speckle_dof, cfg.detector.geiger_pulses = 4.0, 10_000_000
-    _refused(tmp_path, cfg, "detector.geiger_pulses", f"at most {MAX_WORK_SAMPLES:.0e} samples")
+    _refused(tmp_path, cfg, "detector.geiger_pulses", "run.max_work_s = 3600 s", "raise run.max_work_s")
     cfg.detector.geiger_pulses = 100
-    assert check_memory(cfg, available=None)["work"] < MAX_WORK_SAMPLES
+    assert check_memory(cfg, available=None)["seconds"] < cfg.run.max_work_s
 
 
 def test_flash_ray_work_is_refused(tmp_path):
@@ -129,6 +129,31 @@ def test_flash_ray_work_is_refused(tmp_path):
     cfg = _cfg(pixels=2048, sub=256)
     cfg.run.save_waveforms = False
     _refused(tmp_path, cfg, "receiver.subsamples", "rays")
+
+
+def test_work_beyond_max_work_s_is_refused_with_the_time_and_the_setting_and_can_be_allowed(tmp_path):
+    """Issue 31: the flash demo's 64² px with receiver.subsamples = 1024 (4.3e9 rays) was validated and ran for
+    minutes.  Its time, rays / RAYS_PER_S / threads (+ samples / SAMPLES_PER_S / threads), is ≈ 7 h on one thread:
+    refused naming receiver.subsamples, the estimated time and run.max_work_s; within a raised run.max_work_s
+    the estimate passes (memory permitting)."""
+    cfg = _cfg(pixels=64, sub=1024, bins=256)
+    cfg.run.save_waveforms = False
+    est = estimate_memory(cfg)
+    rays = 64 ** 2 * 1024 ** 2
+    assert est["work_parts"]["rays"] == rays
+    expected_s = rays / RAYS_PER_S + sum(v for k, v in est["work_parts"].items() if k != "rays") / SAMPLES_PER_S
+    assert est["seconds"] == pytest.approx(expected_s, rel=1e-12)
+    assert 6.95 * 3600 < expected_s < 7.05 * 3600  # 4.29e9 / 1.7e5 = 25 266 s
+    _refused(tmp_path, cfg, "receiver.subsamples", "≈ 7.0 h on 1 thread(s) of this machine", "4.3e+09 rays",
+             "raise run.max_work_s")
+    cfg.run.threads = 2  # two threads: half the time
+    assert estimate_memory(cfg)["seconds"] == pytest.approx(expected_s / 2, rel=1e-12)
+    cfg.run.max_work_s = 1e5
+    cfg.run.max_memory_bytes = 2 ** 44
+    assert check_memory(cfg, available=None)["seconds"] < 1e5
+    cfg.run.max_work_s = expected_s / 2 * 0.99  # just below: refused
+    with pytest.raises(ConfigError, match="run.max_work_s"):
+        check_memory(cfg, available=None)
 
 
 @pytest.mark.parametrize("system,kw", [
@@ -183,3 +208,19 @@ def test_geiger_histogram_memory_is_counted(tmp_path):
     assert est["parts"]["receiver_chain"] == 48 * samples and est["parts"]["waveform_cube"] == 4 * samples
     cfg.run.max_memory_bytes = 30 * 2 ** 30
     _refused(tmp_path, cfg, "gate.n_bins", "receiver_chain")
+
+
+def test_a_sequence_is_refused_when_its_frames_together_exceed_max_work_s(tmp_path):
+    """The frames' work adds up: a run of 3 frames each within run.max_work_s but together beyond it is refused
+    before the first frame, saying so; 2 frames pass the check."""
+    from core.sequence import run_sequence
+
+    cfg = _cfg(pixels=64, sub=64, bins=256)
+    cfg.run.save_waveforms = False
+    one = estimate_memory(cfg)["seconds"]
+    cfg.run.max_work_s = 2.5 * one
+    with pytest.raises(ConfigError, match=r"run.max_work_s .* per frame, 3 frames") as info:
+        run_sequence([1, 2, 3], lambda f: plate(R, 50.0), lambda f: np.eye(4), cfg, tmp_path / "seq")
+    assert info.value.field == "receiver.subsamples"
+    assert list(tmp_path.iterdir()) == []
+    assert check_memory(cfg, available=None, frames=2)["seconds"] == pytest.approx(one, rel=1e-12)

@@ -398,3 +398,19 @@ def test_a_claim_whose_creator_died_writing_its_owner_file_is_taken_at_once(tmp_
     assert _names(tmp_path) == sorted(["r", alive.name, other_host.name])
     with pytest.raises(ConfigError, match="no other run is writing"):
         _run(tmp_path / "s")
+
+
+def test_a_run_folder_that_is_a_symbolic_link_is_refused(tmp_path):
+    """Issue 31: a dangling link as the run folder made its target; a link (dangling or to a run) is refused."""
+    link = tmp_path / "r"
+    link.symlink_to(tmp_path / "target")
+    for if_exists in ("stop", "replace"):
+        with pytest.raises(ConfigError, match="symbolic link .*target, which does not exist"):
+            claim_run_dir(link, if_exists=if_exists)
+    assert _names(tmp_path) == ["r"]
+    run, _ = _run(tmp_path / "a")
+    link.unlink()
+    link.symlink_to(run)
+    with pytest.raises(ConfigError, match="not a symbolic link"):
+        _run(link, overwrite=True)
+    assert _names(tmp_path) == ["a", "r"] and (run / "metadata.json").is_file()

@@ -91,7 +91,8 @@ def brdf_log_terms(brdf, cos_theta):
 
 
 def reference_energy(laser, rx, sigma, materials, ids, cos_theta, range_m, fraction):
-    """Eq. 3-1 in long double, as exp of the log-space sum (zeros where a factor is zero)."""
+    """Eq. 3-1 in long double, as exp of the log-space sum (zeros where a factor is zero), with the aperture's
+    projected solid angle π r_a²/(R² + r_a²)."""
     ids, cos_theta, range_m = np.asarray(ids), np.asarray(cos_theta, float), np.asarray(range_m, float)
     fraction = np.broadcast_to(np.asarray(fraction, float), cos_theta.shape)
     f_r = np.zeros(len(ids), dtype=LD)
@@ -102,8 +103,9 @@ def reference_energy(laser, rx, sigma, materials, ids, cos_theta, range_m, fract
     c = np.clip(cos_theta.astype(LD), LD(0), LD(1))
     r = range_m.astype(LD)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        log_e = (np.log(scale) + np.log(fraction.astype(LD)) + np.log(f_r) + np.log(c) - 2 * np.log(r)
-                 - 2 * LD(sigma) * r)
+        # the aperture's projected solid angle π r_a²/(R² + r_a²) (core/physics/radiometry.py)
+        log_e = (np.log(scale) + np.log(fraction.astype(LD)) + np.log(f_r) + np.log(c)
+                 - np.log(r * r + radius * radius) - 2 * LD(sigma) * r)
         return np.exp(log_e)
 
 
@@ -117,7 +119,9 @@ def rounding_bound(laser, rx, sigma, materials, ids, cos_theta, range_m, fractio
     scale = energy_scale(laser, rx)
     with np.errstate(divide="ignore"):
         s += (abs(math.log(scale)) if scale > 0 else 0.0) + np.abs(np.log(np.where(fraction > 0, fraction, 1.0)))
-        s += np.abs(np.log(np.clip(cos_theta, TINY, 1.0))) + 2 * np.abs(np.log(np.maximum(range_m, TINY)))
+        # ln(R² + r_a²) is formed as 2 ln max(R, r_a) + log1p(…) (≤ ln 2)
+        s += np.abs(np.log(np.clip(cos_theta, TINY, 1.0)))
+        s += 2 * np.abs(np.log(np.maximum(np.maximum(range_m, TINY), 0.5 * rx.aperture_diameter_m))) + math.log(2)
         s += 2 * sigma * range_m
     return U * (64.0 + 8.0 * s)
 

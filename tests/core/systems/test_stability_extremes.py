@@ -37,10 +37,10 @@ def _finite_products(res):
 
 def _radar_equation_j(cfg, range_m, reflectance, extinction_per_m):
     """Paper eq. 3-1, Lambertian plate at normal incidence filling the field of view, uniform beam:
-    E_T η (ρ/π) (π r_a²/R²) e^(−2σR)."""
+    E_T η (ρ/π) (π r_a²/(R² + r_a²)) e^(−2σR) (the aperture's projected solid angle, core/physics/radiometry.py)."""
     r_a = cfg.receiver.aperture_diameter_m / 2
     return (cfg.laser.pulse_energy_j * cfg.receiver.system_efficiency * reflectance / np.pi
-            * np.pi * r_a ** 2 / range_m ** 2 * np.exp(-2 * extinction_per_m * range_m))
+            * np.pi * r_a ** 2 / (range_m ** 2 + r_a ** 2) * np.exp(-2 * extinction_per_m * range_m))
 
 
 @FEW

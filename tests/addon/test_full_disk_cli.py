@@ -1,0 +1,47 @@
+"""A full disk in the middle of a run through the command line (issue 31): with 8 KiB free (inside the first EXR,
+which gave a traceback from the OpenEXR binding) and 200 KiB free (inside the NPZ writer), ``ladar_run.py …
+simulate`` exits 1 with one ``ladar: error: No space left on device: <file>; nothing of the run was written``
+line, no traceback, and the small disk holds nothing of the run.  A tmpfs in a private mount namespace
+(``unshare``), where allowed; every writer is covered in tests/core/fileio/test_full_disk.py."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+BLEND = REPO / "sample_blends" / "flash_demo.blend"
+
+FILL = """
+import os, sys
+disk, free = sys.argv[1], int(sys.argv[2])
+st = os.statvfs(disk)
+fd = os.open(os.path.join(disk, "fill"), os.O_WRONLY | os.O_CREAT)
+os.posix_fallocate(fd, 0, st.f_bavail * st.f_frsize - free)
+os.close(fd)
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="Linux mount namespaces")
+@pytest.mark.parametrize("free_kib, where", [(8, "range.exr"), (200, ".npz")])
+def test_a_full_disk_during_a_run_is_one_error_line_and_leaves_nothing(tmp_path, free_kib, where):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    fill = tmp_path / "fill.py"
+    fill.write_text(FILL)
+    cmd = (f"mount -t tmpfs -o size=8m tmpfs {disk} && echo MOUNTED && {sys.executable} {fill} {disk} "
+           f"{free_kib * 1024} && {sys.executable} {REPO / 'scripts' / 'ladar_run.py'} {BLEND} simulate --no-import "
+           f"--out {disk / 'r'}; echo EXIT $?; ls -A {disk}")
+    try:
+        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=600,
+                              cwd=tmp_path, env=dict(os.environ, TMPDIR=str(tmp_path)))
+    except FileNotFoundError:
+        pytest.skip("no unshare(1)")
+    if "MOUNTED" not in done.stdout:
+        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    err = done.stderr.strip().splitlines()
+    assert "Traceback" not in done.stderr and "EXIT 1" in done.stdout, done.stdout[-1000:] + done.stderr[-3000:]
+    assert err[-1].startswith("ladar: error: No space left on device: "), err
+    assert where in err[-1] and err[-1].endswith("; nothing of the run was written"), err[-1]
+    assert done.stdout.strip().splitlines()[-1] == "fill", done.stdout[-500:]  # nothing of the run on the disk
