@@ -1,5 +1,5 @@
 """A full disk in the middle of a run through the command line (issue 31): with 8 KiB free (inside the first EXR,
-which gave a traceback from the OpenEXR binding) and 200 KiB free (inside the NPZ writer), ``ladar_run.py …
+which gave a traceback from the OpenEXR binding) and 200 KiB free (inside the PLY writer), ``ladar_run.py …
 simulate`` exits 1 with one ``ladar: error: No space left on device: <file>; nothing of the run was written``
 line, no traceback, and the small disk holds nothing of the run.  A tmpfs in a private mount namespace
 (``unshare``), where allowed; every writer is covered in tests/core/fileio/test_full_disk.py."""
@@ -24,7 +24,7 @@ os.close(fd)
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="Linux mount namespaces")
-@pytest.mark.parametrize("free_kib, where", [(8, "range.exr"), (200, ".npz")])
+@pytest.mark.parametrize("free_kib, where", [(8, "range.exr"), (200, "points.ply")])
 def test_a_full_disk_during_a_run_is_one_error_line_and_leaves_nothing(tmp_path, free_kib, where):
     disk = tmp_path / "disk"
     disk.mkdir()

@@ -137,7 +137,7 @@ def test_open_frame_applies_material_overrides_and_reuses_a_serving_bvh():
     cfg.materials = {"plate": BRDFSettings(reflectance=0.123)}
     log = StageLog.of(("build_bvh",), ran=("build_bvh", "rays"))
     fr = open_frame(scene, np.eye(4), cfg, log)
-    assert fr.built and fr.bvh == {"bvh": "built"} and log.ran == ["build_bvh", "rays"]
+    assert fr.built and fr.bvh == {"bvh": "built"} and log.ran == ["build_bvh", "rays", "scene_check"]
     assert fr.scene.materials[0].reflectance == 0.123 and scene.materials[0].reflectance != 0.123
     np.testing.assert_array_equal(fr.origin, [0.0, 0.0, 0.0])
 
@@ -145,6 +145,7 @@ def test_open_frame_applies_material_overrides_and_reuses_a_serving_bvh():
     fr2 = open_frame(scene, np.eye(4), cfg, log2, tracer=fr.tracer)  # an override shares the geometry arrays
     assert fr2.tracer is fr.tracer and not fr2.built and fr2.bvh == {"bvh": "reused"}
     assert log2.ran == ["rays"] and "build_bvh" in log2.skipped
+    assert "scene_check" in log2.skipped  # the same arrays: checked once, at the first frame
 
 
 def test_open_frame_culls_to_the_field_of_view_when_asked():

@@ -73,18 +73,27 @@ def test_plate_before_the_gate_is_counted_before():
     assert cov["suggested_settings"]["gate.gate_start_s"] < 2 * 100.0 / C
 
 
+def _inside_fraction(cfg, near_m, far_m):
+    """Energy fraction of the near plate when half the sub-rays see each (eq. 3-1 with the projected solid angle
+    πa²/(R² + a²) of the aperture of radius a)."""
+    a2 = (0.5 * cfg.receiver.aperture_diameter_m) ** 2
+    return (far_m ** 2 + a2) / (near_m ** 2 + far_m ** 2 + 2.0 * a2)
+
+
 def test_straddling_plates_fractions_follow_the_inverse_square_law():
     """Half the field of view on a plate at 100 m (inside the gate), half on one at 200 m (after it).  Half the
     hit sub-rays are inside; the energy of a Lambertian plate filling its sub-rays goes as cos³α / D² (eq. 3-1
-    with R = D / cos α, θ = α), the same α on both halves, so the inside fraction is 1 / (1 + (100/200)²) = 0.8
-    (tolerance 1e-9: the aperture solid angle's departure from A/R² is (a/R)² ≈ 1e-8 of each, cancelling)."""
+    with R = D / cos α, θ = α), the same α on both halves; with the aperture's projected solid angle
+    πa²/(R² + a²) (a = 25 mm) the inside fraction is (200² + a²)/(100² + 200² + 2a²) = 0.8 − 7.5e-9 (tolerance
+    1e-9: the residue of cos α ≤ 1 in the a² terms is a²α²/D² ≈ 3e-12)."""
     cfg = config_for(100.0, pixels=16)  # gate 90.4–138.8 m
     res = simulate(_two_plates(100.0, 200.0, 0.5 * cfg.receiver.fov_x_rad), np.eye(4), cfg)
     cov = res.stats["gate_coverage"]
     assert res.stats["n_hits"] == 16 * 16 * 16
     assert cov["subray_fraction"] == {"before": 0.0, "inside": 0.5, "after": 0.5}
-    assert cov["energy_fraction"]["inside"] == pytest.approx(0.8, abs=1e-9)
-    assert cov["energy_fraction"]["after"] == pytest.approx(0.2, abs=1e-9)
+    inside = _inside_fraction(cfg, 100.0, 200.0)
+    assert cov["energy_fraction"]["inside"] == pytest.approx(inside, abs=1e-9)
+    assert cov["energy_fraction"]["after"] == pytest.approx(1.0 - inside, abs=1e-9)
     assert cov["energy_fraction"]["inside"] < COVERAGE_WARN_FRACTION
     assert "80.0 % of the hit energy (50.0 % of the 4096 hit sub-rays)" in cov["warning"]
     lo, hi = cov["hit_range_m"]
@@ -137,7 +146,8 @@ def test_run_folder_and_summary_carry_the_warning_false_alarms_and_snr(tmp_path)
                                tmp_path / "run")
     meta = json.loads((path / "metadata.json").read_text())
     assert len(meta["warnings"]) == 1 and "80.0 % of the hit energy" in meta["warnings"][0]
-    assert meta["gate_coverage"]["energy_fraction"]["inside"] == pytest.approx(0.8, abs=1e-9)
+    assert meta["gate_coverage"]["energy_fraction"]["inside"] == pytest.approx(_inside_fraction(cfg, 100.0, 200.0),
+                                                                               abs=1e-9)
     text = run_summary(path, res)
     fa = res.points["false_alarm"]
     n_fa = int(fa.sum())

