@@ -33,8 +33,9 @@ cache (:class:`KernelCache`), which numba's ``cache=True`` would not do well for
   import the folders so marked and unused for :data:`STALE_CACHE_DAYS`, and all but the
   :data:`KEEP_CACHE_FOLDERS` most recently used, are removed — never a folder without the mark.
 
-The first run of a fresh installation compiles the kernels it calls (seconds: docs/performance.md; ``python
--m core.warmup`` or the add-on's preferences do it ahead, with progress); later runs load them from the cache.
+The first run of a fresh installation compiles the kernels it calls (seconds: docs/performance.md; ``ladar
+warm-up`` — core/warmup.py — or the sensor panel's *Compile Kernels Now* does it ahead, with progress); later
+runs load them from the cache.
 """
 from __future__ import annotations
 
