@@ -82,6 +82,7 @@ def main(argv=None) -> int:
     os.environ["BLENDER_USER_RESOURCES"] = str(resources)
     # the compiled kernels' cache must land in the per-user cache folder, never in the installed extension
     os.environ.pop("NUMBA_CACHE_DIR", None)
+    os.environ.pop("LADAR_KERNEL_CACHE", None)
     os.environ["XDG_CACHE_HOME"] = str(resources / "user_cache")
     os.environ["LOCALAPPDATA"] = str(resources / "user_cache")
     t0 = time.perf_counter()
@@ -131,8 +132,9 @@ def main(argv=None) -> int:
         if bpy.ops.ladar.simulate() != {"FINISHED"}:
             fail("bpy.ops.ladar.simulate() did not finish")
         simulate_s = time.perf_counter() - t1
-        kernel_cache = list((resources / "user_cache").rglob("*.nbi"))
-        in_extension = [str(p) for p in (resources / "extensions").rglob("*.nbi")]
+        # core/jit.py's entries are .nbc files (numba's own cache writes .nbi indexes beside them)
+        kernel_cache = [p for p in (resources / "user_cache").rglob("*") if p.suffix in (".nbi", ".nbc")]
+        in_extension = [str(p) for p in (resources / "extensions").rglob("*") if p.suffix in (".nbi", ".nbc")]
         if not kernel_cache or in_extension:
             fail(f"compiled kernels cached in the extension ({in_extension[:3]}) or not in the per-user folder "
                  f"({resources / 'user_cache'}: {len(kernel_cache)} files)")
