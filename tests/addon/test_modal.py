@@ -110,17 +110,9 @@ def test_modal_event_handling(lad, scene, tmp_path):
     assert not (tmp_path / "esc").exists() and bpy.data.objects.get("esc") is None
 
 
-def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
-    """The operator's modal()/_end() with a stand-in operator, context and events (no window needed)."""
-    _scene(scene, tmp_path, width=8, subsamples=1)
-    op_cls = lad.package.operators.simulate.LADAR_OT_simulate
-    removed = []
-    wm = types.SimpleNamespace(windows=[], event_timer_remove=removed.append)
-    ctx = types.SimpleNamespace(window_manager=wm)
-    job = lad.job.SimulationJob(scene)
-    job.start(threaded=True)
-    lad.job.set_current_job(job)
-    assert not op_cls.poll(types.SimpleNamespace(scene=scene))  # one run at a time
+def _run_modal_on_stand_ins(op_cls, job, ctx):
+    """Drive ``op_cls.modal`` with a stand-in operator (the operator's own ``_end``, ``cancelled_text`` and
+    texts) and TIMER events until the job ends: (the last status, the reports in order)."""
     reports = []
     op = types.SimpleNamespace(_job_ref=job, _timer="timer", report=lambda kind, msg: reports.append((kind, msg)))
     for name in ("_end", "cancelled_text"):  # the stand-in gets the operator's own methods and texts
@@ -133,6 +125,21 @@ def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
         if result != {"PASS_THROUGH"}:
             break
         time.sleep(0.01)
+    return result, reports
+
+
+def test_operator_modal_on_stand_ins(lad, scene, tmp_path):
+    """The operator's modal()/_end() with a stand-in operator, context and events (no window needed)."""
+    _scene(scene, tmp_path, width=8, subsamples=1)
+    op_cls = lad.package.operators.simulate.LADAR_OT_simulate
+    removed = []
+    wm = types.SimpleNamespace(windows=[], event_timer_remove=removed.append)
+    ctx = types.SimpleNamespace(window_manager=wm)
+    job = lad.job.SimulationJob(scene)
+    job.start(threaded=True)
+    lad.job.set_current_job(job)
+    assert not op_cls.poll(types.SimpleNamespace(scene=scene))  # one run at a time
+    result, reports = _run_modal_on_stand_ins(op_cls, job, ctx)
     assert result == {"FINISHED"}
     assert removed == ["timer"] and lad.job.current_job() is None
     assert reports and reports[-1][0] == {"INFO"} and "64 points" in reports[-1][1]
@@ -218,18 +225,7 @@ def test_operator_warns_when_the_range_gate_misses_the_scene(lad, scene, tmp_pat
     job = lad.job.SimulationJob(scene)
     job.start(threaded=True)
     lad.job.set_current_job(job)
-    reports = []
-    op = types.SimpleNamespace(_job_ref=job, _timer="timer", report=lambda kind, msg: reports.append((kind, msg)))
-    for name in ("_end", "cancelled_text"):
-        setattr(op, name, types.MethodType(getattr(op_cls, name), op))
-    op.FINISHED_PREFIX = op_cls.FINISHED_PREFIX
-    timer = types.SimpleNamespace(type="TIMER", value="NOTHING")
-    result = {"PASS_THROUGH"}
-    for _ in range(6000):
-        result = op_cls.modal(op, ctx, timer)
-        if result != {"PASS_THROUGH"}:
-            break
-        time.sleep(0.01)
+    result, reports = _run_modal_on_stand_ins(op_cls, job, ctx)
     assert result == {"FINISHED"}
     assert reports[0][0] == {"INFO"} and "0 points" in reports[0][1]
     assert [k for k, _ in reports[1:]] == [{"WARNING"}]
