@@ -89,7 +89,8 @@ class SweepJob(BackgroundJob):
         # material overrides are in the exported geometry
         self.spec = dataclasses.replace(spec, base=None, frames=frames)
         self.base = dataclasses.replace(cfg, materials={})
-        plan = plan_sweep(self.spec, self.sweep_scene, self.base, self.out_dir)  # every point validated now
+        self.plan = plan_sweep(self.spec, self.sweep_scene, self.base, self.out_dir)  # every point validated now
+        plan = self.plan
         self.n_tasks = len(plan.tasks)
         self.n_points = plan.manifest["n_points"]
         self.scheduler, self.n_workers, self.restart = scheduler, n_workers, restart
@@ -115,7 +116,8 @@ class SweepJob(BackgroundJob):
         try:
             self.outcome = run_sweep(self.spec, self.sweep_scene, self.out_dir, base=self.base,
                                      scheduler=self.scheduler, n_workers=self.n_workers, restart=self.restart,
-                                     progress=self._on_progress, cancel=self._cancel.is_set)
+                                     progress=self._on_progress, cancel=self._cancel.is_set,
+                                     plan=self.plan)  # (validated once, in the constructor)
         except BaseException as exc:  # handed to the main thread by _finish
             self._worker_error = exc
         finally:

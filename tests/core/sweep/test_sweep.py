@@ -665,3 +665,34 @@ def test_the_largest_sweep_accepted_starts_within_30_s_with_bounded_submission(c
     statuses = [r["status"] for r in rows]
     assert len(rows) == MAX_TASKS and set(statuses) <= {"done", "pending"}
     assert statuses.count("pending") > MAX_TASKS // 2
+
+
+def test_a_plan_made_beforehand_is_not_made_again(tmp_path, monkeypatch):
+    """SweepJob validates every point in its constructor and hands its plan to run_sweep: at 10⁵ tasks each
+    planning took 3-6 s on a quiet 2-core machine, and the CLI planned twice before its first progress line
+    (issue 31: 25-45 s under load).  A plan for another folder is refused."""
+    import core.sweep.runner as runner
+
+    spec = sweep_from_dict(spec_dict(seeds=2))
+    out = tmp_path / "sw"
+    plan = plan_sweep(spec, scene(), base_config(), out)
+    assert plan.out_dir == out.resolve()
+
+    def planned_again(*args, **kwargs):
+        raise AssertionError("planned a second time")
+
+    class Reached(Exception):
+        pass
+
+    class FakeClient:  # the first thing run_sweep asks of a client: ship_core's client.run
+        def run(self, *args, **kwargs):
+            raise Reached()
+
+    monkeypatch.setattr(runner, "plan_sweep", planned_again)
+    with pytest.raises(Reached):
+        run_sweep(spec, scene(), out, client=FakeClient(), plan=plan, plots=False)
+    manifest = json.loads((out / "sweep.json").read_text())
+    assert manifest["fingerprint"] == plan.fingerprint and manifest["n_tasks"] == len(plan.tasks)
+    with pytest.raises(ValueError, match="was made for the sweep folder"):
+        run_sweep(spec, scene(), tmp_path / "other", client=FakeClient(), plan=plan, plots=False)
+    assert not (tmp_path / "other").exists()
