@@ -110,7 +110,7 @@ def validate(obj, prefix: str = "") -> None:
         path = f"{prefix}{f.name}"
         if dataclasses.is_dataclass(value):
             validate(value, path + ".")
-        elif isinstance(value, dict):
+        elif isinstance(value, dict) and f.default_factory is dict:  # the materials table (by name)
             for key, sub in value.items():
                 if not isinstance(sub, BRDFSettings):
                     raise ConfigError(f"{path}.{key}", sub, "a BRDF settings table")

@@ -20,10 +20,16 @@ def split_pose(world_from_sensor):
     if not np.all(np.isfinite(m)):
         raise ConfigError("sensor.matrix_world", "non-finite values", "a finite 4×4 matrix")
     rot = m[:3, :3]
-    scale = np.linalg.norm(rot, axis=0)
-    if np.any(scale == 0):
+    # each column divided by its largest element first: the norm of a column of 1e200s (or of subnormals) would
+    # overflow to inf (underflow to 0) and leave a rotation of zero columns
+    peak = np.max(np.abs(rot), axis=0)
+    if np.any(peak == 0):
         raise ConfigError("sensor.matrix_world", "zero scale", "an invertible rotation (non-zero scale)")
-    return m[:3, 3].copy(), rot / scale
+    rot = rot / peak
+    rot = rot / np.linalg.norm(rot, axis=0)
+    if abs(np.linalg.det(rot)) < 1e-9:  # two axes (nearly) parallel: the pose flattens its rays onto a plane
+        raise ConfigError("sensor.matrix_world", "degenerate axes", "an invertible rotation (independent axes)")
+    return m[:3, 3].copy(), rot
 
 
 def _real_array(name: str, value, shape: tuple, allowed: str) -> np.ndarray:
@@ -55,7 +61,12 @@ class Trajectory:
                               "as many poses as times (at least one)")
         if not np.all(np.isfinite(self.times_s)) or np.any(np.diff(self.times_s) <= 0):
             raise ConfigError("trajectory.times_s", "not strictly increasing", "strictly increasing finite times")
-        parts = [split_pose(m) for m in self.matrices]
+        parts = []
+        for i, m in enumerate(self.matrices):
+            try:
+                parts.append(split_pose(m))
+            except ConfigError as exc:  # named as the trajectory's pose, not the sensor's
+                raise ConfigError(f"trajectory.matrices[{i}]", exc.value, exc.allowed) from None
         self._origins = np.array([p[0] for p in parts])
         rots = np.array([p[1] for p in parts])
         # a reflection (negative determinant) cannot be interpolated as a rotation

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..config.files import config_from_dict, config_to_dict, load_config, read_config_file
 from ..config.settings import BRDFSettings, SimulationConfig
+from ..config.validate import finite_number
 from ..errors import ConfigError
 
 SWEEP_VERSION = 1
@@ -136,10 +137,14 @@ def sweep_from_dict(data: dict, root: Path | None = None) -> SweepSpec:
     if base is not None:
         if not isinstance(base, str) or not base:
             raise ConfigError("base", base, "the path of a .toml or .json config file")
-        base = Path(base).expanduser()
-        if not base.is_absolute() and root is not None:
-            base = root / base
-        if not base.is_file():
+        try:
+            base = Path(base).expanduser()
+            if not base.is_absolute() and root is not None:
+                base = root / base
+            exists = base.is_file()
+        except (OSError, ValueError, RuntimeError):  # a name too long, a NUL byte, ~user unknown
+            exists = False
+        if not exists:
             raise ConfigError("base", str(base), "an existing .toml or .json config file")
     target = data.get("target")
     if target is not None and (not isinstance(target, str) or not target.strip() or len(target) > 1000):
@@ -206,7 +211,7 @@ def _axis_values(name: str, spec) -> list:
         raise ConfigError(f"{path}.{unknown[0]}", spec[unknown[0]], "a range entry: " + ", ".join(_RANGE_KEYS))
     for key in ("start", "stop"):
         v = spec.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite_number(v):
             raise ConfigError(f"{path}.{key}", v, "a finite number")
     start, stop = float(spec["start"]), float(spec["stop"])
     spacing = spec.get("spacing", "linear")
@@ -227,7 +232,7 @@ def _axis_values(name: str, spec) -> list:
         if spacing == "log":
             raise ConfigError(f"{path}.spacing", spacing, "'linear' with step (a log range takes num)")
         step = spec["step"]
-        if isinstance(step, bool) or not isinstance(step, (int, float)) or not step > 0 or not math.isfinite(step):
+        if isinstance(step, bool) or not isinstance(step, (int, float)) or not step > 0 or not finite_number(step):
             raise ConfigError(f"{path}.step", step, "a finite number > 0")
         if stop < start:
             raise ConfigError(f"{path}.stop", stop, f"at least start = {start:g} with a step")
@@ -299,7 +304,7 @@ def _set_path(data: dict, name: str, value, material_brdfs: dict) -> None:
 
 def check_range_value(value, where: str = RANGE_AXIS) -> float:
     lo, hi = RANGE_LIMITS_M
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not finite_number(value) \
             or not lo < value <= hi:
         raise ConfigError(where, value, f"a finite number in ({lo:g}, {hi:g}] m")
     return float(value)
