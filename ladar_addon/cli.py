@@ -208,11 +208,11 @@ def _cmd_simulate(scene, args) -> int:
 
 
 def _cmd_sweep(scene, args) -> int:
+    from ..core.sweep.runner import check_workers
     from .run_inputs import progress_printer
     from .sweep import sweep_scene
 
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError("workers", args.workers, "a whole number ≥ 1")
+    check_workers(args.workers)  # (before the scene is exported)
     outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
                           restart=args.restart, sensor=_sensor(scene, args.sensor),
                           progress=progress_printer("ladar: sweep ", every_s=30.0))

@@ -22,7 +22,7 @@ from pathlib import Path
 import bpy
 
 from ..core.errors import Cancelled
-from ..core.sweep.runner import plan_sweep, run_sweep, scheduler_address
+from ..core.sweep.runner import check_workers, plan_sweep, run_sweep, scheduler_address
 from ..core.sweep.scene import SweepScene
 from ..core.sweep.spec import load_sweep
 from .background import BackgroundJob
@@ -72,6 +72,7 @@ class SweepJob(BackgroundJob):
         self.sensor = sensor if sensor is not None else active_sensor(scene)
         if scheduler:
             scheduler_address(scheduler)  # a malformed address: one line before the scene is exported
+        check_workers(n_workers)
         spec = load_sweep(sweep_file)
         if out_dir is None or not str(out_dir):
             raise LadarError("no sweep folder: pass --out DIR")

@@ -411,6 +411,24 @@ def probe_scheduler(address, timeout_s: float = CONNECT_TIMEOUT_S) -> str:
     return normal
 
 
+def max_local_workers() -> int:
+    """Most worker processes a local cluster may start: 4 per core of this machine (each is single-threaded and
+    holds its own scene, BVH and kernels; more only compete for the cores and the memory)."""
+    return 4 * (os.cpu_count() or 1)
+
+
+def check_workers(n_workers):
+    """``n_workers`` (None: one per core) if it is a whole number in [1, :func:`max_local_workers`]; ConfigError
+    otherwise (issue 31: ``--workers 100000`` was accepted and started that many processes)."""
+    if n_workers is None:
+        return None
+    hi = max_local_workers()
+    if isinstance(n_workers, bool) or not isinstance(n_workers, int) or not 1 <= n_workers <= hi:
+        raise ConfigError("workers", n_workers, f"a whole number in [1, {hi}] (worker processes of the local "
+                                                f"cluster: at most 4 per core of this machine)")
+    return n_workers
+
+
 def open_client(scheduler: str | None = None, n_workers: int | None = None):
     """(client, cluster or None): a Client of the scheduler at ``scheduler`` (checked first by
     :func:`probe_scheduler`) or of a new LocalCluster of ``n_workers`` single-threaded worker processes (default:
@@ -427,7 +445,7 @@ def open_client(scheduler: str | None = None, n_workers: int | None = None):
         except (OSError, TimeoutError, ValueError) as exc:
             raise ConfigError("scheduler", scheduler, f"the address of a running Dask scheduler "
                                                       f"({' '.join(str(exc).split())[:300]})") from None
-    n = n_workers or os.cpu_count() or 1
+    n = check_workers(n_workers) or os.cpu_count() or 1
     stage_core()  # before the workers start: they inherit its folder on sys.path (no upload, no restart)
     # (the nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536; their frames set glibc's thresholds themselves:
     # core/heap.py)
@@ -454,6 +472,7 @@ def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | Non
     t0 = time.perf_counter()
     if scheduler and client is None:
         scheduler_address(scheduler)  # a malformed address: one line, before anything else
+    check_workers(n_workers)
     if plan is not None and plan.out_dir != Path(out_dir).resolve():
         raise ValueError(f"the plan was made for the sweep folder {plan.out_dir}, not {out_dir}")
     if plan is None:

@@ -696,3 +696,18 @@ def test_a_plan_made_beforehand_is_not_made_again(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="was made for the sweep folder"):
         run_sweep(spec, scene(), tmp_path / "other", client=FakeClient(), plan=plan, plots=False)
     assert not (tmp_path / "other").exists()
+
+
+@pytest.mark.parametrize("n", [0, -1, True, 2.0, "2", 10 ** 6])
+def test_a_local_cluster_of_too_many_or_no_workers_is_refused(tmp_path, n):
+    """Found while building the hostile CLI suite (tests/addon/test_cli_hostile_input.py): `--workers 100000` was accepted and
+    a LocalCluster of that many processes started.  At most 4 per core; refused before anything is written."""
+    from core.sweep.runner import check_workers, max_local_workers
+
+    assert max_local_workers() == 4 * (os.cpu_count() or 1)
+    assert check_workers(None) is None and check_workers(max_local_workers()) == max_local_workers()
+    with pytest.raises(ConfigError) as err:
+        run_sweep(sweep_from_dict(spec_dict()), scene(), tmp_path / "sw", n_workers=n)
+    assert err.value.field == "workers" and err.value.value == n
+    assert f"a whole number in [1, {max_local_workers()}]" in str(err.value)
+    assert not (tmp_path / "sw").exists()
