@@ -41,7 +41,16 @@ def parse_frames(text) -> list[int]:
         step = int(m.group(3)) if m.group(3) is not None else 1
         if last < first or step < 1:
             raise ConfigError("frames", text, allowed + " (first ≤ last, step ≥ 1)")
+        # Blender's frame range before the range is expanded: "1-100000000" was a list of 10⁸ numbers built
+        # (minutes, gigabytes) before the frames were checked (issue 31's hostile suite)
+        prop = bpy.types.Scene.bl_rna.properties["frame_current"]
+        for f in (first, last):
+            if not prop.hard_min <= f <= prop.hard_max:
+                raise ConfigError("frames", f, f"a frame in [{prop.hard_min}, {prop.hard_max}] (Blender's frame "
+                                               f"range)")
         frames.extend(range(first, last + 1, step))
+        if len(frames) > prop.hard_max - prop.hard_min + 1:  # more than there are frames: some repeat
+            raise ConfigError("frames", text, "each frame once")
     if len(set(frames)) != len(frames):
         raise ConfigError("frames", text, "each frame once")
     return frames

@@ -25,6 +25,10 @@ HOSTILE_FLOORS = {
     "test_corrupt_sweep_files_are_refused_cleanly": 300,
     "test_bulk_scene_arrays": 2000,
     "test_bulk_poses_and_trajectories": 1500,
+    "test_hostile_but_valid_scenes_give_a_correct_result": 12,
+    # through the command line (tests/addon/test_cli_hostile_input.py)
+    "test_generated_command_lines_in_process": 200,
+    "test_generated_command_lines_as_subprocesses": 3,
 }
 HOSTILE_TOTAL_FLOOR = 10_000
 

@@ -11,8 +11,14 @@ import math
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..jit import kernel
 from .scene import SceneGeometry
+
+#: Farthest a traced vertex may be from the traced geometry's centre (its bounding box's): Embree holds the
+#: geometry in float32 relative to that centre, whose steps are 1 m at 1e7 m.  A stray vertex 1.5e8 m away (a
+#: mis-scaled object) made a plate 100 m in front of the sensor vanish without a word (issue 31's hostile suite).
+MAX_TRACED_SPAN_M = 1e7
 
 
 def _same_view(a: np.ndarray, b: np.ndarray) -> bool:
@@ -40,6 +46,12 @@ class SceneTracer:
         self.n_traced = len(tris)
         used = v[np.unique(tris)] if self.triangle_ids is not None and len(tris) else v
         self.reference_m = 0.5 * (used.min(axis=0) + used.max(axis=0)) if len(used) else np.zeros(3)
+        span = float(np.max(np.abs(used - self.reference_m))) if len(used) else 0.0
+        if span > MAX_TRACED_SPAN_M:
+            raise ConfigError("scene.vertices_m", f"traced geometry reaching {span:.3g} m from its centre",
+                              f"traced geometry within {MAX_TRACED_SPAN_M:g} m of its centre (Embree traces in "
+                              f"float32 about that centre: {np.spacing(np.float32(min(span, 3e38))):.3g} m steps there, "
+                              f"which make nearby surfaces vanish; remove or hide the far-away objects)")
         self._embree = None
         if len(tris):
             self._embree = EmbreeScene()
