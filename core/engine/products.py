@@ -22,8 +22,21 @@ from .blocks import worker_threads
 from .result import FrameResult
 
 
+def threshold_model(config: SimulationConfig, noise_sigma=None, noise_mean=None):
+    """(threshold mode that runs, the known noise values it is given): ``calibrated`` takes the chain report's
+    exact signal-free σ and mean (per bin, white: the bins are independent) and needs both; without them (Geiger
+    histograms have no linear noise model) it falls back to ``adaptive``."""
+    mode = config.detection.noisy_threshold_mode
+    if mode != "calibrated":
+        return mode, {}
+    if noise_sigma is None or noise_mean is None or not noise_sigma > 0 \
+            or config.detector.detector_type == "geiger":
+        return "adaptive", {}
+    return "calibrated", {"noise_sigma": float(noise_sigma), "baseline": float(noise_mean)}
+
+
 def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None,
-                 noise_floor=0.0) -> Echoes:
+                 noise_floor=0.0, noise_mean=None) -> Echoes:
     """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
     core/physics/detection/noisy.py), in the per-echo layout of :class:`Echoes`, with the detection SNR.
 
@@ -31,17 +44,19 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     true return or a false alarm (core.physics.detection.false_alarms.classify_false_alarms): the returned Echoes carries a
     per-echo bool ``false_alarm`` attribute and ``info`` (a dict) receives the counts, rates and the Gaussian
     expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report).  ``noise_floor``:
-    the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``)."""
+    the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``).  ``noise_mean``: the
+    signal-free bins' mean (the chain report's ``noise_mean``), the baseline of the calibrated threshold."""
     d, g = config.detection, config.gate
     h, w, n_bins = digital.shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
         if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
     threads = worker_threads(config.run.threads)
+    mode, known = threshold_model(config, noise_sigma, noise_mean)
     found = detect_echoes_noisy(digital.reshape(h * w, n_bins), g.bin_width_s, g.gate_start_s,
-                                threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
+                                threshold_mode=mode, threshold=d.threshold_counts,
                                 k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
                                 interpolation=d.interpolation, min_noise_sigma=noise_floor,
-                                threads=threads)
+                                threads=threads, **known)
     pix, slot = np.nonzero(found.detected)
     echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
                     amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
@@ -54,7 +69,7 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
             noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
             abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j, threads=threads)
         echoes.false_alarm = fa[pix, slot]
-        summary["threshold_mode"] = d.noisy_threshold_mode
+        summary["threshold_mode"] = mode
         summary["n_pixels"] = h * w
         summary["n_bins"] = n_bins
         if info is not None:

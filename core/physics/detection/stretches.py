@@ -1,0 +1,314 @@
+"""Noisy echo detection without simulating the signal-free stretches bin by bin (detection.signal_free_bins =
+"statistical", docs/receiver.md "Detector models").
+
+The reference (``per_bin``) runs the receiver chain on every bin of the cube and detects on every row.  Here, per
+pixel, only the stretch that holds signal is simulated per bin: C = [first − g, last + g] around the pixel's signal
+bins (expected signal above ``SIGNAL_LEVEL_SIGMA`` of the noise σ), g = h + 1 for a filter of half-width h, and
+the window S = C widened by another h + 1 bins, so that the detection waveform and its neighbours at every bin of C
+are those of the whole row; detections are taken in C only.  Outside C no bin's detection triple sees signal, so
+the filtered noise there is stationary (white raw noise through the filter, 'nearest' edges at the gate's ends):
+its false alarms are drawn from the exact Gaussian statistics —
+
+* count per pixel ~ Poisson(Σ_{j ∉ C} p_j), p_j = P(bin j is a local maximum of the detection waveform above the
+  threshold) (:func:`core.physics.detection.false_alarms.local_max_probability`, the filter's covariance at
+  position j; edges position by position).  The mean is exact; the Poisson law is the clumping limit (maxima
+  above a high threshold rare and nearly independent);
+* positions from p_j (inverse CDF over the pixel's bins outside C);
+* the three samples (Z−, Z0, Z+) around each from the Gaussian conditional on a local maximum above u: Z0 from
+  the normal truncated at u, (Z−, Z+) | Z0 bivariate normal, rejected unless Z− < Z0 ≥ Z+ (exact).
+
+Then, per pixel, the candidates of C and of the draw are chosen as the reference kernel chooses (greedy by
+amplitude with the minimum separation, at most max_echoes, in time order) and interpolated the same way.
+
+Valid when the raw noise is white and the *filtered* noise Gaussian at the threshold: :func:`validity` uses the
+Edgeworth expansion of the tail with the filtered skewness γ₁ Σw³/(Σw²)^{3/2} and excess kurtosis γ₂ Σw⁴/(Σw²)²
+and accepts a relative tail error ≤ ``GAUSSIAN_TAIL_TOLERANCE``.  Multiplied background (APD with excess noise)
+and Geiger histograms are skewed: they stay on the per-bin route.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...jit import kernel
+from .false_alarms import _filter_rows, local_max_probability
+from .matched_filter import FILTER_BLOCK, correlate_row
+from .noisy import NoisyEchoes, echoes_from_slots
+
+#: Signal bins: expected signal above this fraction of the raw noise σ.
+SIGNAL_LEVEL_SIGMA = 1e-3
+#: Largest relative error of the Gaussian tail at the threshold (Edgeworth estimate) for the statistical route.
+GAUSSIAN_TAIL_TOLERANCE = 0.02
+#: Window lengths: multiples of this many bins (rows of equal length go through the chain together).
+WINDOW_QUANTUM = 32
+
+
+def filter_taps(pulse):
+    """The detection filter's taps w = pulse/Σpulse² as the noisy kernel uses them (float32 values)."""
+    k = np.asarray(pulse, dtype=np.float64)
+    return (k / np.sum(k * k)).astype(np.float32).astype(np.float64)
+
+
+def filtered_noise_shape(cumulants, pulse):
+    """(σ of the detection waveform, its skewness, its excess kurtosis) for white raw noise with per-bin cumulants
+    [κ1, κ2, κ3, κ4] through the taps w: σ² = κ2 Σw², γ₁ = κ3 Σw³/(κ2 Σw²)^{3/2}, γ₂ = κ4 Σw⁴/(κ2 Σw²)²."""
+    _, k2, k3, k4 = (float(c) for c in cumulants)
+    w = np.ones(1) if pulse is None else filter_taps(pulse)
+    s2 = k2 * np.sum(w ** 2)
+    return math.sqrt(s2), k3 * np.sum(w ** 3) / s2 ** 1.5, k4 * np.sum(w ** 4) / s2 ** 2
+
+
+def gaussian_tail_error(z, skewness, excess_kurtosis):
+    """Relative error of the Gaussian tail Q(z) at z σ by the Edgeworth expansion (first two orders):
+    φ(z)[γ₁ He₂(z)/6 + γ₂ He₃(z)/24 + γ₁² He₅(z)/72]/Q(z)."""
+    from scipy.special import ndtr
+    z = float(z)
+    he2, he3, he5 = z * z - 1, z ** 3 - 3 * z, z ** 5 - 10 * z ** 3 + 15 * z
+    phi = math.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+    corr = skewness * he2 / 6 + excess_kurtosis * he3 / 24 + skewness ** 2 * he5 / 72
+    return phi * corr / float(ndtr(-z))
+
+
+def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, saves_counts: bool):
+    """(route that runs: "statistical" or "per_bin", reason, Edgeworth tail error or None)."""
+    if saves_counts:
+        return "per_bin", "a per-bin product (counts.npy / the waveform cube) is saved", None
+    if threshold_mode != "calibrated":
+        return "per_bin", f"threshold mode {threshold_mode!r} (the statistical route needs the calibrated one)", None
+    if det.detector_type == "geiger":
+        return "per_bin", "Geiger histograms: counts of detections, not Gaussian", None
+    if det.enable_optics_mtf or (det.speckle_dof > 0 and det.speckle_correlated):
+        return "per_bin", "optics MTF / correlated speckle couple the pixels", None
+    cum = report.get("noise_cumulants")
+    if cum is None or not cum[1] > 0:
+        return "per_bin", "no noise model", None
+    _, g1, g2 = filtered_noise_shape(cum, pulse)
+    err = gaussian_tail_error(k_sigma, g1, g2)
+    if abs(err) > GAUSSIAN_TAIL_TOLERANCE:
+        return "per_bin", (f"filtered noise not Gaussian at {k_sigma:g} σ: Edgeworth tail error {err:+.3f} "
+                           f"(skewness {g1:.3g}, excess kurtosis {g2:.3g}; tolerance {GAUSSIAN_TAIL_TOLERANCE})"), err
+    return "statistical", "signal stretches per bin, signal-free stretches from the Gaussian statistics", err
+
+
+def signal_windows(truth, level, h, n_bins):
+    """Per pixel: (C lo, C hi) half-open, clamped to [1, B − 1] (lo = hi: no signal) and the window length
+    (0: nothing to simulate), of the signal bins truth > level (see the module docstring)."""
+    mask = truth > level
+    has = mask.any(axis=1)
+    first = np.argmax(mask, axis=1)
+    last = n_bins - 1 - np.argmax(mask[:, ::-1], axis=1)
+    g = h + 1
+    c_lo = np.where(has, np.clip(first - g, 1, n_bins - 1), 1)
+    c_hi = np.where(has, np.clip(last + g + 1, 1, n_bins - 1), 1)
+    c_hi = np.maximum(c_hi, c_lo)
+    s_lo = np.maximum(c_lo - (h + 1), 0)
+    s_hi = np.minimum(c_hi + (h + 1), n_bins)
+    need = np.where(has, s_hi - s_lo, 0)
+    length = np.where(has, np.minimum(-(-need // WINDOW_QUANTUM) * WINDOW_QUANTUM, n_bins), 0)
+    start = np.where(has, np.minimum(s_lo, n_bins - length), 0)
+    return c_lo, c_hi, start, length
+
+
+@kernel
+def _window_candidates(y, start, c_lo, c_hi, b32, w, thr, cand_bin, cand_s, n_cand):
+    """Local maxima above ``thr`` of each window's detection waveform inside its C (absolute bins), with their
+    three samples; at most cand_bin.shape[1] per row (n_cand counts all)."""
+    n_rows, L = y.shape
+    ypad, acc = np.empty(L + w.shape[0] - 1, np.float32), np.empty(FILTER_BLOCK)
+    yr, yd = np.empty(L, np.float32), np.empty(L, np.float32)
+    t32 = np.float32(thr)
+    m = cand_bin.shape[1]
+    for r in range(n_rows):
+        for i in range(L):
+            yr[i] = np.float32(y[r, i])
+        if w.shape[0] > 1:
+            correlate_row(yr, b32, w, ypad, acc, yd, False)
+        else:
+            for i in range(L):
+                yd[i] = yr[i] - b32
+        a = max(c_lo[r] - start[r], 1)
+        b = min(c_hi[r] - start[r], L - 1)
+        nc = 0
+        for j in range(a, b):
+            c = yd[j]
+            if c > t32 and c > yd[j - 1] and c >= yd[j + 1]:
+                if nc < m:
+                    cand_bin[r, nc] = start[r] + j
+                    cand_s[r, nc, 0], cand_s[r, nc, 1], cand_s[r, nc, 2] = yd[j - 1], c, yd[j + 1]
+                nc += 1
+        n_cand[r] = nc
+
+
+@kernel
+def _choose(ptr, cbin, cs, min_sep, pos, samples):
+    """Per pixel (candidates cbin[ptr[p]:ptr[p+1]], any order): the reference kernel's choice — the strongest
+    (ties: the earliest bin), then the next outside ``min_sep`` bins of those taken, …, at most pos.shape[1],
+    in time order."""
+    P, K = pos.shape
+    for p in range(P):
+        a, b = ptr[p], ptr[p + 1]
+        if a == b:
+            continue
+        alive = np.ones(b - a, np.bool_)
+        n_found = 0
+        for k in range(K):
+            best = -1
+            for q in range(a, b):
+                if alive[q - a]:
+                    if best < 0 or cs[q, 1] > cs[best, 1] or (cs[q, 1] == cs[best, 1] and cbin[q] < cbin[best]):
+                        best = q
+            if best < 0:
+                break
+            pos[p, k] = cbin[best]
+            samples[p, k, 0], samples[p, k, 1], samples[p, k, 2] = cs[best, 0], cs[best, 1], cs[best, 2]
+            n_found += 1
+            for q in range(a, b):
+                if alive[q - a] and abs(cbin[q] - cbin[best]) < min_sep:
+                    alive[q - a] = False
+        for k in range(1, n_found):  # time order (the samples move with their bin)
+            v, s0, s1, s2 = pos[p, k], samples[p, k, 0], samples[p, k, 1], samples[p, k, 2]
+            q = k - 1
+            while q >= 0 and pos[p, q] > v:
+                pos[p, q + 1] = pos[p, q]
+                samples[p, q + 1, 0], samples[p, q + 1, 1], samples[p, q + 1, 2] = \
+                    samples[p, q, 0], samples[p, q, 1], samples[p, q, 2]
+                q -= 1
+            pos[p, q + 1] = v
+            samples[p, q + 1, 0], samples[p, q + 1, 1], samples[p, q + 1, 2] = s0, s1, s2
+
+
+def position_covariances(n_bins, pulse, sigma):
+    """(class of each bin position (B,) int, covariance of (Z_{j−1}, Z_j, Z_{j+1}) per class (n, 3, 3)): the
+    detection waveform of white noise σ through the filter with 'nearest' edges; positions 1 … h and
+    B − 2 − h … B − 2 each a class of their own, the interior one class."""
+    h = 0 if pulse is None else len(pulse) // 2
+    cls = np.zeros(n_bins, np.int64)
+    covs = []
+    interior = min(h + 1, n_bins - 2)
+    reps = [interior]
+    for j in range(1, n_bins - 1):
+        if j <= h or j >= n_bins - 1 - h:
+            cls[j] = len(reps)
+            reps.append(j)
+    for j in reps:
+        A = _filter_rows(n_bins, pulse, [j - 1, j, j + 1])
+        covs.append(sigma ** 2 * A @ A.T)
+    for j in range(1, n_bins - 1):
+        if not (j <= h or j >= n_bins - 1 - h):
+            cls[j] = 0
+    return cls, np.array(covs)
+
+
+def _conditional_triples(u, cov, n, rng):
+    """n samples of (Z−, Z0, Z+) ~ N(0, cov) conditional on Z0 > u, Z0 > Z−, Z0 ≥ Z+ (rejection; exact)."""
+    from scipy.special import ndtr, ndtri
+    v0 = cov[1, 1]
+    s0 = math.sqrt(v0)
+    q = float(ndtr(-u / s0))
+    c = np.array([cov[0, 1], cov[2, 1]]) / v0
+    S = cov[np.ix_([0, 2], [0, 2])] - np.outer([cov[0, 1], cov[2, 1]], [cov[0, 1], cov[2, 1]]) / v0
+    L = np.linalg.cholesky(S + 1e-300 * np.eye(2))
+    out = np.empty((0, 3))
+    while len(out) < n:
+        m = 2 * (n - len(out)) + 16
+        z0 = -s0 * ndtri(q * (1.0 - rng.random(m)))  # truncated normal above u: U in (0, 1]
+        side = c[None, :] * z0[:, None] + rng.standard_normal((m, 2)) @ L.T
+        ok = (side[:, 0] < z0) & (side[:, 1] <= z0)
+        out = np.concatenate([out, np.stack([side[ok, 0], z0[ok], side[ok, 1]], axis=1)])
+    return out[:n]
+
+
+def draw_false_alarms(c_lo, c_hi, n_bins, pulse, sigma, u, rng):
+    """Noise maxima above u in each pixel's bins outside [c_lo, c_hi) (module docstring).  Returns (pixel, bin,
+    samples (n, 3) float32, expected count per pixel)."""
+    P = len(c_lo)
+    cls, covs = position_covariances(n_bins, pulse, sigma)
+    rates = np.array([local_max_probability(u, cv)[0] for cv in covs])
+    p = np.zeros(n_bins)
+    p[1:n_bins - 1] = rates[cls[1:n_bins - 1]]
+    cs = np.concatenate([[0.0], np.cumsum(p)])  # cs[j] = Σ_{i<j} p_i
+    lam = cs[n_bins] - (cs[c_hi] - cs[c_lo])
+    n = rng.poisson(lam)
+    pix = np.repeat(np.arange(P), n)
+    # inverse CDF over the bins outside C: a uniform share of the pixel's λ, skipping C's mass
+    t = rng.random(len(pix)) * lam[pix]
+    lo_mass = cs[c_lo[pix]]
+    t = np.where(t < lo_mass, t, t + (cs[c_hi[pix]] - cs[c_lo[pix]]))
+    j = np.clip(np.searchsorted(cs, t, side="right") - 1, 1, n_bins - 2)
+    samples = np.empty((len(pix), 3))
+    kind = cls[j]
+    for c in np.unique(kind):
+        sel = np.flatnonzero(kind == c)
+        samples[sel] = _conditional_triples(u, covs[c], len(sel), rng)
+    return pix, j.astype(np.int64), samples.astype(np.float32), lam
+
+
+def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
+                       interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
+                       min_noise_sigma=0.0):
+    """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
+
+    truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
+    report) runs the receiver chain (the same detector as ``report``: the chain report of the noise model, with
+    ``noise_mean``, ``noise_sigma``); codes_per_joule: mean output units per J of signal (the signal level).
+    Threshold: calibrated, k_sigma × σ_n/‖pulse‖ above the baseline ``noise_mean``.
+    Returns (NoisyEchoes (P rows), info dict)."""
+    truth = np.asarray(truth)
+    P, B = truth.shape
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    sigma = max(float(report["noise_sigma"]), float(min_noise_sigma))
+    base = float(report["noise_mean"])
+    h = 0 if pulse is None else len(pulse) // 2
+    w = np.ones(1) if pulse is None else filter_taps(pulse)
+    norm = 1.0 if pulse is None else float(np.sqrt(np.sum(np.asarray(pulse, float) ** 2)))
+    u = k_sigma * sigma / norm
+    if min_separation_bins is None:
+        min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
+    level = SIGNAL_LEVEL_SIGMA * sigma / codes_per_joule
+    c_lo, c_hi, start, length = signal_windows(truth, level, h, B)
+    b32 = np.float32(base)
+    cand_pix, cand_bin, cand_s = [], [], []
+    n_sim = 0
+    n_overflow = 0
+    for k, L in enumerate(np.unique(length[length > 0])):
+        rows = np.flatnonzero(length == L)
+        idx = start[rows, None] + np.arange(L)[None, :]
+        cube = np.ascontiguousarray(np.take_along_axis(truth[rows], idx, axis=1), dtype=np.float32)
+        codes, _ = chain(cube[None], np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + (1, k)))
+        codes = codes.reshape(len(rows), L)
+        m = 4 * max_echoes
+        cb = np.full((len(rows), m), -1, np.int64)
+        cs = np.zeros((len(rows), m, 3), np.float32)
+        nc = np.zeros(len(rows), np.int64)
+        _window_candidates(codes, start[rows], c_lo[rows], c_hi[rows], b32, w, u, cb, cs, nc)
+        n_overflow += int(np.count_nonzero(nc > m))
+        keep = cb >= 0
+        cand_pix.append(np.repeat(rows, keep.sum(axis=1)))
+        cand_bin.append(cb[keep])
+        cand_s.append(cs[keep])
+        n_sim += len(rows) * int(L)
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(ss.entropy,
+                                                                     spawn_key=tuple(ss.spawn_key) + (2,))))
+    fa_pix, fa_bin, fa_s, lam = draw_false_alarms(c_lo, c_hi, B, pulse, sigma, u, rng)
+    pix = np.concatenate(cand_pix + [fa_pix]).astype(np.int64)
+    cbin = np.concatenate(cand_bin + [fa_bin]).astype(np.int64)
+    csmp = np.concatenate(cand_s + [fa_s]).astype(np.float32).reshape(-1, 3)
+    order = np.argsort(pix, kind="stable")
+    pix, cbin, csmp = pix[order], cbin[order], np.ascontiguousarray(csmp[order])
+    ptr = np.searchsorted(pix, np.arange(P + 1))
+    K = int(max_echoes)
+    pos = np.full((P, K), -1, np.int64)
+    samples = np.zeros((P, K, 3), np.float32)
+    _choose(ptr, cbin, csmp, int(min_separation_bins), pos, samples)
+    echoes = echoes_from_slots(pos, samples, np.full(P, base), np.full(P, sigma), np.full(P, u), (P,),
+                               bin_width_s, gate_start_s, interpolation)
+    info = {"bins_simulated": n_sim, "bins_total": P * B, "fraction_simulated": n_sim / max(1, P * B),
+            "statistical_false_alarms_drawn": int(len(fa_pix)),
+            "statistical_false_alarms_expected": float(lam.sum()), "window_candidate_overflow": n_overflow,
+            "signal_level_sigma": SIGNAL_LEVEL_SIGMA}
+    return echoes, info
+
+
+__all__ = ["NoisyEchoes", "detect_statistical", "validity", "filtered_noise_shape", "gaussian_tail_error",
+           "draw_false_alarms", "signal_windows", "position_covariances"]
