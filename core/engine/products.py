@@ -94,11 +94,12 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
         model["reason"] = "detection.signal_free_bins = per_bin (the reference)"
         return None, model
     cs = ChainSettings.from_config(config)
-    probe = apply_receiver_chain(np.zeros((1, 1, 1), np.float32), cs, 0).report  # the noise model only
+    probe_out = apply_receiver_chain(np.zeros((1, 1, 1), np.float32), cs, 0)  # the noise model only
+    probe, law = probe_out.report, probe_out.noise_pmf
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
         if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
     mode, _ = threshold_model(config, probe.get("noise_sigma"), probe.get("noise_mean"))
-    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_waveforms)
+    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_waveforms, law is not None)
     model.update(threshold=mode, reason=reason, gaussian_tail_error=err)
     if route != "statistical":
         return None, model
@@ -117,7 +118,7 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
                                       max_echoes=d.max_echoes, interpolation=d.interpolation,
                                       bin_width_s=g.bin_width_s, gate_start_s=g.gate_start_s,
                                       codes_per_joule=codes_per_j, seed=seed,
-                                      min_noise_sigma=probe.get("noise_sigma_floor", 0.0))
+                                      min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law)
     report = dict(reports[0] if reports else probe)
     for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
         report[key] = int(sum(r.get(key, 0) for r in reports))

@@ -70,8 +70,10 @@ def gaussian_tail_error(z, skewness, excess_kurtosis):
     return phi * corr / float(ndtr(-z))
 
 
-def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, saves_counts: bool):
-    """(route that runs: "statistical" or "per_bin", reason, Edgeworth tail error or None)."""
+def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, saves_counts: bool, has_law=False):
+    """(route that runs: "statistical" or "per_bin", reason, Edgeworth tail error or None).  ``has_law``: the
+    chain's exact code law of a signal-free bin is known (table route): any white noise law is then handled exactly
+    (:class:`LatticeRates`); without it (A/D off) the Gaussian model must hold within GAUSSIAN_TAIL_TOLERANCE."""
     if saves_counts:
         return "per_bin", "a per-bin product (counts.npy / the waveform cube) is saved", None
     if threshold_mode != "calibrated":
@@ -80,6 +82,9 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
         return "per_bin", "Geiger histograms: counts of detections, not Gaussian", None
     if det.enable_optics_mtf or (det.speckle_dof > 0 and det.speckle_correlated):
         return "per_bin", "optics MTF / correlated speckle couple the pixels", None
+    if has_law:
+        return "statistical", ("signal stretches per bin, signal-free false alarms from the exact code law "
+                               "(importance sampling)"), None
     cum = report.get("noise_cumulants")
     if cum is None or not cum[1] > 0:
         return "per_bin", "no noise model", None
@@ -178,25 +183,27 @@ def _choose(ptr, cbin, cs, min_sep, pos, samples):
             samples[p, q + 1, 0], samples[p, q + 1, 1], samples[p, q + 1, 2] = s0, s1, s2
 
 
-def position_covariances(n_bins, pulse, sigma):
-    """(class of each bin position (B,) int, covariance of (Z_{j−1}, Z_j, Z_{j+1}) per class (n, 3, 3)): the
-    detection waveform of white noise σ through the filter with 'nearest' edges; positions 1 … h and
-    B − 2 − h … B − 2 each a class of their own, the interior one class."""
+def position_classes(n_bins, pulse):
+    """(class of each bin position (B,) int, a representative position per class): the matched filter's
+    'nearest' edges make positions 1 … h and B − 2 − h … B − 2 each a class of their own; the interior is class 0."""
     h = 0 if pulse is None else len(pulse) // 2
     cls = np.zeros(n_bins, np.int64)
-    covs = []
-    interior = min(h + 1, n_bins - 2)
-    reps = [interior]
+    reps = [min(h + 1, n_bins - 2)]
     for j in range(1, n_bins - 1):
         if j <= h or j >= n_bins - 1 - h:
             cls[j] = len(reps)
             reps.append(j)
+    return cls, reps
+
+
+def position_covariances(n_bins, pulse, sigma):
+    """(classes (B,), covariance of (Z_{j−1}, Z_j, Z_{j+1}) per class (n, 3, 3)) of the detection waveform of white
+    noise σ through the filter with 'nearest' edges (:func:`position_classes`)."""
+    cls, reps = position_classes(n_bins, pulse)
+    covs = []
     for j in reps:
         A = _filter_rows(n_bins, pulse, [j - 1, j, j + 1])
         covs.append(sigma ** 2 * A @ A.T)
-    for j in range(1, n_bins - 1):
-        if not (j <= h or j >= n_bins - 1 - h):
-            cls[j] = 0
     return cls, np.array(covs)
 
 
@@ -219,14 +226,118 @@ def _conditional_triples(u, cov, n, rng):
     return out[:n]
 
 
-def draw_false_alarms(c_lo, c_hi, n_bins, pulse, sigma, u, rng):
-    """Noise maxima above u in each pixel's bins outside [c_lo, c_hi) (module docstring).  Returns (pixel, bin,
-    samples (n, 3) float32, expected count per pixel)."""
+#: Importance samples per position class (interior, each edge position) for the exact noise law's rates.
+IS_SAMPLES_INTERIOR = 200_000
+IS_SAMPLES_EDGE = 20_000
+
+
+class GaussianRates:
+    """Local-maximum rates and conditional triples for white Gaussian raw noise of σ (exact quadrature)."""
+
+    model = "gaussian"
+
+    def __init__(self, n_bins, pulse, sigma, u):
+        self.cls, self.covs = position_covariances(n_bins, pulse, sigma)
+        self.u = u
+        self.rates = np.array([local_max_probability(u, cv)[0] for cv in self.covs])
+        self.rel_se = np.zeros(len(self.rates))
+
+    def triples(self, c, n, rng):
+        return _conditional_triples(self.u, self.covs[c], n, rng)
+
+
+class LatticeRates:
+    """Local-maximum rates and conditional triples for white raw noise of any discrete law (the chain's exact code
+    distribution): importance sampling with exponential tilting.  For a position, the detection triple is
+    Y = A x over the 2h + 3 raw bins of its support; each x_m is drawn from p(c) e^{θ a_m c}/M(θ a_m) (a_m its
+    coefficient in Y0, θ such that the tilted mean of Y0 is the threshold u), weight Π M(θ a_m) e^{−θ a_m x_m}:
+    rate = E_q[1{Y0 > u, Y0 > Y−, Y0 ≥ Y+} · weight] (unbiased; its relative standard error is reported), and the
+    triples are drawn from the weighted local maxima (sampling–importance–resampling).  Computed once per detector,
+    pulse, threshold and row length (fixed seed: the rates are a function of these only)."""
+
+    model = "exact code law (importance sampling)"
+
+    def __init__(self, n_bins, pulse, codes, probs, base, u):
+        from scipy.optimize import brentq
+        keep = probs > 0
+        c = np.asarray(codes, float)[keep] - base
+        p = np.asarray(probs, float)[keep]
+        p = p / p.sum()
+        logp = np.log(p)
+        self.cls, reps = position_classes(n_bins, pulse)
+        self.u = u
+        rates, rel, pools = [], [], []
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([n_bins, len(reps), 28])))
+        for k, j in enumerate(reps):
+            A = _filter_rows(n_bins, pulse, [j - 1, j, j + 1])
+            cols = np.flatnonzero(np.any(A != 0, axis=0))
+            A = A[:, cols]
+            a = A[1]
+
+            def tilted(theta):
+                lw = logp[None, :] + theta * a[:, None] * c[None, :]
+                mx = lw.max(axis=1, keepdims=True)
+                e = np.exp(lw - mx)
+                z = e.sum(axis=1, keepdims=True)
+                return e / z, (np.log(z) + mx)[:, 0]
+
+            def mean_gap(theta):
+                q, _ = tilted(theta)
+                return float(np.sum(a * (q @ c))) - u
+
+            if float(np.sum(np.where(a > 0, a * c.max(), a * c.min()))) <= u:
+                rates.append(0.0), rel.append(0.0), pools.append((np.zeros((1, 3)), np.ones(1)))
+                continue
+            hi = 1.0 / max(float(np.sqrt(np.sum(a * a) * np.dot(p, c * c))), 1e-30)
+            while mean_gap(hi) < 0:
+                hi *= 2.0
+            theta = brentq(mean_gap, 0.0, hi, xtol=1e-12 * hi) if mean_gap(0.0) < 0 else 0.0
+            q, logm = tilted(theta)
+            n = IS_SAMPLES_INTERIOR if k == 0 else IS_SAMPLES_EDGE
+            cq = np.cumsum(q, axis=1)
+            cq[:, -1] = 1.0
+            x = np.empty((n, len(cols)))
+            for m in range(len(cols)):
+                x[:, m] = c[np.minimum(np.searchsorted(cq[m], rng.random(n), side="right"), len(c) - 1)]
+            logw = np.sum(logm) - theta * (x @ a)
+            y = x @ A.T
+            hit = (y[:, 1] > u) & (y[:, 1] > y[:, 0]) & (y[:, 1] >= y[:, 2])
+            w = np.where(hit, np.exp(logw), 0.0)
+            rate = float(w.mean())
+            rates.append(rate)
+            rel.append(float(w.std(ddof=1) / np.sqrt(n) / rate) if rate > 0 else 0.0)
+            pools.append((y[hit], w[hit] / w[hit].sum() if hit.any() else np.ones(0)))
+        self.rates, self.rel_se, self.pools = np.array(rates), np.array(rel), pools
+
+    def triples(self, c, n, rng):
+        y, w = self.pools[c]
+        return y[rng.choice(len(w), size=n, p=w)]
+
+
+_RATE_CACHE: dict = {}
+
+
+def rate_model(n_bins, pulse, sigma, u, law=None, base=0.0):
+    """The kept :class:`LatticeRates` (``law`` = (codes, probabilities)) or :class:`GaussianRates` (law None)."""
+    key = (n_bins, None if pulse is None else np.asarray(pulse, float).tobytes(), float(sigma), float(u),
+           None if law is None else (np.asarray(law[0]).tobytes(), np.asarray(law[1]).tobytes()), float(base))
+    model = _RATE_CACHE.get(key)
+    if model is None:
+        model = GaussianRates(n_bins, pulse, sigma, u) if law is None else \
+            LatticeRates(n_bins, pulse, law[0], law[1], base, u)
+        if len(_RATE_CACHE) > 8:
+            _RATE_CACHE.clear()
+        _RATE_CACHE[key] = model
+    return model
+
+
+def draw_false_alarms(c_lo, c_hi, n_bins, rates, rng):
+    """Noise maxima above the threshold in each pixel's bins outside [c_lo, c_hi) (module docstring), from a rate
+    model (:func:`rate_model`).  Returns (pixel, bin, samples (n, 3) float32, expected count per pixel)."""
     P = len(c_lo)
-    cls, covs = position_covariances(n_bins, pulse, sigma)
-    rates = np.array([local_max_probability(u, cv)[0] for cv in covs])
+    cls = rates.cls
     p = np.zeros(n_bins)
-    p[1:n_bins - 1] = rates[cls[1:n_bins - 1]]
+    p[1:n_bins - 1] = rates.rates[cls[1:n_bins - 1]]
     cs = np.concatenate([[0.0], np.cumsum(p)])  # cs[j] = Σ_{i<j} p_i
     lam = cs[n_bins] - (cs[c_hi] - cs[c_lo])
     n = rng.poisson(lam)
@@ -240,19 +351,21 @@ def draw_false_alarms(c_lo, c_hi, n_bins, pulse, sigma, u, rng):
     kind = cls[j]
     for c in np.unique(kind):
         sel = np.flatnonzero(kind == c)
-        samples[sel] = _conditional_triples(u, covs[c], len(sel), rng)
+        samples[sel] = rates.triples(c, len(sel), rng)
     return pix, j.astype(np.int64), samples.astype(np.float32), lam
 
 
 def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
                        interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
-                       min_noise_sigma=0.0):
+                       min_noise_sigma=0.0, noise_law=None):
     """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
 
     truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
     report) runs the receiver chain (the same detector as ``report``: the chain report of the noise model, with
     ``noise_mean``, ``noise_sigma``); codes_per_joule: mean output units per J of signal (the signal level).
-    Threshold: calibrated, k_sigma × σ_n/‖pulse‖ above the baseline ``noise_mean``.
+    Threshold: calibrated, k_sigma × σ_n/‖pulse‖ above the baseline ``noise_mean``.  ``noise_law``: the chain's
+    (codes, probabilities) of a signal-free bin (ChainOutput.noise_pmf) — the false-alarm rates from that exact law
+    (:class:`LatticeRates`); None: white Gaussian noise of σ (:class:`GaussianRates`).
     Returns (NoisyEchoes (P rows), info dict)."""
     truth = np.asarray(truth)
     P, B = truth.shape
@@ -290,7 +403,8 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
         n_sim += len(rows) * int(L)
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(ss.entropy,
                                                                      spawn_key=tuple(ss.spawn_key) + (2,))))
-    fa_pix, fa_bin, fa_s, lam = draw_false_alarms(c_lo, c_hi, B, pulse, sigma, u, rng)
+    rates = rate_model(B, pulse, sigma, u, noise_law, base)
+    fa_pix, fa_bin, fa_s, lam = draw_false_alarms(c_lo, c_hi, B, rates, rng)
     pix = np.concatenate(cand_pix + [fa_pix]).astype(np.int64)
     cbin = np.concatenate(cand_bin + [fa_bin]).astype(np.int64)
     csmp = np.concatenate(cand_s + [fa_s]).astype(np.float32).reshape(-1, 3)
@@ -306,7 +420,9 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     info = {"bins_simulated": n_sim, "bins_total": P * B, "fraction_simulated": n_sim / max(1, P * B),
             "statistical_false_alarms_drawn": int(len(fa_pix)),
             "statistical_false_alarms_expected": float(lam.sum()), "window_candidate_overflow": n_overflow,
-            "signal_level_sigma": SIGNAL_LEVEL_SIGMA}
+            "signal_level_sigma": SIGNAL_LEVEL_SIGMA, "false_alarm_rate_model": rates.model,
+            "rate_per_bin_interior": float(rates.rates[0]),
+            "rate_relative_standard_error": float(rates.rel_se.max()) if len(rates.rel_se) else 0.0}
     return echoes, info
 
 

@@ -86,6 +86,9 @@ class ChainOutput:
 
     data: np.ndarray
     report: dict
+    #: (codes, probabilities) of a signal-free bin on the table route (the sampled law; None otherwise): the
+    #: statistical detector model's noise law (core/physics/detection/stretches.py).  Not part of the report.
+    noise_pmf: tuple | None = None
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -315,7 +318,10 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     if any(s["normal_bins"] for s in stats):
         report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
                                         f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
-    return ChainOutput(out.reshape(H, W, B), report)
+    pmf = None
+    if table is not None:
+        pmf = (table.code.astype(np.float64), np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS)
+    return ChainOutput(out.reshape(H, W, B), report, pmf)
 
 
 def _noise_cumulants(mean, b_mult, ds, shot, gain, F, sigma_r, step):
