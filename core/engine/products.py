@@ -118,7 +118,8 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
                                       max_echoes=d.max_echoes, interpolation=d.interpolation,
                                       bin_width_s=g.bin_width_s, gate_start_s=g.gate_start_s,
                                       codes_per_joule=codes_per_j, seed=seed,
-                                      min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law)
+                                      min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law,
+                                      threads=worker_threads(config.run.threads))
     report = dict(reports[0] if reports else probe)
     for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
         report[key] = int(sum(r.get(key, 0) for r in reports))

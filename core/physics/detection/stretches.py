@@ -34,13 +34,14 @@ import numpy as np
 from ...jit import kernel
 from .false_alarms import _filter_rows, local_max_probability
 from .matched_filter import FILTER_BLOCK, correlate_row
-from .noisy import NoisyEchoes, echoes_from_slots
+from .noisy import NoisyEchoes, echoes_from_slots, run_row_chunks
 
 #: Signal bins: expected signal above this fraction of the raw noise σ.
 SIGNAL_LEVEL_SIGMA = 1e-3
 #: Largest relative error of the Gaussian tail at the threshold (Edgeworth estimate) for the statistical route.
 GAUSSIAN_TAIL_TOLERANCE = 0.02
-#: Window lengths: multiples of this many bins (rows of equal length go through the chain together).
+#: Shortest window: windows are powers of two from this many bins (rows of equal length go through the chain
+#: together: a few chain calls a frame).
 WINDOW_QUANTUM = 32
 
 
@@ -96,21 +97,42 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
     return "statistical", "signal stretches per bin, signal-free stretches from the Gaussian statistics", err
 
 
-def signal_windows(truth, level, h, n_bins):
-    """Per pixel: (C lo, C hi) half-open, clamped to [1, B − 1] (lo = hi: no signal) and the window length
-    (0: nothing to simulate), of the signal bins truth > level (see the module docstring)."""
-    mask = truth > level
-    has = mask.any(axis=1)
-    first = np.argmax(mask, axis=1)
-    last = n_bins - 1 - np.argmax(mask[:, ::-1], axis=1)
+@kernel
+def _first_last(truth, level, first, last):
+    """Per row: the first and last bin above ``level`` (−1 when none)."""
+    n_rows, n = truth.shape
+    for r in range(n_rows):
+        f = -1
+        for j in range(n):
+            if truth[r, j] > level:
+                f = j
+                break
+        first[r] = f
+        last[r] = -1
+        if f >= 0:
+            for j in range(n - 1, f - 1, -1):
+                if truth[r, j] > level:
+                    last[r] = j
+                    break
+
+
+def signal_windows(truth, level, h, n_bins, threads=1):
+    """Per pixel: (C lo, C hi) half-open, clamped to [1, B − 1] (lo = hi: no signal), the window's start and
+    length (0: nothing to simulate; lengths are powers of two from WINDOW_QUANTUM, or B), of the signal bins
+    truth > level (see the module docstring)."""
+    first, last = np.empty(len(truth), np.int64), np.empty(len(truth), np.int64)
+    lv = truth.dtype.type(level)
+    run_row_chunks(lambda a, b: _first_last(truth[a:b], lv, first[a:b], last[a:b]), len(truth), threads)
+    has = first >= 0
     g = h + 1
     c_lo = np.where(has, np.clip(first - g, 1, n_bins - 1), 1)
     c_hi = np.where(has, np.clip(last + g + 1, 1, n_bins - 1), 1)
     c_hi = np.maximum(c_hi, c_lo)
     s_lo = np.maximum(c_lo - (h + 1), 0)
     s_hi = np.minimum(c_hi + (h + 1), n_bins)
-    need = np.where(has, s_hi - s_lo, 0)
-    length = np.where(has, np.minimum(-(-need // WINDOW_QUANTUM) * WINDOW_QUANTUM, n_bins), 0)
+    need = np.maximum(s_hi - s_lo, WINDOW_QUANTUM)
+    pow2 = (1 << np.ceil(np.log2(need)).astype(np.int64))
+    length = np.where(has, np.minimum(pow2, n_bins), 0)
     start = np.where(has, np.minimum(s_lo, n_bins - length), 0)
     return c_lo, c_hi, start, length
 
@@ -231,6 +253,61 @@ IS_SAMPLES_INTERIOR = 200_000
 IS_SAMPLES_EDGE = 20_000
 
 
+def _dominant_point(A, u, lo, hi):
+    """The smallest-norm raw vector x with Y = A x a local maximum at the threshold (Y0 = u, Y0 ≥ Y−, Y0 ≥ Y+):
+    the Gaussian dominating point, where the tilted laws are centred (each constraint active or not: the feasible
+    candidate of least norm), kept strictly inside the law's support [lo, hi]."""
+    a0, a1, a2 = A
+    best = None
+    for rows in ([a1], [a1, a1 - a0], [a1, a1 - a2], [a1, a1 - a0, a1 - a2]):
+        M = np.array(rows)
+        rhs = np.zeros(len(rows))
+        rhs[0] = u
+        try:
+            x = M.T @ np.linalg.solve(M @ M.T, rhs)
+        except np.linalg.LinAlgError:
+            continue
+        y = A @ x
+        if y[1] >= y[0] - 1e-9 * abs(u) and y[1] >= y[2] - 1e-9 * abs(u) and (best is None or x @ x < best @ best):
+            best = x
+    span = hi - lo
+    return np.clip(best, lo + 1e-3 * span, hi - 1e-3 * span)
+
+
+def _tilts(logp, c, target):
+    """Per raw variable m, the exponentially tilted law q_m ∝ p e^{θ_m c} whose mean is target[m]: (q (m, n),
+    log M(θ_m) (m,), θ (m,))."""
+    from scipy.optimize import brentq
+
+    def law(theta):
+        lw = logp + theta * c
+        mx = lw.max()
+        e = np.exp(lw - mx)
+        z = e.sum()
+        return e / z, np.log(z) + mx
+
+    def gap(theta, t):
+        return float(law(theta)[0] @ c) - t
+
+    q, logm, th = [], [], []
+    for t in target:
+        g0 = gap(0.0, t)
+        if g0 == 0.0:
+            theta = 0.0
+        else:
+            step = 1.0 / max(float(np.sqrt(np.exp(logp) @ (c * c))), 1e-30)
+            lo, hi = (0.0, step) if g0 < 0 else (-step, 0.0)
+            while (gap(hi, t) < 0) if g0 < 0 else (gap(lo, t) > 0):
+                if g0 < 0:
+                    lo, hi = hi, 2 * hi
+                else:
+                    lo, hi = 2 * lo, lo
+            theta = brentq(gap, lo, hi, args=(t,), xtol=1e-14 * max(abs(lo), abs(hi)))
+        qq, lm = law(theta)
+        q.append(qq), logm.append(lm), th.append(theta)
+    return np.array(q), np.array(logm), np.array(th)
+
+
 class GaussianRates:
     """Local-maximum rates and conditional triples for white Gaussian raw noise of σ (exact quadrature)."""
 
@@ -249,8 +326,9 @@ class GaussianRates:
 class LatticeRates:
     """Local-maximum rates and conditional triples for white raw noise of any discrete law (the chain's exact code
     distribution): importance sampling with exponential tilting.  For a position, the detection triple is
-    Y = A x over the 2h + 3 raw bins of its support; each x_m is drawn from p(c) e^{θ a_m c}/M(θ a_m) (a_m its
-    coefficient in Y0, θ such that the tilted mean of Y0 is the threshold u), weight Π M(θ a_m) e^{−θ a_m x_m}:
+    Y = A x over the 2h + 3 raw bins of its support; each x_m is drawn from p(c) e^{θ_m c}/M(θ_m), θ_m such that
+    its tilted mean is the m-th component of the dominating point (the least-norm x with a local maximum of Y at
+    the threshold u: :func:`_dominant_point`), weight Π M(θ_m) e^{−θ_m x_m}:
     rate = E_q[1{Y0 > u, Y0 > Y−, Y0 ≥ Y+} · weight] (unbiased; its relative standard error is reported), and the
     triples are drawn from the weighted local maxima (sampling–importance–resampling).  Computed once per detector,
     pulse, threshold and row length (fixed seed: the rates are a function of these only)."""
@@ -258,7 +336,6 @@ class LatticeRates:
     model = "exact code law (importance sampling)"
 
     def __init__(self, n_bins, pulse, codes, probs, base, u):
-        from scipy.optimize import brentq
         keep = probs > 0
         c = np.asarray(codes, float)[keep] - base
         p = np.asarray(probs, float)[keep]
@@ -273,33 +350,18 @@ class LatticeRates:
             cols = np.flatnonzero(np.any(A != 0, axis=0))
             A = A[:, cols]
             a = A[1]
-
-            def tilted(theta):
-                lw = logp[None, :] + theta * a[:, None] * c[None, :]
-                mx = lw.max(axis=1, keepdims=True)
-                e = np.exp(lw - mx)
-                z = e.sum(axis=1, keepdims=True)
-                return e / z, (np.log(z) + mx)[:, 0]
-
-            def mean_gap(theta):
-                q, _ = tilted(theta)
-                return float(np.sum(a * (q @ c))) - u
-
             if float(np.sum(np.where(a > 0, a * c.max(), a * c.min()))) <= u:
                 rates.append(0.0), rel.append(0.0), pools.append((np.zeros((1, 3)), np.ones(1)))
                 continue
-            hi = 1.0 / max(float(np.sqrt(np.sum(a * a) * np.dot(p, c * c))), 1e-30)
-            while mean_gap(hi) < 0:
-                hi *= 2.0
-            theta = brentq(mean_gap, 0.0, hi, xtol=1e-12 * hi) if mean_gap(0.0) < 0 else 0.0
-            q, logm = tilted(theta)
+            target = _dominant_point(A, u, c.min(), c.max())
+            q, logm, theta = _tilts(logp, c, target)
             n = IS_SAMPLES_INTERIOR if k == 0 else IS_SAMPLES_EDGE
             cq = np.cumsum(q, axis=1)
             cq[:, -1] = 1.0
             x = np.empty((n, len(cols)))
             for m in range(len(cols)):
                 x[:, m] = c[np.minimum(np.searchsorted(cq[m], rng.random(n), side="right"), len(c) - 1)]
-            logw = np.sum(logm) - theta * (x @ a)
+            logw = np.sum(logm) - x @ theta
             y = x @ A.T
             hit = (y[:, 1] > u) & (y[:, 1] > y[:, 0]) & (y[:, 1] >= y[:, 2])
             w = np.where(hit, np.exp(logw), 0.0)
@@ -357,7 +419,7 @@ def draw_false_alarms(c_lo, c_hi, n_bins, rates, rng):
 
 def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
                        interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
-                       min_noise_sigma=0.0, noise_law=None):
+                       min_noise_sigma=0.0, noise_law=None, threads=1):
     """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
 
     truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
@@ -379,7 +441,7 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     if min_separation_bins is None:
         min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
     level = SIGNAL_LEVEL_SIGMA * sigma / codes_per_joule
-    c_lo, c_hi, start, length = signal_windows(truth, level, h, B)
+    c_lo, c_hi, start, length = signal_windows(truth, level, h, B, threads)
     b32 = np.float32(base)
     cand_pix, cand_bin, cand_s = [], [], []
     n_sim = 0
