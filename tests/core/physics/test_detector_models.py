@@ -205,3 +205,37 @@ def test_fast_route_disagrees_on_correlated_noise():
     e_ref, e_fast, _ = _routes(det, 0.0, seed=78, correlate=True)
     z, r, f = _compare(e_ref, e_fast, False)
     assert abs(z["false alarms per pixel"]) > 10, z
+
+
+def test_flash_frame_statistical_route_and_metadata():
+    """The pipeline: detection.signal_free_bins = statistical with the calibrated threshold and no saved cube runs
+    the fast route (no counts.npy: digital_waveforms None), the metadata says which model ran and why; with the
+    cube saved, the same settings run the per-bin reference and keep the counts."""
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench"))
+    from bench_flash import bench_config, bench_scene, sensor_pose
+    from core.systems.flash import simulate_frame
+
+    cfg = bench_config(quick=True)
+    cfg.detector.mode = "noisy"
+    cfg.detection.noisy_threshold_mode = "calibrated"
+    cfg.detection.signal_free_bins = "statistical"
+    cfg.run.save_waveforms = False
+    scene, pose = bench_scene(32), sensor_pose()
+    fast = simulate_frame(scene, pose, cfg)
+    model = fast.stats["receiver"]["detector_model"]
+    assert model["signal_free_bins"] == "statistical" and model["threshold"] == "calibrated"
+    assert fast.digital_waveforms is None and 0 < model["fraction_simulated"] < 0.5
+    assert model["false_alarm_rate_model"].startswith("exact code law")
+    assert "n_false_alarms" in fast.stats["receiver"]["false_alarms"]
+    saved = simulate_frame(scene, pose, dataclasses.replace(cfg, run=dataclasses.replace(cfg.run,
+                                                                                        save_waveforms=True)))
+    model = saved.stats["receiver"]["detector_model"]
+    assert model["signal_free_bins"] == "per_bin" and "saved" in model["reason"]
+    assert saved.digital_waveforms is not None and model["threshold"] == "calibrated"
+    # the same echoes on both routes where the signal is strong (the target pixels): detection counts agree
+    n_fast, n_ref = len(fast.points["range_m"]), len(saved.points["range_m"])
+    assert abs(n_fast - n_ref) <= 5 * np.sqrt(n_ref) + 5
