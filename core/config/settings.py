@@ -187,7 +187,7 @@ class DetectionSettings:
                                  doc="Sub-bin peak interpolation: 3-point Gaussian, parabolic or none",
                                  label="Peak Interpolation",
                                  choice_labels={'gaussian': 'Gaussian', 'parabolic': 'Parabolic', 'none': 'None'})
-    noisy_threshold_mode: str = setting("adaptive", choices=("adaptive", "calibrated", "fixed"),
+    noisy_threshold_mode: str = setting("calibrated", choices=("adaptive", "calibrated", "fixed"),
                                         doc="Noisy receiver: threshold at k_sigma × the waveform's robust noise "
                                             "σ estimated from each pixel's own row (adaptive, CFAR-like), at "
                                             "k_sigma × the σ of the filtered noise computed from the receiver's "
@@ -203,7 +203,7 @@ class DetectionSettings:
     threshold_counts: float = setting(0.0, lo=0.0, hi=1e12,
                                       doc="Noisy receiver: fixed threshold above the baseline (counts)",
                                       label="Fixed Threshold", panel_unit="counts")
-    signal_free_bins: str = setting("per_bin", choices=("per_bin", "statistical"),
+    signal_free_bins: str = setting("statistical", choices=("per_bin", "statistical"),
                                     doc="Noisy receiver: simulate every bin (per_bin, the reference) or only the "
                                         "stretches with signal, the false alarms of the signal-free stretches "
                                         "drawn from the filtered noise's statistics (statistical; used when no "
