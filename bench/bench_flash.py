@@ -4,7 +4,9 @@ Measures in one run, on the same rays: the floor (bench/floor.py: the bare embre
 pipeline's blocks on the pipeline's threads), the full pipeline (`simulate_frame`, all cores) with the cube saved,
 points only, and with full physics (Cn² 1e-14 with every turbulence effect, visibility 10 km, the noisy APD receiver with A/D, cube
 saved), their ratios to the floor, and the time of every stage and its ratio to the floor's thread-seconds; and on sample_blends/flash_demo.blend the
-noisy receiver against the ideal one (``--no-flash-demo`` to skip: its export needs the ``bpy`` module once).
+noisy receiver against the ideal one (``--no-flash-demo`` to skip: its export needs the ``bpy`` module once); and
+the detector models (full physics, points only: adaptive / calibrated threshold, per-bin / statistical signal-free
+bins, docs/receiver.md) with each one's ratio to the floor.
 The first call of each case (compiling or loading the compiled kernels) is timed separately from the best of
 ``--repeat`` runs, the floor and the frames interleaved (one of each per repeat; the medians are reported too).  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
 Writes ``flash.json`` to ``--out DIR`` (default runs/bench/); ``--update-committed`` regenerates
@@ -91,6 +93,20 @@ def full_physics_config(quick: bool = False) -> SimulationConfig:
     return cfg
 
 
+#: The detector models compared in the "run time against error" table (docs/performance.md): full physics, points
+#: only (no per-bin product: the statistical route may run), (threshold mode, signal-free bins).
+DETECTOR_MODELS = (("adaptive", "per_bin"), ("calibrated", "per_bin"), ("calibrated", "statistical"))
+
+
+def detector_model_config(threshold_mode: str, signal_free_bins: str, quick: bool = False) -> SimulationConfig:
+    """Full physics, points only, with this threshold mode and signal-free route."""
+    cfg = full_physics_config(quick)
+    cfg.run.save_waveforms = False
+    cfg.detection.noisy_threshold_mode = threshold_mode
+    cfg.detection.signal_free_bins = signal_free_bins
+    return cfg
+
+
 def best_of(fn, repeat=3):
     best, out = np.inf, None
     for _ in range(repeat):
@@ -159,16 +175,19 @@ def main(argv=None):
     first_s, res = timed(lambda: simulate_frame(scene, pose, cfg, tracer=tracer))
     first_points_s, _ = timed(lambda: simulate_frame(scene, pose, cfg_points, tracer=tracer))
     first_full_s, _ = timed(lambda: simulate_frame(scene, pose, cfg_full, tracer=tracer))
+    cfg_models = {f"{m}/{r}": detector_model_config(m, r, args.quick) for m, r in DETECTOR_MODELS}
+    first_models = {k: timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))[0] for k, c in cfg_models.items()}
     threads = res.stats["threads"]
     blocks = flash_floor_blocks(tracer, det, pose, res.stats["pixels_per_block"])
     # interleaved: each repeat casts the floor, then runs the three frames (the load of a shared machine
     # changes between runs, not between the floor and the frames of one repeat)
-    casts, casts1, times = [], [], {"pipeline": [], "points_only": [], "full_physics": []}
+    casts, casts1, times = [], [], {"pipeline": [], "points_only": [], "full_physics": [], **{k: [] for k in cfg_models}}
     last = {}
     for _ in range(args.repeat):
         casts.append(floor.bare_cast(tracer, blocks, threads))
         casts1.append(floor.bare_cast(tracer, blocks, 1))  # the cast's own thread scaling (the machine's load)
-        for name, c in (("pipeline", cfg), ("points_only", cfg_points), ("full_physics", cfg_full)):
+        for name, c in (("pipeline", cfg), ("points_only", cfg_points), ("full_physics", cfg_full),
+                        *cfg_models.items()):
             s, last[name] = timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))
             times[name].append(s)
     fl, fl1 = floor.best(casts), floor.best(casts1)
@@ -202,6 +221,16 @@ def main(argv=None):
         "stage_ratio_to_floor": {"pipeline": floor.stage_ratios(res.stats["stage_times_s"], fl),
                                  "points_only": floor.stage_ratios(res_points.stats["stage_times_s"], fl),
                                  "full_physics": floor.stage_ratios(res_full.stats["stage_times_s"], fl)},
+        "detector_models (full physics, points only)": {
+            k: {"time_s": min(times[k]), "median_s": float(np.median(times[k])), "ratio_to_floor": min(times[k]) / bare_s,
+                "first_call_s": first_models[k],
+                "stage_ratio_to_floor": floor.stage_ratios(last[k].stats["stage_times_s"], fl),
+                "detector_model": last[k].stats["receiver"].get("detector_model"),
+                "n_points": last[k].stats["n_points"],
+                "false_alarms_per_pixel": last[k].stats["receiver"]["false_alarms"].get("false_alarms_per_pixel"),
+                "expected_false_alarms_per_pixel_gaussian":
+                    last[k].stats["receiver"]["false_alarms"].get("expected_false_alarms_per_pixel_gaussian")}
+            for k in cfg_models},
         "flash_demo_noisy_vs_ideal": demo,
         "waveform_binning": res.stats["waveform_binning"],
         "n_points": res.stats["n_points"],

@@ -187,16 +187,32 @@ class DetectionSettings:
                                  doc="Sub-bin peak interpolation: 3-point Gaussian, parabolic or none",
                                  label="Peak Interpolation",
                                  choice_labels={'gaussian': 'Gaussian', 'parabolic': 'Parabolic', 'none': 'None'})
-    noisy_threshold_mode: str = setting("adaptive", choices=("adaptive", "fixed"),
+    noisy_threshold_mode: str = setting("calibrated", choices=("adaptive", "calibrated", "fixed"),
                                         doc="Noisy receiver: threshold at k_sigma × the waveform's robust noise "
-                                            "σ (adaptive) or at threshold_counts above the baseline (fixed)",
+                                            "σ estimated from each pixel's own row (adaptive, CFAR-like), at "
+                                            "k_sigma × the σ of the filtered noise computed from the receiver's "
+                                            "noise model (calibrated: shot, excess, dark, read and A/D noise "
+                                            "through the filter taps, baseline = the noise mean), or at "
+                                            "threshold_counts above the baseline (fixed)",
                                         label="Noisy Threshold Mode",
-                                        choice_labels={'adaptive': 'Adaptive (k·σ)', 'fixed': 'Fixed (counts)'})
+                                        choice_labels={'adaptive': 'Adaptive (k·σ of the row)',
+                                                       'calibrated': 'Calibrated (k·σ of the noise model)',
+                                                       'fixed': 'Fixed (counts)'})
     k_sigma: float = setting(5.0, lo=0.5, hi=100.0, doc="Noisy receiver: adaptive threshold in noise σ",
                              label="Adaptive Threshold (σ)")
     threshold_counts: float = setting(0.0, lo=0.0, hi=1e12,
                                       doc="Noisy receiver: fixed threshold above the baseline (counts)",
                                       label="Fixed Threshold", panel_unit="counts")
+    signal_free_bins: str = setting("statistical", choices=("per_bin", "statistical"),
+                                    doc="Noisy receiver: simulate every bin (per_bin, the reference) or only the "
+                                        "stretches with signal, the false alarms of the signal-free stretches "
+                                        "drawn from the filtered noise's statistics (statistical; used when no "
+                                        "per-bin product is saved, the threshold is calibrated or fixed and the "
+                                        "filtered noise is Gaussian within 2 % at the threshold, else per_bin: "
+                                        "the metadata says which ran)",
+                                    label="Signal-Free Bins",
+                                    choice_labels={'per_bin': 'Per bin (reference)',
+                                                   'statistical': 'Statistical (signal stretches only)'})
     matched_filter: bool = setting(True, doc="Noisy receiver: correlate the waveform with the pulse shape "
                                              "before peak finding",
                                    label="Matched Filter")

@@ -22,8 +22,21 @@ from .blocks import worker_threads
 from .result import FrameResult
 
 
+def threshold_model(config: SimulationConfig, noise_sigma=None, noise_mean=None):
+    """(threshold mode that runs, the known noise values it is given): ``calibrated`` takes the chain report's
+    exact signal-free σ and mean (per bin, white: the bins are independent) and needs both; without them (Geiger
+    histograms have no linear noise model) it falls back to ``adaptive``."""
+    mode = config.detection.noisy_threshold_mode
+    if mode != "calibrated":
+        return mode, {}
+    if noise_sigma is None or noise_mean is None or not noise_sigma > 0 \
+            or config.detector.detector_type == "geiger":
+        return "adaptive", {}
+    return "calibrated", {"noise_sigma": float(noise_sigma), "baseline": float(noise_mean)}
+
+
 def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None,
-                 noise_floor=0.0) -> Echoes:
+                 noise_floor=0.0, noise_mean=None, found=None, shape=None) -> Echoes:
     """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
     core/physics/detection/noisy.py), in the per-echo layout of :class:`Echoes`, with the detection SNR.
 
@@ -31,17 +44,22 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     true return or a false alarm (core.physics.detection.false_alarms.classify_false_alarms): the returned Echoes carries a
     per-echo bool ``false_alarm`` attribute and ``info`` (a dict) receives the counts, rates and the Gaussian
     expectation for the noise σ ``noise_sigma`` (raw-waveform units, from the chain report).  ``noise_floor``:
-    the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``)."""
+    the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``).  ``noise_mean``: the
+    signal-free bins' mean (the chain report's ``noise_mean``), the baseline of the calibrated threshold.
+    ``found``: echoes already detected (core.physics.detection.stretches: no ``digital``), of the (H, W, B)
+    ``shape``."""
     d, g = config.detection, config.gate
-    h, w, n_bins = digital.shape
+    h, w, n_bins = digital.shape if shape is None else shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
         if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
     threads = worker_threads(config.run.threads)
-    found = detect_echoes_noisy(digital.reshape(h * w, n_bins), g.bin_width_s, g.gate_start_s,
-                                threshold_mode=d.noisy_threshold_mode, threshold=d.threshold_counts,
-                                k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
-                                interpolation=d.interpolation, min_noise_sigma=noise_floor,
-                                threads=threads)
+    mode, known = threshold_model(config, noise_sigma, noise_mean)
+    if found is None:
+        found = detect_echoes_noisy(digital.reshape(h * w, n_bins), g.bin_width_s, g.gate_start_s,
+                                    threshold_mode=mode, threshold=d.threshold_counts,
+                                    k_sigma=d.k_sigma, pulse=pulse, max_echoes=d.max_echoes,
+                                    interpolation=d.interpolation, min_noise_sigma=noise_floor,
+                                    threads=threads, **known)
     pix, slot = np.nonzero(found.detected)
     echoes = Echoes(pixel=pix.astype(np.int64), position_bins=found.position_bins[pix, slot],
                     amplitude=found.amplitude[pix, slot], echo_index=slot.astype(np.int16),
@@ -54,12 +72,65 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
             noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
             abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j, threads=threads)
         echoes.false_alarm = fa[pix, slot]
-        summary["threshold_mode"] = d.noisy_threshold_mode
+        summary["threshold_mode"] = mode
         summary["n_pixels"] = h * w
         summary["n_bins"] = n_bins
         if info is not None:
             info.update(summary)
     return echoes
+
+
+def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
+    """The noisy receiver's echoes with detection.signal_free_bins = "statistical" when it applies
+    (core.physics.detection.stretches.validity), else None.  Returns (Echoes, chain report with
+    ``detector_model``) or (None, the decision as a dict for the per-bin route's report)."""
+    from ..physics.detection.stretches import detect_statistical, validity
+    from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+    from ..physics.receiver.conversions import adc_step_e
+
+    d, g, det = config.detection, config.gate, config.detector
+    model = {"threshold": d.noisy_threshold_mode, "signal_free_bins": "per_bin"}
+    if d.signal_free_bins != "statistical":
+        model["reason"] = "detection.signal_free_bins = per_bin (the reference)"
+        return None, model
+    cs = ChainSettings.from_config(config)
+    probe_out = apply_receiver_chain(np.zeros((1, 1, 1), np.float32), cs, 0)  # the noise model only
+    probe, law = probe_out.report, probe_out.noise_pmf
+    pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
+        if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
+    mode, _ = threshold_model(config, probe.get("noise_sigma"), probe.get("noise_mean"))
+    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_waveforms, law is not None)
+    model.update(threshold=mode, reason=reason, gaussian_tail_error=err)
+    if route != "statistical":
+        return None, model
+    gain = 1.0 if det.detector_type == "pin" else det.apd_gain
+    step = adc_step_e(det.adc_bits, det.adc_full_scale_e) if det.enable_adc else 1.0
+    codes_per_j = float(photons_per_joule(config.laser.wavelength_m)) * det.quantum_efficiency * gain / step
+    reports = []
+
+    def chain(cube, ss):
+        out = apply_receiver_chain(cube, cs, ss)
+        reports.append(out.report)
+        return out.data, out.report
+
+    h, w, n_bins = truth.shape
+    found, sinfo = detect_statistical(truth.reshape(h * w, n_bins), chain, probe, pulse=pulse, k_sigma=d.k_sigma,
+                                      max_echoes=d.max_echoes, interpolation=d.interpolation,
+                                      bin_width_s=g.bin_width_s, gate_start_s=g.gate_start_s,
+                                      codes_per_joule=codes_per_j, seed=seed,
+                                      min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law,
+                                      threads=worker_threads(config.run.threads))
+    report = dict(reports[0] if reports else probe)
+    for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
+        report[key] = int(sum(r.get(key, 0) for r in reports))
+    model.update(signal_free_bins="statistical", **sinfo)
+    report["detector_model"] = model
+    fa_info = {} if info is None else info
+    echoes = noisy_echoes(None, config, truth=truth, info=fa_info, noise_sigma=probe.get("noise_sigma"),
+                          noise_floor=probe.get("noise_sigma_floor", 0.0), noise_mean=probe.get("noise_mean"),
+                          found=found, shape=truth.shape)
+    report["false_alarms"] = fa_info
+    return echoes, report
 
 
 def reference_range_m(tracer, det, origin, rot, threads: int = 1) -> float:

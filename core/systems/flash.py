@@ -21,7 +21,7 @@ from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_win
 from ..engine.blocks import balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import BLOCK_WAVEFORM_BYTES
-from ..engine.products import noisy_echoes, points_along_rays, reference_range_m
+from ..engine.products import statistical_noisy_echoes, noisy_echoes, points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
 from ..errors import ConfigError
@@ -196,7 +196,15 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         with log.timed("turbulence_blur"):
             cube = waveforms.reshape(det.height_px, det.width_px, gate.n_bins)
             energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
-    if noisy:
+    statistical = None
+    if noisy:  # detection.signal_free_bins = "statistical": chain and detection on the signal stretches only
+        with log.timed("receiver_chain"):
+            statistical, model = statistical_noisy_echoes(
+                waveforms.reshape(det.height_px, det.width_px, gate.n_bins), config,
+                stage_seed(config.run.seed, frame, "receiver"))
+        if statistical is not None:
+            echo_parts, receiver_report = [statistical], model
+    if noisy and statistical is None:
         with log.timed("receiver_chain"):
             chain = apply_receiver_chain(waveforms.reshape(det.height_px, det.width_px, gate.n_bins),
                                          ChainSettings.from_config(config),
@@ -206,16 +214,19 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             fa_info = {}
             echo_parts = [noisy_echoes(digital, config, truth=waveforms, info=fa_info,
                                        noise_sigma=receiver_report.get("noise_sigma"),
-                                       noise_floor=receiver_report.get("noise_sigma_floor", 0.0))]
+                                       noise_floor=receiver_report.get("noise_sigma_floor", 0.0),
+                                       noise_mean=receiver_report.get("noise_mean"))]
             receiver_report["false_alarms"] = fa_info  # noise detections counted against the noise-free cube
-    elif blur:
+            model["threshold"] = fa_info.get("threshold_mode", model["threshold"])
+            receiver_report["detector_model"] = model  # which threshold and signal-free route ran, and why
+    elif blur and not noisy:
         with log.timed("echoes"):
             echo_parts = []
             for a, b in blocks:
                 ech = detect_echoes(waveforms[a:b].astype(np.float64), config.detection)
                 ech.pixel += a
                 echo_parts.append(ech)
-    else:
+    elif not noisy:
         echo_parts = [r[0] for r in results]
     if whole_cube and not config.run.save_waveforms:
         waveforms = None

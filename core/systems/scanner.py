@@ -382,7 +382,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                                                  stage_seed(config.run.seed, frame, "receiver", (a + ta) // tile))
                     ech = noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
                                         noise_sigma=chain.report.get("noise_sigma"),
-                                        noise_floor=chain.report.get("noise_sigma_floor", 0.0))
+                                        noise_floor=chain.report.get("noise_sigma_floor", 0.0),
+                                        noise_mean=chain.report.get("noise_mean"))
                     ech.pixel = ech.pixel + ta
                     parts.append(ech)
                     if dig is None:

@@ -207,8 +207,11 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
 
     waveforms      : (..., B) digital counts or any real waveform, of any integer or float type (processed as
                      float32, one row at a time).
-    threshold_mode : "adaptive" (k_sigma × per-pixel noise σ of the detection waveform, estimated by MAD) or
-                     "fixed" (``threshold`` in input units above the baseline).
+    threshold_mode : "adaptive" (k_sigma × per-pixel noise σ of the detection waveform, estimated by MAD),
+                     "calibrated" (k_sigma × the σ of the filtered noise from the noise model: ``noise_sigma``
+                     and ``baseline`` required; white raw noise of σ_n through the taps w = pulse/Σpulse² gives
+                     σ_det² = Σ w_k² σ_n² = σ_n²/‖pulse‖²) or "fixed" (``threshold`` in input units above the
+                     baseline).
     pulse          : pulse shape samples for the matched filter (None: no filter).
     min_separation_bins : smallest distance between two echoes of a pixel (default: pulse length or 3).
     interpolation  : "gaussian" (falls back to parabolic where a sample ≤ 0 — counted), "parabolic", "none";
@@ -227,8 +230,13 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
     B = y.shape[-1]
     y = y.reshape(-1, B)
     P = y.shape[0]
-    if threshold_mode not in ("adaptive", "fixed"):
-        raise ValueError(f"threshold_mode must be 'adaptive' or 'fixed', got {threshold_mode!r}")
+    if threshold_mode not in ("adaptive", "calibrated", "fixed"):
+        raise ValueError(f"threshold_mode must be 'adaptive', 'calibrated' or 'fixed', got {threshold_mode!r}")
+    if threshold_mode == "calibrated":  # k σ of the filtered noise from the noise model: given σ and baseline
+        if noise_sigma is None or baseline is None:
+            raise ValueError("threshold_mode 'calibrated' needs the noise model's noise_sigma and baseline (the "
+                             "receiver chain report's noise_sigma and noise_mean)")
+        threshold_mode = "adaptive"  # (with both given, the kernel's σ is σ_n/‖pulse‖: no row statistics)
     if min_separation_bins is None:
         min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
     given_base = np.zeros(P) if baseline is None else \
@@ -260,7 +268,14 @@ def detect_echoes_noisy(waveforms, bin_width_s, gate_start_s=0.0, *, threshold_m
                     thr[a:b], pos[a:b], samples[a:b])
 
     run_row_chunks(run, P, threads)
+    return echoes_from_slots(pos, samples, base, sig, thr, shape, bin_width_s, gate_start_s, interpolation)
 
+
+def echoes_from_slots(pos, samples, base, sig, thr, shape, bin_width_s, gate_start_s, interpolation):
+    """:class:`NoisyEchoes` from the chosen maxima: ``pos`` (P, K) bins in time order (−1: none), ``samples``
+    (P, K, 3) the detection waveform at j − 1, j, j + 1; per pixel baseline, raw σ and threshold.  The
+    interpolation runs on the detected slots only."""
+    P, K = pos.shape
     detected = pos >= 0
     sel = np.flatnonzero(detected)  # the interpolation runs on the detected slots only
     jj = pos.reshape(-1)[sel]

@@ -86,6 +86,9 @@ class ChainOutput:
 
     data: np.ndarray
     report: dict
+    #: (codes, probabilities) of a signal-free bin on the table route (the sampled law; None otherwise): the
+    #: statistical detector model's noise law (core/physics/detection/stretches.py).  Not part of the report.
+    noise_pmf: tuple | None = None
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -260,6 +263,8 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         c = table.code.astype(np.float64)
         m0 = float(np.dot(pq, c))
         report["noise_mean"], report["noise_sigma"] = m0, float(np.sqrt(np.dot(pq, (c - m0) ** 2)))
+        m2, m3, m4 = (float(np.dot(pq, (c - m0) ** r)) for r in (2, 3, 4))
+        report["noise_cumulants"] = [m0, m2, m3, m4 - 3.0 * m2 * m2]  # exact, from the code distribution
     else:
         m0, var0, _ = bin_moments(det, 0.0, tau)  # the same switches (Sheppard's Δ²/12 for the A/D)
         m0, var0 = float(m0), float(var0)
@@ -268,6 +273,8 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
             report["noise_sigma"] = math.sqrt(var0) / step
         else:
             report["noise_mean"], report["noise_sigma"] = m0, math.sqrt(var0)
+        report["noise_cumulants"] = _noise_cumulants(report["noise_mean"], b_mult, ds, shot, gain, F, sigma_r,
+                                                     step if use_adc else 0.0)
     report["noise_sigma_floor"] = noise_sigma_floor(det, tau)
 
     src2 = np.ascontiguousarray(src, dtype=np.float32).reshape(H * W, B)
@@ -311,7 +318,32 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     if any(s["normal_bins"] for s in stats):
         report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
                                         f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
-    return ChainOutput(out.reshape(H, W, B), report)
+    pmf = None
+    if table is not None:
+        pmf = (table.code.astype(np.float64), np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS)
+    return ChainOutput(out.reshape(H, W, B), report, pmf)
+
+
+def _noise_cumulants(mean, b_mult, ds, shot, gain, F, sigma_r, step):
+    """[κ1, κ2, κ3, κ4] of a signal-free bin in output units (per-bin route): compound Poisson(b_mult) of
+    single-electron gains Gamma(1/(F − 1), G(F − 1)) (G exactly when F = 1), E g^r = θ^r a(a+1)…(a+r−1), plus
+    Poisson(ds) surface dark, Gaussian read noise and (A/D on) Sheppard's Δ²/12 and −Δ⁴/120 for the rounding.
+    Without shot noise the primaries add no cumulant above the first."""
+    k = [0.0, sigma_r ** 2, 0.0, 0.0]
+    if shot:
+        if F > 1.0:
+            a, th = 1.0 / (F - 1.0), gain * (F - 1.0)
+            moments = [th ** r * math.prod(a + i for i in range(r)) for r in (2, 3, 4)]
+        else:
+            moments = [gain ** r for r in (2, 3, 4)]
+        for i, m in enumerate(moments):
+            k[i + 1] += b_mult * m + ds
+    if step > 0:
+        k[1] += step ** 2 / 12.0
+        k[3] -= step ** 4 / 120.0
+        k = [k[r] / step ** (r + 1) for r in range(4)]
+    k[0] = float(mean)
+    return k
 
 
 _THREAD_SCRATCH = threading.local()
