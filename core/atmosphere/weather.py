@@ -315,16 +315,18 @@ def visible_drops(drops: Drops, ray_beam, ray_weight, ray_range_m):
     the sub-ray whose cumulative weight interval holds u × (the beam's total weight); a missed ray has range inf."""
     if len(drops) == 0:
         return np.zeros(0, bool)
-    w = np.asarray(ray_weight, np.float64)
-    cum = np.cumsum(w)
     beam = np.asarray(ray_beam, np.int64)
+    order = np.argsort(beam, kind="stable")
+    beam = beam[order]
+    w = np.asarray(ray_weight, np.float64)[order]
+    cum = np.cumsum(w)
     nb = int(max(beam.max() + 1 if len(beam) else 0, drops.beam.max() + 1))
     total = np.bincount(beam, weights=w, minlength=nb)
     first = np.searchsorted(beam, np.arange(nb), side="left")
     start = np.concatenate([[0.0], cum])[first]
     target = start[drops.beam] + drops.u * total[drops.beam]
     ray = np.minimum(np.searchsorted(cum, target, side="right"), len(cum) - 1)
-    rr = np.asarray(ray_range_m, np.float64)[ray]
+    rr = np.asarray(ray_range_m, np.float64)[order][ray]
     rr = np.where(np.isfinite(rr), rr, np.inf)
     return (drops.range_m < rr) & (beam[ray] == drops.beam)
 
