@@ -56,8 +56,17 @@ class FrameWeather:
     scale_jm2: float
     aperture_r2: float
     omega_sr: float                # solid angle of one beam
+    drop_range_m: tuple = (0.0, 0.0)
     drops: Drops | None = None
     metadata: dict = field(default_factory=dict)
+
+    def draw(self, config: SimulationConfig, frame: int, n_beams: int, stream: int | None = None) -> Drops | None:
+        """The particles of ``n_beams`` beams from the stream ``weather_drops`` of the frame (of a pulse tile when
+        ``stream`` is given); None without discrete particles."""
+        if not self.weather.has_drops:
+            return None
+        return draw_drops(stage_rng(config.run.seed, frame, "weather_drops", stream), self.weather, n_beams,
+                          self.omega_sr, *self.drop_range_m)
 
     def drops_of(self, a: int, b: int) -> Drops | None:
         """The drops of beams [a, b), beam indices local to the block."""
@@ -85,8 +94,10 @@ class FrameWeather:
 
 
 def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, omega_sr: float,
-                          tx_half_angle: float, rx_half_angle: float, pulse: int | None = None) -> FrameWeather | None:
-    """The weather of one frame (of one pulse stream when ``pulse`` is given), None for weather = none."""
+                          tx_half_angle: float, rx_half_angle: float, pulse: int | None = None,
+                          draw: bool = True) -> FrameWeather | None:
+    """The weather of one frame (of one pulse stream when ``pulse`` is given), None for weather = none; with
+    ``draw`` the particles of all ``n_beams`` beams are drawn now (else per tile: :meth:`FrameWeather.draw`)."""
     atm, laser, gate = config.atmosphere, config.laser, config.gate
     w = weather_model(atm, laser.wavelength_m, aerosol_extinction_per_m(config))
     if w is None:
@@ -105,10 +116,12 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
         c2 = 0.5 * SPEED_OF_LIGHT_M_S
         r_lo = max(atm.backscatter_min_range_m, c2 * gate.gate_start_s)
         r_hi = c2 * (gate.gate_start_s + gate.n_bins * gate.bin_width_s)
-        out.drops = draw_drops(stage_rng(config.run.seed, frame, "weather_drops", pulse), w, n_beams, omega_sr,
-                               r_lo, r_hi)
-        out.metadata["drops"] = {"drawn": len(out.drops), "range_m": [r_lo, r_hi], "beam_solid_angle_sr": omega_sr,
+        out.drop_range_m = (r_lo, r_hi)
+        out.metadata["drops"] = {"range_m": [r_lo, r_hi], "beam_solid_angle_sr": omega_sr,
                                  "expected": expected_drop_count(w, omega_sr, r_lo, r_hi) * n_beams}
+        if draw:
+            out.drops = out.draw(config, frame, n_beams, pulse)
+            out.metadata["drops"]["drawn"] = len(out.drops)
     return out
 
 
