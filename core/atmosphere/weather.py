@@ -338,7 +338,7 @@ def shadow_factors(drops: Drops, shadow, query_beam, query_range_m):
     q_r = np.asarray(query_range_m, np.float64)
     if len(drops) == 0 or len(q_beam) == 0:
         return np.ones(len(q_beam))
-    log_t = np.log1p(-np.minimum(shadow, 1.0 - 1e-300))
+    log_t = np.log1p(-np.minimum(shadow, 1.0 - 1e-16))  # a fully shadowed beam: 1e-16 left
     cum = np.concatenate([[0.0], np.cumsum(log_t)])
     span = float(max(np.max(drops.range_m), np.max(np.where(np.isfinite(q_r), q_r, 0.0)))) * 2.0 + 1.0
     key = drops.beam * span + drops.range_m
@@ -367,3 +367,29 @@ def atmosphere_echo_mask(echo_beam, echo_range_m, hit_beam, hit_range_m, toleran
         ok = (j >= 0) & (j < len(key))
         near[ok] = np.minimum(near[ok], np.abs(key[j[ok]] - q[ok]))
     return ~(near <= tolerance_m)
+
+
+def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
+                     overlap: Overlap, min_range_m, response, slabs_per_width: int = 4):
+    """Gated viewing: (slab round-trip times (M,), C (M + 1, n_slices)) with C[m] = Σ_{m' < m} e_m' g(t_m' − d_k),
+    the volume backscatter of the slabs nearer than slab m in every slice (``response`` = g(τ), the slice
+    response of core.systems.gated).  A pixel sees C[m_hit] for a sub-ray whose surface is at slab m_hit, C[M]
+    for a sub-ray that hits nothing (prefix sums: the volume behind a surface is hidden)."""
+    from ..physics.laser import pulse_half_support_s
+    c2 = 0.5 * SPEED_OF_LIGHT_M_S
+    d = np.asarray(delays_s, np.float64)
+    support = pulse_half_support_s(laser) + 0.5 * edge_s
+    t_lo = max(min_range_m / c2, float(d.min()) - support)
+    t_hi = float(d.max()) + gate_width_s + support
+    if t_hi <= t_lo or beta_per_m_sr <= 0.0:
+        return np.zeros(0), np.zeros((1, len(d)))
+    step = float(np.min(np.diff(d))) if len(d) > 1 else gate_width_s
+    width = min(laser.pulse_fwhm_s, gate_width_s, step if step > 0 else gate_width_s) / slabs_per_width
+    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
+    edges = c2 * np.linspace(t_lo, t_hi, n + 1)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
+    e = energy_scale_jm2 * beta_per_m_sr * integral
+    t = 2.0 * centroid / SPEED_OF_LIGHT_M_S
+    table = np.zeros((n + 1, len(d)))
+    table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
+    return t, table
