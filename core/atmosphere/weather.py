@@ -63,7 +63,7 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 # Coefficients from named conditions
 # ------------------------------------------------------------------------------------------------------------
 def rain_extinction_per_m(rate_mm_h):
-    """Rain extinction α (1/m) in the near IR: 1.076 R^0.67 dB/km (module docstring).  10 mm/h → 5.02 dB/km."""
+    """Rain extinction α (1/m) in the near IR: 1.076 R^0.67 dB/km (module docstring).  10 mm/h → 5.033 dB/km."""
     return 1.076 * np.asarray(rate_mm_h, dtype=np.float64) ** 0.67 * DB_PER_KM_TO_PER_M
 
 
