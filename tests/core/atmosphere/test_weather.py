@@ -235,3 +235,20 @@ def test_weather_inputs_are_validated():
     cfg.atmosphere.weather = "drizzle"
     with pytest.raises(ConfigError, match="atmosphere.weather"):
         validate_config(cfg)
+
+
+def test_atmosphere_returns_get_their_las_class_and_flags(tmp_path):
+    """Fog, O = 1: the near-range echoes are written as class 18 (high noise), synthetic and withheld; the
+    summary counts them."""
+    from core.fileio.las import CLASS_ATMOSPHERE, read_las
+    from core.fileio.run_folder import run_summary
+    from core.run import run_simulation
+    cfg = _flash("fog", visibility_m=200.0, overlap_model="none")
+    cfg.run.save_waveforms = False
+    path, res = run_simulation(plate(30.0, 0.06), np.eye(4), cfg, tmp_path / "fog")
+    pts = read_las(path / "points.las")["points"]
+    atm = res.points["atmosphere"].astype(bool)
+    assert atm.sum() > 0
+    assert np.all(pts["classification"][atm] == CLASS_ATMOSPHERE) and np.all(pts["withheld"][atm])
+    assert np.all(pts["synthetic"]) and not np.any(pts["classification"][~atm] == CLASS_ATMOSPHERE)
+    assert f"weather  {int(atm.sum())} returns of the atmosphere" in run_summary(path, res)
