@@ -252,3 +252,17 @@ def test_atmosphere_returns_get_their_las_class_and_flags(tmp_path):
     assert np.all(pts["classification"][atm] == CLASS_ATMOSPHERE) and np.all(pts["withheld"][atm])
     assert np.all(pts["synthetic"]) and not np.any(pts["classification"][~atm] == CLASS_ATMOSPHERE)
     assert f"weather  {int(atm.sum())} returns of the atmosphere" in run_summary(path, res)
+
+
+def test_validation_module_passes_and_plots(tmp_path):
+    """scripts/validation/weather.py (the validation report's weather section), quick form."""
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[3] / "scripts" / "validation" / "weather.py"
+    spec = importlib.util.spec_from_file_location("validation_weather", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    checks = mod.run(tmp_path, quick=True)
+    assert len(checks) == 6 and all(c["passed"] for c in checks)
+    assert set(checks[0]) == {"quantity", "simulated", "reference", "tolerance", "passed"}
+    assert (tmp_path / "weather_fog_backscatter.png").stat().st_size > 10_000
