@@ -34,8 +34,18 @@ range 170–240 m away:
   1 ns pulse, 0.2 ns bins from 1985 m to 2015 m;
 * an aircraft (fuselage with a nose cone, wings, tailplane and fin), seen 35° off its nose.
 
+``fog_vehicle.blend`` — a vehicle 60 m away seen through fog of 200 m visibility (issue 30, docs/atmosphere.md):
+
+* the vehicle: a box 4.5 m × 1.8 m × 1.5 m side-on at 60 m (Lambertian 35 %), a ground plane;
+* atmosphere: ``weather = fog``, visibility 200 m (Kim; α = 0.0196 /m at 1064 nm, β = α/18 sr), the default
+  geometric overlap (5 cm transmitter–receiver offset);
+* sensor "Flash" (active): 48×32 pixels, 8° × 5.3°, 3×3 sub-rays, 5 ns pulse, gate 0–90 m in 1 ns bins, 3 echoes above 0.2 % of
+  the pixel's strongest (the vehicle's echo is ~2 % of the near-range clutter's);
+* sensor "Scanner": a raster of 30 lines × 40 pulses over 0.15 rad × 0.08 rad, 1 mrad beam, 3 ns pulse, gate
+  0–90 m in 0.5 ns bins (``--sensor Scanner``).
+
 Options: ``--out DIR`` (default: ``sample_blends/``), ``--only NAME`` (flash_demo, gated_board, forest_scan,
-aircraft_profile).
+aircraft_profile, fog_vehicle).
 
 The committed .blend files were built before the panels stored times in ns (issue 27): they hold these
 settings in the old SI properties, which the add-on reads bit for bit (docs/blender.md, "Units and labels in the
@@ -397,8 +407,51 @@ def build_aircraft_profile(bpy, path: Path) -> None:
     _save(bpy, scene, cam, path)
 
 
+def build_fog_vehicle(bpy, path: Path) -> None:
+    scene = _new_scene(bpy, "Vehicle in fog", (48, 32))
+    root = scene.collection
+    mats = _materials(bpy, {k: MATERIALS[k] for k in ("Ground", "Box")})
+    ground_z = -1.5
+    _mesh_object(bpy, "Ground", [(-30, 0.5, 0), (30, 0.5, 0), (30, 120, 0), (-30, 120, 0)], [(0, 1, 2, 3)], root,
+                 (0.0, 0.0, ground_z), (mats["Ground"],))
+    _box(bpy, "Vehicle", (4.5, 1.8, 1.5), root, (0.0, 60.0, ground_z), mats["Box"])
+    gate = {"gate.gate_start_s": 0.0}
+    fov_x = math.radians(8.0)
+    flash = _camera(bpy, "Flash", fov_x, fov_x * 32 / 48, (0.0, 0.0, 0.0), (math.pi / 2, 0.0, 0.0))
+    ladar = flash.ladar
+    ladar.system_type = "flash"
+    ladar.receiver.width_px, ladar.receiver.height_px = 48, 32
+    ladar.receiver.subsamples = 3
+    ladar.detection.max_echoes = 3
+    ladar.detection.relative_threshold = 0.002  # the vehicle's echo is ~2 % of the near-range clutter's
+    ladar.gate.n_bins = 600
+    _set_si(scene, flash, {**gate, "gate.bin_width_s": 1e-9, "laser.pulse_fwhm_s": 5e-9,
+                           "laser.wavelength_m": 1.064e-6})
+    scanner = _camera(bpy, "Scanner", 0.15, 0.08, (0.0, 0.0, 0.0), (math.pi / 2, 0.0, 0.0))
+    ladar = scanner.ladar
+    ladar.system_type = "scanner"
+    ladar.laser.divergence_fills_fov = False
+    sc = ladar.scanner
+    sc.pattern = "raster"
+    sc.n_lines = 30
+    sc.scan_rate_hz = 200.0
+    sc.beam_subray_rings = 2
+    sc.duration_s = 0.0
+    ladar.detection.max_echoes = 3
+    ladar.detection.relative_threshold = 0.002
+    ladar.gate.n_bins = 1200
+    ladar.run.save_waveforms = False
+    _set_si(scene, scanner, {**gate, "gate.bin_width_s": 0.5e-9, "laser.pulse_fwhm_s": 3e-9,
+                             "laser.beam_divergence_rad": 1e-3, "scanner.pulse_rate_hz": 8000.0,
+                             "scanner.scan_width_rad": 0.15, "scanner.scan_height_rad": 0.08,
+                             "laser.wavelength_m": 1.064e-6})
+    scene.ladar_atmosphere.weather = "fog"
+    _set_si(scene, flash, {"atmosphere.visibility_m": 200.0})
+    _save(bpy, scene, flash, path)
+
+
 BUILDERS = {"flash_demo": build_flash_demo, "gated_board": build_gated_board, "forest_scan": build_forest_scan,
-            "aircraft_profile": build_aircraft_profile}
+            "aircraft_profile": build_aircraft_profile, "fog_vehicle": build_fog_vehicle}
 
 
 def main(argv=None) -> int:

@@ -278,6 +278,42 @@ class AtmosphereSettings:
                                    doc="E: turbulence MTF blur of the received image (long or short exposure)",
                                    label="Turbulence Blur",
                                    choice_labels={'long': 'Long Exposure', 'short': 'Short Exposure', 'none': 'None'})
+    weather: str = setting("none", choices=("none", "haze", "fog", "rain", "snow", "custom"),
+                           doc="Returns from the atmosphere itself (docs/atmosphere.md, docs/theory.md §6b): haze/fog "
+                               "= volume backscatter β = α/S from the visibility; rain/snow = extinction from "
+                               "rain_rate_mm_h plus drops/flakes (discrete scatterers ≥ drop_min_diameter_mm, the "
+                               "smaller ones as volume); custom = α from extinction/visibility, β given; none = "
+                               "extinction only (as before)",
+                           label="Weather",
+                           choice_labels={'none': 'None (extinction only)', 'haze': 'Haze', 'fog': 'Fog',
+                                          'rain': 'Rain', 'snow': 'Snow', 'custom': 'Custom β'})
+    rain_rate_mm_h: float = setting(0.0, lo=0.0, hi=300.0, unit="mm/h",
+                                    doc="Rain rate (snow: melted-water equivalent) for weather = rain or snow",
+                                    label="Precipitation Rate")
+    backscatter_per_m_sr: float = setting(0.0, lo=0.0, hi=1.0, unit="1/(m sr)",
+                                          doc="Volume backscatter coefficient β for weather = custom",
+                                          label="Backscatter Coefficient")
+    lidar_ratio_sr: float = setting(18.0, lo=1.0, hi=200.0, unit="sr",
+                                    doc="Extinction-to-backscatter ratio S = α/β of the aerosol and of each drop "
+                                        "(water fog and drops ≈ 18–20 sr in the near IR)",
+                                    label="Lidar Ratio")
+    overlap_model: str = setting("geometric", choices=("geometric", "none"),
+                                 doc="Transmitter/receiver overlap O(R) of the backscatter: geometric = the "
+                                     "fraction of the beam disc inside the receiver field-of-view disc, axes "
+                                     "tx_rx_offset_m apart; none = O = 1",
+                                 label="Overlap Model", choice_labels={'geometric': 'Geometric', 'none': 'None (O = 1)'})
+    tx_rx_offset_m: float = setting(0.05, lo=0.0, hi=10.0, unit="m", subtype="DISTANCE",
+                                    doc="Distance between the transmitter and receiver optical axes (biaxial "
+                                        "offset; 0 = coaxial)",
+                                    label="Transmitter–Receiver Offset")
+    backscatter_min_range_m: float = setting(0.5, lo=0.01, hi=1e4, unit="m", subtype="DISTANCE",
+                                             doc="No atmosphere returns nearer than this (the receiver's near field; "
+                                                 "the 1/R² form diverges at R = 0)",
+                                             label="Backscatter Start Range")
+    drop_min_diameter_mm: float = setting(1.0, lo=0.05, hi=10.0, unit="mm",
+                                          doc="Rain/snow: particles at least this large are drawn one by one as "
+                                              "discrete returns; smaller ones add to the volume backscatter",
+                                          label="Smallest Discrete Drop")
 
 
 @dataclass

@@ -134,6 +134,7 @@ def _check_cross_field(cfg: SimulationConfig) -> None:
     if 0.0 < cfg.atmosphere.visibility_m < 50.0:
         raise ConfigError("atmosphere.visibility_m", cfg.atmosphere.visibility_m,
                           "0 (off) or a visibility in [50, 1e+06] m")
+    _check_weather(cfg)
     if cfg.system_type == "gated":
         _check_gated(cfg)
         return
@@ -157,6 +158,26 @@ def _check_cross_field(cfg: SimulationConfig) -> None:
                           f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB "
                           f"(use fewer bins or pixels, set run.save_waveforms = false, or raise "
                           f"run.max_memory_bytes)")
+
+
+def _check_weather(cfg: SimulationConfig) -> None:
+    """atmosphere.weather needs its own inputs (core/atmosphere/weather.py)."""
+    atm = cfg.atmosphere
+    if atm.weather in ("haze", "fog") and atm.visibility_m == 0.0:
+        raise ConfigError("atmosphere.visibility_m", 0.0,
+                          f"a visibility in [50, 1e+06] m for atmosphere.weather = {atm.weather!r} "
+                          f"(β = α/S from the visibility)")
+    if atm.weather in ("rain", "snow") and atm.rain_rate_mm_h == 0.0:
+        raise ConfigError("atmosphere.rain_rate_mm_h", 0.0,
+                          f"a rate in (0, 300] mm/h for atmosphere.weather = {atm.weather!r}")
+    if atm.weather != "none" and cfg.system_type in ("flash", "profiler"):
+        pixels = 1 if cfg.system_type == "profiler" else cfg.receiver.width_px * cfg.receiver.height_px
+        cube = pixels * cfg.gate.n_bins * 4
+        if cube > cfg.run.max_memory_bytes:
+            raise ConfigError("atmosphere.weather", atm.weather,
+                              f"'none' for this receiver, or fewer pixels or bins: the weather returns fill "
+                              f"every pixel's whole gate, a float32 cube of {cube / 2**30:.2f} GiB, more than "
+                              f"run.max_memory_bytes = {cfg.run.max_memory_bytes / 2**30:.2f} GiB")
 
 
 #: range_method peak: the largest slice step per (pulse FWHM + shutter edge).

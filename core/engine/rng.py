@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 #: Stage keys of the per-frame random streams.
-RNG_STAGE = {"beam_wander": 1, "scintillation": 2, "receiver": 3, "return_scintillation": 4}
+RNG_STAGE = {"beam_wander": 1, "scintillation": 2, "receiver": 3, "return_scintillation": 4, "weather_drops": 5}
 
 
 def stage_seed(seed: int, frame: int, stage: str, pulse: int | None = None) -> np.random.SeedSequence:

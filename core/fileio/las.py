@@ -25,10 +25,11 @@ Scan Angle (int16)          the pulse's scan angle in 0.006° steps (``scan_angl
 Classification              ground truth from the scene (``material_id``, core/geometry/groundtruth.py): material k of
                             the scene → class 64 + k (user-definable classes; the names are in the
                             LadarSimulator VLR ``classes``), no scene surface near the point → 1 (unclassified),
-                            a receiver false alarm (``false_alarm``) → 7 (noise); 0 (never classified) for points
-                            without ``material_id``
+                            a receiver false alarm (``false_alarm``) → 7 (noise), a return of the atmosphere
+                            itself (``atmosphere``: fog, rain, snow; core/engine/weather_stage.py) → 18 (high
+                            noise); 0 (never classified) for points without ``material_id``
 Classification flags        synthetic (bit 0) on every point (the points are simulated); withheld (bit 2) on
-                            false alarms
+                            false alarms and atmosphere returns
 extra bytes                 ``intensity_raw`` (float32, the simulator's intensity in ``intensity_unit``),
                             ``range_m`` (float64) and ``snr`` (float32) where the points have them
 ==========================  ===================================================================================
@@ -118,6 +119,8 @@ SCAN_ANGLE_STEP_DEG = 0.006
 #: Classes written (LAS 1.4 Table 17 and the user-definable range 64–255).
 CLASS_UNCLASSIFIED = 1
 CLASS_NOISE = 7
+#: LAS 1.4 class 18 "high noise": a return of the atmosphere itself (fog, rain, snow; ``points["atmosphere"]``)
+CLASS_ATMOSPHERE = 18
 CLASS_FIRST_MATERIAL = 64
 FLAG_SYNTHETIC = 1 << 0
 FLAG_WITHHELD = 1 << 2
@@ -181,6 +184,15 @@ def las_classes(points: dict, n: int, class_names=()) -> tuple[np.ndarray, np.nd
         classification[fa] = CLASS_NOISE
         flags[fa] |= FLAG_WITHHELD
         meanings[str(CLASS_NOISE)] = "noise: a receiver false alarm (no true return near the echo), withheld"
+    if "atmosphere" in points:
+        atm = np.asarray(points["atmosphere"]).astype(bool)
+        if atm.shape != (n,):
+            raise ConfigError("points.atmosphere", atm.shape, f"one value per point ({n},)")
+        classification[atm] = CLASS_ATMOSPHERE
+        flags[atm] |= FLAG_WITHHELD
+        if atm.any():
+            meanings[str(CLASS_ATMOSPHERE)] = ("high noise: a return of the atmosphere itself (fog, rain, snow; no "
+                                               "surface near the echo), withheld")
     return classification, flags, meanings
 
 FINE_SCALE_M = 1e-4

@@ -344,6 +344,11 @@ def run_summary(run_path, result) -> str:
         n_fa = int(np.count_nonzero(fa))
         lines.append(f"false    {n_fa} false alarms of {len(fa)} points ({n_fa / max(n_cells, 1):.3g} per "
                      f"{unit[:-1]}; {len(fa) - n_fa} true returns)")
+    atm = pts.get("atmosphere")
+    if atm is not None:
+        n_atm = int(np.count_nonzero(atm))
+        lines.append(f"weather  {n_atm} returns of the atmosphere of {len(atm)} points ({st['weather']['model']['condition']}"
+                     f"; LAS class 18, withheld)" if "weather" in st else f"weather  {n_atm} returns of the atmosphere")
     snr = pts.get("snr")
     if snr is not None and len(snr):
         true = snr[fa == 0] if fa is not None else snr

@@ -18,12 +18,25 @@ from ..config.settings import SimulationConfig
 from ..threads import map_list
 
 
-def effective_extinction_per_m(config: SimulationConfig) -> float:
-    """σ_atm (1/m): from the visibility when it is set (docs/theory.md §6), else the given coefficient."""
+def aerosol_extinction_per_m(config: SimulationConfig) -> float:
+    """σ_atm (1/m) of the aerosol: from the visibility when it is set (docs/theory.md §6), else the given
+    coefficient."""
     atm = config.atmosphere
     if atm.visibility_m > 0.0:
         return float(extinction_from_visibility(atm.visibility_m, config.laser.wavelength_m, atm.visibility_model))
     return atm.extinction_per_m
+
+
+def effective_extinction_per_m(config: SimulationConfig) -> float:
+    """σ_atm (1/m): the aerosol's (:func:`aerosol_extinction_per_m`) plus, for atmosphere.weather = rain or snow,
+    the precipitation's (core/atmosphere/weather.py); exactly the aerosol's for every other weather."""
+    sigma = aerosol_extinction_per_m(config)
+    atm = config.atmosphere
+    if atm.weather in ("rain", "snow") and atm.rain_rate_mm_h > 0.0:
+        from ..atmosphere.weather import rain_extinction_per_m, snow_extinction_per_m
+        sigma += float(rain_extinction_per_m(atm.rain_rate_mm_h) if atm.weather == "rain"
+                       else snow_extinction_per_m(atm.rain_rate_mm_h, config.laser.wavelength_m))
+    return sigma
 
 
 def return_scintillation_variance(derived: dict, pixel_footprint_m) -> dict:

@@ -35,7 +35,7 @@ from .scene import SweepScene, pose_at_range
 #: Summary figures of a task, in table order (docs/sweeps.md explains each).
 FIGURES = ("points", "pixels_with_echo", "received_energy_j", "target_pixels", "detection_probability",
            "range_error_mean_m", "range_error_rms_m", "range_error_p95_abs_m", "target_snr_mean", "false_alarms",
-           "false_alarms_per_pixel")
+           "false_alarms_per_pixel", "atmosphere_return_fraction")
 #: Systems whose noise-free truth (the waveform cube before the receiver chain) the range error is measured on.
 TRUTH_SYSTEMS = ("flash", "profiler")
 _TRUTH_BLOCK_BYTES = 64 * 2**20
@@ -106,7 +106,9 @@ def summarize(result, config: SimulationConfig, truth=None, on_target=None) -> d
 
     ``points``: echoes (points of the cloud); ``pixels_with_echo``: first echoes (pixels, or pulses of a scanner,
     with at least one echo); ``received_energy_j``: energy received by the whole frame before time binning;
-    ``false_alarms``: echoes the noisy receiver flagged as noise (no true return near them).
+    ``false_alarms``: echoes the noisy receiver flagged as noise (no true return near them);
+    ``atmosphere_return_fraction``: the points that are returns of the atmosphere itself (``points["atmosphere"]``,
+    atmosphere.weather) / all points (0 without weather, NaN without points).
 
     ``truth`` (H, W, E): the noise-free echo ranges (:func:`truth_echo_ranges`), given for noisy flash/profiler
     points; ``on_target`` (H, W, E) bool: which of them are echoes of the sweep's target (None: all are).  The
@@ -126,6 +128,9 @@ def summarize(result, config: SimulationConfig, truth=None, on_target=None) -> d
     false_alarm = np.asarray(pts["false_alarm"], dtype=bool) if "false_alarm" in pts else None
     if false_alarm is not None:
         row["false_alarms"] = int(false_alarm.sum())
+    if row["points"]:  # returns of the atmosphere itself (atmosphere.weather; none without weather)
+        atm = np.asarray(pts["atmosphere"], dtype=bool) if "atmosphere" in pts else np.zeros(0, bool)
+        row["atmosphere_return_fraction"] = float(atm.sum() / row["points"])
     if truth is not None:
         truth = np.asarray(truth, dtype=np.float64)
         h, w = truth.shape[:2]

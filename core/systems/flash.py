@@ -24,13 +24,16 @@ from ..engine.memory import BLOCK_WAVEFORM_BYTES
 from ..engine.products import statistical_noisy_echoes, noisy_echoes, points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
+from ..engine.weather_stage import (mark_atmosphere_echoes, merge_returns, prepare_frame_weather,
+                                    weather_switches)
 from ..errors import ConfigError
 from ..geometry.rays import Detector, tan_to_unit_direction
 from ..geometry.scene import SceneGeometry
 from ..geometry.trace import SceneTracer
 from ..jit import kernel, stage_clock
 from ..physics.detection.peaks import detect_echoes, detect_echoes_windows
-from ..physics.laser import cell_energy_fractions
+from ..atmosphere.weather import add_volume_rows
+from ..physics.laser import beam_half_angle_tan, cell_energy_fractions
 from ..physics.propagation import effective_extinction_per_m
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
@@ -64,16 +67,17 @@ def plan(config: SimulationConfig) -> dict:
     if effective_extinction_per_m(config) == 0.0:
         skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
     skipped.update(turbulence_switches(config))
+    skipped.update(weather_switches(config))
     if config.detector.mode == "ideal":
         skipped["receiver_chain"] = ("detector.mode = ideal: no photon, speckle, dark, gain, read-out or A/D "
                                      "noise; echoes from the noise-free waveforms")
     keeps_cube = (config.run.save_waveforms or "turbulence_blur" not in skipped
-                  or "receiver_chain" not in skipped)
+                  or "receiver_chain" not in skipped or "weather_backscatter" not in skipped)
     if not keeps_cube:
         skipped["waveform_cube"] = ("run.save_waveforms = false: waveforms are built per block for echo "
                                     "detection and discarded")
     optional = ("extinction", "beam_broadening", "scintillation", "return_scintillation", "beam_wander",
-                "turbulence_blur", "receiver_chain", "waveform_cube")
+                "turbulence_blur", "weather_backscatter", "weather_drops", "receiver_chain", "waveform_cube")
     ran = list(STAGES) + [s for s in optional if s not in skipped]
     return {"stages_run": ran, "stages_skipped": skipped}
 
@@ -104,6 +108,14 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     for stage, reason in atm.skipped.items():  # decided with the frame's geometry (e.g. negligible blur)
         log.skip(stage, reason, keep_earlier=True)
     fx, fy = cell_energy_fractions(config.laser, det, atm.beam_offset_tan, atm.beam_width_scale)
+    with log.timed("weather"):  # returns of the atmosphere itself (engine/weather_stage.py), None without weather
+        px_tan, py_tan = det.pixel_pitch_tan
+        wx = prepare_frame_weather(config, frame, det.n_pixels, px_tan * py_tan,
+                                   beam_half_angle_tan(config.laser, det) * atm.beam_width_scale,
+                                   0.5 * min(px_tan, py_tan))
+    if wx is None:
+        del log.times["weather"]
+    hits_of_blocks = {}  # block start → (pixel, range) of its surface hits: which echoes are the atmosphere's
     gate = config.gate
     blur = atm.blur_r0_m is not None
     noisy = config.detector.mode == "noisy"
@@ -114,7 +126,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     # several threads: at least 8 blocks each when the frame allows (≥ 8192 rays a block)
     per_block = balanced_block_size(per_block, det.n_pixels, threads, -(-8192 // s2))
     blocks = item_blocks(det.n_pixels, per_block)
-    keep_cube = config.run.save_waveforms or whole_cube
+    keep_cube = config.run.save_waveforms or whole_cube or wx is not None
     # every block writes its pixels' whole rows (WaveformWindows.write_rows)
     waveforms = np.empty((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
     energy = np.zeros(det.n_pixels)
@@ -161,17 +173,36 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
                             range_hit, frac_hit)
         atm.scale_by_scintillation(e, index, x_tan, y_tan, sub_x, sub_y)
+        drops_ret = None
+        if wx is not None:  # drops in front of the surfaces: returns of their own, shadows on what lies behind
+            beam_fraction = np.bincount(pixel - a, weights=fraction, minlength=b - a)
+            ray_range = np.where(prim >= 0, range_m, np.inf)
+            drops_ret, shade = wx.block_returns(wx.drops_of(a, b), pixel - a, fraction, ray_range, beam_fraction,
+                                                pix_local, range_hit)
+            e = e * shade
+            hits_of_blocks[a] = (pix_local + a, range_hit)
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
         tallies[a] = gate_tally(range_hit, e, window)
         local["radiometry"] = stage_clock() - t
         t = stage_clock()
         # one window of bins per pixel: a short return in a long gate costs its window only, a pixel without
         # returns nothing (its row of the cube stays zero)
-        wf = accumulate_waveform_windows(pix_local, round_trip_time_s(range_hit), e, b - a, config.laser, gate,
-                                         method, spread_s=spread)
+        t_hit = round_trip_time_s(range_hit)
+        w_pix, w_t, w_e, w_spread = merge_returns(pix_local, t_hit, e, spread, drops_ret)
+        wf = accumulate_waveform_windows(w_pix, w_t, w_e, b - a, config.laser, gate, method, spread_s=w_spread)
         if waveforms is not None:
             wf.write_rows(waveforms, np.arange(a, b))
         local["waveform"] = stage_clock() - t
+        if wx is not None:
+            t = stage_clock()
+            add_volume_rows(waveforms[a:b], wx.template, beam_fraction, pix_local, t_hit, frac_hit, gate)
+            local["weather"] = stage_clock() - t
+            if not whole_cube:
+                t = stage_clock()
+                echoes = detect_echoes(waveforms[a:b].astype(np.float64), config.detection)
+                echoes.pixel += a
+                local["echoes"] = stage_clock() - t
+                return echoes, len(index), local
         if whole_cube:  # echoes are detected after the whole-cube stages
             return None, len(index), local
         t = stage_clock()
@@ -245,6 +276,11 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     flags = [getattr(e, "false_alarm", None) for e in echo_parts]
     if noisy and all(f is not None for f in flags):
         points["false_alarm"] = np.concatenate(flags).astype(np.uint8)  # 1: no true return near this echo
+    if wx is not None:  # 1: no surface hit of the pixel near this echo: a return of the atmosphere
+        hp = [hits_of_blocks[k] for k in sorted(hits_of_blocks)]
+        points["atmosphere"] = mark_atmosphere_echoes(
+            config, pixel, range_m, np.concatenate([h[0] for h in hp]) if hp else np.zeros(0, np.int64),
+            np.concatenate([h[1] for h in hp]) if hp else np.zeros(0))
     h, w, e_max = det.height_px, det.width_px, config.detection.max_echoes
     range_echoes = np.full((h * w, e_max), np.nan, np.float32)
     intensity_echoes = np.zeros((h * w, e_max), np.float32)
@@ -271,6 +307,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         stats["n_rays"] = int(sum(r[1] for r in refined))
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
+    if wx is not None:
+        stats["weather"] = dict(wx.metadata, n_atmosphere_echoes=int(points["atmosphere"].sum()))
     if receiver_report is not None:
         stats["receiver"] = receiver_report
     return FrameResult(range_image=range_echoes[:, :, 0].copy(), intensity_image=intensity_echoes[:, :, 0].copy(),

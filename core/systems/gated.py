@@ -48,10 +48,12 @@ from ..engine.memory import GATE_MAX_TERMS, check_memory, estimate_gated_memory,
 from ..engine.products import points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
+from ..engine.weather_stage import mark_atmosphere_echoes, prepare_frame_weather, weather_switches
+from ..atmosphere.weather import gated_slab_table
 from ..errors import ConfigError
 from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
 from ..jit import stage_clock
-from ..physics.laser import FWHM_TO_SIGMA, cell_energy_fractions, pulse_cdf, pulse_half_support_s
+from ..physics.laser import FWHM_TO_SIGMA, beam_half_angle_tan, cell_energy_fractions, pulse_cdf, pulse_half_support_s
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import round_trip_time_s
@@ -246,8 +248,8 @@ def two_gate_range_m(e1, e2, gate_width_s, pulse_width_s, first_delay_s=0.0, pul
 
 #: the stages of a sweep in the order of the run record; StageLog.skip takes out those a run skips
 STAGES_PLANNED = ("build_bvh", "rays", "trace", "radiometry", "gating", "extinction", "beam_broadening",
-                  "scintillation", "return_scintillation", "beam_wander", "turbulence_blur", "receiver_chain",
-                  "products")
+                  "scintillation", "return_scintillation", "beam_wander", "turbulence_blur", "weather_backscatter",
+                  "weather_drops", "receiver_chain", "products")
 
 
 def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
@@ -279,6 +281,20 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     atm = atm_slices[0]
     fractions = [cell_energy_fractions(laser, det, a.beam_offset_tan, a.beam_width_scale) for a in atm_slices]
     times["atmosphere"] = stage_clock() - t0
+    t0 = stage_clock()
+    for stage, reason in weather_switches(config).items():
+        log.skip(stage, reason)
+    px_tan, py_tan = det.pixel_pitch_tan  # the drops are drawn once: frozen during the sweep (ms)
+    wx = prepare_frame_weather(config, frame, det.n_pixels, px_tan * py_tan,
+                               beam_half_angle_tan(laser, det) * atm.beam_width_scale, 0.5 * min(px_tan, py_tan))
+    vol_t = vol_table = None
+    if wx is not None:
+        vol_t, vol_table = gated_slab_table(
+            laser, delays, g.gate_width_s, g.shutter_edge_s, wx.scale_jm2, wx.weather.backscatter_per_m_sr,
+            wx.alpha_per_m, wx.overlap, config.atmosphere.backscatter_min_range_m,
+            lambda tau: gate_response(laser, g.gate_width_s, g.shutter_edge_s, tau))
+        times["weather"] = stage_clock() - t0
+    hits_of_blocks = {}
 
     s2 = det.rays_per_pixel
     per_block = max(1, config.run.chunk_rays // s2)
@@ -305,9 +321,25 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                                  scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], 1.0)
         pix = pixel[hit] - a
         sx, sy, xt, yt = sub_x[hit], sub_y[hit], x_tan[hit], y_tan[hit]
+        drops_ret, shade = None, 1.0
+        out = np.zeros((n_sl, b - a))
+        if wx is not None:  # drops: returns of their own, shadowing what lies behind; the volume from the table
+            fx0, fy0 = fractions[0]
+            weight = fy0[sub_y] * fx0[sub_x]
+            beam_fraction = np.bincount(pixel - a, weights=weight, minlength=b - a)
+            drops_ret, shade = wx.block_returns(wx.drops_of(a, b), pixel - a, weight,
+                                                np.where(hit, range_m, np.inf), beam_fraction, pix, range_m[hit])
+            hits_of_blocks[a] = (pix + a, range_m[hit])
+            m_hit = np.searchsorted(vol_t, round_trip_time_s(range_m[hit]))
+            out += (beam_fraction[:, None] * vol_table[-1][None, :]).T
+            if len(pix):
+                seen = vol_table[m_hit] - vol_table[-1][None, :]  # (hits, slices): minus the hidden volume
+                hw = weight[hit]
+                for k in range(n_sl):
+                    out[k] += np.bincount(pix, weights=hw * seen[:, k], minlength=b - a)
         per_slice = []
         for j, (fx, fy) in enumerate(fractions):
-            e = e_unit * fy[sy] * fx[sx]
+            e = e_unit * fy[sy] * fx[sx] * shade
             if atm_slices[j].pattern is not None:
                 e = e * atm_slices[j].scintillation_at(xt, yt, sx, sy)
             energy[j, a:b] = np.bincount(pix, weights=e, minlength=b - a)
@@ -316,11 +348,14 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         local["radiometry"] = stage_clock() - t
         t = stage_clock()
         t_rt = round_trip_time_s(range_m[hit])
+        if drops_ret is not None and len(drops_ret[0]):
+            pix = np.concatenate([pix, drops_ret[0]])
+            t_rt = np.concatenate([t_rt, round_trip_time_s(drops_ret[1])])
+            per_slice = [np.concatenate([e, drops_ret[2]]) for e in per_slice]
         # only the slices whose gate can see a ray: d_k − support < t − … < d_k + W + support
         lo = np.searchsorted(delays, t_rt - g.gate_width_s - support, side="left")
         hi = np.searchsorted(delays, t_rt + support, side="right")
         span = int((hi - lo).max()) if len(t_rt) else 0
-        out = np.zeros((n_sl, b - a))
         e_mat = np.stack(per_slice, axis=0) if len(per_slice) > 1 else None  # (n_slices, rays)
         if span > 0:
             step_rays = max(1, GATE_MAX_TERMS // span)
@@ -388,6 +423,11 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     zeros = np.zeros(len(pix), np.int16)
     points = points_along_rays(det, origin, rot, pix, rng_m, amp, zeros, zeros + 1, 2 * rng_m / SPEED_OF_LIGHT_M_S,
                                frame)
+    if wx is not None:  # 1: no surface hit of the pixel near the range: a return of the atmosphere
+        hp = [hits_of_blocks[k] for k in sorted(hits_of_blocks)]
+        points["atmosphere"] = mark_atmosphere_echoes(
+            config, pix, rng_m, np.concatenate([h[0] for h in hp]) if hp else np.zeros(0, np.int64),
+            np.concatenate([h[1] for h in hp]) if hp else np.zeros(0))
     times["products"] = stage_clock() - t0
     log.skip("waveform", "gated viewing: the gate response is evaluated in closed form per ray, no time bins")
     stats = {"n_rays": det.n_pixels * s2, "n_hits": n_hits, "n_points": int(len(pix)),
@@ -406,6 +446,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         stats["atmosphere"] = atm.metadata
         if per_slice_random:
             stats["atmosphere"]["per_slice_random"] = "scintillation and wander drawn per slice (one pulse each)"
+    if wx is not None:
+        stats["weather"] = dict(wx.metadata, n_atmosphere_echoes=int(points["atmosphere"].sum()))
     if receiver_report is not None:
         stats["receiver"] = receiver_report
     range_echoes = range_image[:, :, None].copy()

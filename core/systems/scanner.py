@@ -31,6 +31,8 @@ from ..engine.memory import SCAN_NOISE_TILE_PULSES
 from ..engine.products import noisy_echoes
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_rng, stage_seed
+from ..engine.weather_stage import mark_atmosphere_echoes, merge_returns, prepare_frame_weather, weather_switches
+from ..atmosphere.weather import add_volume_rows
 from ..errors import ConfigError
 from ..geometry.motion import Trajectory
 from ..jit import kernel, stage_clock
@@ -277,8 +279,8 @@ def _concatenate_points(parts: list) -> dict:
 # ----------------------------------------------------------------------------------------------------------
 #: the stages of a scan in the order of the run record; StageLog.skip takes out those a run skips
 STAGES_PLANNED = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products", "extinction",
-                  "beam_broadening", "scintillation", "return_scintillation", "beam_wander", "receiver_chain",
-                  "waveform_cube", "motion")
+                  "beam_broadening", "scintillation", "return_scintillation", "beam_wander", "weather_backscatter",
+                  "weather_drops", "receiver_chain", "waveform_cube", "motion")
 
 
 def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
@@ -309,6 +311,16 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     times["atmosphere"] = stage_clock() - t0
     for stage, reason in atm.skipped.items():
         log.skip(stage, reason)
+    t0 = stage_clock()
+    half_div = 0.5 * laser.beam_divergence_rad * atm.width_scale  # the receiver sees the beam's footprint
+    wx = prepare_frame_weather(config, frame, n_pulses, np.pi * half_div ** 2, half_div, half_div, draw=False)
+    if wx is None:
+        for stage, reason in weather_switches(config).items():
+            log.skip(stage, reason)
+    else:
+        times["weather"] = stage_clock() - t0
+        for stage, reason in weather_switches(config).items():
+            log.skip(stage, reason)
     if not noisy:
         log.skip("receiver_chain", "detector.mode = ideal: echoes from the noise-free waveforms")
     if not save:
@@ -319,7 +331,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     tile = SCAN_NOISE_TILE_PULSES
     per_block = max(1, config.run.chunk_rays // m)
     per_block = max(tile, (per_block // tile) * tile)
-    if save or noisy:  # full-gate waveforms: bound the block's float64 waveform memory (~64 MiB)
+    if save or noisy or config.atmosphere.weather != "none":  # full-gate waveforms: bound the block's float64
+        # waveform memory (~64 MiB)
         per_block = max(tile, min(per_block, (64 * 2**20 // (8 * gate.n_bins)) // tile * tile))
     blocks = item_blocks(n_pulses, per_block)
     waveforms = np.zeros((n_pulses, gate.n_bins), np.float32) if save else None
@@ -359,17 +372,34 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         cos_hit, range_hit, frac_hit = np.empty(n_hit), np.empty(n_hit), np.empty(n_hit)
         _gather_hits(prim, range_m, cos_theta, weight, scene.material_ids, p_hit, mat_hit, cos_hit, range_hit,
                      frac_hit)
+        ray_range = np.where(prim >= 0, range_m, np.inf) if wx is not None and wx.weather.has_drops else None
         del prim, range_m, cos_theta
         e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
                             range_hit, frac_hit)
+        drops_ret = None
+        if wx is not None and wx.weather.has_drops:  # the drops of each pulse tile (stream per tile)
+            parts_d = []
+            for ta in range(a, b, tile):
+                d = wx.draw(config, frame, min(ta + tile, b) - ta, ta // tile)
+                d.beam = d.beam + (ta - a)
+                parts_d.append(d)
+            drops = parts_d[0] if len(parts_d) == 1 else type(parts_d[0])(
+                *(np.concatenate([getattr(d, f) for d in parts_d]) for f in ("beam", "range_m", "diameter_mm", "u")))
+            drops_ret, shade = wx.block_returns(drops, np.repeat(np.arange(n), m), np.tile(weight, n), ray_range,
+                                                np.full(n, float(weight.sum())), p_hit, range_hit)
+            e = e * shade
+            local["weather"] = stage_clock() - t
         _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
         tallies[a] = gate_tally(range_hit, e, window)
-        local["radiometry"] = stage_clock() - t
+        local["radiometry"] = stage_clock() - t - local.get("weather", 0.0)
         t = stage_clock()
         t_rt = round_trip_time_s(range_hit)
         dig = None
-        if save or noisy:
-            wf = accumulate_waveforms(p_hit, t_rt, e, n, laser, gate, method)
+        if save or noisy or wx is not None:
+            w_p, w_t, w_e, _ = merge_returns(p_hit, t_rt, e, None, drops_ret)
+            wf = accumulate_waveforms(w_p, w_t, w_e, n, laser, gate, method)
+            if wx is not None:
+                add_volume_rows(wf, wx.template, np.full(n, float(weight.sum())), p_hit, t_rt, frac_hit, gate)
             if save:
                 waveforms[a:b] = wf
             local["waveform"] = stage_clock() - t
@@ -399,6 +429,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             local["waveform"] = stage_clock() - t  # waveform windows and echo detection together
         t = stage_clock()
         pts = _block_points(echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame)
+        if wx is not None:
+            pts["atmosphere"] = mark_atmosphere_echoes(config, echoes.pixel, pts["range_m"], p_hit, range_hit)
         pulses["time_s"][a:b], pulses["gps_time_s"][a:b] = t_s, start_time_s + t_s
         pulses["origin_world"][a:b], pulses["direction_world"][a:b] = origin, axis_world
         pulses["channel"][a:b], pulses["scan_angle_rad"][a:b] = channel, angle
@@ -432,6 +464,9 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                        "receiver": "the receiver collects the whole footprint; width/height/fov unused"}}
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
+    if wx is not None:
+        stats["weather"] = dict(wx.metadata, n_atmosphere_echoes=int(points["atmosphere"].sum())
+                                if "atmosphere" in points else 0)
     if noisy:
         stats["receiver"] = dict(digitizer)
         if "false_alarm" in points:

@@ -18,6 +18,13 @@ ATMOSPHERE = {
     "Weak_turbulence": {"cn2_m_23": 1e-16},
     "Medium_turbulence": {"cn2_m_23": 1e-14},
     "Strong_turbulence": {"cn2_m_23": 1e-13},
+    "Weather_clear": {"weather": "none", "visibility_m": 23000.0, "rain_rate_mm_h": 0.0},
+    "Weather_haze_(5_km)": {"weather": "haze", "visibility_m": 5000.0, "rain_rate_mm_h": 0.0},
+    "Weather_fog_(200_m)": {"weather": "fog", "visibility_m": 200.0, "rain_rate_mm_h": 0.0},
+    "Weather_fog_(50_m)": {"weather": "fog", "visibility_m": 50.0, "rain_rate_mm_h": 0.0},
+    "Weather_light_rain_(2.5_mm_h)": {"weather": "rain", "visibility_m": 0.0, "rain_rate_mm_h": 2.5},
+    "Weather_heavy_rain_(25_mm_h)": {"weather": "rain", "visibility_m": 0.0, "rain_rate_mm_h": 25.0},
+    "Weather_snow_(1_mm_h)": {"weather": "snow", "visibility_m": 0.0, "rain_rate_mm_h": 1.0},
 }
 DETECTOR = {
     "Si_APD_905_nm": {"detector_type": "apd", "quantum_efficiency": 0.8, "apd_gain": 100.0, "apd_k_eff": 0.02,
@@ -62,6 +69,7 @@ def test_atmosphere_presets(lad, scene, unit_scale):
         if "cn2_m_23" in expected:
             assert atm.beam_broadening and atm.scintillation and atm.beam_wander and atm.turbulence_blur != "none"
     # Visibility and turbulence presets leave each other's fields alone.
+    _run("LADAR_MT_atmosphere_presets", PRESETS / "atmosphere" / "Fog_(0.5_km).py")
     atm = lad.blend_config.config_from_blender(scene, cam).atmosphere
     assert atm.visibility_m == pytest.approx(500.0) and atm.cn2_m_23 == pytest.approx(1e-13)
     _run("LADAR_MT_atmosphere_presets", PRESETS / "atmosphere" / "Haze_(5_km).py")

@@ -47,3 +47,28 @@ def test_readme_system_example_runs(lad, addon, tmp_path, capsys, example):
     assert meta["system_type"] == lad.config.config_to_dict(lad.blend_config.config_from_blender(
         bpy.context.scene, bpy.context.scene.ladar.sensor))["system_type"]
     assert meta.get("n_hits", 1) > 0
+
+
+@pytest.mark.parametrize("sensor", ["flash", "scanner"])
+def test_readme_fog_example_runs(lad, addon, tmp_path, capsys, sensor):
+    """``scripts/ladar_run.py sample_blends/fog_vehicle.blend simulate [--sensor Scanner] --out runs/fog_…``: the
+    fog's near-range returns are marked as the atmosphere's (LAS class 18) and the vehicle at 60 m is still
+    seen behind them (flash: first echoes under 2 m, second echoes at the vehicle's 59–60 m)."""
+    import numpy as np
+    _open("fog_vehicle")
+    argv = ["simulate", "--out", str(tmp_path / sensor)] + (["--sensor", "Scanner"] if sensor == "scanner" else [])
+    code, out, err = _run(lad, capsys, *argv)
+    assert code == 0, err
+    assert "returns of the atmosphere" in out
+    pts = np.load(tmp_path / sensor / "points.npz")
+    atm = pts["atmosphere"].astype(bool)
+    assert atm.any() and not atm.all()
+    vehicle = (~atm) & (np.abs(pts["range_m"] - 59.5) < 1.0)
+    assert vehicle.sum() > (100 if sensor == "flash" else 50)
+    if sensor == "flash":
+        assert np.all(pts["range_m"][pts["echo_index"] == 1] < 2.0)  # every first echo: the fog next to the sensor
+        assert (tmp_path / sensor / "range.png").is_file()
+    else:
+        assert (tmp_path / sensor / "points.png").is_file()
+    meta = json.loads((tmp_path / sensor / "metadata.json").read_text(encoding="utf-8"))
+    assert meta["system_type"] == sensor

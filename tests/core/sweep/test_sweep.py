@@ -180,6 +180,10 @@ def test_summary_figures_against_a_known_truth():
     row = summarize(SimpleNamespace(points=pts, stats={"received_energy_j": 2.5e-12}), cfg, truth)
     assert (row["points"], row["pixels_with_echo"], row["false_alarms"]) == (5, 3, 2)
     assert row["received_energy_j"] == 2.5e-12 and row["false_alarms_per_pixel"] == 2 / 3
+    assert row["atmosphere_return_fraction"] == 0.0  # no weather: no returns of the atmosphere
+    pts["atmosphere"] = np.array([0, 0, 0, 0, 1])
+    assert summarize(SimpleNamespace(points=pts, stats={}), cfg, truth)["atmosphere_return_fraction"] == 0.2
+    del pts["atmosphere"]
     assert row["target_pixels"] == 2 and row["detection_probability"] == 0.5
     assert row["range_error_mean_m"] == pytest.approx(-0.05, abs=1e-12)
     assert row["range_error_rms_m"] == pytest.approx(math.sqrt(0.025), abs=1e-12)

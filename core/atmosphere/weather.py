@@ -1,0 +1,395 @@
+"""Weather in the waveform: returns from the atmosphere itself (docs/theory.md §6b, docs/atmosphere.md).
+
+Two parts, both added to a pixel's (or pulse's) waveform before the receiver chain:
+
+* **Volume backscatter** (single scattering, homogeneous medium).  A beam carrying the fraction F of the pulse
+  energy E_T into a pixel's field of view returns from the slab [R, R + dR]
+
+      dE = E_T η_sys π r_a² · F · β · O(R) · exp(−2αR) / R² · dR                                  (W1)
+
+  (the lidar equation P(R) = E (c/2) β A_r O(R) R⁻² e^(−2αR) written per range instead of per time; the pixel's
+  solid angle cancels: the illuminated volume Ω R² dR times the irradiance F E/(Ω R²)).  Each waveform bin
+  collects W1 convolved with the pulse and integrated over the bin.  Quadrature: the range is cut into slabs of
+  a quarter of min(bin width, pulse FWHM) (in round-trip time); each slab's energy is W1 integrated by 8-point
+  Gauss–Legendre (relative error < 1e-10 for O = 1; with the geometric overlap, at its kinks, < 1e-4 of a slab)
+  and placed at the slab's energy centroid, then binned exactly with the pulse like any surface return
+  (core/physics/waveform.py).  Placing a slab at its centroid errs by the slab's second moment, (δt)²/12 with
+  δt ≤ min(Δ, FWHM)/4: < 0.3 % of the waveform in L2 (measured against direct quadrature: tests/core/atmosphere/
+  test_weather.py).  The closed form of the O = 1 integral, for checks:
+  ∫_a^b e^(−2αR)/R² dR = e^(−2αa)/a − e^(−2αb)/b − 2α [E₁(2αa) − E₁(2αb)].
+* **Discrete scatterers** (rain, snow): particles at least ``drop_min_diameter_mm`` across are drawn one by one
+  from the size distribution N(D) = N₀ exp(−ΛD) (Marshall & Palmer 1948 for rain: N₀ = 8000 m⁻³ mm⁻¹,
+  Λ = 4.1 R^−0.21 mm⁻¹; Gunn & Marshall 1958 for snow, melted diameter: N₀ = 3800 R^−0.87, Λ = 2.55 R^−0.48)
+  uniformly in each beam's cone between ``backscatter_min_range_m`` and the gate end.  A drop of geometric
+  area A = πD²/4 at range R in a beam of solid angle Ω intercepts the fraction f = min(1, A/(ΩR²)) of the beam's
+  energy and sends back 2/S of it per steradian (extinction efficiency 2, lidar ratio S: the same β = α/S as
+  the volume, so the expected sum of the drops is W1 with β of the drops):
+
+      E_d = E_T η_sys π r_a² · F · f · (2/S) · O(R) · exp(−2αR) / (R² + r_a²)                      (W2)
+
+  and it shadows the fraction f of the beam for every later return of that beam (surfaces and drops; the
+  return path's shadow and the volume behind a drop are not reduced).  The smaller particles (D < D_min) add
+  β = (2/S)(π/4) ∫₀^Dmin N(D) D² dD to the volume part.
+
+Extinction α of rain: 1.076 R^0.67 dB/km (Carbonneau & Wisely 1998, the near-IR free-space-optics relation;
+Kaushal & Kaddoum 2017, IEEE Comm. Surveys & Tutorials 19(1), Table); dry snow: (5.42e-5 λ_nm + 5.4958776)
+R^1.38 dB/km (same review).  Haze/fog: Kim/Kruse from the visibility (extinction.py) and β = α/S, S ≈ 18–20 sr
+for water fog in the near IR (e.g. Pinnick et al. 1983, J. Atmos. Sci. 40; Klett 1985).
+
+Overlap O(R) (``overlap_model = geometric``): the transmitted beam is a disc of radius r_t + R θ_t, the receiver's
+field of view (a flash pixel's, or the scanner receiver's = the beam's divergence) a disc of radius r_a + R θ_r,
+their axes parallel and ``tx_rx_offset_m`` = d apart; O is the area of their intersection over the area of the
+smaller disc (the fraction of the smaller cone that the other one covers; 0 while the discs are apart, → 1 at
+long range).  Every flash pixel is given the on-axis pixel's overlap.
+
+This module does not import bpy.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import exp1
+
+from ..constants import SPEED_OF_LIGHT_M_S
+
+DB_PER_KM_TO_PER_M = math.log(10.0) / 10.0 / 1000.0
+WEATHER_CONDITIONS = ("none", "haze", "fog", "rain", "snow", "custom")
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Coefficients from named conditions
+# ------------------------------------------------------------------------------------------------------------
+def rain_extinction_per_m(rate_mm_h):
+    """Rain extinction α (1/m) in the near IR: 1.076 R^0.67 dB/km (module docstring).  10 mm/h → 5.033 dB/km."""
+    return 1.076 * np.asarray(rate_mm_h, dtype=np.float64) ** 0.67 * DB_PER_KM_TO_PER_M
+
+
+def snow_extinction_per_m(rate_mm_h, wavelength_m):
+    """Dry-snow extinction α (1/m): (5.42e-5 λ_nm + 5.4958776) R^1.38 dB/km (module docstring)."""
+    a = 5.42e-5 * (wavelength_m * 1e9) + 5.4958776
+    return a * np.asarray(rate_mm_h, dtype=np.float64) ** 1.38 * DB_PER_KM_TO_PER_M
+
+
+def size_distribution(condition: str, rate_mm_h: float):
+    """(N₀ in m⁻³ mm⁻¹, Λ in mm⁻¹) of N(D) = N₀ e^(−ΛD): Marshall–Palmer rain or Gunn–Marshall snow."""
+    r = float(rate_mm_h)
+    if condition == "rain":
+        return 8000.0, 4.1 * r ** -0.21
+    if condition == "snow":
+        return 3800.0 * r ** -0.87, 2.55 * r ** -0.48
+    raise ValueError(f"condition must be 'rain' or 'snow', got {condition!r}")
+
+
+def number_above(n0, lam, d_min_mm):
+    """Particles per m³ with D ≥ d_min: (N₀/Λ) e^(−Λ D_min)."""
+    return n0 / lam * math.exp(-lam * d_min_mm)
+
+
+def small_drop_backscatter(n0, lam, d_min_mm, lidar_ratio_sr):
+    """β (1/(m sr)) of the particles with D < D_min: (2/S)(π/4) N₀ ∫₀^Dmin D² e^(−ΛD) dD (mm² → m²)."""
+    x = lam * d_min_mm
+    moment2 = 2.0 / lam ** 3 * (1.0 - math.exp(-x) * (1.0 + x + 0.5 * x * x))  # mm³ · (mm⁻¹ of N₀) → mm²
+    return (2.0 / lidar_ratio_sr) * (math.pi / 4.0) * n0 * moment2 * 1e-6
+
+
+@dataclass(frozen=True)
+class Weather:
+    """The weather of a run: what the waveform stage adds (module docstring)."""
+
+    condition: str
+    extinction_per_m: float        # the weather's own extinction, added to the aerosol's (rain, snow)
+    backscatter_per_m_sr: float    # volume β
+    lidar_ratio_sr: float
+    n0: float = 0.0                # discrete particles: N₀ (m⁻³ mm⁻¹), Λ (mm⁻¹), D_min (mm), density ≥ D_min (m⁻³)
+    lam: float = 0.0
+    d_min_mm: float = 0.0
+    drop_density_per_m3: float = 0.0
+
+    @property
+    def has_drops(self) -> bool:
+        return self.drop_density_per_m3 > 0.0
+
+    def record(self) -> dict:
+        out = {"condition": self.condition, "extinction_per_m": self.extinction_per_m,
+               "backscatter_per_m_sr": self.backscatter_per_m_sr, "lidar_ratio_sr": self.lidar_ratio_sr}
+        if self.has_drops:
+            out.update(n0_per_m3_mm=self.n0, lambda_per_mm=self.lam, drop_min_diameter_mm=self.d_min_mm,
+                       drop_density_per_m3=self.drop_density_per_m3)
+        return out
+
+
+def weather_model(atm, wavelength_m: float, aerosol_extinction_per_m: float) -> Weather | None:
+    """The :class:`Weather` of ``atm`` (AtmosphereSettings), None for weather = none.  ``aerosol_extinction_per_m``:
+    α of the visibility / extinction setting (extinction.py), whose β = α/S is the haze/fog volume part."""
+    cond = atm.weather
+    if cond == "none":
+        return None
+    s = atm.lidar_ratio_sr
+    if cond == "custom":
+        return Weather(cond, 0.0, atm.backscatter_per_m_sr, s)
+    beta_aerosol = aerosol_extinction_per_m / s
+    if cond in ("haze", "fog"):
+        return Weather(cond, 0.0, beta_aerosol, s)
+    n0, lam = size_distribution(cond, atm.rain_rate_mm_h)
+    alpha = float(rain_extinction_per_m(atm.rain_rate_mm_h) if cond == "rain"
+                  else snow_extinction_per_m(atm.rain_rate_mm_h, wavelength_m))
+    beta = beta_aerosol + small_drop_backscatter(n0, lam, atm.drop_min_diameter_mm, s)
+    return Weather(cond, alpha, beta, s, n0, lam, atm.drop_min_diameter_mm,
+                   number_above(n0, lam, atm.drop_min_diameter_mm))
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Overlap
+# ------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Overlap:
+    """Geometric transmitter/receiver overlap (module docstring); ``model = none``: O = 1."""
+
+    model: str = "none"
+    offset_m: float = 0.0
+    tx_radius_m: float = 0.0
+    tx_half_angle: float = 0.0
+    rx_radius_m: float = 0.0
+    rx_half_angle: float = 0.0
+
+    def __call__(self, range_m):
+        r = np.asarray(range_m, dtype=np.float64)
+        if self.model == "none":
+            return np.ones_like(r)
+        a = self.tx_radius_m + r * self.tx_half_angle
+        b = self.rx_radius_m + r * self.rx_half_angle
+        return disc_overlap_fraction(a, b, self.offset_m)
+
+    def record(self) -> dict:
+        return dict(vars(self))
+
+
+def disc_overlap_fraction(a, b, d):
+    """|disc(a) ∩ disc(b)| / (π min(a, b)²) for discs of radii a, b whose centres are d apart."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    d = float(d)
+    small = np.minimum(a, b)
+    out = np.where(d <= np.abs(a - b), 1.0, 0.0)
+    part = (d > np.abs(a - b)) & (d < a + b)
+    if np.any(part) and d > 0.0:
+        ap, bp = a[part], b[part]
+        c1 = np.clip((d * d + ap * ap - bp * bp) / (2 * d * ap), -1.0, 1.0)
+        c2 = np.clip((d * d + bp * bp - ap * ap) / (2 * d * bp), -1.0, 1.0)
+        k = (-d + ap + bp) * (d + ap - bp) * (d - ap + bp) * (d + ap + bp)
+        area = ap * ap * np.arccos(c1) + bp * bp * np.arccos(c2) - 0.5 * np.sqrt(np.maximum(k, 0.0))
+        out[part] = area / (np.pi * small[part] ** 2)
+    return np.clip(out, 0.0, 1.0)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Volume backscatter
+# ------------------------------------------------------------------------------------------------------------
+def closed_form_integral(a_m, b_m, alpha_per_m):
+    """∫_a^b e^(−2αR)/R² dR in closed form (module docstring); α = 0: 1/a − 1/b."""
+    a, b, al = float(a_m), float(b_m), float(alpha_per_m)
+    if al == 0.0:
+        return 1.0 / a - 1.0 / b
+    return (math.exp(-2 * al * a) / a - math.exp(-2 * al * b) / b
+            - 2 * al * (float(exp1(2 * al * a)) - float(exp1(2 * al * b))))
+
+
+def slab_integrals(edges_m, alpha_per_m, overlap: Overlap):
+    """Per slab [edges[i], edges[i+1]]: ∫ O(R) e^(−2αR)/R² dR and the energy centroid range (8-point
+    Gauss–Legendre)."""
+    lo, hi = edges_m[:-1], edges_m[1:]
+    half = 0.5 * (hi - lo)
+    mid = 0.5 * (hi + lo)
+    r = mid[:, None] + half[:, None] * _GL_X[None, :]
+    g = overlap(r) * np.exp(-2.0 * alpha_per_m * r) / (r * r)
+    wg = g * _GL_W[None, :]
+    integral = half * wg.sum(axis=1)
+    s = wg.sum(axis=1)
+    centroid = np.where(s > 0, (wg * r).sum(axis=1) / np.where(s > 0, s, 1.0), mid)
+    return integral, centroid
+
+
+def slab_edges_m(laser, gate, min_range_m, slabs_per_width: int = 4):
+    """Range edges of the slabs that can reach the gate (pulse support included), from ``min_range_m``."""
+    from ..physics.laser import pulse_half_support_s
+    c2 = 0.5 * SPEED_OF_LIGHT_M_S
+    half = pulse_half_support_s(laser)
+    t_lo = max(min_range_m / c2, gate.gate_start_s - half)
+    t_hi = gate.gate_start_s + gate.n_bins * gate.bin_width_s + half
+    if t_hi <= t_lo:
+        return np.zeros(0)
+    width = min(gate.bin_width_s, laser.pulse_fwhm_s) / slabs_per_width
+    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
+    return c2 * np.linspace(t_lo, t_hi, n + 1)
+
+
+def backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, overlap: Overlap,
+                         min_range_m, slabs_per_width: int = 4):
+    """The volume-backscatter waveform (n_bins,) in J per bin for a beam of energy fraction F = 1 (W1),
+    ``energy_scale_jm2`` = E_T η_sys π r_a² (core.physics.radiometry.energy_scale)."""
+    from ..physics.waveform import accumulate_waveforms, round_trip_time_s
+    edges = slab_edges_m(laser, gate, min_range_m, slabs_per_width)
+    if len(edges) < 2 or beta_per_m_sr <= 0.0:
+        return np.zeros(gate.n_bins)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
+    e = energy_scale_jm2 * beta_per_m_sr * integral
+    keep = e > 0
+    return accumulate_waveforms(np.zeros(int(keep.sum()), np.int64), round_trip_time_s(centroid[keep]), e[keep], 1,
+                                laser, gate)[0]
+
+
+def add_volume_rows(rows, template, beam_fraction, hit_beam, hit_time_s, hit_fraction, gate):
+    """rows[p] += template × (the fraction of beam p still unobstructed at each bin): F_p minus the sub-rays
+    that hit a surface at or before the bin (their volume behind the surface is hidden).  Bin-level truncation
+    (the pulse-convolved tail of the hidden volume within one pulse width of a surface is cut at the bin)."""
+    n, nb = rows.shape
+    if not np.any(template):
+        return
+    k = np.floor((np.asarray(hit_time_s) - gate.gate_start_s) / gate.bin_width_s)
+    ok = k < nb
+    kk = np.clip(k[ok], 0, nb - 1).astype(np.int64)
+    hidden = np.zeros((n, nb))
+    np.add.at(hidden, (np.asarray(hit_beam)[ok], kk), np.asarray(hit_fraction)[ok])
+    np.cumsum(hidden, axis=1, out=hidden)
+    vis = np.maximum(np.asarray(beam_fraction, np.float64)[:, None] - hidden, 0.0)
+    rows += (vis * template[None, :]).astype(rows.dtype)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Discrete scatterers
+# ------------------------------------------------------------------------------------------------------------
+@dataclass
+class Drops:
+    """Drawn particles, sorted by (beam, range): beam index, range (m), diameter (mm), and a uniform number
+    ``u`` in [0, 1) that places the drop inside its beam (which sub-ray's cell it is in)."""
+
+    beam: np.ndarray
+    range_m: np.ndarray
+    diameter_mm: np.ndarray
+    u: np.ndarray
+
+    def __len__(self):
+        return len(self.beam)
+
+    def take(self, sel) -> "Drops":
+        return Drops(self.beam[sel], self.range_m[sel], self.diameter_mm[sel], self.u[sel])
+
+
+def expected_drop_count(weather: Weather, omega_sr, r_lo_m, r_hi_m):
+    """Mean number of particles (D ≥ D_min) in a cone of solid angle Ω between r_lo and r_hi: n Ω (r_hi³ − r_lo³)/3."""
+    if r_hi_m <= r_lo_m:
+        return 0.0
+    return weather.drop_density_per_m3 * omega_sr * (r_hi_m ** 3 - r_lo_m ** 3) / 3.0
+
+
+def draw_drops(rng: np.random.Generator, weather: Weather, n_beams: int, omega_sr: float, r_lo_m: float,
+               r_hi_m: float) -> Drops:
+    """Poisson number of particles in ``n_beams`` cones of solid angle Ω each, uniform in volume (R³ uniform),
+    diameters D_min + Exp(1/Λ) (the exponential tail above D_min)."""
+    mean = expected_drop_count(weather, omega_sr, r_lo_m, r_hi_m) * n_beams
+    n = int(rng.poisson(mean)) if mean > 0 else 0
+    beam = rng.integers(0, n_beams, n) if n else np.zeros(0, np.int64)
+    r3 = r_lo_m ** 3 + rng.random(n) * (r_hi_m ** 3 - r_lo_m ** 3)
+    rng_m = np.cbrt(r3)
+    diam = weather.d_min_mm + rng.exponential(1.0 / weather.lam, n) if n else np.zeros(0)
+    u = rng.random(n)
+    order = np.lexsort((rng_m, beam))
+    return Drops(beam[order].astype(np.int64), rng_m[order], np.asarray(diam)[order], u[order])
+
+
+def drop_returns(drops: Drops, beam_fraction, omega_sr, energy_scale_jm2, aperture_r2, alpha_per_m,
+                 lidar_ratio_sr, overlap: Overlap):
+    """(energy J (W2), shadowed fraction f) of each drop, for beams of energy fraction ``beam_fraction``."""
+    area = 0.25 * np.pi * (drops.diameter_mm * 1e-3) ** 2
+    r = drops.range_m
+    f = np.minimum(1.0, area / (omega_sr * r * r))
+    e = (energy_scale_jm2 * np.asarray(beam_fraction)[drops.beam] * f * (2.0 / lidar_ratio_sr) * overlap(r)
+         * np.exp(-2.0 * alpha_per_m * r) / (r * r + aperture_r2))
+    return e, f
+
+
+def visible_drops(drops: Drops, ray_beam, ray_weight, ray_range_m):
+    """Which drops are in front of the surface of the sub-ray cell they fall in.  Rays sorted by beam; a drop is in
+    the sub-ray whose cumulative weight interval holds u × (the beam's total weight); a missed ray has range inf."""
+    if len(drops) == 0:
+        return np.zeros(0, bool)
+    beam = np.asarray(ray_beam, np.int64)
+    order = np.argsort(beam, kind="stable")
+    beam = beam[order]
+    w = np.asarray(ray_weight, np.float64)[order]
+    cum = np.cumsum(w)
+    nb = int(max(beam.max() + 1 if len(beam) else 0, drops.beam.max() + 1))
+    total = np.bincount(beam, weights=w, minlength=nb)
+    first = np.searchsorted(beam, np.arange(nb), side="left")
+    start = np.concatenate([[0.0], cum])[first]
+    target = start[drops.beam] + drops.u * total[drops.beam]
+    ray = np.minimum(np.searchsorted(cum, target, side="right"), len(cum) - 1)
+    rr = np.asarray(ray_range_m, np.float64)[order][ray]
+    rr = np.where(np.isfinite(rr), rr, np.inf)
+    return (drops.range_m < rr) & (beam[ray] == drops.beam)
+
+
+def shadow_factors(drops: Drops, shadow, query_beam, query_range_m):
+    """Π (1 − f) over the drops of the same beam nearer than each query (surface hit or drop); drops sorted by
+    (beam, range).  A drop does not shadow itself."""
+    q_beam = np.asarray(query_beam, np.int64)
+    q_r = np.asarray(query_range_m, np.float64)
+    if len(drops) == 0 or len(q_beam) == 0:
+        return np.ones(len(q_beam))
+    log_t = np.log1p(-np.minimum(shadow, 1.0 - 1e-16))  # a fully shadowed beam: 1e-16 left
+    cum = np.concatenate([[0.0], np.cumsum(log_t)])
+    span = float(max(np.max(drops.range_m), np.max(np.where(np.isfinite(q_r), q_r, 0.0)))) * 2.0 + 1.0
+    key = drops.beam * span + drops.range_m
+    q_key = q_beam * span + np.where(np.isfinite(q_r), q_r, span * 0.5)
+    start = np.searchsorted(drops.beam, q_beam, side="left")
+    stop = np.searchsorted(key, q_key, side="left")
+    return np.exp(cum[stop] - cum[start])
+
+
+def atmosphere_echo_mask(echo_beam, echo_range_m, hit_beam, hit_range_m, tolerance_m):
+    """True for an echo with no surface hit of its beam within ``tolerance_m``: a return of the atmosphere."""
+    e_b = np.asarray(echo_beam, np.int64)
+    e_r = np.asarray(echo_range_m, np.float64)
+    if len(e_b) == 0:
+        return np.zeros(0, bool)
+    h_b = np.asarray(hit_beam, np.int64)
+    h_r = np.asarray(hit_range_m, np.float64)
+    if len(h_b) == 0:
+        return np.ones(len(e_b), bool)
+    span = float(max(np.nanmax(np.abs(e_r)), np.max(h_r))) * 4.0 + 4.0 * tolerance_m + 1.0
+    key = np.sort(h_b * span + h_r)
+    q = e_b * span + e_r
+    i = np.searchsorted(key, q)
+    near = np.full(len(q), np.inf)
+    for j in (i - 1, i):
+        ok = (j >= 0) & (j < len(key))
+        near[ok] = np.minimum(near[ok], np.abs(key[j[ok]] - q[ok]))
+    return ~(near <= tolerance_m)
+
+
+def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
+                     overlap: Overlap, min_range_m, response, slabs_per_width: int = 4):
+    """Gated viewing: (slab round-trip times (M,), C (M + 1, n_slices)) with C[m] = Σ_{m' < m} e_m' g(t_m' − d_k),
+    the volume backscatter of the slabs nearer than slab m in every slice (``response`` = g(τ), the slice
+    response of core.systems.gated).  A pixel sees C[m_hit] for a sub-ray whose surface is at slab m_hit, C[M]
+    for a sub-ray that hits nothing (prefix sums: the volume behind a surface is hidden)."""
+    from ..physics.laser import pulse_half_support_s
+    c2 = 0.5 * SPEED_OF_LIGHT_M_S
+    d = np.asarray(delays_s, np.float64)
+    support = pulse_half_support_s(laser) + 0.5 * edge_s
+    t_lo = max(min_range_m / c2, float(d.min()) - support)
+    t_hi = float(d.max()) + gate_width_s + support
+    if t_hi <= t_lo or beta_per_m_sr <= 0.0:
+        return np.zeros(0), np.zeros((1, len(d)))
+    step = float(np.min(np.diff(d))) if len(d) > 1 else gate_width_s
+    width = min(laser.pulse_fwhm_s, gate_width_s, step if step > 0 else gate_width_s) / slabs_per_width
+    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
+    edges = c2 * np.linspace(t_lo, t_hi, n + 1)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
+    e = energy_scale_jm2 * beta_per_m_sr * integral
+    t = 2.0 * centroid / SPEED_OF_LIGHT_M_S
+    table = np.zeros((n + 1, len(d)))
+    table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
+    return t, table
