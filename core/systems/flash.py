@@ -227,20 +227,23 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         with log.timed("turbulence_blur"):
             cube = waveforms.reshape(det.height_px, det.width_px, gate.n_bins)
             energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
-    statistical = None
+    statistical, t_model = None, 0.0
     if noisy:  # detection.signal_free_bins = "statistical": chain and detection on the signal stretches only
-        with log.timed("receiver_chain"):
-            statistical, model = statistical_noisy_echoes(
-                waveforms.reshape(det.height_px, det.width_px, gate.n_bins), config,
-                stage_seed(config.run.seed, frame, "receiver"))
+        t_model = stage_clock()
+        statistical, model = statistical_noisy_echoes(
+            waveforms.reshape(det.height_px, det.width_px, gate.n_bins), config,
+            stage_seed(config.run.seed, frame, "receiver"))
+        t_model = stage_clock() - t_model  # (the route's decision; when it ran, the chain and the detection)
         if statistical is not None:
             echo_parts, receiver_report = [statistical], model
+            log.times["receiver_chain"] = t_model
     if noisy and statistical is None:
         with log.timed("receiver_chain"):
             chain = apply_receiver_chain(waveforms.reshape(det.height_px, det.width_px, gate.n_bins),
                                          ChainSettings.from_config(config),
                                          stage_seed(config.run.seed, frame, "receiver"))
             digital, receiver_report = chain.data, chain.report
+        log.times["receiver_chain"] += t_model
         with log.timed("echoes"):
             fa_info = {}
             echo_parts = [noisy_echoes(digital, config, truth=waveforms, info=fa_info,

@@ -77,10 +77,11 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
     (:class:`LatticeRates`); without it (A/D off) the Gaussian model must hold within GAUSSIAN_TAIL_TOLERANCE."""
     if saves_counts:
         return "per_bin", "a per-bin product (counts.npy / the waveform cube) is saved", None
+    if det.detector_type == "geiger":
+        return "per_bin", ("Geiger histograms: counts of detections with dead time, no linear noise model (the "
+                           "calibrated threshold falls back to adaptive)"), None
     if threshold_mode != "calibrated":
         return "per_bin", f"threshold mode {threshold_mode!r} (the statistical route needs the calibrated one)", None
-    if det.detector_type == "geiger":
-        return "per_bin", "Geiger histograms: counts of detections, not Gaussian", None
     if det.enable_optics_mtf or (det.speckle_dof > 0 and det.speckle_correlated):
         return "per_bin", "optics MTF / correlated speckle couple the pixels", None
     if has_law:
