@@ -100,6 +100,17 @@ class LaserSettings:
     beam_divergence_rad: float = setting(0.02, lo=1e-7, hi=2.0, unit="rad", subtype="ANGLE",
                                          doc="Full-angle beam divergence at the 1/e² intensity points",
                                          label="Beam Divergence", panel_unit="mrad")
+    beam_divergence_y_rad: float = setting(0.0, lo=0.0, hi=2.0, unit="rad", subtype="ANGLE",
+                                           doc="Elliptical beam (scanner): full-angle divergence at the 1/e² "
+                                               "intensity points along the beam's second axis; 0: a circular "
+                                               "beam (beam_divergence_rad both ways)",
+                                           label="Beam Divergence (2nd Axis)", panel_unit="mrad")
+    beam_orientation_rad: float = setting(0.0, lo=-3.141592653589793, hi=3.141592653589793, unit="rad",
+                                          subtype="ANGLE",
+                                          doc="Elliptical beam (scanner): angle of the beam_divergence_rad axis "
+                                              "from the beam's horizontal axis (≈ +X) towards its vertical "
+                                              "axis (≈ +Y)",
+                                          label="Beam Ellipse Orientation")
     divergence_fills_fov: bool = setting(True, doc="Set the Gaussian 1/e² divergence to the field-of-view "
                                                    "diagonal (ignore beam_divergence_rad)",
                                          label="Divergence Fills Field of View")
@@ -342,13 +353,15 @@ class ScannerSettings:
     laser's ``beam_divergence_rad`` sampled by rings of sub-rays; the receiver collects the whole footprint
     through ``receiver.aperture_diameter_m``; each pulse's waveform spans the range gate (``gate``)."""
 
-    pattern: str = setting("raster", choices=("raster", "oscillating", "rotating", "palmer"),
+    pattern: str = setting("raster", choices=("raster", "oscillating", "rotating", "palmer", "risley"),
                            doc="raster: unidirectional lines stacked vertically; oscillating: a sinusoidal "
                                "across-track mirror (along-track from platform motion); rotating: spinning "
-                               "multi-channel head about the sensor's +Y axis; palmer: conical scan about −Z",
+                               "multi-channel head about the sensor's +Y axis; palmer: conical scan about −Z; "
+                               "risley: rotating wedge prisms (rosette) about −Z",
                            label="Scan Pattern",
                            choice_labels={'raster': 'Raster', 'oscillating': 'Oscillating Mirror',
-                                          'rotating': 'Rotating Head', 'palmer': 'Palmer (Conical)'})
+                                          'rotating': 'Rotating Head', 'palmer': 'Palmer (Conical)',
+                                          'risley': 'Risley Prisms (Rosette)'})
     pulse_rate_hz: float = setting(100_000.0, lo=1.0, hi=1e8, unit="Hz",
                                    doc="Pulse repetition frequency (per channel)",
                                    label="Pulse Rate", panel_unit="kHz")
@@ -383,6 +396,54 @@ class ScannerSettings:
                                           doc="How often the add-on samples the sensor's animated pose during "
                                               "the scan (poses are interpolated per pulse)",
                                           label="Pose Samples per Second", panel_unit="Hz")
+    return_mode: str = setting("all", choices=("all", "strongest", "last", "dual", "first_n"),
+                               doc="Echoes reported per pulse: all detected, the strongest, the last (farthest), "
+                                   "dual (strongest and last; the second strongest when they are one echo) or "
+                                   "the first n_returns",
+                               label="Return Mode",
+                               choice_labels={'all': 'All Echoes', 'strongest': 'Strongest', 'last': 'Last',
+                                              'dual': 'Dual (Strongest + Last)', 'first_n': 'First N'})
+    n_returns: int = setting(2, lo=1, hi=32, doc="Return mode first_n: echoes reported per pulse, nearest first",
+                             label="Returns per Pulse")
+    range_quantum_m: float = setting(0.0, lo=0.0, hi=10.0, unit="m", subtype="DISTANCE",
+                                     doc="Range resolution of the output: ranges rounded to the nearest multiple "
+                                         "(e.g. 0.004 m); 0: not rounded",
+                                     label="Range Quantum")
+    intensity_encoding: str = setting("amplitude", choices=("amplitude", "reflectivity", "intensity8"),
+                                      doc="Point intensity: the echo amplitude (J per bin), calibrated "
+                                          "reflectivity 0–100 diffuse / 101–255 retro-reflective, or an 8-bit "
+                                          "range-compensated intensity 0–255 (ideal detector)",
+                                      label="Intensity Encoding",
+                                      choice_labels={'amplitude': 'Amplitude (J per Bin)',
+                                                     'reflectivity': 'Calibrated Reflectivity (0–255)',
+                                                     'intensity8': '8-bit Intensity'})
+    #: Per-channel table of the rotating head (not a Blender property: config files and presets): one row
+    #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).
+    channel_table: list = field(default_factory=list, metadata={
+        "unit": "deg, deg, s", "doc": "Rotating: one row [elevation_deg, azimuth_offset_deg, fire_offset_s] per "
+                                      "channel, replacing the evenly spaced channels (n_channels rows)"})
+    #: ... or the same table read from a CSV file (three columns; an optional header row).
+    channel_table_file: str = field(default_factory=str, metadata={
+        "unit": "", "doc": "Rotating: a CSV file of the channel table (columns elevation_deg, "
+                           "azimuth_offset_deg, fire_offset_s; optional header row; '#' comments)"})
+    #: Risley prisms (pattern risley), one entry per prism, beam order (core/systems/scan_patterns.py).
+    risley_prism_hz: list = field(default_factory=list, metadata={
+        "unit": "Hz", "doc": "Risley: rotor frequency of each prism (signed: the sense of rotation)"})
+    risley_wedge_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "doc": "Risley: wedge angle of each prism; > 0: the face towards the laser is inclined, "
+                              "< 0: the face towards the scene"})
+    risley_index: list = field(default_factory=list, metadata={
+        "unit": "", "doc": "Risley: refractive index of each prism at the laser wavelength"})
+    risley_phase_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "doc": "Risley: rotor angle of each prism at t = 0 (empty: all 0)"})
+    risley_emitters_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "doc": "Risley: one [alpha_deg, beta_deg] row per emitter, the direction of its beam "
+                              "entering the prisms (empty: one beam along −Z)"})
+
+
+#: List/string fields of ScannerSettings (config files only; not Blender scalar properties).
+SCANNER_TABLE_FIELDS = ("channel_table", "channel_table_file", "risley_prism_hz", "risley_wedge_deg",
+                        "risley_index", "risley_phase_deg", "risley_emitters_deg")
 
 
 @dataclass
