@@ -154,6 +154,26 @@ def _ring_offset_table(n_rings: int) -> tuple:
     return tuple(offsets)
 
 
+def subray_offsets(laser, rho_unit, phi, width_scale: float = 1.0):
+    """Angular offsets (ρ (m,) rad from the beam axis, azimuth φ (m,) in the beam frame u ≈ +X, v ≈ +Y) of the
+    sub-rays of :func:`beam_subrays` for the laser's beam.
+
+    Circular beam (``beam_divergence_y_rad`` 0): ρ = ρ/θ · θ with θ = beam_divergence_rad/2 (the 1/e² half
+    angle, Gaussian; the edge, uniform).  Elliptical beam: the circular pattern's unit offsets (x, y) are scaled
+    to a = beam_divergence_rad/2 along the axis at ``beam_orientation_rad`` from u and b =
+    beam_divergence_y_rad/2 across it.  The linear map carries the circular profile's equal-energy cells onto the
+    elliptical profile's (I ∝ exp(−2x'²/a² − 2y'²/b²), or uniform over the ellipse), so every sub-ray keeps its
+    equal share of the energy exactly and the sub-rays' second moments are those of the circular pattern times
+    a² and b² along the axes."""
+    a = 0.5 * laser.beam_divergence_rad * width_scale
+    if not laser.beam_divergence_y_rad:
+        return rho_unit * a, phi
+    b = 0.5 * laser.beam_divergence_y_rad * width_scale
+    psi = laser.beam_orientation_rad
+    x, y = rho_unit * np.cos(phi - psi) * a, rho_unit * np.sin(phi - psi) * b  # in the ellipse's axes
+    return np.hypot(x, y), np.arctan2(y, x) + psi
+
+
 def ring_offsets_rad(n_rings: int) -> np.ndarray:
     """Azimuth of the first ray of each ring (ring 0: the centre ray, 0).
 
@@ -237,7 +257,7 @@ def scan_beams(config: SimulationConfig, trajectory: Trajectory, start: int, sto
         u, v = _perpendicular_axes(d_sensor)
         centre = d_sensor + wander_rad[:, :1] * u + wander_rad[:, 1:] * v
         centre /= np.linalg.norm(centre, axis=1, keepdims=True)
-    rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
+    rho, phi = subray_offsets(laser, rho_unit, phi, width_scale)
     d_world = np.empty((n * m, 3))
     _subray_directions(np.ascontiguousarray(centre), np.ascontiguousarray(rot.reshape(-1, 3, 3)), np.cos(rho),
                        np.sin(rho), np.cos(phi), np.sin(phi), d_world)
