@@ -367,7 +367,7 @@ class ScannerSettings:
                                    label="Pulse Rate", panel_unit="kHz")
     scan_rate_hz: float = setting(100.0, lo=1e-3, hi=1e6, unit="Hz",
                                   doc="Lines per second (raster), mirror oscillation frequency (oscillating), "
-                                      "revolutions per second (rotating, palmer)",
+                                      "revolutions per second (rotating, palmer), frames per second (risley)",
                                   label="Scan Rate", panel_unit="Hz")
     scan_width_rad: float = setting(0.5, lo=0.0, hi=6.283185307179586, unit="rad", subtype="ANGLE",
                                     doc="Full across-scan angle (raster, oscillating) or azimuth extent "
@@ -379,14 +379,15 @@ class ScannerSettings:
                                      label="Scan Height")
     n_lines: int = setting(100, lo=1, hi=1_000_000, doc="Raster: number of scan lines",
                            label="Number of Lines")
-    n_channels: int = setting(16, lo=1, hi=1024, doc="Rotating: channels (lasers) spread over scan_height_rad",
+    n_channels: int = setting(16, lo=1, hi=1024, doc="Rotating: channels (lasers) spread over scan_height_rad, or "
+                                                     "the rows of channel_table",
                               label="Number of Channels")
     cone_half_angle_rad: float = setting(0.26, lo=0.0, hi=1.5, unit="rad", subtype="ANGLE",
                                          doc="Palmer: half angle of the scan cone around −Z",
                                          label="Cone Half Angle")
     duration_s: float = setting(0.0, lo=0.0, hi=3600.0, unit="s", subtype="TIME_ABSOLUTE",
                                 doc="Scan duration; 0 = one full pattern (all raster lines, one mirror period, "
-                                    "one revolution or azimuth sweep)",
+                                    "one revolution or azimuth sweep, one risley frame 1/scan_rate_hz)",
                                 label="Scan Duration", panel_unit="s")
     beam_subray_rings: int = setting(1, lo=0, hi=16,
                                      doc="Rings of sub-rays across the beam footprint: 0 → 1 ray, 1 → 7, "
@@ -420,24 +421,25 @@ class ScannerSettings:
     #: Per-channel table of the rotating head (not a Blender property: config files and presets): one row
     #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).
     channel_table: list = field(default_factory=list, metadata={
-        "unit": "deg, deg, s", "doc": "Rotating: one row [elevation_deg, azimuth_offset_deg, fire_offset_s] per "
+        "unit": "deg, deg, s", "allowed": "rows [elevation in [-90, 90], azimuth offset in [-360, 360], fire "
+                                           "offset in [-1, 1]], one per channel", "doc": "Rotating: one row [elevation_deg, azimuth_offset_deg, fire_offset_s] per "
                                       "channel, replacing the evenly spaced channels (n_channels rows)"})
     #: ... or the same table read from a CSV file (three columns; an optional header row).
     channel_table_file: str = field(default_factory=str, metadata={
-        "unit": "", "doc": "Rotating: a CSV file of the channel table (columns elevation_deg, "
+        "unit": "", "allowed": "a path to a CSV file (or empty)", "doc": "Rotating: a CSV file of the channel table (columns elevation_deg, "
                            "azimuth_offset_deg, fire_offset_s; optional header row; '#' comments)"})
     #: Risley prisms (pattern risley), one entry per prism, beam order (core/systems/scan_patterns.py).
     risley_prism_hz: list = field(default_factory=list, metadata={
-        "unit": "Hz", "doc": "Risley: rotor frequency of each prism (signed: the sense of rotation)"})
+        "unit": "Hz", "allowed": "numbers in [-1e5, 1e5], one per prism (1 to 8)", "doc": "Risley: rotor frequency of each prism (signed: the sense of rotation)"})
     risley_wedge_deg: list = field(default_factory=list, metadata={
-        "unit": "deg", "doc": "Risley: wedge angle of each prism; > 0: the face towards the laser is inclined, "
+        "unit": "deg", "allowed": "non-zero numbers in [-60, 60], one per prism (1 to 8)", "doc": "Risley: wedge angle of each prism; > 0: the face towards the laser is inclined, "
                               "< 0: the face towards the scene"})
     risley_index: list = field(default_factory=list, metadata={
-        "unit": "", "doc": "Risley: refractive index of each prism at the laser wavelength"})
+        "unit": "", "allowed": "numbers in [1, 5], one per prism", "doc": "Risley: refractive index of each prism at the laser wavelength"})
     risley_phase_deg: list = field(default_factory=list, metadata={
-        "unit": "deg", "doc": "Risley: rotor angle of each prism at t = 0 (empty: all 0)"})
+        "unit": "deg", "allowed": "numbers in [-360, 360], one per prism, or empty", "doc": "Risley: rotor angle of each prism at t = 0 (empty: all 0)"})
     risley_emitters_deg: list = field(default_factory=list, metadata={
-        "unit": "deg", "doc": "Risley: one [alpha_deg, beta_deg] row per emitter, the direction of its beam "
+        "unit": "deg", "allowed": "rows [alpha, beta] in [-30, 30], at most 256", "doc": "Risley: one [alpha_deg, beta_deg] row per emitter, the direction of its beam "
                               "entering the prisms (empty: one beam along −Z)"})
 
 
