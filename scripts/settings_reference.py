@@ -70,6 +70,8 @@ def allowed(f: dataclasses.Field) -> str:
         return ", ".join(f"`{c}`" + (f" ({names[c]})" if c in names else "") for c in meta["choices"])
     if isinstance(f.default, bool):
         return "true, false"
+    if meta.get("allowed"):  # a table field stating its own rule (core/config/tables.py checks it)
+        return meta["allowed"]
     if f.default is dataclasses.MISSING and f.default_factory is list:
         return "list of numbers"
     lo, hi = meta.get("lo"), meta.get("hi")

@@ -47,8 +47,10 @@ def test_settings_reference_is_generated_from_the_schema():
     for name in names:
         assert f"| `{name}` |" in committed, name
     # 90 + gated.min_peak_fraction, k_sigma + atmosphere.scintillation_statistics, inner_scale_m, outer_scale_m
-    # + run.max_work_s
-    assert len(names) == 96 + len(dataclasses.fields(BRDFSettings))
+    # + run.max_work_s; + 13 of issue 29: laser.beam_divergence_y_rad, beam_orientation_rad, scanner.return_mode,
+    # n_returns, range_quantum_m, intensity_encoding and the 7 table fields (channel_table, channel_table_file,
+    # risley_prism_hz, risley_wedge_deg, risley_index, risley_phase_deg, risley_emitters_deg)
+    assert len(names) == 109 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 

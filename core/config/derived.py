@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .tables import scan_channels
+
 
 def scan_duration_s(config) -> float:
     """Duration of the scan: ``scanner.duration_s`` or one full pattern."""
@@ -16,7 +18,7 @@ def scan_duration_s(config) -> float:
         return s.n_lines / s.scan_rate_hz
     if s.pattern == "rotating":
         return max(s.scan_width_rad, 1e-12) / (2 * np.pi * s.scan_rate_hz)
-    return 1.0 / s.scan_rate_hz  # oscillating: one mirror period; palmer: one revolution
+    return 1.0 / s.scan_rate_hz  # oscillating: one mirror period; palmer: one revolution; risley: 1/scan_rate
 
 
 def n_pulse_times(config) -> int:
@@ -25,5 +27,4 @@ def n_pulse_times(config) -> int:
 
 
 def n_scan_pulses(config) -> int:
-    s = config.scanner
-    return n_pulse_times(config) * (s.n_channels if s.pattern == "rotating" else 1)
+    return n_pulse_times(config) * scan_channels(config.scanner)

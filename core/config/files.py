@@ -149,6 +149,8 @@ def dump_config_toml(cfg: SimulationConfig) -> str:
             return toml_string(v)
         if isinstance(v, float):
             return repr(v)
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(fmt(x) for x in v) + "]"
         return str(v)
 
     lines = [f"schema_version = {SCHEMA_VERSION}", f"system_type = {fmt(data['system_type'])}", ""]

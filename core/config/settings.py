@@ -100,6 +100,17 @@ class LaserSettings:
     beam_divergence_rad: float = setting(0.02, lo=1e-7, hi=2.0, unit="rad", subtype="ANGLE",
                                          doc="Full-angle beam divergence at the 1/e² intensity points",
                                          label="Beam Divergence", panel_unit="mrad")
+    beam_divergence_y_rad: float = setting(0.0, lo=0.0, hi=2.0, unit="rad", subtype="ANGLE",
+                                           doc="Elliptical beam (scanner): full-angle divergence at the 1/e² "
+                                               "intensity points along the beam's second axis; 0: a circular "
+                                               "beam (beam_divergence_rad both ways)",
+                                           label="Beam Divergence (2nd Axis)", panel_unit="mrad")
+    beam_orientation_rad: float = setting(0.0, lo=-3.141592653589793, hi=3.141592653589793, unit="rad",
+                                          subtype="ANGLE",
+                                          doc="Elliptical beam (scanner): angle of the beam_divergence_rad axis "
+                                              "from the beam's horizontal axis (≈ +X) towards its vertical "
+                                              "axis (≈ +Y)",
+                                          label="Beam Ellipse Orientation")
     divergence_fills_fov: bool = setting(True, doc="Set the Gaussian 1/e² divergence to the field-of-view "
                                                    "diagonal (ignore beam_divergence_rad)",
                                          label="Divergence Fills Field of View")
@@ -394,19 +405,21 @@ class ScannerSettings:
     laser's ``beam_divergence_rad`` sampled by rings of sub-rays; the receiver collects the whole footprint
     through ``receiver.aperture_diameter_m``; each pulse's waveform spans the range gate (``gate``)."""
 
-    pattern: str = setting("raster", choices=("raster", "oscillating", "rotating", "palmer"),
+    pattern: str = setting("raster", choices=("raster", "oscillating", "rotating", "palmer", "risley"),
                            doc="raster: unidirectional lines stacked vertically; oscillating: a sinusoidal "
                                "across-track mirror (along-track from platform motion); rotating: spinning "
-                               "multi-channel head about the sensor's +Y axis; palmer: conical scan about −Z",
+                               "multi-channel head about the sensor's +Y axis; palmer: conical scan about −Z; "
+                               "risley: rotating wedge prisms (rosette) about −Z",
                            label="Scan Pattern",
                            choice_labels={'raster': 'Raster', 'oscillating': 'Oscillating Mirror',
-                                          'rotating': 'Rotating Head', 'palmer': 'Palmer (Conical)'})
+                                          'rotating': 'Rotating Head', 'palmer': 'Palmer (Conical)',
+                                          'risley': 'Risley Prisms (Rosette)'})
     pulse_rate_hz: float = setting(100_000.0, lo=1.0, hi=1e8, unit="Hz",
                                    doc="Pulse repetition frequency (per channel)",
                                    label="Pulse Rate", panel_unit="kHz")
     scan_rate_hz: float = setting(100.0, lo=1e-3, hi=1e6, unit="Hz",
                                   doc="Lines per second (raster), mirror oscillation frequency (oscillating), "
-                                      "revolutions per second (rotating, palmer)",
+                                      "revolutions per second (rotating, palmer), frames per second (risley)",
                                   label="Scan Rate", panel_unit="Hz")
     scan_width_rad: float = setting(0.5, lo=0.0, hi=6.283185307179586, unit="rad", subtype="ANGLE",
                                     doc="Full across-scan angle (raster, oscillating) or azimuth extent "
@@ -418,14 +431,15 @@ class ScannerSettings:
                                      label="Scan Height")
     n_lines: int = setting(100, lo=1, hi=1_000_000, doc="Raster: number of scan lines",
                            label="Number of Lines")
-    n_channels: int = setting(16, lo=1, hi=1024, doc="Rotating: channels (lasers) spread over scan_height_rad",
+    n_channels: int = setting(16, lo=1, hi=1024, doc="Rotating: channels (lasers) spread over scan_height_rad, or "
+                                                     "the rows of channel_table",
                               label="Number of Channels")
     cone_half_angle_rad: float = setting(0.26, lo=0.0, hi=1.5, unit="rad", subtype="ANGLE",
                                          doc="Palmer: half angle of the scan cone around −Z",
                                          label="Cone Half Angle")
     duration_s: float = setting(0.0, lo=0.0, hi=3600.0, unit="s", subtype="TIME_ABSOLUTE",
                                 doc="Scan duration; 0 = one full pattern (all raster lines, one mirror period, "
-                                    "one revolution or azimuth sweep)",
+                                    "one revolution or azimuth sweep, one risley frame 1/scan_rate_hz)",
                                 label="Scan Duration", panel_unit="s")
     beam_subray_rings: int = setting(1, lo=0, hi=16,
                                      doc="Rings of sub-rays across the beam footprint: 0 → 1 ray, 1 → 7, "
@@ -435,6 +449,55 @@ class ScannerSettings:
                                           doc="How often the add-on samples the sensor's animated pose during "
                                               "the scan (poses are interpolated per pulse)",
                                           label="Pose Samples per Second", panel_unit="Hz")
+    return_mode: str = setting("all", choices=("all", "strongest", "last", "dual", "first_n"),
+                               doc="Echoes reported per pulse: all detected, the strongest, the last (farthest), "
+                                   "dual (strongest and last; the second strongest when they are one echo) or "
+                                   "the first n_returns",
+                               label="Return Mode",
+                               choice_labels={'all': 'All Echoes', 'strongest': 'Strongest', 'last': 'Last',
+                                              'dual': 'Dual (Strongest + Last)', 'first_n': 'First N'})
+    n_returns: int = setting(2, lo=1, hi=32, doc="Return mode first_n: echoes reported per pulse, nearest first",
+                             label="Returns per Pulse")
+    range_quantum_m: float = setting(0.0, lo=0.0, hi=10.0, unit="m", subtype="DISTANCE",
+                                     doc="Range resolution of the output: ranges rounded to the nearest multiple "
+                                         "(e.g. 0.004 m); 0: not rounded",
+                                     label="Range Quantum")
+    intensity_encoding: str = setting("amplitude", choices=("amplitude", "reflectivity", "intensity8"),
+                                      doc="Point intensity: the echo amplitude (J per bin), calibrated "
+                                          "reflectivity 0–100 diffuse / 101–255 retro-reflective, or an 8-bit "
+                                          "range-compensated intensity 0–255 (ideal detector)",
+                                      label="Intensity Encoding",
+                                      choice_labels={'amplitude': 'Amplitude (J per Bin)',
+                                                     'reflectivity': 'Calibrated Reflectivity (0–255)',
+                                                     'intensity8': '8-bit Intensity'})
+    #: Per-channel table of the rotating head (not a Blender property: config files and presets): one row
+    #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).
+    channel_table: list = field(default_factory=list, metadata={
+        "unit": "deg, deg, s", "allowed": "rows [elevation in [-90, 90], azimuth offset in [-360, 360], fire "
+                                           "offset in [-1, 1]], one per channel", "doc": "Rotating: one row [elevation_deg, azimuth_offset_deg, fire_offset_s] per "
+                                      "channel, replacing the evenly spaced channels (n_channels rows)"})
+    #: ... or the same table read from a CSV file (three columns; an optional header row).
+    channel_table_file: str = field(default_factory=str, metadata={
+        "unit": "", "allowed": "a path to a CSV file (or empty)", "doc": "Rotating: a CSV file of the channel table (columns elevation_deg, "
+                           "azimuth_offset_deg, fire_offset_s; optional header row; '#' comments)"})
+    #: Risley prisms (pattern risley), one entry per prism, beam order (core/systems/scan_patterns.py).
+    risley_prism_hz: list = field(default_factory=list, metadata={
+        "unit": "Hz", "allowed": "numbers in [-1e5, 1e5], one per prism (1 to 8)", "doc": "Risley: rotor frequency of each prism (signed: the sense of rotation)"})
+    risley_wedge_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "allowed": "non-zero numbers in [-60, 60], one per prism (1 to 8)", "doc": "Risley: wedge angle of each prism; > 0: the face towards the laser is inclined, "
+                              "< 0: the face towards the scene"})
+    risley_index: list = field(default_factory=list, metadata={
+        "unit": "", "allowed": "numbers in [1, 5], one per prism", "doc": "Risley: refractive index of each prism at the laser wavelength"})
+    risley_phase_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "allowed": "numbers in [-360, 360], one per prism, or empty", "doc": "Risley: rotor angle of each prism at t = 0 (empty: all 0)"})
+    risley_emitters_deg: list = field(default_factory=list, metadata={
+        "unit": "deg", "allowed": "rows [alpha, beta] in [-30, 30], at most 256", "doc": "Risley: one [alpha_deg, beta_deg] row per emitter, the direction of its beam "
+                              "entering the prisms (empty: one beam along −Z)"})
+
+
+#: List/string fields of ScannerSettings (config files only; not Blender scalar properties).
+SCANNER_TABLE_FIELDS = ("channel_table", "channel_table_file", "risley_prism_hz", "risley_wedge_deg",
+                        "risley_index", "risley_phase_deg", "risley_emitters_deg")
 
 
 @dataclass

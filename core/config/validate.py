@@ -8,7 +8,8 @@ import math
 
 from ..errors import ConfigError
 from .derived import n_scan_pulses
-from .settings import BRDF_TABLE_FIELDS, BRDFSettings, SimulationConfig
+from .settings import BRDF_TABLE_FIELDS, BRDFSettings, ScannerSettings, SimulationConfig
+from .tables import check_channel_table, check_risley
 
 
 def _range_text(meta) -> str:
@@ -119,6 +120,10 @@ def validate(obj, prefix: str = "") -> None:
             _check_value(path, value, f)
     if isinstance(obj, BRDFSettings):
         _check_brdf(obj, prefix)
+    if isinstance(obj, ScannerSettings):
+        check_channel_table(obj)
+        if obj.pattern == "risley":
+            check_risley(obj)
     if isinstance(obj, SimulationConfig):
         _check_cross_field(obj)
 
@@ -139,6 +144,10 @@ def _check_cross_field(cfg: SimulationConfig) -> None:
         _check_gated(cfg)
         return
     if cfg.system_type == "scanner":
+        if cfg.scanner.intensity_encoding != "amplitude" and cfg.detector.mode == "noisy":
+            raise ConfigError("scanner.intensity_encoding", cfg.scanner.intensity_encoding,
+                              "'amplitude' with detector.mode = 'noisy' (reflectivity and 8-bit intensity are "
+                              "calibrated against the ideal detector's echo amplitude)")
         n_pulses = n_scan_pulses(cfg)
         cube = n_pulses * cfg.gate.n_bins * 4
         if cfg.run.save_waveforms and cube > cfg.run.max_memory_bytes:

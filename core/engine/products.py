@@ -204,7 +204,7 @@ def ground_truth_tolerance(config: SimulationConfig) -> tuple:
         spread_s += config.gated.gate_width_s + config.gated.delay_step_s
     rx = config.receiver
     if config.system_type == "scanner":  # the beam's footprint half-width
-        spread_rad = 0.5 * config.laser.beam_divergence_rad
+        spread_rad = 0.5 * max(config.laser.beam_divergence_rad, config.laser.beam_divergence_y_rad)
     elif config.system_type == "profiler":  # one element over the whole field of view
         spread_rad = 0.5 * max(rx.fov_x_rad, rx.fov_y_rad)
     else:  # half a pixel

@@ -6,7 +6,13 @@ d = (cos β sin α, sin β, −cos β cos α)), pulse k fired at t_k = k / PRF:
 * raster       unidirectional lines, line period 1/scan_rate, α sweeps −W/2 → +W/2, lines from β = +H/2 down;
 * oscillating  a sinusoidal across-track mirror α = (W/2) sin(2π f t), β = 0 (along-track from motion);
 * rotating     a head spinning about +Y, α = −W/2 + 2π f t, n_channels fired together at β ∈ [+H/2, −H/2];
-* palmer       a conical scan: the beam at the cone half angle c around −Z, azimuth φ = 2π f t.
+* palmer       a conical scan: the beam at the cone half angle c around −Z, azimuth φ = 2π f t;
+* risley       rotating wedge prisms on the −Z axis (a rosette): each emitter's beam refracted exactly at both
+               faces of every prism, prism i turned to ψ_i = −(2π f_i t + φ_i) (core/config/tables.py).
+
+The rotating head with a channel table (``scanner.channel_table`` or ``channel_table_file``): channel c fires at
+t_k + τ_c, at elevation β_c and azimuth α = −W/2 + 2π f (t_k + τ_c) + Δα_c; without one the channels are spaced
+evenly over H and fire together.
 
 The beam footprint is sampled by rings of sub-rays of equal energy: ring k > 0 holds 6k rays and the rings'
 boundaries enclose the cumulative energy fractions (1 + 3k(k+1))/N of the beam; each ray sits at the angle that
@@ -23,6 +29,8 @@ import numpy as np
 
 from ..config.derived import n_pulse_times
 from ..config.settings import SimulationConfig
+from ..config.tables import channel_table_deg, risley_emitters_deg, risley_prisms, risley_trace, scan_channels
+from ..errors import ConfigError
 from ..geometry.motion import Trajectory
 from ..jit import kernel
 
@@ -44,7 +52,7 @@ def pulse_schedule(config: SimulationConfig, start: int = 0, stop: int | None = 
     Pulses are numbered in time order; the rotating head's channels fired at one time are consecutive.
     """
     s = config.scanner
-    n_ch = s.n_channels if s.pattern == "rotating" else 1
+    n_ch = scan_channels(s)
     total = n_pulse_times(config) * n_ch
     stop = total if stop is None else min(stop, total)
     idx = np.arange(start, stop, dtype=np.int64) if indices is None else np.asarray(indices, dtype=np.int64)
@@ -64,17 +72,42 @@ def pulse_schedule(config: SimulationConfig, start: int = 0, stop: int | None = 
         d = direction_from_angles(alpha, np.zeros_like(alpha))
         angle = alpha
     elif s.pattern == "rotating":
-        alpha = -0.5 * s.scan_width_rad + 2 * np.pi * s.scan_rate_hz * t
-        elevations = (np.linspace(0.5 * s.scan_height_rad, -0.5 * s.scan_height_rad, n_ch) if n_ch > 1
-                      else np.zeros(1))
-        d = direction_from_angles(alpha, elevations[channel])
+        table = channel_table_deg(s)
+        if table is None:
+            alpha = -0.5 * s.scan_width_rad + 2 * np.pi * s.scan_rate_hz * t
+            elevations = (np.linspace(0.5 * s.scan_height_rad, -0.5 * s.scan_height_rad, n_ch) if n_ch > 1
+                          else np.zeros(1))
+            d = direction_from_angles(alpha, elevations[channel])
+        else:  # the channel fires fire_offset_s after k/PRF, at its elevation and azimuth offset
+            table = table[:n_ch]
+            t = t + table[channel, 2]
+            alpha = (-0.5 * s.scan_width_rad + 2 * np.pi * s.scan_rate_hz * t
+                     + np.radians(table[channel, 1]))
+            d = direction_from_angles(alpha, np.radians(table[channel, 0]))
         angle = np.mod(alpha + np.pi, 2 * np.pi) - np.pi
+    elif s.pattern == "risley":
+        d = risley_directions(s, t, channel)
+        angle = np.arctan2(d[:, 1], d[:, 0])
     else:  # palmer
         phi = 2 * np.pi * s.scan_rate_hz * t
         c = s.cone_half_angle_rad
         d = np.stack([np.sin(c) * np.cos(phi), np.sin(c) * np.sin(phi), -np.cos(c) * np.ones_like(phi)], axis=-1)
         angle = np.mod(phi + np.pi, 2 * np.pi) - np.pi
     return t, d, channel.astype(np.int16), angle
+
+
+def risley_directions(scanner, t_s, emitter):
+    """Directions (n, 3) leaving the Risley prisms at times ``t_s`` for beams from emitters ``emitter`` (n,):
+    the emitter's beam (α, β of ``risley_emitters_deg``) refracted exactly (Snell's law in vector form) at both
+    faces of every prism in turn (core/config/tables.py: :func:`~core.config.tables.risley_trace`)."""
+    prisms = risley_prisms(scanner)
+    a, b = np.radians(risley_emitters_deg(scanner)).T
+    incident = direction_from_angles(a[emitter], b[emitter])
+    d, tir = risley_trace(np.asarray(t_s, dtype=np.float64), incident, prisms)
+    if tir.any():
+        raise ConfigError("scanner.risley_wedge_deg", [float(w) for w in prisms[:, 1]],
+                          "wedge angles and indices without total internal reflection")
+    return d
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -119,6 +152,26 @@ def _ring_offset_table(n_rings: int) -> tuple:
         offsets.append(best)
         lines = np.concatenate([lines, (best + period * np.arange(3 * k)) % np.pi])
     return tuple(offsets)
+
+
+def subray_offsets(laser, rho_unit, phi, width_scale: float = 1.0):
+    """Angular offsets (ρ (m,) rad from the beam axis, azimuth φ (m,) in the beam frame u ≈ +X, v ≈ +Y) of the
+    sub-rays of :func:`beam_subrays` for the laser's beam.
+
+    Circular beam (``beam_divergence_y_rad`` 0): ρ = ρ/θ · θ with θ = beam_divergence_rad/2 (the 1/e² half
+    angle, Gaussian; the edge, uniform).  Elliptical beam: the circular pattern's unit offsets (x, y) are scaled
+    to a = beam_divergence_rad/2 along the axis at ``beam_orientation_rad`` from u and b =
+    beam_divergence_y_rad/2 across it.  The linear map carries the circular profile's equal-energy cells onto the
+    elliptical profile's (I ∝ exp(−2x'²/a² − 2y'²/b²), or uniform over the ellipse), so every sub-ray keeps its
+    equal share of the energy exactly and the sub-rays' second moments are those of the circular pattern times
+    a² and b² along the axes."""
+    a = 0.5 * laser.beam_divergence_rad * width_scale
+    if not laser.beam_divergence_y_rad:
+        return rho_unit * a, phi
+    b = 0.5 * laser.beam_divergence_y_rad * width_scale
+    psi = laser.beam_orientation_rad
+    x, y = rho_unit * np.cos(phi - psi) * a, rho_unit * np.sin(phi - psi) * b  # in the ellipse's axes
+    return np.hypot(x, y), np.arctan2(y, x) + psi
 
 
 def ring_offsets_rad(n_rings: int) -> np.ndarray:
@@ -204,7 +257,7 @@ def scan_beams(config: SimulationConfig, trajectory: Trajectory, start: int, sto
         u, v = _perpendicular_axes(d_sensor)
         centre = d_sensor + wander_rad[:, :1] * u + wander_rad[:, 1:] * v
         centre /= np.linalg.norm(centre, axis=1, keepdims=True)
-    rho = rho_unit * 0.5 * laser.beam_divergence_rad * width_scale
+    rho, phi = subray_offsets(laser, rho_unit, phi, width_scale)
     d_world = np.empty((n * m, 3))
     _subray_directions(np.ascontiguousarray(centre), np.ascontiguousarray(rot.reshape(-1, 3, 3)), np.cos(rho),
                        np.sin(rho), np.cos(phi), np.sin(phi), d_world)

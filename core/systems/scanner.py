@@ -43,6 +43,7 @@ from ..physics.propagation import (effective_extinction_per_m, footprint_varianc
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
+from .returns import encode_intensity, intensity_unit, peak_per_joule, quantize_range, select_returns
 from .scan_patterns import beam_subrays, pulse_schedule, scan_beams
 
 
@@ -124,11 +125,13 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
         meta["beam_wander_rms_rad"] = float(np.sqrt(out.wander_r2_rad2))
     # footprint of the (broadened) beam at R_ref: the 1/e² diameter of the divergence cone
     footprint_m = 2.0 * np.tan(0.5 * laser.beam_divergence_rad) * out.width_scale * r_ref
+    footprint_y_m = (2.0 * np.tan(0.5 * laser.beam_divergence_y_rad) * out.width_scale * r_ref
+                     if laser.beam_divergence_y_rad else footprint_m)  # an elliptical beam's second axis
     if "scintillation" in active:
         rho = derived["cell_radius_m"]
         si = derived["scintillation_index"]
-        if footprint_m > rho:
-            var = float(si * footprint_variance_factor(derived, footprint_m, footprint_m))
+        if max(footprint_m, footprint_y_m) > rho:
+            var = float(si * footprint_variance_factor(derived, footprint_m, footprint_y_m))
             out.scint_model, out.scint_params = "footprint_gamma", {"averaged_scintillation_index": var}
         else:
             model = atm.scintillation_model
@@ -220,14 +223,30 @@ def _merge_echoes(parts) -> Echoes:
     return merged
 
 
-def _block_points(echoes: Echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame) -> dict:
+def _block_points(echoes: Echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame,
+                  config=None, extinction_per_m: float = 0.0, peak: float | None = None) -> dict:
     """The points of one block's echoes (pulse ``a + echoes.pixel``), in the products' types: each echo placed
-    along its pulse's nominal axis at the echo range."""
+    along its pulse's nominal axis at the echo range.  With ``config``: the echoes its scanner's return mode
+    reports, ranges rounded to its range quantum, intensities in its encoding (core/systems/returns.py)."""
+    if config is not None and config.scanner.return_mode != "all":
+        keep = select_returns(echoes.pixel, echoes.amplitude, echoes.echo_index, echoes.n_echoes,
+                              config.scanner.return_mode, config.scanner.n_returns)
+        kept = Echoes(**{f.name: (None if getattr(echoes, f.name) is None else getattr(echoes, f.name)[keep])
+                         for f in dataclasses.fields(Echoes)})
+        if getattr(echoes, "false_alarm", None) is not None:
+            kept.false_alarm = echoes.false_alarm[keep]
+        echoes = kept
     p = echoes.pixel
     time_s = gate.gate_start_s + echoes.position_bins * gate.bin_width_s
     range_m = 0.5 * SPEED_OF_LIGHT_M_S * time_s
+    intensity = echoes.amplitude.astype(np.float32)
+    if config is not None:
+        if config.scanner.range_quantum_m:
+            range_m = quantize_range(range_m, config.scanner.range_quantum_m)
+            time_s = 2.0 * range_m / SPEED_OF_LIGHT_M_S
+        intensity = encode_intensity(echoes.amplitude, range_m, config, extinction_per_m, peak)
     points = {"position_world": origin[p] + axis_world[p] * range_m[:, None],
-              "intensity": echoes.amplitude.astype(np.float32), "range_m": range_m,
+              "intensity": intensity, "range_m": range_m,
               "echo_index": (echoes.echo_index + 1).astype(np.int16), "n_echoes": echoes.n_echoes.astype(np.int16),
               "time_s": time_s, "gps_time_s": start_time_s + t_s[p], "pulse_index": (p + a).astype(np.int64),
               "channel": channel[p], "scan_angle_rad": angle[p].astype(np.float32),
@@ -338,7 +357,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     waveforms = np.zeros((n_pulses, gate.n_bins), np.float32) if save else None
     chain_settings = ChainSettings.from_config(config)
     chain_settings = dataclasses.replace(chain_settings, ifov_x_rad=laser.beam_divergence_rad,
-                                         ifov_y_rad=laser.beam_divergence_rad)
+                                         ifov_y_rad=laser.beam_divergence_y_rad or laser.beam_divergence_rad)
     # the pulse records, written by the blocks in place (their final types: no whole-scan temporaries)
     pulses = {"time_s": np.zeros(n_pulses), "gps_time_s": np.zeros(n_pulses), "origin_world": np.zeros((n_pulses, 3)),
               "direction_world": np.zeros((n_pulses, 3), np.float32), "channel": np.zeros(n_pulses, np.int16),
@@ -346,6 +365,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
               "received_energy_j": np.zeros(n_pulses)}
 
     window = gate_window_s(config)
+    peak = peak_per_joule(config) if config.scanner.intensity_encoding != "amplitude" else None
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
 
     def process(block):
@@ -428,9 +448,11 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             echoes = windowed_echoes(p_hit, t_rt, e, n, config, method, table)
             local["waveform"] = stage_clock() - t  # waveform windows and echo detection together
         t = stage_clock()
-        pts = _block_points(echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame)
-        if wx is not None:
-            pts["atmosphere"] = mark_atmosphere_echoes(config, echoes.pixel, pts["range_m"], p_hit, range_hit)
+        pts = _block_points(echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame,
+                            config, atm.extinction_per_m, peak)
+        if wx is not None:  # (the echoes the return mode kept, at their quantised ranges)
+            pts["atmosphere"] = mark_atmosphere_echoes(config, pts["pulse_index"] - a, pts["range_m"], p_hit,
+                                                       range_hit)
         pulses["time_s"][a:b], pulses["gps_time_s"][a:b] = t_s, start_time_s + t_s
         pulses["origin_world"][a:b], pulses["direction_world"][a:b] = origin, axis_world
         pulses["channel"][a:b], pulses["scan_angle_rad"][a:b] = channel, angle
@@ -476,8 +498,14 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                 "rule": "an echo with no noise-free signal within 2 pulse widths (core.physics.detection.noisy)"}
     return FrameResult(range_image=None, intensity_image=None, energy_image=None, range_echoes=None,
                        intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses,
-                       units=product_units("scanner", stats["receiver"]["units"] if noisy else None),
+                       units=_scanner_units(config, noisy, stats),
                        tracer=tracer)
+
+
+def _scanner_units(config, noisy: bool, stats: dict) -> dict:
+    units = product_units("scanner", stats["receiver"]["units"] if noisy else None)
+    units["intensity"] = intensity_unit(config, units["intensity"])
+    return units
 
 
 def _reference_range(tracer, trajectory, config, n_pulses) -> float:
