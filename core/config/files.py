@@ -52,7 +52,9 @@ def config_from_dict(data: dict, base: SimulationConfig | None = None) -> Simula
     """Build and validate a config from a dict.  Keys present override ``base`` (default settings if None)."""
     if not isinstance(data, dict):
         raise ConfigError("config", type(data).__name__, "a table of settings")
-    data = dict(data)
+    from ..presets import resolve_preset  # (core.presets reads its files through this module)
+
+    data = dict(resolve_preset(data))  # a top-level ``preset = "name"``: its settings first, the file's over them
     version = data.pop("schema_version", SCHEMA_VERSION)
     if type(version) is not int or version != SCHEMA_VERSION:
         raise ConfigError("schema_version", version, f"{SCHEMA_VERSION} (this version of the simulator)")
