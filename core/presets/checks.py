@@ -158,6 +158,27 @@ def _aim(cfg: SimulationConfig, range_m: float) -> None:
         _gate_on(cfg, range_m)
 
 
+#: A camera's detection and precision probes use its central pixels (at most this many a side).
+PROBE_PIXELS = 32
+
+
+def _central_window(cfg: SimulationConfig) -> None:
+    """Keep a camera's central ``PROBE_PIXELS``² pixels (same pixel footprint, the tan-plane grid cropped) and
+    the beam as it was: a beam that filled the whole field of view keeps that divergence (its 1/e² radius on the
+    full diagonal, core/physics/laser.py beam_half_angle_tan), so each kept pixel receives what it did."""
+    rx, laser = cfg.receiver, cfg.laser
+    if rx.width_px <= PROBE_PIXELS and rx.height_px <= PROBE_PIXELS:
+        return
+    tx, ty = math.tan(0.5 * rx.fov_x_rad), math.tan(0.5 * rx.fov_y_rad)
+    if laser.divergence_fills_fov:
+        laser.divergence_fills_fov = False
+        laser.beam_divergence_rad = 2.0 * math.atan(math.hypot(tx, ty))
+    w, h = min(rx.width_px, PROBE_PIXELS), min(rx.height_px, PROBE_PIXELS)
+    rx.fov_x_rad = 2.0 * math.atan(tx * w / rx.width_px)
+    rx.fov_y_rad = 2.0 * math.atan(ty * h / rx.height_px)
+    rx.width_px, rx.height_px = w, h
+
+
 def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, seed: int):
     """Ranges of the echoes near the panel and the number of trials (pulses or pixels)."""
     cfg = _quiet(cfg)
@@ -177,6 +198,7 @@ def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, s
         r = pts["range_m"][near]
         _, first = np.unique(idx, return_index=True)  # one detection per pulse (the first echo near the panel)
         return r[first], int(res.stats["n_pulses"])
+    _central_window(cfg)
     rx = cfg.receiver
     half = 2.0 * range_m * math.tan(0.5 * max(rx.fov_x_rad, rx.fov_y_rad)) + 1.0
     _aim(cfg, range_m)
