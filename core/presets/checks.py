@@ -251,3 +251,69 @@ def derive_pulse_energy(cfg: SimulationConfig, range_m: float, reflectivity: flo
         else:
             lo = mid
     return math.exp(0.5 * (lo + hi))
+
+
+#: Pulses of the detection and precision probes (a camera: its central pixels).
+N_PULSES = 2000
+
+
+def data_sheet_rows(preset) -> list[dict]:
+    """The preset's published figures next to the simulated ones, with the criterion each is held to (the same
+    as tests/core/test_sensor_presets.py): rows of ``figure``, ``published``, ``simulated``, ``criterion``,
+    ``ok``.  Figures without a ``[published]`` key are left out."""
+    from . import preset_config
+
+    pub, cfg = preset.published, preset_config(preset.path)
+    rows = []
+
+    def row(figure, published, simulated, criterion, ok):
+        rows.append({"figure": figure, "published": published, "simulated": simulated, "criterion": criterion,
+                     "ok": bool(ok)})
+
+    if {"fov_h_deg", "fov_v_deg", "channels", "points_per_s", "width_px", "height_px"} & set(pub):
+        if cfg.system_type == "scanner":
+            g = scan_geometry(cfg)
+            step = math.degrees(2 * math.pi * cfg.scanner.scan_rate_hz / cfg.scanner.pulse_rate_hz)
+            if "fov_h_deg" in pub:
+                row("horizontal FOV", f"{pub['fov_h_deg']:g}°", f"{g['fov_h_deg']:.2f}°",
+                    f"within 2 azimuth steps ({2 * step:.3f}°)", abs(g["fov_h_deg"] - pub["fov_h_deg"]) <= 2 * step + 1e-6)
+            if "fov_v_deg" in pub:
+                row("vertical FOV", f"{pub['fov_v_deg']:g}°", f"{g['fov_v_deg']:.2f}°", "±0.000001°",
+                    abs(g["fov_v_deg"] - pub["fov_v_deg"]) <= 1e-6)
+            if "channels" in pub:
+                elev = g["channel_elevations_deg"]
+                text = f"{g['channels']}" + (f" ({elev[0]:+.2f}° … {elev[-1]:+.2f}°)" if len(elev) > 1 else "")
+                row("channels", f"{pub['channels']}", text, "equal", g["channels"] == pub["channels"])
+            if "points_per_s" in pub:
+                rate = f" at {pub['rotation_hz']:g} Hz" if "rotation_hz" in pub else ""
+                row("points per second" + rate, f"{pub['points_per_s']:,.0f}", f"{g['points_per_s']:,.0f}", "±4 %",
+                    abs(g["points_per_s"] / pub["points_per_s"] - 1) <= 0.04)
+        else:
+            g = camera_geometry(cfg)
+            for key, label in (("width_px", "columns"), ("height_px", "rows")):
+                if key in pub:
+                    row(f"detector {label}", f"{pub[key]}", f"{g[key]}", "equal", g[key] == pub[key])
+            for key, label in (("fov_h_deg", "horizontal FOV"), ("fov_v_deg", "vertical FOV")):
+                if key in pub:
+                    row(label, f"{pub[key]:g}°", f"{g[key]:.3f}°", "±0.001°", abs(g[key] - pub[key]) <= 1e-3)
+    if "max_range_m" in pub:
+        p = detection_probability(cfg, pub["max_range_m"], pub["max_range_reflectivity"], N_PULSES, seed=3)
+        row(f"max range @ {pub['max_range_reflectivity']:.0%} (energy derived from it)", f"{pub['max_range_m']:g} m",
+            f"P = {p:.2f}", "(not a check: the pulse energy is set so that P ≈ 0.5)", True)
+    if "second_range_m" in pub:
+        r, rho = pub["second_range_m"], pub["second_reflectivity"]
+        p1 = detection_probability(cfg, r, rho, N_PULSES, seed=21)
+        p2 = detection_probability(cfg, 1.2 * r, rho, N_PULSES, seed=22)
+        row(f"max range @ {rho:.0%}", f"{r:g} m", f"P = {p1:.2f} at {r:g} m, {p2:.2f} at {1.2 * r:g} m",
+            "P ≥ 0.5 at R, < 0.5 at 1.2 R", p1 >= 0.5 > p2)
+    if "detected_range_m" in pub:
+        r, rho = pub["detected_range_m"], pub["detected_reflectivity"]
+        p = detection_probability(cfg, r, rho, N_PULSES, seed=23)
+        row(f"detected @ {rho:.0%}", f"{r:g} m", f"P = {p:.2f}", "P ≥ 0.5", p >= 0.5)
+    if "precision_m" in pub:
+        rho = pub.get("precision_reflectivity", 0.5)
+        s = range_precision(cfg, pub["precision_range_m"], rho, N_PULSES, seed=24)
+        limit = pub["precision_m"] * (1 + 3 / math.sqrt(2 * (N_PULSES - 1)))
+        row(f"precision (1σ) at {pub['precision_range_m']:g} m, {rho:.0%}", f"{pub['precision_m'] * 100:g} cm",
+            f"{s * 100:.2f} cm", "≤ published + 3 standard errors", s <= limit)
+    return rows
