@@ -68,12 +68,14 @@ def build_config(scene, sensor, *, config_path=None, seed=None):
     The receiver field of view follows the camera for the final receiver size, unless the config file sets
     ``receiver.fov_x_rad``/``fov_y_rad`` itself.  Returns (config, the .blend's material table).
     """
+    from ..core.presets import resolve_preset
+
     cfg = config_from_blender(scene, sensor)
     blender_materials = dict(cfg.materials)
     if config_path is not None:
         data = read_config_file(config_path)
         cfg = config_from_dict(data, base=cfg)
-        receiver = data.get("receiver", {})  # the settings the file sets itself
+        receiver = resolve_preset(data).get("receiver", {})  # the settings the file (or its preset) sets itself
         if not isinstance(receiver, dict) or not ({"fov_x_rad", "fov_y_rad"} & set(receiver)):
             rx = cfg.receiver
             rx.fov_x_rad, rx.fov_y_rad = camera_receiver_fov_rad(sensor.data, rx.width_px, rx.height_px)
