@@ -226,31 +226,33 @@ def range_precision(cfg: SimulationConfig, range_m: float, reflectivity: float, 
 def derive_pulse_energy(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
                         seed: int = 3, steps: int = 16) -> float:
     """The pulse energy at which the simulator detects a ``reflectivity`` panel at ``range_m`` with probability
-    0.5 (``n`` trials each): decades from the preset's energy until the probability crosses 0.5, then ``steps``
-    bisections in log energy.  How a preset's unpublished pulse energy is derived from its maker's one
-    maximum-range figure."""
+    0.5 (``n`` trials each): whole decades (10^k J) from the one nearest the preset's energy until the
+    probability crosses 0.5, then ``steps`` bisections in log energy inside that decade — the same result from
+    any starting energy.  How a preset's unpublished pulse energy is derived from its maker's one
+    maximum-range figure.  Its statistical resolution: the binomial error of P (≤ 0.5/√n) over the slope
+    dP/d(ln E) at P = 0.5 (about 1 % in energy for n = 2000 on the shipped scanners)."""
     cfg = copy.deepcopy(cfg)
 
-    def detected(log_e):
-        cfg.laser.pulse_energy_j = math.exp(log_e)
+    def detected(log10_e):
+        cfg.laser.pulse_energy_j = 10.0 ** log10_e
         return detection_probability(cfg, range_m, reflectivity, n, seed) >= 0.5
 
-    lo = hi = math.log(cfg.laser.pulse_energy_j)
-    for _ in range(40):
-        if detected(hi):
-            break
-        lo, hi = hi, hi + math.log(10.0)
-    for _ in range(40):
-        if not detected(lo):
-            break
-        hi, lo = lo, lo - math.log(10.0)
+    k = round(math.log10(cfg.laser.pulse_energy_j))
+    if detected(k):
+        while k > -30 and detected(k - 1):
+            k -= 1
+        lo, hi = k - 1, k
+    else:
+        while k < 2 and not detected(k + 1):
+            k += 1
+        lo, hi = k, k + 1
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
         if detected(mid):
             hi = mid
         else:
             lo = mid
-    return math.exp(0.5 * (lo + hi))
+    return 10.0 ** (0.5 * (lo + hi))
 
 
 #: Pulses of the detection and precision probes (a camera: its central pixels).
