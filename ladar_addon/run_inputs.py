@@ -13,6 +13,7 @@ import bpy
 
 from ..core.config.validate import validate
 from ..core.config.files import config_from_dict, read_config_file
+from ..core.config.preset_files import resolve_preset
 from ..core.fileio.staging import refuse_symlink
 from ..core.process import emit
 from .errors import LadarError
@@ -68,8 +69,6 @@ def build_config(scene, sensor, *, config_path=None, seed=None):
     The receiver field of view follows the camera for the final receiver size, unless the config file sets
     ``receiver.fov_x_rad``/``fov_y_rad`` itself.  Returns (config, the .blend's material table).
     """
-    from ..core.presets import resolve_preset
-
     cfg = config_from_blender(scene, sensor)
     blender_materials = dict(cfg.materials)
     if config_path is not None:

@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 from pathlib import Path
 
+from ..config.files import config_from_dict
+from ..config.preset_files import SENSORS_DIR, list_presets, preset_path, read_preset, resolve_preset
 from ..errors import ConfigError
-
-#: Folder of the shipped presets.
-SENSORS_DIR = Path(__file__).resolve().parent / "sensors"
 
 #: Keys of a preset's ``[published]`` table: key → (types, meaning).  Angles in degrees, ranges in metres,
 #: reflectivities as fractions (0.8 = 80 %).
@@ -33,7 +31,7 @@ PUBLISHED_KEYS = {
     "sources": (list, 'documents the figures come from: "maker, document, revision" each'),
     "fov_h_deg": ((int, float), "horizontal field of view, degrees"),
     "fov_v_deg": ((int, float), "vertical field of view, degrees"),
-    "channels": (int, "channels (lasers) of a multi-channel scanner, or detector rows × columns of a camera"),
+    "channels": (int, "channels (lasers) of a scanner"),
     "width_px": (int, "detector columns of a camera"),
     "height_px": (int, "detector rows of a camera"),
     "points_per_s": ((int, float), "points (measurements) per second, single return"),
@@ -52,7 +50,6 @@ PUBLISHED_KEYS = {
     "precision_reflectivity": ((int, float), "Lambertian reflectivity of the precision check (fraction)"),
 }
 
-_NAME = re.compile(r"^[a-z0-9][a-z0-9_]*$")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,26 +66,6 @@ class Preset:
     def title(self) -> str:
         p = self.published
         return f"{p.get('maker', '')} {p.get('model', self.name)}".strip()
-
-
-def list_presets() -> list[str]:
-    """Names of the shipped presets (file names without ``.toml``), sorted."""
-    return sorted(p.stem for p in SENSORS_DIR.glob("*.toml"))
-
-
-def preset_path(name_or_path) -> Path:
-    """The file of a shipped preset's name, or a user's preset file (a path ending in ``.toml``)."""
-    text = str(name_or_path)
-    if isinstance(name_or_path, Path) or text.lower().endswith(".toml"):
-        path = Path(text).expanduser()
-        if not path.is_file():
-            raise ConfigError("preset", text, "a shipped preset name (" + ", ".join(list_presets())
-                                              + ") or an existing preset file ending in .toml")
-        return path
-    if not isinstance(name_or_path, str) or not _NAME.match(text) or not (SENSORS_DIR / f"{text}.toml").is_file():
-        raise ConfigError("preset", name_or_path, "a shipped preset name (" + ", ".join(list_presets())
-                                                  + ") or a preset file ending in .toml")
-    return SENSORS_DIR / f"{text}.toml"
 
 
 def _check_published(published, where: str) -> dict:
@@ -121,17 +98,9 @@ def load_preset(name_or_path) -> Preset:
     """Read and validate a preset (a shipped name or a user's ``.toml`` file).  Its settings are checked as a
     config (every setting's range, on top of the default settings); a bad key or value is a one-line
     ConfigError naming the file, the key and the value."""
-    from ..config.files import config_from_dict, read_config_file
-
-    path = preset_path(name_or_path)
-    data = read_config_file(path, what="preset file")
-    if not isinstance(data, dict):
-        raise ConfigError("preset file", str(path), "a TOML table")
-    data = dict(data)
+    path, data, published = read_preset(name_or_path)
     where = f"preset {path.stem}: "
-    if "preset" in data:
-        raise ConfigError(f"{where}preset", data["preset"], "no preset key inside a preset file (no chaining)")
-    published = _check_published(data.pop("published", {}), where)
+    published = _check_published(published, where)
     try:
         config_from_dict(data)
     except ConfigError as exc:
@@ -146,28 +115,7 @@ def preset_settings(name_or_path) -> dict:
 
 def preset_config(name_or_path, base=None):
     """A validated SimulationConfig: ``base`` (default settings if None) with the preset's settings applied."""
-    from ..config.files import config_from_dict
-
     return config_from_dict(preset_settings(name_or_path), base)
-
-
-def resolve_preset(data: dict) -> dict:
-    """A config table with its ``preset`` key (if any) expanded: the preset's settings, then the table's own
-    keys over them (groups merged key by key).  Tables without ``preset`` come back unchanged."""
-    if not isinstance(data, dict) or "preset" not in data:
-        return data
-    data = dict(data)
-    name = data.pop("preset")
-    if not isinstance(name, str):
-        raise ConfigError("preset", name, "a preset name (" + ", ".join(list_presets())
-                                          + ") or a preset file ending in .toml")
-    merged = {k: (dict(v) if isinstance(v, dict) else v) for k, v in preset_settings(name).items()}
-    for key, value in data.items():
-        if isinstance(value, dict) and isinstance(merged.get(key), dict) and key != "materials":
-            merged[key] = {**merged[key], **value}
-        else:
-            merged[key] = value
-    return merged
 
 
 __all__ = ["PUBLISHED_KEYS", "Preset", "SENSORS_DIR", "list_presets", "load_preset", "preset_config",

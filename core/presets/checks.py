@@ -28,6 +28,8 @@ import numpy as np
 from ..config.settings import BRDFSettings, SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..geometry.scene import SceneGeometry
+from ..run import simulate
+from . import preset_config
 
 #: An echo within this distance of the panel counts as its detection (false alarms elsewhere do not count).
 RANGE_WINDOW_M = 1.0
@@ -70,8 +72,6 @@ def _gate_on(cfg: SimulationConfig, range_m: float) -> None:
 
 
 def _simulate(scene, cfg):
-    from ..run import simulate
-
     return simulate(scene, np.eye(4), cfg, ground_truth=False)
 
 
@@ -263,8 +263,6 @@ def data_sheet_rows(preset) -> list[dict]:
     """The preset's published figures next to the simulated ones, with the criterion each is held to (the same
     as tests/core/test_sensor_presets.py): rows of ``figure``, ``published``, ``simulated``, ``criterion``,
     ``ok``.  Figures without a ``[published]`` key are left out."""
-    from . import preset_config
-
     pub, cfg = preset.published, preset_config(preset.path)
     rows = []
 
