@@ -118,6 +118,16 @@ def test_every_real_sensor_preset_applies_its_toml_settings(lad, scene, path):
             _same(getattr(getattr(cfg, group), key), value, f"{path.stem}: {group}.{key}")
 
 
+def test_unknown_real_sensor_preset_changes_nothing(lad, scene):
+    cam = add_camera(scene)
+    before = lad.blend_config.config_from_blender(scene, cam)
+    presets = lad.package.ladar_addon.presets
+    with bpy.context.temp_override(object=cam):
+        with pytest.raises(lad.config.ConfigError, match="preset = 'velodyne_vlp99' is not allowed.*velodyne_vlp16"):
+            presets.apply_named_sensor_preset("velodyne_vlp99")
+    assert lad.blend_config.config_from_blender(scene, cam) == before
+
+
 def test_sensor_presets_replace_each_other_and_fail_cleanly(lad, scene):
     cam = add_camera(scene)
     presets = lad.package.ladar_addon.presets
