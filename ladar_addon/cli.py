@@ -7,7 +7,7 @@ Commands::
                      [--overwrite | --if-exists {stop,replace,new}] [--sensor NAME] [--clouds {run,frame}]
                      [--no-import] [--no-previews]
     sweep            SWEEP.toml --out DIR [--scheduler tcp://HOST:8786] [--workers N] [--restart] [--sensor NAME]
-    export-config    --out FILE.json|FILE.toml [--sensor NAME] [--overwrite]
+    export-config    --out FILE.json|FILE.toml [--sensor NAME] [--preset NAME] [--overwrite]
     validate-config  FILE [--sensor NAME]
     warm-up          (compile the kernels of every system ahead, with progress; no .blend file needed)
 
@@ -114,6 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
                          epilog=_EPILOG)
     exp.add_argument("--out", required=True, metavar="FILE", help="output file ending in .json or .toml")
     exp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
+    exp.add_argument("--preset", default=None, metavar="NAME",
+                     help="apply a real-sensor preset (docs/sensors.md: e.g. velodyne_vlp16, or a preset .toml "
+                          "file) over the sensor's settings before writing them")
     exp.add_argument("--overwrite", action="store_true", help="replace FILE if it exists (default: refuse)")
 
     val = sub.add_parser("validate-config", help="check a JSON or TOML config file against the settings schema",
@@ -150,9 +153,11 @@ def _write_text_atomically(path: Path, text: str, overwrite: bool = False) -> No
                                             "--overwrite to replace it)") from None
 
 
-def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:
-    """Write the scene's settings (``config_from_blender``) to ``path`` (.json or .toml).  An existing file is
-    replaced only with ``overwrite``."""
+def export_config(scene, path, sensor=None, *, overwrite: bool = False, preset=None) -> Path:
+    """Write the scene's settings (``config_from_blender``) to ``path`` (.json or .toml), with the real-sensor
+    ``preset`` (core.presets: a name or a preset file) applied over them if given.  An existing file is replaced
+    only with ``overwrite``."""
+    from ..core.config.files import config_from_dict
     from .blend_config import config_from_blender
 
     path = Path(path)
@@ -164,6 +169,8 @@ def export_config(scene, path, sensor=None, *, overwrite: bool = False) -> Path:
     if not overwrite and (path.exists() or path.is_symlink()):
         raise ConfigError("out", str(path), "a file that does not exist yet (or --overwrite to replace it)")
     cfg = config_from_blender(scene, sensor if sensor is not None else _sensor(scene, None))
+    if preset is not None:
+        cfg = config_from_dict({"preset": preset}, base=cfg)  # validated before anything is written
     _write_text_atomically(path, dump_config_json(cfg) + "\n" if suffix == ".json" else dump_config_toml(cfg),
                            overwrite=overwrite)
     return path
@@ -221,7 +228,8 @@ def _cmd_sweep(scene, args) -> int:
 
 
 def _cmd_export_config(scene, args) -> int:
-    path = export_config(scene, args.out, _sensor(scene, args.sensor), overwrite=args.overwrite)
+    path = export_config(scene, args.out, _sensor(scene, args.sensor), overwrite=args.overwrite,
+                         preset=args.preset)
     emit(f"ladar: wrote {path}")
     return 0
 

@@ -152,6 +152,15 @@ def apply_sensor_preset(settings: dict, context=None):
     return obj
 
 
+def apply_named_sensor_preset(name: str, context=None):
+    """Apply a real-sensor preset of the core registry (``core/presets/sensors/<name>.toml``, core.presets) the
+    way :func:`apply_sensor_preset` applies a shipped one: its settings (not its ``[published]`` figures),
+    validated before anything changes.  The generated menu files (scripts/sensor_table.py) call this."""
+    from ..core.presets import preset_settings
+
+    return apply_sensor_preset(preset_settings(name), context)
+
+
 def apply_material_preset(settings: dict, origin: str, context=None):
     """Apply a material BRDF preset given in SI units (``BRDFSettings`` fields; a table as
     ``table_angle_deg``/``table_brdf_per_sr`` lists) to the context's material, enabled, with ``origin`` shown

@@ -13,6 +13,7 @@ import bpy
 
 from ..core.config.validate import validate
 from ..core.config.files import config_from_dict, read_config_file
+from ..core.config.preset_files import resolve_preset
 from ..core.fileio.staging import refuse_symlink
 from ..core.process import emit
 from .errors import LadarError
@@ -73,7 +74,7 @@ def build_config(scene, sensor, *, config_path=None, seed=None):
     if config_path is not None:
         data = read_config_file(config_path)
         cfg = config_from_dict(data, base=cfg)
-        receiver = data.get("receiver", {})  # the settings the file sets itself
+        receiver = resolve_preset(data).get("receiver", {})  # the settings the file (or its preset) sets itself
         if not isinstance(receiver, dict) or not ({"fov_x_rad", "fov_y_rad"} & set(receiver)):
             rx = cfg.receiver
             rx.fov_x_rad, rx.fov_y_rad = camera_receiver_fov_rad(sensor.data, rx.width_px, rx.height_px)

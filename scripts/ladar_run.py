@@ -6,7 +6,7 @@
                                 [--sensor NAME] [--clouds {run,frame}] [--no-import] [--no-previews]
     python scripts/ladar_run.py scene.blend sweep sweep.toml --out DIR [--scheduler tcp://HOST:8786]
                                 [--workers N] [--restart] [--sensor NAME]
-    python scripts/ladar_run.py scene.blend export-config --out settings.toml
+    python scripts/ladar_run.py scene.blend export-config --out settings.toml [--preset NAME]
     python scripts/ladar_run.py scene.blend validate-config settings.toml
     python scripts/ladar_run.py scene.blend simulate --help      (the command's full help)
     python scripts/ladar_run.py warm-up     (compile every system's kernels ahead, with progress; no .blend)

@@ -145,6 +145,12 @@ def render() -> str:
         "",
         "## System",
         "",
+        "A config file may also set `preset = \"NAME\"` at its top level: a real-instrument preset "
+        "(`core/presets/sensors/NAME.toml`, listed with its sources in [sensors.md](sensors.md)) or the path of "
+        "your own preset file ending in `.toml`. Its settings are applied first, then the file's other keys over "
+        "them; `export-config --preset NAME` writes the expanded settings. A preset's `[published]` table is the "
+        "maker's figures, not settings.",
+        "",
     ]
     top = [f for f in dataclasses.fields(SimulationConfig) if f.name not in GROUPS and f.name != "materials"]
     lines += list(HEADER)

@@ -32,6 +32,7 @@ CORE_LAYERS = {
     "core.systems": 5, "core.fileio": 5,
     "core.run": 6, "core.sequence": 6, "core.warmup": 6,
     "core.sweep": 7,
+    "core.presets": 1, "core.presets.checks": 6,  # the preset registry (settings); its data-sheet checks run frames
 }
 #: the sensor systems (modules that may not import each other); their helpers (scan_patterns) are ordinary modules
 SYSTEM_MODULES = {"core.systems.flash", "core.systems.scanner", "core.systems.gated"}

@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import ConfigError, cut
+from .preset_files import resolve_preset
 from .settings import BRDF_TABLE_FIELDS, GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig
 from .validate import finite_number, validate
 
@@ -52,7 +53,7 @@ def config_from_dict(data: dict, base: SimulationConfig | None = None) -> Simula
     """Build and validate a config from a dict.  Keys present override ``base`` (default settings if None)."""
     if not isinstance(data, dict):
         raise ConfigError("config", type(data).__name__, "a table of settings")
-    data = dict(data)
+    data = dict(resolve_preset(data))  # a top-level ``preset = "name"``: its settings first, the file's over them
     version = data.pop("schema_version", SCHEMA_VERSION)
     if type(version) is not int or version != SCHEMA_VERSION:
         raise ConfigError("schema_version", version, f"{SCHEMA_VERSION} (this version of the simulator)")

@@ -1,0 +1,319 @@
+"""A preset against its data sheet: figures measured by running the simulator (no ``bpy``).
+
+Each function runs :func:`core.run.simulate` on a small analytic scene and measures one figure the way a data
+sheet states it:
+
+* :func:`scan_geometry` — a scanner inside a closed box room (every pulse hits a wall): the vertical field of
+  view from the points' elevations (the span of the outermost channels' axes, as data sheets quote it), the
+  horizontal field of view from their azimuths, the channel count, and the points per second: the points of one
+  revolution (or line) × the rotation (line) rate, the points of one pattern period / its duration otherwise;
+* :func:`camera_geometry` — a camera facing a wall: detector columns × rows with a range, and the field of view
+  from the pixels' directions (outer pixel centres' span + one pixel pitch);
+* :func:`detection_probability` — the fraction of pulses (scanner) or pixels (camera) that report an echo
+  within ``RANGE_WINDOW_M`` of a Lambertian panel of a given reflectivity at a given range, normal to the
+  line of sight and larger than the beam;
+* :func:`range_precision` — the standard deviation of those echoes' ranges.
+
+The scanner's detection and precision probes keep the preset's laser, receiver, gate bin width, detection and
+detector settings and hold the beam on the panel (a one-line raster of zero width at the preset's pulse rate):
+the radiometry of a pulse does not depend on where the scan pattern points it.
+"""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+
+from ..config.settings import BRDFSettings, SimulationConfig
+from ..constants import SPEED_OF_LIGHT_M_S
+from ..geometry.scene import SceneGeometry
+from ..run import simulate
+from . import preset_config
+
+#: An echo within this distance of the panel counts as its detection (false alarms elsewhere do not count).
+RANGE_WINDOW_M = 1.0
+#: Bins of the probe's range gate (the panel in the middle): the noise estimate needs a stretch without signal.
+PROBE_BINS = 512
+
+
+def _panel(range_m: float, half_size_m: float, reflectivity: float) -> SceneGeometry:
+    """A square Lambertian panel facing the sensor at ``range_m`` along −Z."""
+    h, z = half_size_m, -range_m
+    verts = np.array([[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]], float)
+    return SceneGeometry(verts, [[0, 1, 2], [0, 2, 3]], [0, 0],
+                         [BRDFSettings(model="lambertian", reflectance=float(reflectivity))], ["panel"])
+
+
+def _box_room(half_m: float) -> SceneGeometry:
+    """A closed cube (inward faces do not matter to the tracer) of half side ``half_m`` around the origin."""
+    h = half_m
+    v = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return SceneGeometry(v, tris, [0] * len(tris), [BRDFSettings(reflectance=0.5)], ["wall"])
+
+
+def _quiet(cfg: SimulationConfig) -> SimulationConfig:
+    cfg = copy.deepcopy(cfg)
+    cfg.run.save_waveforms = False
+    cfg.run.threads = 1
+    cfg.atmosphere.extinction_per_m = 0.0
+    cfg.atmosphere.visibility_m = 0.0
+    cfg.atmosphere.cn2_m_23 = 0.0
+    return cfg
+
+
+def _gate_on(cfg: SimulationConfig, range_m: float) -> None:
+    """The range gate: the preset's bin width, ``PROBE_BINS`` bins with ``range_m`` in the middle."""
+    g = cfg.gate
+    g.n_bins = PROBE_BINS
+    g.gate_start_s = max(0.0, 2.0 * range_m / SPEED_OF_LIGHT_M_S - 0.5 * PROBE_BINS * g.bin_width_s)
+
+
+def _simulate(scene, cfg):
+    return simulate(scene, np.eye(4), cfg, ground_truth=False)
+
+
+def pattern_rate_hz(cfg: SimulationConfig) -> float:
+    """Pattern periods per second: revolutions (rotating, palmer), lines (raster), mirror periods (oscillating)."""
+    return cfg.scanner.scan_rate_hz
+
+
+def scan_geometry(cfg: SimulationConfig) -> dict:
+    """Field of view, channels and points per second of a scanner preset, from one simulated pattern period in
+    a box room (ideal detector, one ray per pulse)."""
+    cfg = _quiet(cfg)
+    cfg.detector.mode = "ideal"
+    cfg.scanner.beam_subray_rings = 0
+    cfg.scanner.duration_s = 0.0
+    cfg.gate.gate_start_s, cfg.gate.bin_width_s = 0.0, max(cfg.gate.bin_width_s, 1e-9)
+    cfg.gate.n_bins = int(math.ceil(2 * 30.0 * math.sqrt(3) / SPEED_OF_LIGHT_M_S / cfg.gate.bin_width_s)) + 64
+    res = _simulate(_box_room(30.0), cfg)
+    pts = res.points
+    first = pts["echo_index"] == 1
+    pos = pts["position_world"][first]
+    d = pos / np.linalg.norm(pos, axis=1)[:, None]
+    elevation = np.degrees(np.arcsin(np.clip(d[:, 1], -1, 1)))  # to +Y (the rotating head's axis)
+    azimuth = np.degrees(np.arctan2(d[:, 0], -d[:, 2]))
+    s = cfg.scanner
+    if s.pattern == "rotating":
+        # span of the azimuths fired: a full turn shows as 360° (the largest gap between sorted azimuths removed)
+        az = np.sort(azimuth)
+        gaps = np.diff(np.concatenate([az, az[:1] + 360.0]))
+        step = float(np.median(gaps))
+        fov_h = 360.0 - float(gaps.max()) + step
+        fov_v = float(elevation.max() - elevation.min())
+    else:
+        fov_h = float(azimuth.max() - azimuth.min())
+        fov_v = float(elevation.max() - elevation.min())
+    if s.pattern == "palmer":  # a cone: the across-track extent is its full angle, measured along X
+        across = np.degrees(np.arctan2(d[:, 0], -d[:, 2]))
+        fov_h = fov_v = float(across.max() - across.min())
+    channels = int(np.unique(pts["channel"][first]).size)
+    n_points = int(first.sum())
+    period_s = float(res.stats["scan_duration_s"])
+    return {"fov_h_deg": fov_h, "fov_v_deg": fov_v, "channels": channels,
+            "points_per_s": n_points * pattern_rate_hz(cfg) if s.pattern == "rotating" else n_points / period_s,
+            "n_points": n_points,
+            "channel_elevations_deg": sorted({round(float(e), 6) for e in
+                                              _channel_elevations(elevation, pts["channel"][first])})}
+
+
+def _channel_elevations(elevation, channel):
+    return [float(np.median(elevation[channel == c])) for c in np.unique(channel)]
+
+
+def camera_geometry(cfg: SimulationConfig, distance_m: float = 50.0) -> dict:
+    """Pixels with a range and the field of view of a camera preset (flash, profiler, gated), facing a wall."""
+    cfg = _quiet(cfg)
+    cfg.detector.mode = "ideal"
+    cfg.receiver.subsamples = 1
+    half = 2.0 * distance_m * math.tan(0.5 * max(cfg.receiver.fov_x_rad, cfg.receiver.fov_y_rad)) + 1.0
+    _aim(cfg, distance_m)
+    res = _simulate(_panel(distance_m, half, 0.8), cfg)
+    r = np.asarray(res.range_image, float)
+    ok = np.isfinite(r)
+    rx = cfg.receiver
+    # pixel centres' directions: the range image's pixels in the sensor frame (x right, y up, −z forward)
+    tx = (np.arange(rx.width_px) + 0.5) / rx.width_px - 0.5
+    ty = (np.arange(rx.height_px) + 0.5) / rx.height_px - 0.5
+    ang_x = np.degrees(np.arctan(2 * tx * math.tan(0.5 * rx.fov_x_rad)))
+    ang_y = np.degrees(np.arctan(2 * ty * math.tan(0.5 * rx.fov_y_rad)))
+    cols, rows = np.nonzero(ok.any(axis=0))[0], np.nonzero(ok.any(axis=1))[0]
+    pitch_x = float(np.diff(ang_x).mean()) if len(ang_x) > 1 else math.degrees(rx.fov_x_rad)
+    pitch_y = float(np.diff(ang_y).mean()) if len(ang_y) > 1 else math.degrees(rx.fov_y_rad)
+    return {"width_px": int(len(cols)), "height_px": int(len(rows)), "n_pixels": int(ok.sum()),
+            "fov_h_deg": float(ang_x[cols].max() - ang_x[cols].min() + pitch_x),
+            "fov_v_deg": float(ang_y[rows].max() - ang_y[rows].min() + pitch_y)}
+
+
+def _aim(cfg: SimulationConfig, range_m: float) -> None:
+    """A camera's gate (flash, profiler) or gate sweep (gated) around ``range_m``."""
+    if cfg.system_type == "gated":
+        g = cfg.gated
+        span = (g.n_slices - 1) * g.delay_step_s
+        g.first_delay_s = max(0.0, 2.0 * range_m / SPEED_OF_LIGHT_M_S - 0.5 * span - 0.5 * g.gate_width_s)
+    else:
+        _gate_on(cfg, range_m)
+
+
+#: A camera's detection and precision probes use its central pixels (at most this many a side).
+PROBE_PIXELS = 32
+
+
+def _central_window(cfg: SimulationConfig) -> None:
+    """Keep a camera's central ``PROBE_PIXELS``² pixels (same pixel footprint, the tan-plane grid cropped) and
+    the beam as it was: a beam that filled the whole field of view keeps that divergence (its 1/e² radius on the
+    full diagonal, core/physics/laser.py beam_half_angle_tan), so each kept pixel receives what it did."""
+    rx, laser = cfg.receiver, cfg.laser
+    if rx.width_px <= PROBE_PIXELS and rx.height_px <= PROBE_PIXELS:
+        return
+    tx, ty = math.tan(0.5 * rx.fov_x_rad), math.tan(0.5 * rx.fov_y_rad)
+    if laser.divergence_fills_fov:
+        laser.divergence_fills_fov = False
+        laser.beam_divergence_rad = 2.0 * math.atan(math.hypot(tx, ty))
+    w, h = min(rx.width_px, PROBE_PIXELS), min(rx.height_px, PROBE_PIXELS)
+    rx.fov_x_rad = 2.0 * math.atan(tx * w / rx.width_px)
+    rx.fov_y_rad = 2.0 * math.atan(ty * h / rx.height_px)
+    rx.width_px, rx.height_px = w, h
+
+
+def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, seed: int):
+    """Ranges of the echoes near the panel and the number of trials (pulses or pixels)."""
+    cfg = _quiet(cfg)
+    cfg.run.seed = int(seed)
+    if cfg.system_type == "scanner":
+        s = cfg.scanner
+        s.pattern, s.n_lines, s.scan_width_rad, s.scan_height_rad = "raster", 1, 0.0, 0.0
+        s.scan_rate_hz = s.pulse_rate_hz / n
+        s.duration_s = n / s.pulse_rate_hz
+        s.beam_subray_rings = 0
+        _gate_on(cfg, range_m)
+        half = max(2.0, 3.0 * cfg.laser.beam_divergence_rad * range_m)
+        res = _simulate(_panel(range_m, half, reflectivity), cfg)
+        pts = res.points
+        near = np.abs(pts["range_m"] - range_m) < RANGE_WINDOW_M
+        idx = pts["pulse_index"][near]
+        r = pts["range_m"][near]
+        _, first = np.unique(idx, return_index=True)  # one detection per pulse (the first echo near the panel)
+        return r[first], int(res.stats["n_pulses"])
+    _central_window(cfg)
+    rx = cfg.receiver
+    half = 2.0 * range_m * math.tan(0.5 * max(rx.fov_x_rad, rx.fov_y_rad)) + 1.0
+    _aim(cfg, range_m)
+    res = _simulate(_panel(range_m, half, reflectivity), cfg)
+    r = np.asarray(res.range_image, float).ravel()
+    near = np.isfinite(r) & (np.abs(r - range_m) < RANGE_WINDOW_M)
+    return r[near], int(r.size)
+
+
+def detection_probability(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
+                          seed: int = 1) -> float:
+    """Fraction of ``n`` pulses (scanner) or of the camera's pixels with an echo within ``RANGE_WINDOW_M`` of a
+    Lambertian panel of ``reflectivity`` at ``range_m``."""
+    r, trials = _probe(cfg, range_m, reflectivity, n, seed)
+    return len(r) / trials
+
+
+def range_precision(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
+                    seed: int = 2) -> float:
+    """Standard deviation (m) of the ranges of the panel's echoes (≥ 10 echoes needed, else NaN)."""
+    r, _ = _probe(cfg, range_m, reflectivity, n, seed)
+    return float(np.std(r, ddof=1)) if len(r) >= 10 else float("nan")
+
+
+def derive_pulse_energy(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
+                        seed: int = 3, steps: int = 16) -> float:
+    """The pulse energy at which the simulator detects a ``reflectivity`` panel at ``range_m`` with probability
+    0.5 (``n`` trials each): whole decades (10^k J) from the one nearest the preset's energy until the
+    probability crosses 0.5, then ``steps`` bisections in log energy inside that decade — the same result from
+    any starting energy.  How a preset's unpublished pulse energy is derived from its maker's one
+    maximum-range figure.  Its statistical resolution: the binomial error of P (≤ 0.5/√n) over the slope
+    dP/d(ln E) at P = 0.5 (about 1 % in energy for n = 2000 on the shipped scanners)."""
+    cfg = copy.deepcopy(cfg)
+
+    def detected(log10_e):
+        cfg.laser.pulse_energy_j = 10.0 ** log10_e
+        return detection_probability(cfg, range_m, reflectivity, n, seed) >= 0.5
+
+    k = round(math.log10(cfg.laser.pulse_energy_j))
+    if detected(k):
+        while k > -30 and detected(k - 1):
+            k -= 1
+        lo, hi = k - 1, k
+    else:
+        while k < 2 and not detected(k + 1):
+            k += 1
+        lo, hi = k, k + 1
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if detected(mid):
+            hi = mid
+        else:
+            lo = mid
+    return 10.0 ** (0.5 * (lo + hi))
+
+
+#: Pulses of the detection and precision probes (a camera: its central pixels).
+N_PULSES = 2000
+
+
+def data_sheet_rows(preset) -> list[dict]:
+    """The preset's published figures next to the simulated ones, with the criterion each is held to (the same
+    as tests/core/test_sensor_presets.py): rows of ``figure``, ``published``, ``simulated``, ``criterion``,
+    ``ok``.  Figures without a ``[published]`` key are left out."""
+    pub, cfg = preset.published, preset_config(preset.path)
+    rows = []
+
+    def row(figure, published, simulated, criterion, ok):
+        rows.append({"figure": figure, "published": published, "simulated": simulated, "criterion": criterion,
+                     "ok": bool(ok)})
+
+    if {"fov_h_deg", "fov_v_deg", "channels", "points_per_s", "width_px", "height_px"} & set(pub):
+        if cfg.system_type == "scanner":
+            g = scan_geometry(cfg)
+            step = math.degrees(2 * math.pi * cfg.scanner.scan_rate_hz / cfg.scanner.pulse_rate_hz)
+            if "fov_h_deg" in pub:
+                row("horizontal FOV", f"{pub['fov_h_deg']:g}°", f"{g['fov_h_deg']:.2f}°",
+                    f"within 2 azimuth steps ({2 * step:.3f}°)", abs(g["fov_h_deg"] - pub["fov_h_deg"]) <= 2 * step + 1e-6)
+            if "fov_v_deg" in pub:
+                row("vertical FOV", f"{pub['fov_v_deg']:g}°", f"{g['fov_v_deg']:.2f}°", "±0.000001°",
+                    abs(g["fov_v_deg"] - pub["fov_v_deg"]) <= 1e-6)
+            if "channels" in pub:
+                elev = g["channel_elevations_deg"]
+                text = f"{g['channels']}" + (f" ({elev[0]:+.2f}° … {elev[-1]:+.2f}°)" if len(elev) > 1 else "")
+                row("channels", f"{pub['channels']}", text, "equal", g["channels"] == pub["channels"])
+            if "points_per_s" in pub:
+                rate = f" at {pub['rotation_hz']:g} Hz" if "rotation_hz" in pub else ""
+                row("points per second" + rate, f"{pub['points_per_s']:,.0f}", f"{g['points_per_s']:,.0f}", "±4 %",
+                    abs(g["points_per_s"] / pub["points_per_s"] - 1) <= 0.04)
+        else:
+            g = camera_geometry(cfg)
+            for key, label in (("width_px", "columns"), ("height_px", "rows")):
+                if key in pub:
+                    row(f"detector {label}", f"{pub[key]}", f"{g[key]}", "equal", g[key] == pub[key])
+            for key, label in (("fov_h_deg", "horizontal FOV"), ("fov_v_deg", "vertical FOV")):
+                if key in pub:
+                    row(label, f"{pub[key]:g}°", f"{g[key]:.3f}°", "±0.001°", abs(g[key] - pub[key]) <= 1e-3)
+    if "max_range_m" in pub:
+        p = detection_probability(cfg, pub["max_range_m"], pub["max_range_reflectivity"], N_PULSES, seed=3)
+        row(f"max range @ {pub['max_range_reflectivity']:.0%} (energy derived from it)", f"{pub['max_range_m']:g} m",
+            f"P = {p:.2f}", "(not a check: the pulse energy is set so that P ≈ 0.5)", True)
+    if "second_range_m" in pub:
+        r, rho = pub["second_range_m"], pub["second_reflectivity"]
+        p1 = detection_probability(cfg, r, rho, N_PULSES, seed=21)
+        p2 = detection_probability(cfg, 1.2 * r, rho, N_PULSES, seed=22)
+        row(f"max range @ {rho:.0%}", f"{r:g} m", f"P = {p1:.2f} at {r:g} m, {p2:.2f} at {1.2 * r:g} m",
+            "P ≥ 0.5 at R, < 0.5 at 1.2 R", p1 >= 0.5 > p2)
+    if "detected_range_m" in pub:
+        r, rho = pub["detected_range_m"], pub["detected_reflectivity"]
+        p = detection_probability(cfg, r, rho, N_PULSES, seed=23)
+        row(f"detected @ {rho:.0%}", f"{r:g} m", f"P = {p:.2f}", "P ≥ 0.5", p >= 0.5)
+    if "precision_m" in pub:
+        rho = pub.get("precision_reflectivity", 0.5)
+        s = range_precision(cfg, pub["precision_range_m"], rho, N_PULSES, seed=24)
+        limit = pub["precision_m"] * (1 + 3 / math.sqrt(2 * (N_PULSES - 1)))
+        row(f"precision (1σ) at {pub['precision_range_m']:g} m, {rho:.0%}", f"{pub['precision_m'] * 100:g} cm",
+            f"{s * 100:.2f} cm", "≤ published + 3 standard errors", s <= limit)
+    return rows
