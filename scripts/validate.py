@@ -118,7 +118,7 @@ def fmt(x) -> str:
     if x == 0:
         return "0"
     if 1e-3 <= abs(x) < 1e5:
-        return f"{x:.5g}"
+        return f"{x:.6g}"
     return f"{x:.4e}"
 
 
