@@ -43,10 +43,14 @@ from validation import KINDS, within  # noqa: E402
 
 #: Effects of issue 32 that have no module yet, and why (listed on the summary page until a module exists).
 NOT_YET = {
-    "mitsuba": "An independent transient renderer (Mitsuba 3 + mitransient) as a pinned optional environment is "
-               "not set up yet: it needs the mitsuba/drjit wheels and a libLLVM ≥ 16 (Debian 12: libllvm19) for "
-               "Dr.Jit's LLVM backend, a second virtualenv the script would create, and a scene export of the "
-               "profiler's aircraft sample to Mitsuba's XML; none of that is in this repository yet.",
+    "mitsuba": "The profiler's waveforms against an independent transient renderer (Mitsuba 3 + mitransient, "
+               "PyPI `mitransient` 1.3.1) are not here yet.  Dr.Jit's LLVM backend needs a libLLVM ≥ 16; the "
+               "machine this report was written on has libLLVM 14 and 15 only (Debian 12 ships `libllvm19`, a "
+               "system package this project's sessions do not install), and the pieces the script would need are "
+               "not written: a pinned second virtualenv it creates (mitsuba, drjit, mitransient), an export of the "
+               "aircraft sample to a Mitsuba scene with matching radiometry (a pulsed point emitter, the "
+               "Steinvall BRDF as a measured table), and the L2 tolerance.  Until then the profiler is checked "
+               "against a brute-force ray grid written independently of the simulator (systems page).",
 }
 
 
