@@ -192,7 +192,10 @@ METRIC = {"flash": "waveform L2 error (relative)", "gated": "slice-stack L2 erro
 
 
 def run(out_dir: Path, quick: bool) -> list[dict]:
-    repeat = 1 if quick else 2
+    import os
+    from matplotlib.ticker import NullFormatter
+    repeat = 1 if quick else 3
+    load = os.getloadavg()[0]
     scene = mixed_scene()
     results = {"flash": sweep_flash(scene, quick, repeat), "gated": sweep_gated(scene, quick, repeat),
                "scanner": sweep_scanner(scene, quick, repeat), "profiler": sweep_profiler(quick, repeat)}
@@ -224,6 +227,7 @@ def run(out_dir: Path, quick: bool) -> list[dict]:
         row = next(r for r in rows if r["label"] == label)
         checks.append(check(f"{system}: error of {label}", row["error"], 0.0, bound, kind="max"))
         ax.set(title=f"{system}: time vs error", xlabel="time per frame, 1 thread [ms]", ylabel=METRIC[system])
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.legend(fontsize=6)
     save(fig, out_dir / "pareto_fronts.png")
     lines = ["| system | setting | time per frame [ms] | error | on the Pareto front |", "|---|---|---|---|---|"]
@@ -233,5 +237,6 @@ def run(out_dir: Path, quick: bool) -> list[dict]:
             lines.append(f"| {system} | {r['label']} | {r['time'] * 1e3:.1f} | {r['error']:.3g} | "
                          f"{'yes' if id(r) in front else ''} |")
     (out_dir / "timings.md").write_text("# Time and error of every setting\n\nTimes of the run that generated "
-                                        "this page (not checked).\n\n" + "\n".join(lines) + "\n", encoding="utf-8")
+                                        f"this page (best of {repeat}; load average {load:.1f} on the machine "
+                                        "when it started: times are not checked).\n\n" + "\n".join(lines) + "\n", encoding="utf-8")
     return checks
