@@ -181,6 +181,12 @@ def write_summary(out: Path, data: dict, modules: dict) -> None:
         title = getattr(modules.get(n), "TITLE", n)
         lines.append(f"| [{title}]({n}.md) | {len(e['checks'])} | {sum(c['passed'] for c in e['checks'])} | "
                      f"{e['mode']} | {e['seconds']:.0f} |")
+    failing = [(n, c) for n in effects for c in data["effects"][n]["checks"] if not c["passed"]]
+    if failing:
+        lines += ["", "## Failing checks", ""]
+        lines += ["| effect | quantity | simulated | reference | tolerance |", "|---|---|---|---|---|"]
+        lines += [f"| [{n}]({n}.md) | {c['quantity']} | {fmt(c['simulated'])} | {fmt(c['reference'])} | "
+                  f"{tol_text(c)} |" for n, c in failing]
     missing = {k: v for k, v in NOT_YET.items() if k not in data["effects"]}
     if missing:
         lines += ["", "## Not validated yet", ""] + [f"- **{k}**: {v}" for k, v in missing.items()]
