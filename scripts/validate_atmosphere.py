@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """Validate the atmosphere module and write plots + a Markdown summary (docs/theory.md §1–6, §11, §12).
 
-    .venv/bin/python scripts/validate_atmosphere.py [OUT_DIR | --update-committed] [--seed N] [--quick]
+    .venv/bin/python scripts/validate_atmosphere.py [OUT_DIR] [--seed N] [--quick]
 
-OUT_DIR defaults to runs/validation/atmosphere/ (not committed); ``--update-committed`` regenerates the committed
-report in docs/validation/atmosphere/ (the only way this script writes there).  Writes scintillation_pdf.png, correlation.png, mtf.png,
+OUT_DIR defaults to runs/validation/atmosphere/ (not committed).  The committed page, docs/validation/atmosphere/,
+is written by ``scripts/validate.py --update-committed`` (the atmosphere effect, scripts/validation/atmosphere.py,
+calls :func:`report`); this script refuses to write there.  Writes scintillation_pdf.png, correlation.png, mtf.png,
 transmission.png, si_vs_rytov.png, si_vs_beta2.png, radius_vs_beta2.png and summary.md.  The wave-optics
 comparison reads the split-step runs of scripts/tabulate_scintillation.py (bench/results/scintillation_wave_optics.json).  Runtime ≈ 1 min on 2 cores (--quick: ≈ 20 s).
 """
@@ -43,7 +44,7 @@ def one_over_e(prof, pitch):
     return (j - 1 + (p0 - math.exp(-1)) / (p0 - p1)) * pitch
 
 
-def wave_optics_section(out, nreal_patterns=8):
+def wave_optics_section(out, nreal_patterns=8, max_cases=None):
     """Plots si_vs_beta2.png and radius_vs_beta2.png and returns summary rows: the split-step wave-optics runs
     (the shipped table and the off-grid validation cases of bench/results/scintillation_wave_optics.json, made by
     scripts/tabulate_scintillation.py), the product (the table model, and SI/radius measured on the patterns the
@@ -58,6 +59,8 @@ def wave_optics_section(out, nreal_patterns=8):
     F = float(atm.fresnel_scale(lam, L))
     unit = float(atm.rytov_variance(1.0, lam, L, "spherical"))
     bgrid = np.geomspace(0.02, 12, 120)
+    if max_cases is not None:
+        runs = dict(runs, validation=runs["validation"][:max_cases])
     measured = []
     for v in runs["validation"]:
         lags = np.asarray(v["lags_m"])
@@ -71,6 +74,7 @@ def wave_optics_section(out, nreal_patterns=8):
             acc.add(p.values)
         measured.append(acc.result())
     rows = []
+    checks = []
     figs = {}
     for quantity in ("si", "radius"):
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
@@ -103,8 +107,9 @@ def wave_optics_section(out, nreal_patterns=8):
             ax.plot([], [], "rx", label="product pattern, measured")
             ax.set(xscale="log", yscale="log" if quantity == "si" else "linear", xlabel="β0²", title=wave)
             ax.grid(alpha=0.3)
-        axes[0].set_ylabel("SI" if quantity == "si" else "1/e covariance radius / √(L/k)")
-        axes[1].legend(fontsize=6)
+        for ax in axes:  # every panel labelled and with its legend (scripts/validation: every plot)
+            ax.set_ylabel("SI" if quantity == "si" else "1/e covariance radius / √(L/k)")
+            ax.legend(fontsize=6)
         fig.tight_layout()
         name = "si_vs_beta2.png" if quantity == "si" else "radius_vs_beta2.png"
         fig.savefig(out / name, dpi=DPI)
@@ -123,7 +128,15 @@ def wave_optics_section(out, nreal_patterns=8):
         rows.append((f"1/e radius [mm] {label}: wave optics / table / pattern / paper",
                      f"{v['correlation_radius_over_f'] * Fv * 1e3:.2f} / {st['correlation_radius_m'] * 1e3:.2f} / "
                      f"{m['correlation_radius_m'] * 1e3:.2f} / {paper['cell_radius_m'] * 1e3:.2f}", "±10 %"))
-    return rows
+        for what, got in (("table", st), ("pattern", m)):
+            checks.append({"quantity": f"SI, product {what} vs wave optics, {label}",
+                           "simulated": float(got["scintillation_index"]),
+                           "reference": float(v["scintillation_index"]), "tolerance": 0.10, "kind": "rel"})
+            checks.append({"quantity": f"1/e radius, product {what} vs wave optics, {label}",
+                           "simulated": float(got["correlation_radius_m"]) * 1e3,
+                           "reference": float(v["correlation_radius_over_f"] * Fv) * 1e3, "tolerance": 0.10,
+                           "kind": "rel", "unit": "mm"})
+    return rows, checks
 
 
 def main(argv=None):
@@ -131,16 +144,14 @@ def main(argv=None):
     ap.add_argument("out", nargs="?", default=None, metavar="OUT_DIR",
                     help="folder for the plots and summary.md (default runs/validation/atmosphere/)")
     ap.add_argument("--update-committed", action="store_true",
-                    help=f"regenerate the committed report in {COMMITTED.relative_to(ROOT)}/")
+                    help="refused: use scripts/validate.py --update-committed --only atmosphere")
     ap.add_argument("--seed", type=int, default=20240601)
     ap.add_argument("--quick", action="store_true", help="fewer realisations")
     args = ap.parse_args(argv)
     if args.update_committed:
-        if args.out is not None:
-            ap.error(f"OUT_DIR = {args.out} and --update-committed: choose one")
-        if args.quick:
-            ap.error("--quick and --update-committed: a quick run's report is never committed")
-        out = COMMITTED
+        ap.error("--update-committed: the committed report is regenerated by "
+                 "scripts/validate.py --update-committed --only atmosphere (it records the checks in "
+                 "docs/validation/checks.json too)")
     else:
         out = Path(args.out) if args.out is not None else ROOT / "runs" / "validation" / "atmosphere"
         try:
@@ -149,10 +160,27 @@ def main(argv=None):
         except ValueError:
             pass
     out.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(args.seed)
-    nreal = 6 if args.quick else 16
+    lines, _ = report(out, args.quick, args.seed)
+    print("\n".join(lines))
+    return 0
+
+
+def report(out, quick=False, seed=20240601, smallest=False):
+    """Writes the plots and summary.md into ``out``; returns (the summary's lines, the checks as dicts for
+    scripts/validate.py: quantity, simulated, reference, tolerance, kind).  ``smallest`` (with ``quick``: the
+    quick mode of scripts/validate.py, a few seconds) draws fewer realisations still and measures the product's
+    patterns at the first four wave-optics validation cases only."""
+    out = Path(out)
+    rng = np.random.default_rng(seed)
+    smallest = smallest and quick
+    nreal = 6 if quick else 16
     t_start = time.time()
     rows = []
+    checks = []
+
+    def chk(quantity, simulated, reference, tolerance, kind="rel"):
+        checks.append({"quantity": quantity, "simulated": float(simulated), "reference": float(reference),
+                       "tolerance": float(tolerance), "kind": kind})
 
     # ---------------------------------------------------------------- scintillation: case A, 1064 nm, 2 km
     lam, L = 1064e-9, 2e3
@@ -169,6 +197,11 @@ def main(argv=None):
              ("log-normal SI (target 0.3499)", f"{allv.var() / allv.mean() ** 2:.4f}", "±5 %"),
              ("log-normal KS D / p (decimated 2.5 ρ_l)", f"{ks.statistic:.4f} / {ks.pvalue:.3f}", "p > 0.01"),
              ("log-normal 1/e radius / ρ_l", f"{r_ln / rho_l:.4f}", "±10 %")]
+    chk("log-normal σ_lnI²", np.var(np.log(allv)), s2, 0.05)
+    chk("log-normal mean", allv.mean(), 1.0, 0.01)
+    chk("log-normal SI", allv.var() / allv.mean() ** 2, math.expm1(s2), 0.05)
+    chk("log-normal KS p-value (decimated 2.5 ρ_l)", ks.pvalue, 0.01, 0.0, "min")
+    chk("log-normal 1/e radius / ρ_l", r_ln / rho_l, 1.0, 0.10)
 
     c = 1e-14
     s_pl = float(atm.rytov_variance(c, lam, L, "plane"))
@@ -185,6 +218,9 @@ def main(argv=None):
     rows += [(f"gamma-gamma (case A plane, α = {a:.3f}, β = {b:.3f}) mean", f"{gall.mean():.4f}", "±2 %"),
              (f"gamma-gamma SI (target {si_gg:.4f})", f"{gall.var():.4f}", "±5 %"),
              ("gamma-gamma KS D / p (decimated 24 px)", f"{gks.statistic:.4f} / {gks.pvalue:.3f}", "p > 0.01")]
+    chk("gamma-gamma (case A plane) mean", gall.mean(), 1.0, 0.02)
+    chk("gamma-gamma (case A plane) SI", gall.var(), si_gg, 0.05)
+    chk("gamma-gamma KS p-value (decimated 24 px)", gks.pvalue, 0.01, 0.0, "min")
 
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
     x = np.linspace(0.01, 4, 400)
@@ -196,7 +232,7 @@ def main(argv=None):
     x = np.linspace(0.01, 5, 400)
     ax[1].plot(x, atm.gamma_gamma_pdf(x, a, b), "k", label="gamma-gamma pdf")
     ax[1].plot(x, atm.lognormal_pdf(x, math.log1p(si_gg)), "k:", label="log-normal, same SI")
-    ax[1].set(title=f"gamma-gamma, case A (σ_R² = {s_pl:.2f})", xlabel="I / ⟨I⟩")
+    ax[1].set(title=f"gamma-gamma, case A (σ_R² = {s_pl:.2f})", xlabel="I / ⟨I⟩", ylabel="pdf")
     ax[1].legend()
     fig.tight_layout()
     fig.savefig(out / "scintillation_pdf.png", dpi=DPI)
@@ -215,7 +251,7 @@ def main(argv=None):
     ax[1].plot(rg * 100, atm.gamma_gamma_covariance(rg, a, b, rx, ry), "k", label="model (X·Y)")
     ax[1].axvline(ry * 100, color="C1", lw=0.8, label="ρ_Y = eq. 3-6")
     ax[1].axvline(rx * 100, color="C2", lw=0.8, label="ρ_X = (L/k)/ρ_Y")
-    ax[1].set(title="gamma-gamma: intensity correlation", xlabel="r [cm]")
+    ax[1].set(title="gamma-gamma: intensity correlation", xlabel="r [cm]", ylabel="B_I(r)/B_I(0)")
     ax[1].legend()
     fig.tight_layout()
     fig.savefig(out / "correlation.png", dpi=DPI)
@@ -248,6 +284,7 @@ def main(argv=None):
             kk = int(frac * 128)
             thv = float(np.interp(frac * nu_c, nu, th))
             rows.append((f"blur MTF {label} at {frac} ν_c (formula {thv:.4f})", f"{meas[kk]:.4f}", "±5 %"))
+            chk(f"turbulence blur MTF {label} at {frac} ν_c", meas[kk], thv, 0.05)
     ax.set(xlabel="ν / ν_c  (ν_c = D/λ)", ylabel="MTF", title=f"turbulence MTF, r0 = {r0} m, D = {D} m")
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -268,22 +305,25 @@ def main(argv=None):
     s_fog = atm.extinction_from_visibility(200.0, 1550e-9, "kim")
     rows.append(("ln T², V = 200 m, 1550 nm, R = 50 km (= −2σR)",
                  f"{float(atm.log_two_way_transmission(s_fog, 50e3)):.2f}", "finite"))
+    chk("ln T², V = 200 m, 1550 nm, R = 50 km (−2σR)", float(atm.log_two_way_transmission(s_fog, 50e3)),
+        -2 * float(s_fog) * 50e3, 1e-9)
 
     # ---------------------------------------------------------------- split-step reference
     ss = atm.split_step_reference(1064e-9, 1e3, 6.477e-15, rng, n=512, dx_m=2e-3,
-                                  realizations=8 if args.quick else 24)
+                                  realizations=4 if smallest else 8 if quick else 24)
     rho0_pl = atm.coherence_radius(6.477e-15, 1064e-9, 1e3, "plane")
     rows += [("split-step SI, σ_R² = 0.2 (docs/theory.md §12: 0.1989 ± 0.0008)",
               f"{ss['scintillation_index']:.4f} ± {ss['si_std_err']:.4f}", "±5 %"),
              ("split-step intensity 1/e radius [mm]", f"{ss['correlation_radius_m'] * 1e3:.2f}",
               f"Fresnel {float(atm.fresnel_scale(1064e-9, 1e3)) * 1e3:.2f}, eq. 3-6 "
               f"{float(atm.cell_radius(1064e-9, 1e3, rho0_pl)) * 1e3:.2f}")]
-    s_list = [0.1, 0.2, 0.5] if args.quick else [0.1, 0.2, 0.5, 1.0]
+    chk("split-step SI, σ_R² = 0.2 (docs/theory.md §12: 0.1989)", ss["scintillation_index"], 0.1989, 0.05)
+    s_list = [0.2] if smallest else [0.1, 0.2, 0.5] if quick else [0.1, 0.2, 0.5, 1.0]
     k0 = 2 * math.pi / 1064e-9
     ss_si = []
     for sr in s_list:
         cn2 = sr / (1.23 * k0 ** (7 / 6) * 1e3 ** (11 / 6))
-        res = atm.split_step_reference(1064e-9, 1e3, cn2, rng, n=512, dx_m=2e-3, realizations=8)
+        res = atm.split_step_reference(1064e-9, 1e3, cn2, rng, n=512, dx_m=2e-3, realizations=4 if smallest else 8)
         ss_si.append((sr, res["scintillation_index"], res["si_std_err"]))
     sgrid = np.geomspace(0.01, 100, 200)
     fig, ax = plt.subplots(figsize=(6, 3.8))
@@ -305,16 +345,20 @@ def main(argv=None):
                      "reference"))
 
     # ---------------------------------------------------------------- wave optics vs product vs formulas (issue 17)
-    rows += wave_optics_section(out, nreal_patterns=4 if args.quick else 8)
+    wo_rows, wo_checks = wave_optics_section(out, nreal_patterns=2 if smallest else 4 if quick else 8,
+                                                max_cases=4 if smallest else None)
+    rows += wo_rows
+    checks += wo_checks
 
     # ---------------------------------------------------------------- beam wander
     rc2 = float(atm.beam_wander_variance(1e-14, 2e3, 0.02))
     d = atm.beam_wander_offsets(rc2, rng, 100_000)
     rows.append((f"beam wander B1 ⟨r_c²⟩ = {rc2:.4e} m²: measured", f"{np.mean(np.sum(d ** 2, axis=1)):.4e}",
                  "±10 %"))
+    chk("beam wander ⟨r_c²⟩ (B1)", np.mean(np.sum(d ** 2, axis=1)), rc2, 0.10)
 
     lines = ["# Atmosphere module validation", "",
-             f"Generated by `scripts/validate_atmosphere.py` (seed {args.seed}{', quick' if args.quick else ''}, "
+             f"Generated by `scripts/validate_atmosphere.py` (seed {seed}{', quick' if quick else ''}, "
              f"{nreal} pattern realisations of 512², {time.time() - t_start:.0f} s).  "
              "References: docs/theory.md §3, §5, §6, §11, §12.", "",
              "| quantity | measured | tolerance / reference |", "|---|---|---|"]
@@ -323,8 +367,7 @@ def main(argv=None):
                   "`si_vs_rytov.png`, `si_vs_beta2.png` and `radius_vs_beta2.png` (split-step wave optics vs the "
                   "product vs the paper's formulas, issue 17).", ""]
     (out / "summary.md").write_text("\n".join(lines), encoding="utf-8")
-    print("\n".join(lines))
-    return 0
+    return lines, checks
 
 
 if __name__ == "__main__":

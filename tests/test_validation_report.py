@@ -1,0 +1,126 @@
+"""The validation report (scripts/validate.py, docs/validation/) holds the numbers the code produces today.
+
+The quick mode runs every effect module of scripts/validation/ into a temporary folder; the committed report
+(docs/validation/checks.json, written by ``scripts/validate.py --update-committed``) records beside each full-run
+value the value of the same check in quick mode.  A quick value that moved from the committed one by more than the
+check's own tolerance (read with its kind: relative to the reference, absolute, or a one-sided margin) fails here:
+the code changed what the report says, and the report must be regenerated (and read).  A check the quick run
+makes that the report lacks, or the reverse, fails as well; so does a failing quick check or a page or plot missing.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+COMMITTED = REPO / "docs" / "validation"
+sys.path.insert(0, str(REPO / "scripts"))
+
+from validation import allowed_difference, check, save  # noqa: E402
+
+
+def _runner():
+    """scripts/validate.py as a module (by path: another ``validate`` module may be imported already)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("validation_runner", REPO / "scripts" / "validate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("validation")
+    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "validate.py"), "--out", str(out), "--quick"],
+                          cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert (out / "checks.json").exists(), proc.stdout[-3000:] + proc.stderr[-3000:]
+    return out, proc, json.loads((out / "checks.json").read_text(encoding="utf-8"))
+
+
+@pytest.mark.slow
+def test_quick_report_agrees_with_the_committed_report(quick_report):
+    out, proc, now = quick_report
+    committed = json.loads((COMMITTED / "checks.json").read_text(encoding="utf-8"))
+    assert sorted(now["effects"]) == sorted(committed["effects"]), "effects added or removed: regenerate the report"
+    problems = []
+    for effect, entry in now["effects"].items():
+        assert entry["error"] is None, f"{effect}: {entry['error']}"
+        old = {c["quantity"]: c for c in committed["effects"][effect]["checks"]}
+        quick_in_old = {q for q, c in old.items() if c.get("quick_simulated") is not None}
+        new = {c["quantity"]: c for c in entry["checks"]}
+        for q in sorted(set(new) - quick_in_old):
+            problems.append(f"{effect}: quick check {q!r} is not in the committed report")
+        for q in sorted(quick_in_old - set(new)):
+            problems.append(f"{effect}: committed check {q!r} is no longer made by the quick run")
+        for q in sorted(set(new) & quick_in_old):
+            c = new[q]
+            was = old[q]["quick_simulated"]
+            allowed = max(allowed_difference(c["reference"], c["tolerance"], c["kind"]), 1e-9 * max(1.0, abs(was)))
+            if c["simulated"] is None or abs(c["simulated"] - was) > allowed:
+                problems.append(f"{effect}: {q!r} is {c['simulated']} now, {was} in the committed report "
+                                f"(allowed difference {allowed:.3g})")
+            if not c["passed"]:
+                problems.append(f"{effect}: quick check {q!r} fails: {c['simulated']} vs {c['reference']} "
+                                f"({c['kind']} tolerance {c['tolerance']})")
+    assert not problems, "\n".join(problems)
+    assert proc.returncode == 0, proc.stdout[-2000:]
+
+
+@pytest.mark.slow
+def test_pages_and_plots_exist(quick_report):
+    out, _, now = quick_report
+    for folder in (out, COMMITTED):
+        summary = (folder / "summary.md").read_text(encoding="utf-8")
+        for effect in now["effects"]:
+            assert f"]({effect}.md)" in summary
+            page = (folder / f"{effect}.md").read_text(encoding="utf-8")
+            pngs = sorted((folder / effect).glob("*.png"))
+            assert pngs, f"{folder}/{effect}/ has no plot"
+            for png in pngs:
+                assert f"({effect}/{png.name})" in page
+    assert "../shared" not in (COMMITTED / "summary.md").read_text(encoding="utf-8")
+
+
+def test_check_helper_and_bad_checks():
+    c = check("x", 1.01, 1.0, 0.02)
+    assert c["passed"] and c["kind"] == "rel"
+    assert not check("x", 1.03, 1.0, 0.02)["passed"]
+    assert check("x", 0.5, 0.0, 1.0, kind="max")["passed"] and not check("x", 1.5, 0.0, 1.0, kind="max")["passed"]
+    assert not check("x", float("nan"), 1.0, 1.0)["passed"]
+    assert allowed_difference(2.0, 0.1, "rel") == pytest.approx(0.2)
+    assert allowed_difference(2.0, 0.1, "abs") == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="kind = 'relative'"):
+        check("x", 1.0, 1.0, 0.1, kind="relative")
+    with pytest.raises(ValueError, match="tolerance = -1"):
+        check("x", 1.0, 1.0, -1)
+    validate = _runner()
+    with pytest.raises(ValueError, match="weather: check 'a' has no field 'reference'"):
+        validate.normalise("weather", {"quantity": "a", "simulated": 1.0, "tolerance": 0.1}, set())
+    with pytest.raises(ValueError, match="quantity 'a' appears twice"):
+        seen = set()
+        validate.normalise("weather", {"quantity": "a", "simulated": 1, "reference": 1, "tolerance": 0}, seen)
+        validate.normalise("weather", {"quantity": "a", "simulated": 1, "reference": 1, "tolerance": 0}, seen)
+
+
+def test_a_plot_without_a_legend_is_refused(tmp_path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1])
+    ax.set(title="t", xlabel="x [m]", ylabel="y [m]")
+    with pytest.raises(ValueError, match="missing legend"):
+        save(fig, tmp_path / "a.png")
+    assert not (tmp_path / "a.png").exists()
+
+
+def test_a_broken_effect_module_is_reported_and_the_others_still_run(tmp_path, monkeypatch):
+    validate = _runner()
+    monkeypatch.setattr(validate, "load", lambda name: (_ for _ in ()).throw(ImportError("no module " + name)))
+    checks, _, err = validate.run_effect("weather", tmp_path / "weather", quick=True)
+    assert err == "ImportError: no module weather"
+    assert len(checks) == 1 and checks[0]["passed"] is False and checks[0]["quantity"] == "effect module ran"
