@@ -117,7 +117,17 @@ def render() -> str:
                     f"System `{cfg.system_type}`, {cfg.laser.wavelength_m * 1e9:.0f} nm. Menu entry: "
                     f"*{menu_label(p).replace('_', ' ')}*. Sources:", ""]
         sources += [f"- {s}" for s in p.published["sources"]]
+    from core.presets import PUBLISHED_KEYS
+
     lines += ["", "## Presets and their sources"] + sources
+    lines += ["", "## A preset file", "",
+              "A preset is a TOML file: `system_type` and the settings groups of a config file ([settings.md]"
+              "(settings.md)), each value with a comment naming its source, and a `[published]` table of the "
+              "source's figures, which the checks above compare with the simulator. Keys of `[published]` (omit "
+              "those the source does not state; an unknown key, or a value of the wrong kind, is refused with the "
+              "file, the key and the value):", "",
+              "| key | meaning |", "|---|---|"]
+    lines += [f"| `{k}` | {meaning} |" for k, (_, meaning) in PUBLISHED_KEYS.items()]
     return "\n".join(lines) + "\n"
 
 

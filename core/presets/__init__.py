@@ -32,6 +32,7 @@ PUBLISHED_KEYS = {
     "fov_h_deg": ((int, float), "horizontal field of view, degrees"),
     "fov_v_deg": ((int, float), "vertical field of view, degrees"),
     "channels": (int, "channels (lasers) of a scanner"),
+    "channel_elevations_deg": (list, "elevation of every channel, degrees (any order)"),
     "width_px": (int, "detector columns of a camera"),
     "height_px": (int, "detector rows of a camera"),
     "points_per_s": ((int, float), "points (measurements) per second, single return"),
@@ -80,6 +81,11 @@ def _check_published(published, where: str) -> dict:
         if key == "sources":
             if not value or not all(isinstance(s, str) and s.strip() for s in value):
                 raise ConfigError(f"{where}published.sources", value, "a non-empty list of document names")
+        elif key == "channel_elevations_deg":
+            for i, v in enumerate(value):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) > 90:
+                    raise ConfigError(f"{where}published.channel_elevations_deg[{i}]", v,
+                                      "an elevation in degrees within [-90, 90]")
         elif not isinstance(value, str):
             if not math.isfinite(value) or value <= 0:
                 raise ConfigError(f"{where}published.{key}", value, f"a finite number > 0 ({meaning})")

@@ -284,6 +284,11 @@ def data_sheet_rows(preset) -> list[dict]:
                 elev = g["channel_elevations_deg"]
                 text = f"{g['channels']}" + (f" ({elev[0]:+.2f}° … {elev[-1]:+.2f}°)" if len(elev) > 1 else "")
                 row("channels", f"{pub['channels']}", text, "equal", g["channels"] == pub["channels"])
+            if "channel_elevations_deg" in pub:
+                want, got = sorted(pub["channel_elevations_deg"]), g["channel_elevations_deg"]
+                err = max((abs(a - b) for a, b in zip(got, want)), default=0.0) if len(got) == len(want) else math.inf
+                row("channel elevations", f"{len(want)} angles, {want[0]:+g}° … {want[-1]:+g}°",
+                    f"largest difference {err:.4f}°", "each within 0.01°", err <= 0.01)
             if "points_per_s" in pub:
                 rate = f" at {pub['rotation_hz']:g} Hz" if "rotation_hz" in pub else ""
                 row("points per second" + rate, f"{pub['points_per_s']:,.0f}", f"{g['points_per_s']:,.0f}", "±4 %",

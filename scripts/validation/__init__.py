@@ -31,6 +31,13 @@ The interface of an effect module ``<effect>.py``:
     beside the full ones in ``checks.json`` (tests/test_validation_report.py compares them within each check's
     tolerance).  ``run`` writes nothing outside ``out_dir``.  An exception in ``run`` is reported as a failed
     check of that effect; the other effects still run.
+
+After adding or changing an effect module, regenerate its part of the committed report (the other effects' results
+are kept) and commit docs/validation/:
+
+    .venv/bin/python scripts/validate.py --update-committed --only <effect>
+
+Until then tests/test_validation_report.py fails, naming the effect or check that the report lacks.
 """
 from __future__ import annotations
 

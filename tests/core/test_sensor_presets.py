@@ -58,10 +58,10 @@ def test_field_of_view_channels_and_point_rate(name):
             assert g["fov_v_deg"] == pytest.approx(pub["fov_v_deg"], abs=1e-6)
         if "channels" in pub:
             assert g["channels"] == pub["channels"]
-            if pub["channels"] > 1:  # evenly spaced channels over the vertical field of view
-                elev = g["channel_elevations_deg"]
-                spacing = pub["fov_v_deg"] / (pub["channels"] - 1)
-                assert all(abs(b - a - spacing) < 1e-6 for a, b in zip(elev, elev[1:]))
+        if "channel_elevations_deg" in pub:  # the maker's channel table, each channel within 0.01°
+            want = sorted(pub["channel_elevations_deg"])
+            assert len(g["channel_elevations_deg"]) == len(want)
+            assert max(abs(a - b) for a, b in zip(g["channel_elevations_deg"], want)) <= 0.01
         if "points_per_s" in pub:
             assert g["points_per_s"] == pytest.approx(pub["points_per_s"], rel=POINTS_RTOL)
     else:
@@ -143,6 +143,9 @@ def test_user_preset_file_and_bad_values(tmp_path):
     assert "preset bad: laser.pulse_energy_j = -1.0" in str(e.value) and "\n" not in str(e.value)
     bad.write_text('[published]\nfov_h_deg = "wide"\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"preset bad: published.fov_h_deg = 'wide'"):
+        load_preset(bad)
+    bad.write_text('[published]\nchannel_elevations_deg = [1.0, "up"]\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"published.channel_elevations_deg\[1\] = 'up'"):
         load_preset(bad)
     bad.write_text('[published]\nmax_range_m = 100.0\n', encoding="utf-8")
     with pytest.raises(ConfigError, match="max_range_reflectivity"):
