@@ -44,7 +44,7 @@ def _number(value) -> float | None:
     return value if np.isfinite(value) else None
 
 
-def check_channel_rows(rows, where: str) -> np.ndarray:
+def check_channel_rows(rows, where: str, text_cells: bool = False) -> np.ndarray:
     """(n, 3) float64 array [elevation_deg, azimuth_offset_deg, fire_offset_s] from rows of 3 cells; ConfigError
     naming ``where``, the row and the column of the first bad cell."""
     if not isinstance(rows, (list, tuple)):
@@ -59,7 +59,7 @@ def check_channel_rows(rows, where: str) -> np.ndarray:
         if not isinstance(row, (list, tuple)) or len(row) != 3:
             raise ConfigError(f"{where} row {r}", row, "3 columns: " + ", ".join(CHANNEL_COLUMNS))
         for c, (cell, name, (lo, hi, unit)) in enumerate(zip(row, CHANNEL_COLUMNS, CHANNEL_LIMITS), start=1):
-            v = _number(cell)
+            v = _number(cell) if text_cells or not isinstance(cell, str) else None
             if v is None or not lo <= v <= hi:
                 raise ConfigError(f"{where} row {r} column {c} ({name})", cell,
                                   f"a finite number in [{lo:g}, {hi:g}] {unit}")
@@ -70,8 +70,8 @@ def check_channel_rows(rows, where: str) -> np.ndarray:
 def read_channel_csv(path) -> np.ndarray:
     """The channel table a CSV file holds: three columns (elevation_deg, azimuth_offset_deg, fire_offset_s),
     an optional header row naming them, blank lines and lines starting with '#' skipped."""
-    where = f"scanner.channel_table_file {Path(path).name!r}"
     p = Path(path)
+    where = f"scanner.channel_table_file {p.name[:60]!r}"
     if not p.is_file():
         raise ConfigError("scanner.channel_table_file", str(path), "an existing CSV file")
     try:
@@ -95,7 +95,7 @@ def read_channel_csv(path) -> np.ndarray:
     if not rows:
         raise ConfigError("scanner.channel_table_file", str(path), "a CSV file with at least one channel row")
     try:
-        return check_channel_rows(rows, where)
+        return check_channel_rows(rows, where, text_cells=True)
     except ConfigError as exc:  # name the file's line, not the data row's number
         if " row " in exc.field:
             head, _, tail = exc.field.partition(" row ")
@@ -118,7 +118,7 @@ def channel_table_deg(scanner) -> np.ndarray | None:
         try:
             st = os.stat(path)
             key = (os.path.abspath(path), st.st_mtime_ns, st.st_size)
-        except OSError:
+        except (OSError, ValueError):  # missing, unreadable, or not a path (a NUL character)
             key = None
         if key is not None and key in _CSV_CACHE:
             return _CSV_CACHE[key]

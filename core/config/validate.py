@@ -11,6 +11,8 @@ from .derived import n_scan_pulses
 from .settings import BRDF_TABLE_FIELDS, BRDFSettings, ScannerSettings, SimulationConfig
 from .tables import check_channel_table, check_risley
 
+RISLEY_FIELDS = ("risley_prism_hz", "risley_wedge_deg", "risley_index", "risley_phase_deg", "risley_emitters_deg")
+
 
 def _range_text(meta) -> str:
     lo, hi = meta["lo"], meta["hi"]
@@ -122,8 +124,8 @@ def validate(obj, prefix: str = "") -> None:
         _check_brdf(obj, prefix)
     if isinstance(obj, ScannerSettings):
         check_channel_table(obj)
-        if obj.pattern == "risley":
-            check_risley(obj)
+        if obj.pattern == "risley" or any(getattr(obj, n) != [] for n in RISLEY_FIELDS):
+            check_risley(obj)  # (a prism table another pattern keeps is checked too, as BRDF tables are)
     if isinstance(obj, SimulationConfig):
         _check_cross_field(obj)
 

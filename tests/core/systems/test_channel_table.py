@@ -102,3 +102,13 @@ def test_row_count_must_match_n_channels_and_one_source_only(tmp_path):
 def test_default_config_has_no_table():
     s = SimulationConfig().scanner
     assert s.channel_table == [] and s.channel_table_file == ""
+
+
+def test_inline_cells_are_numbers_not_text():
+    with pytest.raises(ConfigError, match=r"scanner\.channel_table row 1 column 1 \(elevation_deg\)"):
+        _cfg(channel_table=[["1.5", 0, 0], [0, 0, 0], [0, 0, 0]])
+
+
+def test_a_prism_table_kept_by_another_pattern_is_still_checked():
+    with pytest.raises(ConfigError, match=r"scanner\.risley_index\[0\]"):
+        _cfg(risley_prism_hz=[1.0], risley_wedge_deg=[10.0], risley_index=["glass"])
