@@ -266,3 +266,19 @@ def test_validation_module_passes_and_plots(tmp_path):
     assert len(checks) == 6 and all(c["passed"] for c in checks)
     assert set(checks[0]) == {"quantity", "simulated", "reference", "tolerance", "passed"}
     assert (tmp_path / "weather_fog_backscatter.png").stat().st_size > 10_000
+
+
+def test_too_many_drops_are_refused_naming_the_diameter_that_fits():
+    """A 12° flash field of view, gate 0–300 m, rain 25 mm/h, D ≥ 1 mm: ~1e9 drops would be drawn at once; the frame
+    is refused naming atmosphere.drop_min_diameter_mm and the diameter that brings it under the 2e6 limit (the
+    count falls as e^(−ΛD), Λ = 2.08 /mm)."""
+    cfg = _flash("rain", rain_rate_mm_h=25.0)
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(12.0)
+    cfg.gate.n_bins = 2000
+    with pytest.raises(ConfigError, match=r"atmosphere.drop_min_diameter_mm = 1.0 is not allowed: at least (\d\.\d\d) mm"
+                       ) as err:
+        simulate_frame(plate(30.0, 100.0), np.eye(4), cfg)
+    need = float(str(err.value).split("at least ")[1].split(" mm")[0])
+    ok = dataclasses.replace(cfg, atmosphere=dataclasses.replace(cfg.atmosphere, drop_min_diameter_mm=need))
+    r = simulate_frame(plate(30.0, 100.0), np.eye(4), ok)
+    assert 1e6 < r.stats["weather"]["drops"]["expected"] <= 2e6
