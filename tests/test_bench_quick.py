@@ -5,7 +5,7 @@ and running them leaves every committed file as it was (they write to the folder
 Measured on the shared 2-core machine with warm kernel caches (s): flash 5, turbulence 3, radiometry 2, receiver 3,
 systems 5, helios_survey 3, phasescreen 7, scintillation_speed 4, scintillation_accuracy 4, export 8, sequence 30
 (the bpy path compiles the kernels again in each process), sweep 36 (a Dask cluster), pareto 20, scaling 34 (five
-child processes): about 165 s in all.
+child processes), weather 6: about 170 s in all.
 """
 from __future__ import annotations
 
@@ -86,6 +86,12 @@ BENCHMARKS = {
                                          "examples/flash_demo/warm_median/command_wall_s"],
                        lambda d: d["examples"]["flash_demo"]["cold"]["kernels"]["compiled"] > 0
                        and d["examples"]["flash_demo"]["warm_median"]["kernels"]["compiled"] == 0),
+    "bench_weather": ("weather.json", ["bare_embreex_cast_s", "cases/fog_200m/ratio_frame_to_bare_cast",
+                                       "cases/fog_200m/weather_stage_thread_s",
+                                       "cases/rain_25mm_h/weather_stage_thread_s", "ratio_fog_frame_to_clear_frame",
+                                       "template_time_vs_error/2/time_s"],
+                      lambda d: d["cases"]["fog_200m"]["atmosphere_echoes"] > 0
+                      and d["cases"]["clear"]["atmosphere_echoes"] == 0 and len(d["template_time_vs_error"]) == 4),
     "bench_scaling": ("scaling.json", ["pipeline_vs_bare/0/ratio_pipeline_to_bare",
                                        "pipeline_vs_bare/0/floor/thread_s", "scene/0/bvh_build_s",
                                        "sensor/0/frame_s", "culling/frame_culled_s", "sample/frame_s"],

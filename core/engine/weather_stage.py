@@ -15,6 +15,7 @@ With ``atmosphere.weather = none`` the planner skips both (:func:`weather_switch
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +29,9 @@ from ..physics.radiometry import aperture_r2, energy_scale
 from .rng import stage_rng
 
 STAGES = ("weather_backscatter", "weather_drops")
+#: Largest expected number of discrete particles held at once (a frame; a scanner's tile of pulses): 2e6 drops are
+#: ~100 MB with their returns.  More is refused naming atmosphere.drop_min_diameter_mm and the value that fits.
+MAX_DROPS = 2_000_000
 
 
 def weather_switches(config: SimulationConfig) -> dict:
@@ -93,11 +97,26 @@ class FrameWeather:
         return (vis.beam, vis.range_m, e), shadow_factors(vis, f, hit_beam, hit_range_m)
 
 
+def check_drop_count(weather: Weather, expected: float) -> None:
+    """ConfigError when ``expected`` particles would be held at once (:data:`MAX_DROPS`): the message names
+    atmosphere.drop_min_diameter_mm, the count, and the smallest diameter that fits (N(D ≥ D) ∝ e^(−ΛD))."""
+    if expected <= MAX_DROPS:
+        return
+    need = weather.d_min_mm + math.log(expected / MAX_DROPS) / weather.lam
+    from ..errors import ConfigError
+    raise ConfigError("atmosphere.drop_min_diameter_mm", weather.d_min_mm,
+                      f"at least {math.ceil(need * 100) / 100:.2f} mm here: {expected:.3g} drops of "
+                      f"≥ {weather.d_min_mm} mm would be drawn at once in this field of view and gate (at most "
+                      f"{MAX_DROPS:.0e}); the smaller ones are then volume backscatter (or narrow the field of view "
+                      f"or the gate)")
+
+
 def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, omega_sr: float,
                           tx_half_angle: float, rx_half_angle: float, pulse: int | None = None,
-                          draw: bool = True) -> FrameWeather | None:
+                          draw: bool = True, beams_at_once: int | None = None) -> FrameWeather | None:
     """The weather of one frame (of one pulse stream when ``pulse`` is given), None for weather = none; with
-    ``draw`` the particles of all ``n_beams`` beams are drawn now (else per tile: :meth:`FrameWeather.draw`)."""
+    ``draw`` the particles of all ``n_beams`` beams are drawn now (else per tile of ``beams_at_once`` beams:
+    :meth:`FrameWeather.draw`).  Refuses (ConfigError) more than :data:`MAX_DROPS` particles at once."""
     atm, laser, gate = config.atmosphere, config.laser, config.gate
     w = weather_model(atm, laser.wavelength_m, aerosol_extinction_per_m(config))
     if w is None:
@@ -117,6 +136,8 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
         r_lo = max(atm.backscatter_min_range_m, c2 * gate.gate_start_s)
         r_hi = c2 * (gate.gate_start_s + gate.n_bins * gate.bin_width_s)
         out.drop_range_m = (r_lo, r_hi)
+        per_beam = expected_drop_count(w, omega_sr, r_lo, r_hi)
+        check_drop_count(w, per_beam * (n_beams if draw or beams_at_once is None else min(n_beams, beams_at_once)))
         out.metadata["drops"] = {"range_m": [r_lo, r_hi], "beam_solid_angle_sr": omega_sr,
                                  "expected": expected_drop_count(w, omega_sr, r_lo, r_hi) * n_beams}
         if draw:

@@ -72,7 +72,7 @@ def test_sample_simulates(lad, addon, tmp_path):
     assert len(obj.data.vertices) == len(ranges)
 
 
-SAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile")
+SAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile", "fog_vehicle")
 
 
 def test_builder_is_deterministic(lad, addon, tmp_path):

@@ -1,0 +1,126 @@
+"""Weather-stage benchmark (issue 30): the cost of the returns of the atmosphere on the flash benchmark frame.
+
+The frame of bench/bench_flash.py (128×128 px × 4×4 sub-rays, 1024 bins of 1 ns from 200 m; ``--quick``: 32×32 px
+× 2×2, 256 bins) in clear air, in fog (visibility 200 m: volume backscatter) and in heavy rain (25 mm/h: volume
+backscatter of the drops below 4 mm plus every drop ≥ 4 mm drawn as its own return: with 1 mm the 12° field
+of view holds 2.4e8 drops between 200 and 350 m, which the stage refuses), each against the floor
+(bench/floor.py: the bare embreex cast of the frame's own rays on the pipeline's threads): the frame's wall time
+over the floor's, and the ``weather`` stage's thread-seconds over the floor's thread-seconds.  The clear frame
+keeps its cube too (``run.save_waveforms``), as a weather frame does, so the difference is the weather's.
+
+Run time against error: the volume template (core/atmosphere/weather.py) with 1, 2, 4 (the default) and 8 range
+slabs per min(bin, pulse FWHM), each timed and compared (relative L2) with 32 slabs.
+
+Writes ``weather.json`` to ``--out DIR`` (default runs/bench/; ``--update-committed``: bench/results/weather.json).
+
+    .venv/bin/python bench/bench_weather.py [--repeat 3] [--out DIR | --update-committed] [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from core.atmosphere.weather import Overlap, backscatter_template  # noqa: E402
+from core.config.settings import LaserSettings, RangeGateSettings  # noqa: E402
+from core.geometry.rays import Detector  # noqa: E402
+from core.geometry.trace import SceneTracer  # noqa: E402
+from core.systems.flash import simulate_frame  # noqa: E402
+from benchio import add_output_arguments, output_path, write_json  # noqa: E402
+from bench_flash import bench_config, bench_scene, flash_floor_blocks, sensor_pose  # noqa: E402
+import floor  # noqa: E402
+
+CASES = {"clear": {}, "fog_200m": {"weather": "fog", "visibility_m": 200.0},
+         "rain_25mm_h": {"weather": "rain", "rain_rate_mm_h": 25.0, "drop_min_diameter_mm": 4.0}}
+
+
+def template_accuracy(repeat: int) -> list:
+    """Volume template: time and relative L2 error against 32 slabs, for 1, 2, 4 and 8 slabs per width."""
+    laser = LaserSettings(pulse_fwhm_s=5e-9)
+    gate = RangeGateSettings(gate_start_s=2 * 10.0 / 299_792_458.0, bin_width_s=1e-9, n_bins=1024)
+    args = (laser, gate, 1.0, 0.0196 / 18, 0.0196, Overlap("geometric", 0.05, 0.01, 0.1, 0.025, 1e-3), 3.0)
+    ref = backscatter_template(*args, slabs_per_width=32)
+    rows = []
+    for k in (1, 2, 4, 8):
+        best = np.inf
+        for _ in range(repeat):
+            t = time.perf_counter()
+            wf = backscatter_template(*args, slabs_per_width=k)
+            best = min(best, time.perf_counter() - t)
+        rows.append({"slabs_per_width": k, "time_s": best,
+                     "l2_error_vs_32": float(np.linalg.norm(wf - ref) / np.linalg.norm(ref))})
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    add_output_arguments(ap)
+    args = ap.parse_args(argv)
+    out = output_path(ap, args, "weather.json")
+    if args.quick:
+        args.repeat = 1
+    scene, pose = bench_scene(32 if args.quick else 128), sensor_pose()
+    tracer = SceneTracer(scene)
+    configs = {}
+    for name, atm in CASES.items():
+        cfg = bench_config(args.quick)
+        cfg.run.save_waveforms = True
+        cfg.atmosphere = dataclasses.replace(cfg.atmosphere, **atm)
+        configs[name] = cfg
+    first = {}
+    for name, cfg in configs.items():  # first calls (compiling or loading kernels), apart
+        t = time.perf_counter()
+        res = simulate_frame(scene, pose, cfg, tracer=tracer)
+        first[name] = time.perf_counter() - t
+    det = Detector.from_settings(configs["clear"].receiver)
+    threads = res.stats["threads"]
+    blocks = flash_floor_blocks(tracer, det, pose, res.stats["pixels_per_block"])
+    casts, times, last = [], {k: [] for k in CASES}, {}
+    for _ in range(args.repeat):
+        casts.append(floor.bare_cast(tracer, blocks, threads))
+        for name, cfg in configs.items():
+            t = time.perf_counter()
+            last[name] = simulate_frame(scene, pose, cfg, tracer=tracer)
+            times[name].append(time.perf_counter() - t)
+    fl = floor.best(casts)
+    cases = {}
+    for name in CASES:
+        st = last[name].stats
+        frame_s = min(times[name])
+        weather_s = st["stage_times_s"].get("weather", 0.0)
+        cases[name] = {"frame_s": frame_s, "ratio_frame_to_bare_cast": frame_s / fl["wall_s"],
+                       "weather_stage_thread_s": weather_s,
+                       "ratio_weather_stage_to_floor": weather_s / fl["thread_s"],
+                       "n_points": st["n_points"],
+                       "atmosphere_echoes": st.get("weather", {}).get("n_atmosphere_echoes", 0),
+                       "drops_drawn": st.get("weather", {}).get("drops", {}).get("drawn", 0),
+                       "stage_times_s": st["stage_times_s"], "first_call_s": first[name]}
+    report = {"benchmark": ("quick: " if args.quick else "") + "flash frame of bench_flash.py, clear / fog / rain",
+              "quick": args.quick, "repeat": args.repeat, "threads": threads,
+              "floor_definition": floor.DEFINITION, "floor": fl, "bare_embreex_cast_s": fl["wall_s"],
+              "cases": cases,
+              "ratio_fog_frame_to_clear_frame": cases["fog_200m"]["frame_s"] / cases["clear"]["frame_s"],
+              "ratio_rain_frame_to_clear_frame": cases["rain_25mm_h"]["frame_s"] / cases["clear"]["frame_s"],
+              "template_time_vs_error": template_accuracy(1 if args.quick else 5)}
+    write_json(out, report)
+    for name, c in cases.items():
+        print(f"{name:12s} frame {c['frame_s']:.3f} s = {c['ratio_frame_to_bare_cast']:.1f} × bare cast; weather "
+              f"stage {c['weather_stage_thread_s']:.3f} thread-s = {c['ratio_weather_stage_to_floor']:.2f} × floor; "
+              f"{c['atmosphere_echoes']} atmosphere echoes of {c['n_points']}")
+    for r in report["template_time_vs_error"]:
+        print(f"template {r['slabs_per_width']} slabs/width: {r['time_s'] * 1e3:.1f} ms, L2 error {r['l2_error_vs_32']:.1e}")
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
