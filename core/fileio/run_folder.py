@@ -345,6 +345,8 @@ def run_summary(run_path, result) -> str:
         lines.append(f"false    {n_fa} false alarms of {len(fa)} points ({n_fa / max(n_cells, 1):.3g} per "
                      f"{unit[:-1]}; {len(fa) - n_fa} true returns)")
     snr = pts.get("snr")
+    if fa is None and snr is None:
+        lines.append("false    none possible: ideal receiver (detector.mode = ideal: no noise, so no SNR either)")
     if snr is not None and len(snr):
         true = snr[fa == 0] if fa is not None else snr
         part = [f"true returns {true.min():.3g} – {true.max():.3g}" if len(true) else "no true return"]
