@@ -194,12 +194,13 @@ def _cmd_simulate(scene, args) -> int:
     frames = parse_frames(args.frames) if args.frames is not None else None
     _check_frames(frames or ([args.frame] if args.frame is not None else []), "frames" if frames else "frame")
     if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
-    job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
-                        config_path=args.config, if_exists=if_exists, sensor=sensor,
-                        import_results=not args.no_import, clouds=args.clouds.upper() if args.clouds else None,
-                        previews=not args.no_previews, progress=progress_printer())
-    args.job = job  # an interruption after the run was moved into place says so
-    job.run()
+    with progress_printer() as progress:  # (its heartbeat stops with the run)
+        job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
+                            config_path=args.config, if_exists=if_exists, sensor=sensor,
+                            import_results=not args.no_import, clouds=args.clouds.upper() if args.clouds else None,
+                            previews=not args.no_previews, progress=progress)
+        args.job = job  # an interruption after the run was moved into place says so
+        job.run()
     if frames is None:
         emit(run_summary(job.run_path, job.result))
     else:
@@ -220,9 +221,9 @@ def _cmd_sweep(scene, args) -> int:
     from .sweep import sweep_scene
 
     check_workers(args.workers)  # (before the scene is exported)
-    outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
-                          restart=args.restart, sensor=_sensor(scene, args.sensor),
-                          progress=progress_printer("ladar: sweep ", every_s=30.0))
+    with progress_printer("ladar: sweep ", every_s=30.0) as progress:
+        outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
+                              restart=args.restart, sensor=_sensor(scene, args.sensor), progress=progress)
     emit(outcome.summary())
     return EXIT_OK if outcome.n_failed == 0 else EXIT_USER_ERROR
 

@@ -8,7 +8,8 @@ Cycles settings; it is rendered with ``bpy.ops.render.render(scene=...)`` and re
   its pixel's footprint at the far end of the cloud (99th percentile of the ranges), so the picture fills like
   the range image it came from.  Other
   clouds (scanner, profiler, frame sequences, several runs) are framed: a camera looks at their bounding box
-  from above-front-right with the whole box in view, points about 2.4 render pixels across.
+  from above-front-right with the whole box in view, points about 2.4 render pixels across (a few points, such
+  as a profiler's echoes, larger: together 2 % of the picture, :func:`framed_point_px`).
 * **Picture.** The film is transparent (the same on Blender 4.2 and 5.0, whose default world is grey); matplotlib
   then lays the render on a dark background with a title, the colour-ramp legend — the ramp's colours as
   rendered, the values at its ends and the unit (``ladar_color_label``) — and, in the sensor view, the angle
@@ -43,6 +44,19 @@ BACKGROUND = "#101014"
 SENSOR_FILL = 1.5
 #: Framed view: point radius in render pixels at the box's centre distance.
 FRAMED_POINT_PX = 1.2
+#: Framed view of a few points (a profiler's echoes): the points grow until together they would cover this
+#: fraction of the picture, up to ``FRAMED_MAX_POINT_PX`` each (2 profiler echoes at 640 × 480: 31 px, where
+#: 1.2 px left two specks); a cloud of more than about 1,400 points at 640 × 480 keeps ``FRAMED_POINT_PX``.
+FRAMED_MIN_COVER = 0.02
+FRAMED_MAX_POINT_PX = 32.0
+
+
+def framed_point_px(n_points: int, width: int, height: int) -> float:
+    """Point radius (render pixels) in the framed view: ``FRAMED_POINT_PX``, larger for a few points so that
+    they cover ``FRAMED_MIN_COVER`` of the picture (π r² n = cover × width × height), at most
+    ``FRAMED_MAX_POINT_PX``."""
+    grow = math.sqrt(FRAMED_MIN_COVER * width * height / (math.pi * max(int(n_points), 1)))
+    return min(FRAMED_MAX_POINT_PX, max(FRAMED_POINT_PX, grow))
 
 
 def _world_points(obj) -> np.ndarray:
@@ -200,7 +214,8 @@ def render_preview(objects, path, *, resolution=PREVIEW_RESOLUTION, samples: int
             cam.matrix_world = matrix
             cam_data.clip_start = max(1e-3, 0.01 * (distance - radius_box))
             cam_data.clip_end = 2.0 * (distance + radius_box)
-            radius = FRAMED_POINT_PX * 2.0 * distance * math.tan(0.5 * CAMERA_ANGLE_RAD) / max(width, height)
+            radius = (framed_point_px(len(points), width, height)
+                      * 2.0 * distance * math.tan(0.5 * CAMERA_ANGLE_RAD) / max(width, height))
             extent = None
         for obj in objects:  # the render's point size (restored afterwards)
             old_radius = point_radius(obj)

@@ -2,7 +2,6 @@
 the messages a run prints."""
 from __future__ import annotations
 
-import math
 import os
 import re
 import threading
@@ -84,20 +83,84 @@ def build_config(scene, sensor, *, config_path=None, seed=None):
     return cfg, blender_materials
 
 
-def progress_printer(prefix="ladar: ", every_s=None):
-    """A progress callback that prints a line at most every 10 % (background mode: Blender draws nothing), and
-    also when ``every_s`` seconds passed since the last line (long sweeps)."""
-    state = {"next": 0.0, "t0": time.perf_counter(), "last": -math.inf, "lock": threading.Lock()}
+#: Longest silence (s) of a progress printer: its heartbeat repeats the last line, with the time so far and an
+#: estimate of the time left, when nothing was printed for this long (a run never goes quiet for more than 2 s).
+HEARTBEAT_S = 1.0
 
-    def progress(fraction, message=""):
-        with state["lock"]:
+
+def format_eta(elapsed_s: float, fraction: float) -> str:
+    """The estimated time left of a run ``fraction`` done after ``elapsed_s`` (linear in the fraction):
+    "ETA 12 s", "ETA 3 min 20 s"; "ETA unknown" before 1 % and "finishing" once the fraction is 1."""
+    if fraction >= 1.0:
+        return "finishing"
+    if fraction < 0.01 or elapsed_s <= 0.0:
+        return "ETA unknown"
+    left = elapsed_s * (1.0 - fraction) / fraction
+    if left < 60.0:
+        return f"ETA {left:.0f} s"
+    if left < 3600.0:
+        return f"ETA {int(left // 60)} min {int(left % 60):02d} s"
+    return f"ETA {int(left // 3600)} h {int(left % 3600 // 60):02d} min"
+
+
+class ProgressPrinter:
+    """A progress callback ``(fraction, message)`` that prints a line at most every 10 % (background mode:
+    Blender draws nothing), also when ``every_s`` seconds passed since the last line (long sweeps), each with the
+    time so far and the estimated time left; and a heartbeat thread that repeats the last line whenever nothing
+    was printed for ``heartbeat_s`` (building the BVH, writing previews, a long block: never silent for more than
+    2 s).  The heartbeat starts with the printer; :meth:`close` (or leaving a ``with`` block) stops it."""
+
+    def __init__(self, prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S):
+        self.prefix, self.every_s, self.heartbeat_s = prefix, every_s, heartbeat_s
+        self._lock = threading.Lock()
+        self._t0 = time.perf_counter()
+        self._next, self._last = 0.0, time.perf_counter()
+        self._fraction, self._message = 0.0, "starting"
+        self._stop = threading.Event()
+        self._thread = None
+        if heartbeat_s:
+            self._thread = threading.Thread(target=self._beat, name="ladar progress heartbeat", daemon=True)
+            self._thread.start()
+
+    def _line(self, now) -> str:
+        elapsed = now - self._t0
+        return (f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} "
+                f"({elapsed:.2f} s, {format_eta(elapsed, self._fraction)})")
+
+    def __call__(self, fraction, message=""):
+        with self._lock:
             now = time.perf_counter()
-            if (fraction + 1e-9 >= state["next"] or fraction >= 1.0
-                    or (every_s is not None and now - state["last"] >= every_s)):
-                emit(f"{prefix}{100 * fraction:5.1f}% {message} ({now - state['t0']:.2f} s)")
-                state["next"] = min(1.0, max(state["next"], fraction + 0.1))
-                state["last"] = now
-    return progress
+            self._fraction, self._message = float(fraction), str(message)
+            if (fraction + 1e-9 >= self._next or fraction >= 1.0
+                    or (self.every_s is not None and now - self._last >= self.every_s)):
+                emit(self._line(now))
+                self._next = min(1.0, max(self._next, fraction + 0.1))
+                self._last = now
+
+    def _beat(self):
+        while not self._stop.wait(min(0.25, self.heartbeat_s)):
+            with self._lock:
+                now = time.perf_counter()
+                if now - self._last >= self.heartbeat_s:
+                    emit(self._line(now))
+                    self._last = now
+
+    def close(self):
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def progress_printer(prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S) -> ProgressPrinter:
+    """A :class:`ProgressPrinter` (close it when the run is over: it has a heartbeat thread)."""
+    return ProgressPrinter(prefix, every_s, heartbeat_s)
 
 
 def log(message):

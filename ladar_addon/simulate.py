@@ -60,11 +60,14 @@ def simulate_scene(scene, out_dir=None, frame=None, seed=None, config_path=None,
     Returns ``(run_path, FrameResult)``.  Raises ConfigError (bad settings) or LadarError (bad scene set-up)
     before anything is written.
     """
-    if progress is None and bpy.app.background:
-        progress = progress_printer()
-    job = SimulationJob(scene, frame=frame, out_dir=out_dir, seed=seed, config_path=config_path,
-                        overwrite=overwrite, if_exists=if_exists, sensor=sensor, import_results=import_results,
-                        previews=previews, color_by=color_by, progress=progress).run()
+    printer = progress_printer() if progress is None and bpy.app.background else None
+    try:
+        job = SimulationJob(scene, frame=frame, out_dir=out_dir, seed=seed, config_path=config_path,
+                            overwrite=overwrite, if_exists=if_exists, sensor=sensor, import_results=import_results,
+                            previews=previews, color_by=color_by, progress=printer or progress).run()
+    finally:
+        if printer is not None:
+            printer.close()
     return job.run_path, job.result
 
 
@@ -76,11 +79,14 @@ def simulate_sequence(scene, frames, out_dir=None, seed=None, config_path=None, 
     Same options as :func:`simulate_scene`, plus ``clouds``: "RUN" (one merged point cloud) or "FRAME" (one per
     frame).  The scene returns to its current frame.  Returns ``(run_path, per-frame stats)``.
     """
-    if progress is None and bpy.app.background:
-        progress = progress_printer()
-    job = SimulationJob(scene, frames=frames, out_dir=out_dir, seed=seed, config_path=config_path,
-                        overwrite=overwrite, if_exists=if_exists, sensor=sensor, import_results=import_results,
-                        previews=previews, clouds=clouds, color_by=color_by, progress=progress).run()
+    printer = progress_printer() if progress is None and bpy.app.background else None
+    try:
+        job = SimulationJob(scene, frames=frames, out_dir=out_dir, seed=seed, config_path=config_path,
+                            overwrite=overwrite, if_exists=if_exists, sensor=sensor, import_results=import_results,
+                            previews=previews, clouds=clouds, color_by=color_by, progress=printer or progress).run()
+    finally:
+        if printer is not None:
+            printer.close()
     return job.run_path, job.frame_stats
 
 

@@ -71,11 +71,13 @@ class LADAR_OT_waveform_view(bpy.types.Operator):
     run: bpy.props.StringProperty(
         name="Run", subtype="DIR_PATH", default="",
         description="Run folder (empty: the active result object's run, else the scene's last run)")
-    pixel_x: bpy.props.IntProperty(name="Pixel X", default=0, min=0, description="Receiver column (0 = left)")
-    pixel_y: bpy.props.IntProperty(name="Pixel Y", default=0, min=0, description="Receiver row (0 = top)")
+    pixel_x: bpy.props.IntProperty(name="Pixel X", default=-1, min=-1,
+                                   description="Receiver column (0 = left; -1: the strongest pixel's)")
+    pixel_y: bpy.props.IntProperty(name="Pixel Y", default=-1, min=-1,
+                                   description="Receiver row (0 = top; -1: the strongest pixel's)")
     pulse: bpy.props.IntProperty(
         name="Pulse", default=-1, min=-1,
-        description="Scanner runs: pulse index (-1: the pulse that received the most energy)")
+        description="Scanner runs: pulse index (-1: the pulse with the most echoes, of those the strongest)")
     frame: bpy.props.IntProperty(
         name="Frame", default=-1, description="Frame of a sequence run (-1: the scene's current frame)")
 
@@ -99,7 +101,9 @@ class LADAR_OT_waveform_view(bpy.types.Operator):
             return {"CANCELLED"}
         _show_image(context, img)
         where = f"pulse {what['pulse']}" if "pulse" in what else f"pixel ({what['pixel_x']}, {what['pixel_y']})"
-        self.report({"INFO"}, f"Waveform of {where}: image {img.name!r} ({img.filepath})")
+        echoes = len(what["echo_ranges_m"])
+        self.report({"INFO"}, f"{what['view'].capitalize()} of {where}, {echoes} echo{'es' if echoes != 1 else ''}: "
+                              f"image {img.name!r} ({img.filepath})")
         return {"FINISHED"}
 
 

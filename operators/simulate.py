@@ -120,12 +120,16 @@ cloud and images.  ESC cancels"""
 
     def execute(self, context):
         """Blocking run (scripts, background mode)."""
+        printer = progress_printer() if bpy.app.background else None
         try:
-            job = self._job(context, progress_printer() if bpy.app.background else None)
+            job = self._job(context, printer)
             job.run()
         except _USER_ERRORS as exc:
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
+        finally:
+            if printer is not None:
+                printer.close()
         self.report({"INFO"}, f"Ladar: {job.summary()}")
         for w in job.warnings():
             self.report({"WARNING"}, f"Ladar: {w}")

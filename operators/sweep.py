@@ -55,12 +55,15 @@ and plots.  ESC cancels (finished points are kept; the same sweep resumes)"""
     def execute(self, context):
         if not bpy.app.background and context.window is not None:
             return self._start_modal(context)
+        printer = progress_printer("ladar: sweep ")
         try:
-            job = self._job(context, progress_printer("ladar: sweep "))
+            job = self._job(context, printer)
             job.run()
         except _USER_ERRORS as exc:
             self.report({"ERROR"}, str(exc) or type(exc).__name__)
             return {"CANCELLED"}
+        finally:
+            printer.close()
         self.report({"INFO"}, f"Ladar {job.summary()}")
         return {"FINISHED"}
 

@@ -26,7 +26,9 @@ range 170–240 m away:
   oscillating mirror ±25° across track at 50 Hz, 100 kHz pulses of 3 ns at 1064 nm, 1 mrad beam sampled by 19
   sub-rays, range gate 95–145 m with 0.5 ns bins;
 * a 160 m × 160 m rolling ground, 60 trees (trunks and crowns of loose leaves, so pulses give several echoes),
-  a car-sized vehicle in a clearing.
+  a car-sized vehicle in a clearing;
+* every pulse's waveform saved (``waveforms.npy``, 100,000 pulses × 668 bins, 255 MB a run): the waveform view
+  shows by default the pulse with the most echoes, one through a tree crown.
 
 ``aircraft_profile.blend`` — a range profiler on an aircraft-like target at 2 km (paper §5.3, Fig. 13):
 
@@ -357,7 +359,7 @@ def build_forest_scan(bpy, path: Path) -> None:
     _set_single(scene, cam, {"gate.bin_width_s": 0.5e-9})
     ladar.gate.n_bins = int(math.ceil(2 * 50.0 / SPEED_OF_LIGHT_M_S / 0.5e-9))
     ladar.detection.max_echoes = 5
-    ladar.run.save_waveforms = False
+    ladar.run.save_waveforms = True  # every pulse's waveform (255 MB a run), for the waveform view (issue 27)
     _set_si(scene, cam, {"laser.wavelength_m": 1.064e-6, "receiver.aperture_diameter_m": 0.08})
     _save(bpy, scene, cam, path)
 

@@ -40,4 +40,22 @@ if ! command -v projinfo >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; 
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq proj-bin >/dev/null
 fi
 command -v projinfo >/dev/null 2>&1 || { echo "setup: projinfo (package proj-bin) is missing" >&2; exit 1; }
+# Test-only clients that read the outputs back (tests/core/fileio/test_ply_clients.py, test_cloudcompare_las.py):
+# CloudCompare's command-line mode under xvfb (Debian's cloudcompare, xvfb; libusb-1.0-0 for Open3D), and Open3D, plyfile and trimesh in
+# their own environment .venv-clients (requirements-clients.txt; about 1.2 GB, kept out of .venv).  Not fatal: a
+# client that cannot be installed is skipped by its tests.  LADAR_SETUP_CLIENTS=0 leaves this step out.
+if [ "${LADAR_SETUP_CLIENTS:-1}" != 0 ]; then
+  if { ! command -v CloudCompare >/dev/null 2>&1 || ! command -v xvfb-run >/dev/null 2>&1 \
+        || ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; } && command -v apt-get >/dev/null 2>&1; then
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq cloudcompare xvfb libusb-1.0-0 \
+        >/dev/null; } || echo "setup: warning: cloudcompare/xvfb/libusb not installed; their tests will be skipped" >&2
+  fi
+  cstamp=.venv-clients/.requirements.sha
+  cwant=$(sha256sum requirements-clients.txt | cut -d' ' -f1)
+  if [ ! -x .venv-clients/bin/python ] || [ "$(cat "$cstamp" 2>/dev/null)" != "$cwant" ]; then
+    { "$PY" -m venv .venv-clients && .venv-clients/bin/python -m pip install --quiet -r requirements-clients.txt \
+        && echo "$cwant" > "$cstamp"; } \
+      || echo "setup: warning: Open3D/plyfile/trimesh not installed in .venv-clients; their tests will be skipped" >&2
+  fi
+fi
 echo "setup: .venv ready ($(.venv/bin/python --version))"

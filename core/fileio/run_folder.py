@@ -350,6 +350,8 @@ def run_summary(run_path, result) -> str:
         lines.append(f"weather  {n_atm} returns of the atmosphere of {len(atm)} points ({st['weather']['model']['condition']}"
                      f"; LAS class 18, withheld)" if "weather" in st else f"weather  {n_atm} returns of the atmosphere")
     snr = pts.get("snr")
+    if fa is None and snr is None:
+        lines.append("false    none possible: ideal receiver (detector.mode = ideal: no noise, so no SNR either)")
     if snr is not None and len(snr):
         true = snr[fa == 0] if fa is not None else snr
         part = [f"true returns {true.min():.3g} – {true.max():.3g}" if len(true) else "no true return"]

@@ -8,7 +8,11 @@ divergence), each traced from the sensor through every surface it meets (up to `
 at or past the point, and no farther than a crossing can still win (a later crossing lies farther from the point
 and cannot win): the crossing whose range is
 closest to the point's wins if it lies within ``tolerance_m``; otherwise the point has no surface (−1), as a
-false alarm in empty air.  The points are independent: labelled in parts on the run's threads.  Never imports
+false alarm in empty air.  A footprint much wider than the objects in it (the profiler's one element over the
+whole field of view) can hold an object that neither the centre line nor the 8 lines at its rim cross: with
+``fill_rings`` = R > 0 the points still unlabelled then trace R rings filling the footprint (ring k of R at
+``spread_rad`` × k/R, 8k lines: an even density over the disc), and the nearest crossing over all of them wins.
+The points are independent: labelled in parts on the run's threads.  Never imports
 bpy.
 """
 from __future__ import annotations
@@ -34,12 +38,13 @@ MIN_PART, PARTS_PER_THREAD = 2048, 1
 
 
 def surface_material_ids(tracer, material_ids, origin, position, tolerance_m: float, spread_rad: float = 0.0,
-                         max_surfaces: int = 8, threads: int = 1) -> np.ndarray:
+                         max_surfaces: int = 8, threads: int = 1, fill_rings: int = 0) -> np.ndarray:
     """Material index (int16, −1 for none) of the surface under each point (module docstring).
 
     ``tracer``: a :class:`core.trace.SceneTracer` of the scene; ``material_ids``: the scene's material index per
     triangle; ``origin``: the sensor position (3,) or one per point (n, 3); ``position``: the points (n, 3),
-    world coordinates (m).  ``threads``: the points are labelled in parts of at least ``MIN_PART`` points on up
+    world coordinates (m).  ``fill_rings``: rings of lines filling the footprint for the points its rim leaves
+    unlabelled (0: none).  ``threads``: the points are labelled in parts of at least ``MIN_PART`` points on up
     to that many threads of the shared pool (core/threads.py); each point's label does not depend on the parts.
     """
     position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
@@ -47,28 +52,36 @@ def surface_material_ids(tracer, material_ids, origin, position, tolerance_m: fl
     n = len(position)
     parts = max(1, min(int(threads) * PARTS_PER_THREAD, n // MIN_PART))
     if parts == 1:
-        return _material_ids(tracer, material_ids, origin, position, tolerance_m, spread_rad, max_surfaces)
+        return _material_ids(tracer, material_ids, origin, position, tolerance_m, spread_rad, max_surfaces,
+                             fill_rings)
     bounds = [(n * i // parts, n * (i + 1) // parts) for i in range(parts)]
     out = map_list(lambda ab: _material_ids(tracer, material_ids, origin[ab[0]:ab[1]], position[ab[0]:ab[1]],
-                                            tolerance_m, spread_rad, max_surfaces), bounds, threads)
+                                            tolerance_m, spread_rad, max_surfaces, fill_rings), bounds, threads)
     return np.concatenate(out)
 
 
-def _material_ids(tracer, material_ids, origin, position, tolerance_m, spread_rad, max_surfaces):
+def _material_ids(tracer, material_ids, origin, position, tolerance_m, spread_rad, max_surfaces, fill_rings=0):
     best_err, best_prim = _nearest_crossing(tracer, origin, position, tolerance_m, max_surfaces, None)
     # the lines around the centre only for points whose centre line found no surface (edges of objects)
     rest = np.flatnonzero(~(best_err <= tolerance_m))
     if spread_rad > 0 and len(rest):
         sub_err, sub_prim = _around(tracer, origin[rest], position[rest], tolerance_m, spread_rad, max_surfaces)
         best_err[rest], best_prim[rest] = sub_err, sub_prim
+    rest = np.flatnonzero(~(best_err <= tolerance_m))
+    if spread_rad > 0 and fill_rings > 0 and len(rest):  # the footprint's inside, ring by ring
+        for k in range(1, int(fill_rings) + 1):
+            sub_err, sub_prim = _around(tracer, origin[rest], position[rest], tolerance_m,
+                                        spread_rad * k / fill_rings, max_surfaces, lines=8 * k)
+            better = sub_err < best_err[rest]
+            best_err[rest[better]], best_prim[rest[better]] = sub_err[better], sub_prim[better]
     out = np.full(len(position), NO_SURFACE, np.int16)
     found = (best_prim >= 0) & (best_err <= tolerance_m)
     out[found] = np.asarray(material_ids)[best_prim[found]]
     return out
 
 
-def _around(tracer, origin, position, tolerance_m, spread_rad, max_surfaces):
-    """The nearest crossing over 8 lines at ``spread_rad`` around each point's line of sight."""
+def _around(tracer, origin, position, tolerance_m, spread_rad, max_surfaces, lines=8):
+    """The nearest crossing over ``lines`` lines at ``spread_rad`` around each point's line of sight."""
     best_err = np.full(len(position), np.inf)
     best_prim = np.full(len(position), -1, np.int64)
     axis = position - origin
@@ -77,7 +90,7 @@ def _around(tracer, origin, position, tolerance_m, spread_rad, max_surfaces):
     u = np.cross(axis, helper)
     u /= np.linalg.norm(u, axis=1)[:, None]
     v = np.cross(axis, u)
-    for phi in np.arange(8) * np.pi / 4:
+    for phi in np.arange(lines) * (2.0 * np.pi / lines):
         d = axis + np.tan(spread_rad) * (np.cos(phi) * u + np.sin(phi) * v)
         d /= np.linalg.norm(d, axis=1)[:, None]
         err, prim = _nearest_crossing(tracer, origin, position, tolerance_m, max_surfaces, d)

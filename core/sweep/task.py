@@ -23,7 +23,7 @@ from ..errors import ConfigError
 from ..fileio.locks import OWNERLESS_GRACE_S
 from ..fileio.run_folder import write_run
 from ..fileio.staging import BUSY
-from ..engine.products import ground_truth_tolerance
+from ..engine.products import ground_truth_fill_rings, ground_truth_tolerance
 from ..geometry.groundtruth import surface_material_ids
 from ..geometry.motion import Trajectory, split_pose
 from ..geometry.rays import Detector, tan_to_unit_direction
@@ -97,7 +97,8 @@ def truth_materials(truth, config: SimulationConfig, geometry, tracer, world_fro
     pi, ei = np.nonzero(np.isfinite(flat))
     if len(pi):
         pos = origin + dirs[pi] * flat[pi, ei][:, None]
-        labels[pi, ei] = surface_material_ids(tracer, geometry.material_ids, origin, pos, tol_m, spread_rad)
+        labels[pi, ei] = surface_material_ids(tracer, geometry.material_ids, origin, pos, tol_m, spread_rad,
+                                              fill_rings=ground_truth_fill_rings(config))
     return labels.reshape(h, w, e)
 
 

@@ -4,7 +4,7 @@ intensity stored on an SI-prefixed scale so that clients printing 6 decimals sho
 
 The clients are not part of the project's install: each client test runs where the client is found and is
 skipped otherwise — Open3D, plyfile and trimesh in this Python or in the Python named by ``LADAR_CLIENT_PYTHON``
-(e.g. a venv under /tmp: ``python -m venv /tmp/o3d && /tmp/o3d/bin/pip install open3d plyfile trimesh``),
+(scripts/setup.sh makes ``.venv-clients`` from requirements-clients.txt, and scripts/test.sh names it there),
 CloudCompare's command-line mode when ``CloudCompare`` and ``xvfb-run`` are on PATH (Debian: ``apt-get install
 cloudcompare xvfb``), Blender through the ``bpy`` module of the project's venv.
 """
