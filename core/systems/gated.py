@@ -258,6 +258,10 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     (n_slices, H, W), the range image from the slices, points and metadata.  The systems' common signature
     (core.run.SYSTEMS): the sweep is fired from one pose, ``world_from_sensor`` (``trajectory`` and
     ``start_time_s`` are not used)."""
+    if config.receiver.subray_pattern != "grid":  # refused, not silently ignored (docs/performance.md)
+        raise ConfigError("receiver.subray_pattern", config.receiver.subray_pattern,
+                          "'grid' for the gated system (it places its sub-rays on the S×S cell centres; "
+                          "stratified, sobol and adaptive are flash-system patterns)")
     log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "gating", "products"), STAGES_PLANNED)
     fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer)
     scene, tracer, origin, rot = fr.scene, fr.tracer, fr.origin, fr.rot
