@@ -47,8 +47,8 @@ def test_settings_reference_is_generated_from_the_schema():
     for name in names:
         assert f"| `{name}` |" in committed, name
     # 90 + gated.min_peak_fraction, k_sigma + atmosphere.scintillation_statistics, inner_scale_m, outer_scale_m
-    # + run.max_work_s
-    assert len(names) == 96 + len(dataclasses.fields(BRDFSettings))
+    # + run.max_work_s + detection.signal_free_bins (issue 28)
+    assert len(names) == 97 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 
