@@ -466,8 +466,14 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
         n_sim += len(rows) * int(L)
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(ss.entropy,
                                                                      spawn_key=tuple(ss.spawn_key) + (2,))))
-    rates = rate_model(B, pulse, sigma, u, noise_law, base)
-    fa_pix, fa_bin, fa_s, lam = draw_false_alarms(c_lo, c_hi, B, rates, rng)
+    if B >= 3:
+        rates = rate_model(B, pulse, sigma, u, noise_law, base)
+        fa_pix, fa_bin, fa_s, lam = draw_false_alarms(c_lo, c_hi, B, rates, rng)
+    else:  # (no bin has two neighbours: no detection anywhere, as on the per-bin route)
+        rates = GaussianRates.__new__(GaussianRates)
+        rates.rates, rates.rel_se = np.zeros(1), np.zeros(1)
+        fa_pix, fa_bin, fa_s, lam = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
+                                     np.zeros(P))
     pix = np.concatenate(cand_pix + [fa_pix]).astype(np.int64)
     cbin = np.concatenate(cand_bin + [fa_bin]).astype(np.int64)
     csmp = np.concatenate(cand_s + [fa_s]).astype(np.float32).reshape(-1, 3)
