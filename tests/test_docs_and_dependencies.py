@@ -47,8 +47,9 @@ def test_settings_reference_is_generated_from_the_schema():
     for name in names:
         assert f"| `{name}` |" in committed, name
     # 90 + gated.min_peak_fraction, k_sigma + atmosphere.scintillation_statistics, inner_scale_m, outer_scale_m
-    # + run.max_work_s
-    assert len(names) == 96 + len(dataclasses.fields(BRDFSettings))
+    # + run.max_work_s + atmosphere.weather, rain_rate_mm_h, backscatter_per_m_sr, lidar_ratio_sr, overlap_model,
+    # tx_rx_offset_m, backscatter_min_range_m, drop_min_diameter_mm
+    assert len(names) == 104 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 
@@ -99,9 +100,9 @@ def section_numbers(items: str) -> list[int]:
     return nums
 
 
-def test_theory_has_the_thirteen_numbered_sections():
+def test_theory_has_the_fourteen_numbered_sections():
     sections = settings_reference.theory_sections()
-    assert sorted(sections) == list(range(1, 14))
+    assert sorted(sections) == list(range(1, 15))  # §14: weather (issue 30)
     assert sections[3] == "3-log-intensity-variance-aperture-averaging-and-intensity-pdfs"
     assert settings_reference.github_slug("4. Gaussian beam: spread and wander") == "4-gaussian-beam-spread-and-wander"
 
