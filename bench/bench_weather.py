@@ -29,7 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from core.atmosphere.weather import Overlap, backscatter_template  # noqa: E402
+from core.atmosphere.weather import Overlap  # noqa: E402
+from core.physics.weather_waveform import backscatter_template  # noqa: E402
 from core.config.settings import LaserSettings, RangeGateSettings  # noqa: E402
 from core.geometry.rays import Detector  # noqa: E402
 from core.geometry.trace import SceneTracer  # noqa: E402

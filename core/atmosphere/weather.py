@@ -211,35 +211,6 @@ def slab_integrals(edges_m, alpha_per_m, overlap: Overlap):
     return integral, centroid
 
 
-def slab_edges_m(laser, gate, min_range_m, slabs_per_width: int = 4):
-    """Range edges of the slabs that can reach the gate (pulse support included), from ``min_range_m``."""
-    from ..physics.laser import pulse_half_support_s
-    c2 = 0.5 * SPEED_OF_LIGHT_M_S
-    half = pulse_half_support_s(laser)
-    t_lo = max(min_range_m / c2, gate.gate_start_s - half)
-    t_hi = gate.gate_start_s + gate.n_bins * gate.bin_width_s + half
-    if t_hi <= t_lo:
-        return np.zeros(0)
-    width = min(gate.bin_width_s, laser.pulse_fwhm_s) / slabs_per_width
-    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
-    return c2 * np.linspace(t_lo, t_hi, n + 1)
-
-
-def backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, overlap: Overlap,
-                         min_range_m, slabs_per_width: int = 4):
-    """The volume-backscatter waveform (n_bins,) in J per bin for a beam of energy fraction F = 1 (W1),
-    ``energy_scale_jm2`` = E_T η_sys π r_a² (core.physics.radiometry.energy_scale)."""
-    from ..physics.waveform import accumulate_waveforms, round_trip_time_s
-    edges = slab_edges_m(laser, gate, min_range_m, slabs_per_width)
-    if len(edges) < 2 or beta_per_m_sr <= 0.0:
-        return np.zeros(gate.n_bins)
-    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
-    e = energy_scale_jm2 * beta_per_m_sr * integral
-    keep = e > 0
-    return accumulate_waveforms(np.zeros(int(keep.sum()), np.int64), round_trip_time_s(centroid[keep]), e[keep], 1,
-                                laser, gate)[0]
-
-
 def add_volume_rows(rows, template, beam_fraction, hit_beam, hit_time_s, hit_fraction, gate):
     """rows[p] += template × (the fraction of beam p still unobstructed at each bin): F_p minus the sub-rays
     that hit a surface at or before the bin (their volume behind the surface is hidden).  Bin-level truncation
@@ -368,28 +339,3 @@ def atmosphere_echo_mask(echo_beam, echo_range_m, hit_beam, hit_range_m, toleran
         near[ok] = np.minimum(near[ok], np.abs(key[j[ok]] - q[ok]))
     return ~(near <= tolerance_m)
 
-
-def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
-                     overlap: Overlap, min_range_m, response, slabs_per_width: int = 4):
-    """Gated viewing: (slab round-trip times (M,), C (M + 1, n_slices)) with C[m] = Σ_{m' < m} e_m' g(t_m' − d_k),
-    the volume backscatter of the slabs nearer than slab m in every slice (``response`` = g(τ), the slice
-    response of core.systems.gated).  A pixel sees C[m_hit] for a sub-ray whose surface is at slab m_hit, C[M]
-    for a sub-ray that hits nothing (prefix sums: the volume behind a surface is hidden)."""
-    from ..physics.laser import pulse_half_support_s
-    c2 = 0.5 * SPEED_OF_LIGHT_M_S
-    d = np.asarray(delays_s, np.float64)
-    support = pulse_half_support_s(laser) + 0.5 * edge_s
-    t_lo = max(min_range_m / c2, float(d.min()) - support)
-    t_hi = float(d.max()) + gate_width_s + support
-    if t_hi <= t_lo or beta_per_m_sr <= 0.0:
-        return np.zeros(0), np.zeros((1, len(d)))
-    step = float(np.min(np.diff(d))) if len(d) > 1 else gate_width_s
-    width = min(laser.pulse_fwhm_s, gate_width_s, step if step > 0 else gate_width_s) / slabs_per_width
-    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
-    edges = c2 * np.linspace(t_lo, t_hi, n + 1)
-    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
-    e = energy_scale_jm2 * beta_per_m_sr * integral
-    t = 2.0 * centroid / SPEED_OF_LIGHT_M_S
-    table = np.zeros((n + 1, len(d)))
-    table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
-    return t, table

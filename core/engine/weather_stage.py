@@ -20,12 +20,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..atmosphere.weather import (Drops, Overlap, Weather, atmosphere_echo_mask, backscatter_template, draw_drops,
-                                  drop_returns, expected_drop_count, shadow_factors, visible_drops, weather_model)
+from ..atmosphere.weather import (Drops, Overlap, Weather, atmosphere_echo_mask, draw_drops, drop_returns,
+                                  expected_drop_count, shadow_factors, visible_drops, weather_model)
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..errors import ConfigError
 from ..physics.propagation import aerosol_extinction_per_m, effective_extinction_per_m
 from ..physics.radiometry import aperture_r2, energy_scale
+from ..physics.weather_waveform import backscatter_template
 from .rng import stage_rng
 
 STAGES = ("weather_backscatter", "weather_drops")
@@ -103,7 +105,6 @@ def check_drop_count(weather: Weather, expected: float) -> None:
     if expected <= MAX_DROPS:
         return
     need = weather.d_min_mm + math.log(expected / MAX_DROPS) / weather.lam
-    from ..errors import ConfigError
     raise ConfigError("atmosphere.drop_min_diameter_mm", weather.d_min_mm,
                       f"at least {math.ceil(need * 100) / 100:.2f} mm here: {expected:.3g} drops of "
                       f"≥ {weather.d_min_mm} mm would be drawn at once in this field of view and gate (at most "

@@ -14,6 +14,7 @@ from scipy.special import erf
 from ..atmosphere import (extinction_from_visibility, gamma_factor_g_correlation, gaussian_random_field,
                           unit_gamma_from_gaussian)
 from ..atmosphere import wave_optics as wo
+from ..atmosphere.weather import rain_extinction_per_m, snow_extinction_per_m
 from ..config.settings import SimulationConfig
 from ..threads import map_list
 
@@ -33,7 +34,6 @@ def effective_extinction_per_m(config: SimulationConfig) -> float:
     sigma = aerosol_extinction_per_m(config)
     atm = config.atmosphere
     if atm.weather in ("rain", "snow") and atm.rain_rate_mm_h > 0.0:
-        from ..atmosphere.weather import rain_extinction_per_m, snow_extinction_per_m
         sigma += float(rain_extinction_per_m(atm.rain_rate_mm_h) if atm.weather == "rain"
                        else snow_extinction_per_m(atm.rain_rate_mm_h, config.laser.wavelength_m))
     return sigma

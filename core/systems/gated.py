@@ -49,7 +49,7 @@ from ..engine.products import points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
 from ..engine.weather_stage import mark_atmosphere_echoes, prepare_frame_weather, weather_switches
-from ..atmosphere.weather import gated_slab_table
+from ..physics.weather_waveform import gated_slab_table
 from ..errors import ConfigError
 from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
 from ..jit import stage_clock

@@ -43,9 +43,10 @@ def _check(quantity, simulated, reference, tolerance, passed):
 def run(out_dir: Path, quick: bool) -> list[dict]:
     from scipy import stats
     from core.atmosphere.extinction import extinction_from_visibility
-    from core.atmosphere.weather import (Overlap, Weather, backscatter_template, closed_form_integral, draw_drops,
+    from core.atmosphere.weather import (Overlap, Weather, closed_form_integral, draw_drops,
                                          expected_drop_count, rain_extinction_per_m, size_distribution)
     from core.config.settings import LaserSettings, RangeGateSettings
+    from core.physics.weather_waveform import backscatter_template
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

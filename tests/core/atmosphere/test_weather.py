@@ -7,14 +7,15 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from core.atmosphere.weather import (Drops, Overlap, Weather, backscatter_template, closed_form_integral,
+from core.atmosphere.weather import (Drops, Overlap, Weather, closed_form_integral,
                                      disc_overlap_fraction, draw_drops, expected_drop_count, rain_extinction_per_m,
-                                     shadow_factors, size_distribution, slab_edges_m, slab_integrals,
+                                     shadow_factors, size_distribution, slab_integrals,
                                      small_drop_backscatter, snow_extinction_per_m, visible_drops, weather_model)
 from core.config.settings import LaserSettings, RangeGateSettings, SimulationConfig
 from core.config.validate import validate_config
 from core.errors import ConfigError
 from core.physics.laser import pulse_cdf
+from core.physics.weather_waveform import backscatter_template, slab_edges_m
 from core.systems.flash import plan, simulate_frame
 from scenes import C, config_for, plate
 

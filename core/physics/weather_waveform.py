@@ -1,0 +1,69 @@
+"""Weather returns as waveforms: the volume backscatter of core/atmosphere/weather.py (W1) convolved with the pulse
+and binned (flash, scanner, profiler), or gated by the slice response (gated viewing); docs/theory.md §14.
+
+The range is cut into slabs of min(bin width, pulse FWHM)/4 (gated: min(FWHM, gate width, delay step)/4) in
+round-trip time; each slab's energy is W1 integrated by 8-point Gauss–Legendre (:func:`~core.atmosphere.weather.
+slab_integrals`) and placed at its energy centroid, then binned with the pulse exactly as a surface return.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..atmosphere.weather import Overlap, slab_integrals
+from ..constants import SPEED_OF_LIGHT_M_S
+from .laser import pulse_half_support_s
+from .waveform import accumulate_waveforms, round_trip_time_s
+
+
+def slab_edges_m(laser, gate, min_range_m, slabs_per_width: int = 4):
+    """Range edges of the slabs that can reach the gate (pulse support included), from ``min_range_m``."""
+    c2 = 0.5 * SPEED_OF_LIGHT_M_S
+    half = pulse_half_support_s(laser)
+    t_lo = max(min_range_m / c2, gate.gate_start_s - half)
+    t_hi = gate.gate_start_s + gate.n_bins * gate.bin_width_s + half
+    if t_hi <= t_lo:
+        return np.zeros(0)
+    width = min(gate.bin_width_s, laser.pulse_fwhm_s) / slabs_per_width
+    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
+    return c2 * np.linspace(t_lo, t_hi, n + 1)
+
+
+def backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, overlap: Overlap,
+                         min_range_m, slabs_per_width: int = 4):
+    """The volume-backscatter waveform (n_bins,) in J per bin for a beam of energy fraction F = 1 (W1),
+    ``energy_scale_jm2`` = E_T η_sys π r_a² (core.physics.radiometry.energy_scale)."""
+    edges = slab_edges_m(laser, gate, min_range_m, slabs_per_width)
+    if len(edges) < 2 or beta_per_m_sr <= 0.0:
+        return np.zeros(gate.n_bins)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
+    e = energy_scale_jm2 * beta_per_m_sr * integral
+    keep = e > 0
+    return accumulate_waveforms(np.zeros(int(keep.sum()), np.int64), round_trip_time_s(centroid[keep]), e[keep], 1,
+                                laser, gate)[0]
+
+
+def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
+                     overlap: Overlap, min_range_m, response, slabs_per_width: int = 4):
+    """Gated viewing: (slab round-trip times (M,), C (M + 1, n_slices)) with C[m] = Σ_{m' < m} e_m' g(t_m' − d_k),
+    the volume backscatter of the slabs nearer than slab m in every slice (``response`` = g(τ), the slice
+    response of core.systems.gated).  A pixel sees C[m_hit] for a sub-ray whose surface is at slab m_hit, C[M]
+    for a sub-ray that hits nothing (prefix sums: the volume behind a surface is hidden)."""
+    c2 = 0.5 * SPEED_OF_LIGHT_M_S
+    d = np.asarray(delays_s, np.float64)
+    support = pulse_half_support_s(laser) + 0.5 * edge_s
+    t_lo = max(min_range_m / c2, float(d.min()) - support)
+    t_hi = float(d.max()) + gate_width_s + support
+    if t_hi <= t_lo or beta_per_m_sr <= 0.0:
+        return np.zeros(0), np.zeros((1, len(d)))
+    step = float(np.min(np.diff(d))) if len(d) > 1 else gate_width_s
+    width = min(laser.pulse_fwhm_s, gate_width_s, step if step > 0 else gate_width_s) / slabs_per_width
+    n = max(1, int(math.ceil((t_hi - t_lo) / width)))
+    edges = c2 * np.linspace(t_lo, t_hi, n + 1)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
+    e = energy_scale_jm2 * beta_per_m_sr * integral
+    t = 2.0 * centroid / SPEED_OF_LIGHT_M_S
+    table = np.zeros((n + 1, len(d)))
+    table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
+    return t, table
