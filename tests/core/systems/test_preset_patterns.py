@@ -68,7 +68,7 @@ def test_rotating_presets_channel_elevations_and_fov(name, fov_tol_deg):
     elev = np.degrees(np.arcsin(d[:, 1]))
     table = np.array(cfg.scanner.channel_table)
     np.testing.assert_allclose(elev, table[ch, 0], atol=1e-9)
-    # the HDL-64E's [published] omits fov_v_deg (its data sheet's 26.9° and its design table disagree)
+    # the HDL-64E's [published] omits fov_v_deg (26.9° in its data sheet, 26.33° in its design table)
     fov_v = pub.get("fov_v_deg", {"velodyne_hdl64e": 26.9}.get(name))
     assert abs((elev.max() - elev.min()) - fov_v) <= fov_tol_deg
     az = np.sort(np.degrees(angle[ch == 0]))
