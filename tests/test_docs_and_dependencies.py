@@ -104,9 +104,9 @@ def section_numbers(items: str) -> list[int]:
     return nums
 
 
-def test_theory_has_the_thirteen_numbered_sections():
+def test_theory_has_the_fourteen_numbered_sections():
     sections = settings_reference.theory_sections()
-    assert sorted(sections) == list(range(1, 14))
+    assert sorted(sections) == list(range(1, 15))  # §14 weather (issue 30; was an unnumbered "§6b")
     assert sections[3] == "3-log-intensity-variance-aperture-averaging-and-intensity-pdfs"
     assert settings_reference.github_slug("4. Gaussian beam: spread and wander") == "4-gaussian-beam-spread-and-wander"
 

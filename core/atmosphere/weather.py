@@ -1,4 +1,4 @@
-"""Weather in the waveform: returns from the atmosphere itself (docs/theory.md §6b, docs/atmosphere.md).
+"""Weather in the waveform: returns from the atmosphere itself (docs/theory.md §14, docs/atmosphere.md).
 
 Two parts, both added to a pixel's (or pulse's) waveform before the receiver chain:
 

@@ -290,7 +290,7 @@ class AtmosphereSettings:
                                    label="Turbulence Blur",
                                    choice_labels={'long': 'Long Exposure', 'short': 'Short Exposure', 'none': 'None'})
     weather: str = setting("none", choices=("none", "haze", "fog", "rain", "snow", "custom"),
-                           doc="Returns from the atmosphere itself (docs/atmosphere.md, docs/theory.md §6b): haze/fog "
+                           doc="Returns from the atmosphere itself (docs/atmosphere.md, docs/theory.md §14): haze/fog "
                                "= volume backscatter β = α/S from the visibility; rain/snow = extinction from "
                                "rain_rate_mm_h plus drops/flakes (discrete scatterers ≥ drop_min_diameter_mm, the "
                                "smaller ones as volume); custom = α from extinction/visibility, β given; none = "

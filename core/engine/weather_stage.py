@@ -1,5 +1,5 @@
 """The weather stage of a frame: returns of the atmosphere itself added to every beam's waveform (core/atmosphere/
-weather.py for the physics; docs/theory.md §6b).
+weather.py for the physics; docs/theory.md §14).
 
 A *beam* is what owns one waveform: a flash pixel (its share of the flash) or a scanner pulse.  Per frame the
 stage computes once the volume-backscatter waveform of a beam of energy fraction 1 (the template: it depends on

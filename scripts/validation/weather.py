@@ -1,4 +1,4 @@
-"""Validation of the weather model (issue 30; core/atmosphere/weather.py, docs/theory.md §6b).
+"""Validation of the weather model (issue 30; core/atmosphere/weather.py, docs/theory.md §14).
 
 ``run(out_dir, quick)`` returns checks {"quantity", "simulated", "reference", "tolerance", "passed"} and writes
 ``weather_fog_backscatter.png``: the simulated volume-backscatter waveform of a homogeneous fog (overlap O = 1)
