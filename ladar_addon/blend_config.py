@@ -3,9 +3,12 @@ written back (the inverse), through the field maps of :mod:`.fields`.  The Prope
 :mod:`.properties`."""
 from __future__ import annotations
 
+import json
+
 import bpy
 
-from ..core.config.settings import DEFAULT_BRDF, GROUPS, BRDFSettings, SimulationConfig
+from ..core.config.settings import (DEFAULT_BRDF, GROUPS, SCANNER_TABLE_FIELDS, BRDFSettings, ScannerSettings,
+                                    SimulationConfig)
 from ..core.config.validate import validate
 from ..core.config.files import config_from_dict, config_to_dict
 from ..core.errors import ConfigError
@@ -108,6 +111,27 @@ def check_sensor(sensor_obj) -> None:
                          f"not a camera")
 
 
+#: The scanner's list-valued settings (channel table, Risley prisms and emitters: SCANNER_TABLE_FIELDS) have no
+#: Blender property; they are kept as JSON in this custom property of the sensor camera object (absent: defaults).
+SCANNER_TABLES_KEY = "ladar_scanner_tables"
+
+
+def read_scanner_tables(sensor_obj) -> dict:
+    """The scanner table settings stored on ``sensor_obj`` (only those that differ from the defaults)."""
+    text = sensor_obj.get(SCANNER_TABLES_KEY, "")
+    return json.loads(text) if text else {}
+
+
+def write_scanner_tables(sensor_obj, scanner) -> None:
+    """Store ``scanner``'s table settings on ``sensor_obj`` (the custom property removed when all are defaults)."""
+    default = ScannerSettings()
+    values = {k: getattr(scanner, k) for k in SCANNER_TABLE_FIELDS if getattr(scanner, k) != getattr(default, k)}
+    if values:
+        sensor_obj[SCANNER_TABLES_KEY] = json.dumps(values)
+    elif SCANNER_TABLES_KEY in sensor_obj:
+        del sensor_obj[SCANNER_TABLES_KEY]
+
+
 def config_from_blender(scene, sensor_obj) -> SimulationConfig:
     """The core settings stored in ``scene`` and on ``sensor_obj`` (a camera object).  Not validated.
 
@@ -119,6 +143,7 @@ def config_from_blender(scene, sensor_obj) -> SimulationConfig:
     sensor = sensor_obj.ladar
     groups = {g: read_group(getattr(sensor, g), SENSOR_FIELDS[g], scale) for g in SENSOR_GROUPS}
     groups["run"]["seed"] = SEED_FIELD.to_core(scene.ladar.seed)
+    groups["scanner"].update(read_scanner_tables(sensor_obj))
     rx = groups["receiver"]
     rx["fov_x_rad"], rx["fov_y_rad"] = camera_receiver_fov_rad(sensor_obj.data, rx["width_px"], rx["height_px"])
     kwargs = {g: cls(**groups[g]) for g, cls in SENSOR_GROUPS.items()}
@@ -166,6 +191,7 @@ def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
             setattr(sensor, f.attr, f.to_blender(getattr(cfg, f.name), scale))
         for group in SENSOR_GROUPS:
             write_group(getattr(sensor, group), SENSOR_FIELDS[group], getattr(cfg, group), scale)
+        write_scanner_tables(sensor_obj, cfg.scanner)
         scene.ladar.seed = SEED_FIELD.to_blender(cfg.run.seed)
         write_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, cfg.atmosphere, scale)
         for m in bpy.data.materials:

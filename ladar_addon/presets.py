@@ -110,7 +110,12 @@ def sensor_preset_config(settings: dict, scene, obj):
     if unknown:
         raise ConfigError(f"preset.{unknown[0]}", settings[unknown[0]], "system_type or a settings group: "
                           + ", ".join(GROUPS))
+    from ..core.config.settings import SCANNER_TABLE_FIELDS
+
     data = config_to_dict(config_from_blender(scene, obj))
+    if "scanner" in settings:  # a preset's scanner replaces the tables (channel table, Risley) it does not name
+        for key in SCANNER_TABLE_FIELDS:
+            data["scanner"].pop(key, None)
     for key, value in settings.items():
         data[key] = {**data[key], **value} if isinstance(value, dict) else value
     rx = data["receiver"]
@@ -146,6 +151,9 @@ def apply_sensor_preset(settings: dict, context=None):
             f = fields[group].get(name)
             if f is not None:
                 write_value(props, f, getattr(getattr(cfg, group), name), scale)
+    if "scanner" in settings:
+        from .blend_config import write_scanner_tables
+        write_scanner_tables(obj, cfg.scanner)
     rx = cfg.receiver
     if "fov_x_rad" in settings.get("receiver", {}):
         set_camera_receiver_fov(obj.data, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)

@@ -27,6 +27,7 @@ CORE_LAYERS = {
     "core.heap": 0,
     "core.config": 1,
     "core.geometry": 2, "core.atmosphere": 2,
+    "core.atmosphere.weather": 3,  # the weather returns: waveform rows built with core.physics (laser, waveform)
     "core.physics": 3,
     "core.engine": 4,
     "core.systems": 5, "core.fileio": 5,

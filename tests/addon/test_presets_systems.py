@@ -151,6 +151,32 @@ def test_sensor_presets_replace_each_other_and_fail_cleanly(lad, scene):
         presets.apply_sensor_preset({"system_type": "flash"})
 
 
+def test_scanner_tables_are_kept_on_the_camera_and_replaced_by_the_next_preset(lad, scene):
+    """The channel table and Risley settings (no Blender property) live in the camera's custom property
+    ``ladar_scanner_tables``: a Risley preset sets them, a rotating preset's scanner replaces them (a table it
+    does not name returns to its default), and a config with none removes the property."""
+    cam = add_camera(scene)
+    presets = lad.package.ladar_addon.presets
+    bc = lad.blend_config
+    with bpy.context.temp_override(object=cam):
+        presets.apply_named_sensor_preset("livox_avia")
+    cfg = bc.config_from_blender(scene, cam)
+    assert cfg.scanner.pattern == "risley" and len(cfg.scanner.risley_emitters_deg) == 6
+    assert cfg.scanner.risley_prism_hz == [-131.5463, 40.8032, 213.1611]
+    assert bc.SCANNER_TABLES_KEY in cam
+    with bpy.context.temp_override(object=cam):
+        presets.apply_named_sensor_preset("hesai_pandar40")
+    cfg = bc.config_from_blender(scene, cam)
+    assert cfg.scanner.pattern == "rotating" and len(cfg.scanner.channel_table) == 40
+    assert cfg.scanner.risley_prism_hz == [] and cfg.scanner.risley_emitters_deg == []
+    with bpy.context.temp_override(object=cam):
+        presets.apply_named_sensor_preset("velodyne_vlp16")
+    cfg = bc.config_from_blender(scene, cam)
+    assert cfg.scanner.n_channels == 16 and cfg.scanner.channel_table == []
+    assert bc.SCANNER_TABLES_KEY not in cam
+    lad.config.validate(cfg)
+
+
 @pytest.mark.parametrize("path", MATERIAL_FILES, ids=lambda p: p.stem)
 def test_every_material_preset_applies_and_round_trips(lad, scene, path):
     mat = bpy.data.materials.new("M")
