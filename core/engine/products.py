@@ -16,7 +16,9 @@ from ..jit import stage_clock
 from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
 from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
-from ..physics.receiver.conversions import photons_per_joule
+from ..physics.detection.stretches import detect_statistical, validity
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.receiver.conversions import adc_step_e, photons_per_joule
 from ..threads import map_list
 from .blocks import worker_threads
 from .result import FrameResult
@@ -84,10 +86,6 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
     """The noisy receiver's echoes with detection.signal_free_bins = "statistical" when it applies
     (core.physics.detection.stretches.validity), else None.  Returns (Echoes, chain report with
     ``detector_model``) or (None, the decision as a dict for the per-bin route's report)."""
-    from ..physics.detection.stretches import detect_statistical, validity
-    from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
-    from ..physics.receiver.conversions import adc_step_e
-
     d, g, det = config.detection, config.gate, config.detector
     model = {"threshold": d.noisy_threshold_mode, "signal_free_bins": "per_bin"}
     if d.signal_free_bins != "statistical":

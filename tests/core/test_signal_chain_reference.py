@@ -190,7 +190,7 @@ def test_expected_false_alarms_against_the_quadrature_at_every_threshold():
     _RateLattice).  Checked against the definition — Σ over pixels and eligible positions of
     local_max_probability at that pixel's threshold, evaluated directly — within 1e-8 relative, and against the
     stored number within its stated interpolation error (1e-4)."""
-    from core.physics.detection.false_alarms import (FALSE_ALARM_ABS_PRIMARIES, _filter_rows, _positions,
+    from core.physics.detection.false_alarms import (FALSE_ALARM_ABS_PRIMARIES, filter_rows, _positions,
                                                      eligible_bins, local_max_probability)
     from core.physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
     from core.physics.receiver.conversions import photons_per_joule
@@ -209,7 +209,7 @@ def test_expected_false_alarms_against_the_quadrature_at_every_threshold():
     edges, (lo, hi) = _positions(n_bins, pulse)
     exact = 0.0
     for j in edges + [lo]:
-        rows = _filter_rows(n_bins, pulse, [j - 1, j, j + 1])
+        rows = filter_rows(n_bins, pulse, [j - 1, j, j + 1])
         rate = local_max_probability(found.threshold, sigma ** 2 * rows @ rows.T)
         exact += np.sum(rate * (el[:, j] if j in edges else np.count_nonzero(el[:, lo:hi], axis=1)))
     got = float(new["noisy/expected_false_alarms"])

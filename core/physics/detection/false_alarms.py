@@ -178,7 +178,7 @@ def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, a
             fa[r, k] = _outside_runs(j, starts, ends, m) if j >= 0 else False
 
 
-def _filter_rows(n_bins, pulse, rows):
+def filter_rows(n_bins, pulse, rows):
     """Rows of the linear map raw → detection waveform (matched filter with 'nearest' edges, as in
     :func:`matched_filter`; the identity without a pulse) for the given output positions."""
     A = np.zeros((len(rows), n_bins))
@@ -329,7 +329,7 @@ class _RateLattice:
         self.edges, interior = _positions(n_bins, pulse)
         self.has_interior = interior is not None
         positions = self.edges + ([interior[0]] if interior else [])
-        self.covs = np.array([(r := _filter_rows(n_bins, pulse, [j - 1, j, j + 1])) @ r.T for j in positions])
+        self.covs = np.array([(r := filter_rows(n_bins, pulse, [j - 1, j, j + 1])) @ r.T for j in positions])
         self.inv_2v0 = 0.5 / self.covs[:, 1, 1]
         self._known = {}
         self._lock = threading.Lock()

@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from ...jit import kernel
-from .false_alarms import _filter_rows, local_max_probability
+from .false_alarms import filter_rows, local_max_probability
 from .matched_filter import FILTER_BLOCK, correlate_row
 from .noisy import NoisyEchoes, echoes_from_slots, run_row_chunks
 
@@ -225,7 +225,7 @@ def position_covariances(n_bins, pulse, sigma):
     cls, reps = position_classes(n_bins, pulse)
     covs = []
     for j in reps:
-        A = _filter_rows(n_bins, pulse, [j - 1, j, j + 1])
+        A = filter_rows(n_bins, pulse, [j - 1, j, j + 1])
         covs.append(sigma ** 2 * A @ A.T)
     return cls, np.array(covs)
 
@@ -347,7 +347,7 @@ class LatticeRates:
         rates, rel, pools = [], [], []
         rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([n_bins, len(reps), 28])))
         for k, j in enumerate(reps):
-            A = _filter_rows(n_bins, pulse, [j - 1, j, j + 1])
+            A = filter_rows(n_bins, pulse, [j - 1, j, j + 1])
             cols = np.flatnonzero(np.any(A != 0, axis=0))
             A = A[:, cols]
             a = A[1]

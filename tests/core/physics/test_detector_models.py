@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from core.config.settings import DetectorSettings
-from core.physics.detection.false_alarms import _filter_rows, expected_false_alarms
+from core.physics.detection.false_alarms import filter_rows, expected_false_alarms
 from core.physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from core.physics.detection.stretches import detect_statistical, filtered_noise_shape, validity
 from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
@@ -165,7 +165,7 @@ def test_calibrated_threshold_sigma_and_false_alarm_rate():
     out = apply_receiver_chain(np.zeros((1, N_PIX, N_BINS), np.float32), cs, 7)
     rep = out.report
     sigma = rep["noise_sigma"]
-    A = _filter_rows(N_BINS, PULSE, [N_BINS // 2])[0]
+    A = filter_rows(N_BINS, PULSE, [N_BINS // 2])[0]
     filtered = (out.data[0].astype(np.float64) - rep["noise_mean"]) @ A
     predicted = sigma * np.sqrt(np.sum(A ** 2))
     assert abs(predicted - sigma / NORM) < 1e-6 * predicted
