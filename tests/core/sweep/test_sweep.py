@@ -643,7 +643,7 @@ def test_the_largest_sweep_accepted_starts_within_30_s_with_bounded_submission(c
     import re
     import time
 
-    from core.sweep.runner import SUBMIT_BATCH
+    from core.sweep.runner import FIRST_BATCH, SUBMIT_BATCH
     from core.sweep.spec import MAX_POINTS, MAX_TASKS
     from core.errors import Cancelled
 
@@ -663,6 +663,7 @@ def test_the_largest_sweep_accepted_starts_within_30_s_with_bounded_submission(c
     assert seen[0][1] == f"0/{MAX_TASKS} tasks" and seen[0][0] < 30.0
     assert re.match(rf"[1-9]\d*/{MAX_TASKS} tasks", seen[1][1])
     assert max(in_flight) <= 2 * SUBMIT_BATCH
+    assert in_flight[0] <= FIRST_BATCH  # a small first submission: the first task is handed out at once
     rows = read_table(tmp_path / "big" / "results.csv")  # cancelled: every task in the table, most pending
     # every task in the table, most still pending: how many finished before the cancel took effect depends on the
     # machine's load (tiny tasks: 4,000 finished on a loaded 2-core machine, under 1,000 on a quiet one)
