@@ -49,6 +49,37 @@ USAGE = ("usage: ladar_run.py SCENE.blend {simulate,sweep,export-config,validate
          "       (ladar_run.py -h: this script; ladar_run.py SCENE.blend simulate -h: the command's options)")
 
 
+class step:
+    """``with step("loading Blender (bpy)"):`` prints ``ladar: loading Blender (bpy) …`` before a slow start-up step
+    and, while it lasts, ``ladar: loading Blender (bpy) … 1 s``, ``… 2 s`` from a daemon thread every
+    ``heartbeat_s`` (issue 27: start-up is never silent for more than 2 s).  The thread needs the GIL to print;
+    ``import bpy`` and the extension's registration release it often enough for a line a second (measured: the
+    largest gap in a flash-demo run is the heartbeat period plus a few tens of milliseconds)."""
+
+    def __init__(self, what: str, heartbeat_s: float = 1.0):
+        self.what, self.heartbeat_s = what, heartbeat_s
+        import threading
+
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name="ladar-startup-heartbeat", daemon=True)
+
+    def _beat(self) -> None:
+        import time
+
+        t0 = time.monotonic()
+        while not self._done.wait(self.heartbeat_s):
+            process.emit(f"ladar: {self.what} \u2026 {time.monotonic() - t0:.0f} s")
+
+    def __enter__(self):
+        process.emit(f"ladar: {self.what} \u2026")
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._done.set()
+        self._thread.join()
+
+
 class BlendFileError(Exception):
     """The .blend file cannot be opened (truncated, corrupt, not a .blend file)."""
 
@@ -97,10 +128,12 @@ def main(argv=None) -> int:
                 raise process.Interrupted(_EARLY_SIGINT[0])
             with process.deferred():  # starting Blender is not cut in two: a signal meanwhile ends it right after
                 blender_env.isolate_user_resources()  # a temporary folder, removed at exit
-                import bpy
-
-                addon = blender_env.install_extension()
+                with step("loading Blender (bpy)"):
+                    import bpy
+                with step("installing the extension into a temporary user folder"):
+                    addon = blender_env.install_extension()
                 if blend is not None:
+                    process.emit(f"ladar: opening {blend.name} \u2026")  # (fast: its output is held until it ends)
                     open_blend(bpy, blend)
             return addon.ladar_addon.cli.cli_handler(command)
         except BlendFileError as exc:

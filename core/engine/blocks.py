@@ -44,14 +44,17 @@ def run_blocks(process, blocks, threads: int, progress=None, label: str = "block
     """``process(block)`` for every block on ``threads`` threads of the shared pool (core/threads.py; results in
     block order).
 
-    ``progress(fraction, text)`` after each block; ``cancel()`` is asked before each block starts and a true
-    answer raises :class:`~core.errors.Cancelled` (blocks already running finish, nothing is returned)."""
+    ``progress(fraction, text)`` before the first block (fraction 0: it loads or compiles the kernels) and after
+    each block; ``cancel()`` is asked before each block starts and a true answer raises
+    :class:`~core.errors.Cancelled` (blocks already running finish, nothing is returned)."""
     def guarded(block):
         if cancel is not None and cancel():
             raise Cancelled()
         return process(block)
 
     results = []
+    if progress is not None and blocks:  # the first block loads the kernels (or compiles them: 15-40 s the first time)
+        progress(0.0, "first block: kernels load from the cache, or compile on first use")
     for i, res in enumerate(imap(guarded, blocks, threads)):
         results.append(res)
         if progress is not None:

@@ -57,8 +57,9 @@ def test_run_blocks_returns_results_in_block_order_and_reports_progress(threads)
     out = run_blocks(lambda blk: sum(range(*blk)), blocks, threads, lambda f, text: seen.append((f, text)),
                      label="pixel block")
     assert out == [3, 12, 21, 9]
-    assert [f for f, _ in seen] == [0.25, 0.5, 0.75, 1.0]
-    assert seen[-1][1] == "pixel block 4/4"
+    # a line at 0 before the first block (which loads or compiles the kernels: issue 27), then one per block
+    assert [f for f, _ in seen] == [0.0, 0.25, 0.5, 0.75, 1.0]
+    assert seen[0][1].startswith("first block: kernels") and seen[-1][1] == "pixel block 4/4"
 
 
 def test_run_blocks_cancel_raises_and_starts_no_further_block():
