@@ -1,6 +1,16 @@
 #!/usr/bin/env bash
 # Set up (if needed) and run the whole test suite: core physics tests and the Blender add-on tests.
+# Two pytest-xdist worker processes (LADAR_TEST_WORKERS=N for another number, 0 for one process), each test file
+# whole on one worker (--dist loadfile), the slowest files first (tests/conftest.py). Arguments go to pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-exec .venv/bin/python -m pytest "$@"
+workers="${LADAR_TEST_WORKERS:-2}"
+if ! [[ "$workers" =~ ^[0-9]+$ ]]; then
+  echo "test.sh: LADAR_TEST_WORKERS = '$workers' is not a whole number of worker processes (0 = no workers)" >&2
+  exit 2
+fi
+if [ "$workers" -eq 0 ]; then
+  exec .venv/bin/python -m pytest "$@"
+fi
+exec .venv/bin/python -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder "$@"
