@@ -4,12 +4,12 @@
 # whole on one worker (--dist loadfile), the slowest files first (tests/conftest.py). Arguments go to pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
 workers="${LADAR_TEST_WORKERS:-2}"
-if ! [[ "$workers" =~ ^[0-9]+$ ]]; then
-  echo "test.sh: LADAR_TEST_WORKERS = '$workers' is not a whole number of worker processes (0 = no workers)" >&2
+if ! [[ "$workers" =~ ^[0-9]+$ ]] || [ "$workers" -gt 64 ]; then
+  echo "test.sh: LADAR_TEST_WORKERS = '$workers' is not a number of worker processes from 0 (one process) to 64" >&2
   exit 2
 fi
+bash scripts/setup.sh
 if [ "$workers" -eq 0 ]; then
   exec .venv/bin/python -m pytest "$@"
 fi
