@@ -1,0 +1,69 @@
+"""scripts/test.sh and tests/conftest.py: how the whole suite is run (two pytest-xdist workers, whole files, the
+slowest first, a per-checkout kernel cache)."""
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import types
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("suite_conftest", REPO / "tests" / "conftest.py")
+suite = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(suite)
+
+
+@pytest.mark.parametrize("value", ["two", "-1", "1.5", "65"])
+def test_a_bad_worker_count_is_one_line_before_any_setup(value):
+    env = dict(os.environ, LADAR_TEST_WORKERS=value)
+    proc = subprocess.run(["bash", "scripts/test.sh", "--collect-only"], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"LADAR_TEST_WORKERS = '{value}'" in lines[0] and "0 (one process) to 64" in lines[0]
+    assert "setup:" not in proc.stdout  # refused before setting anything up
+
+
+def test_the_script_runs_pytest_on_workers_with_whole_files():
+    text = (REPO / "scripts" / "test.sh").read_text(encoding="utf-8")
+    assert '-n "$workers" --dist loadfile --no-loadscope-reorder "$@"' in text
+    pins = (REPO / "requirements.txt").read_text(encoding="utf-8").splitlines()
+    assert "pytest-xdist==3.8.0" in pins and "execnet==2.1.2" in pins
+
+
+def test_every_listed_slow_file_exists():
+    """A renamed or removed file must leave the table (it would silently count as quick otherwise)."""
+    missing = [f for f in suite.SLOW_FILES if not (REPO / f).is_file()]
+    assert not missing, missing
+
+
+def _item(nodeid):
+    return types.SimpleNamespace(nodeid=nodeid)
+
+
+def test_workers_get_the_slowest_files_first_and_each_file_keeps_its_order(monkeypatch):
+    slow, slower = sorted(suite.SLOW_FILES, key=suite.SLOW_FILES.get)[:2]
+    items = [_item("tests/a_quick.py::t1"), _item(f"{slow}::x"), _item("tests/a_quick.py::t2"),
+             _item(f"{slower}::b"), _item(f"{slower}::a"), _item("tests/z_quick.py::t")]
+    order = [i.nodeid for i in items]
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    suite.pytest_collection_modifyitems(None, None, items)
+    assert [i.nodeid for i in items] == order  # a serial run keeps pytest's order
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw0")
+    suite.pytest_collection_modifyitems(None, None, items)
+    assert [i.nodeid for i in items] == [f"{slower}::b", f"{slower}::a", f"{slow}::x", "tests/a_quick.py::t1",
+                                         "tests/a_quick.py::t2", "tests/z_quick.py::t"]
+
+
+def test_the_suite_keeps_its_kernels_in_this_checkout():
+    """Set before any test imports the core (unless the caller chose a folder); subprocesses inherit it."""
+    assert os.environ["LADAR_KERNEL_CACHE"]
+    if os.environ["LADAR_KERNEL_CACHE"] == str(REPO / "build" / "kernel-cache"):
+        import core.jit
+
+        assert core.jit.CACHE_DIR.parent == REPO / "build" / "kernel-cache"
+        ignored = subprocess.run(["git", "check-ignore", "-q", "build/kernel-cache/x"], cwd=REPO)
+        assert ignored.returncode == 0, "build/ must be git-ignored"
