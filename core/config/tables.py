@@ -264,8 +264,8 @@ def risley_trace(t_s, incident, prisms):
 def check_risley(scanner) -> None:
     """The Risley prisms' settings, and no total internal reflection at 20 000 times over one second (the
     prisms' relative angles sampled densely)."""
+    emitters = risley_emitters_deg(scanner)  # (first: a wrong type there is named there, not as a prism count)
     prisms = risley_prisms(scanner)
-    emitters = risley_emitters_deg(scanner)
     t = np.linspace(0.0, 1.0, 20_000)
     for e, (alpha, beta) in enumerate(np.radians(emitters)):
         inc = np.tile([np.cos(beta) * np.sin(alpha), np.sin(beta), -np.cos(beta) * np.cos(alpha)], (len(t), 1))

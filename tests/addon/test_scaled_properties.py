@@ -39,6 +39,11 @@ SCALED = {
     "gated.min_signal_j": 1e-18,
     "detection.threshold_j": 1e-18,
     "atmosphere.extinction_per_m": 1e-4,
+    # issues 29, 30: an elliptical beam's second axis (mrad), the weather's distances, the scanner's range quantum
+    "laser.beam_divergence_y_rad": 3e-4,
+    "atmosphere.tx_rx_offset_m": 0.1,
+    "atmosphere.backscatter_min_range_m": 1.5,
+    "scanner.range_quantum_m": 0.004,
 }
 
 

@@ -10,7 +10,7 @@ import pytest
 from scipy import integrate, stats
 
 from core.config.settings import DetectorSettings
-from core.physics.detection.false_alarms import (_filter_rows, eligible_bins, expected_false_alarms, false_alarm_mask,
+from core.physics.detection.false_alarms import (filter_rows, eligible_bins, expected_false_alarms, false_alarm_mask,
                                                  local_max_probability)
 from core.physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from core.physics.detection.matched_filter import matched_filter
@@ -35,7 +35,7 @@ def test_local_max_probability_of_matched_filtered_noise():
     over 4e5 interior bins, within 4 standard errors of the formula at u = 0, 1σ, 2.5σ."""
     rng = np.random.default_rng(0)
     z = matched_filter(rng.standard_normal((100, 4096)).astype(np.float32), PULSE)
-    rows = _filter_rows(4096, PULSE, [1999, 2000, 2001])
+    rows = filter_rows(4096, PULSE, [1999, 2000, 2001])
     cov = rows @ rows.T
     sd = np.sqrt(cov[1, 1])
     c = z[:, 1:-1]
@@ -168,7 +168,7 @@ def test_local_max_probability_of_a_stack_equals_single_calls_bit_for_bit():
     """A stack of covariances (the matched filter's edge positions and the interior) in one call: each row is
     the single call's result bit for bit."""
     B = 300
-    covs = np.array([(r := _filter_rows(B, PULSE, [j - 1, j, j + 1])) @ r.T * 2.5 for j in (1, 2, 5, 150, 298)])
+    covs = np.array([(r := filter_rows(B, PULSE, [j - 1, j, j + 1])) @ r.T * 2.5 for j in (1, 2, 5, 150, 298)])
     u = np.linspace(0.3, 4.0, 17)
     stack = local_max_probability(u, covs)
     for c, row in zip(covs, stack):
@@ -197,7 +197,7 @@ def _expected_by_quadrature(thr, sigma, el, pulse):
     out = np.zeros(P)
     ok = np.isfinite(thr) & (thr > 0)
     for j in edges + ([interior[0]] if interior else []):
-        rows = _filter_rows(B, pulse, [j - 1, j, j + 1])
+        rows = filter_rows(B, pulse, [j - 1, j, j + 1])
         rate = np.zeros(P)
         rate[ok] = local_max_probability(thr[ok], sigma ** 2 * rows @ rows.T)
         n = el[:, j] if j in edges else np.count_nonzero(el[:, interior[0]:interior[1]], axis=1)
