@@ -41,10 +41,13 @@ X = np.linspace(-1.0, 1.0, 7)
 def test_a_signal_at_any_instant_of_a_compile_is_raised_after_it_and_the_kernel_works(sig, capfd):
     f, py = _fresh_kernel()
     f(X, 5)  # (numba's own first-use set-up)
-    f, _ = _fresh_kernel()
-    t0 = time.perf_counter()
-    f(X, 5)
-    compile_s = time.perf_counter() - t0  # one compile, as in the loop below
+    times = []
+    for _ in range(3):  # the shortest of three compiles, as in the loop below: on a shared machine (the suite runs
+        f, _ = _fresh_kernel()  # on two workers) one timing taken while the other worker is busy can be twice the
+        t0 = time.perf_counter()  # next ones, and the late instants then fall after the compile
+        f(X, 5)
+        times.append(time.perf_counter() - t0)
+    compile_s = min(times)
     expected = py(X, 5)
     outcomes = []
     for fraction in (0.05, 0.2, 0.35, 0.5, 0.65, 0.8, 0.9, 0.97):
