@@ -12,20 +12,10 @@ if str(ROOT) not in sys.path:
 
 from core.config.settings import BRDFSettings, SimulationConfig  # noqa: E402
 from core.geometry.scene import SceneGeometry  # noqa: E402
+from tests.core.scenes import plate  # noqa: E402,F401  (the core tests' plate, one builder for both)
 
 C = 299_792_458.0
 FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
-
-
-def plate(distance_m, half_size_m, brdf=None, tilt_rad=0.0, offset=(0.0, 0.0, 0.0)):
-    """A square plate facing the sensor (which looks along −Z) at ``distance_m``, tilted about x by ``tilt_rad``
-    (the scene builder of tests/core/scenes.py)."""
-    u = np.array([1.0, 0.0, 0.0])
-    v = np.array([0.0, np.cos(tilt_rad), -np.sin(tilt_rad)])
-    c = np.array([0.0, 0.0, -distance_m]) + np.asarray(offset)
-    h = half_size_m
-    verts = np.array([c - h * u - h * v, c + h * u - h * v, c + h * u + h * v, c - h * u + h * v])
-    return SceneGeometry(verts, [[0, 1, 2], [0, 2, 3]], [0, 0], [brdf or BRDFSettings()], ["plate"])
 
 
 def flash_config(range_m, pixels=8, subsamples=2, fov_rad=0.01, bins=256, bin_s=1e-9, margin_bins=64):
