@@ -49,7 +49,17 @@ PUBLISHED_KEYS = {
     "precision_m": ((int, float), "range precision (1 σ) the maker states"),
     "precision_range_m": ((int, float), "range at which precision_m is checked"),
     "precision_reflectivity": ((int, float), "Lambertian reflectivity of the precision check (fraction)"),
+    "range_detection_probability": ((int, float), "detection probability at which the maker defines its maximum "
+                                                  "ranges (fraction; 0.5 where the maker states none)"),
+    "false_alarm_rate": ((int, float), "false alarms per pulse over the range window 0 … max_range_m the maker "
+                                       "states (the figure the detection threshold is derived from)"),
+    "not_reproduced": (dict, "figures this model does not reproduce: key = the reason (that figure's check is "
+                             "expected to fail, and the test asserts it does)"),
 }
+
+#: Keys of ``[published]`` whose check can be declared not reproduced.
+CHECKED_KEYS = ("fov_h_deg", "fov_v_deg", "channels", "channel_elevations_deg", "points_per_s", "width_px",
+                "height_px", "second_range_m", "detected_range_m", "precision_m")
 
 
 
@@ -86,10 +96,18 @@ def _check_published(published, where: str) -> dict:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) > 90:
                     raise ConfigError(f"{where}published.channel_elevations_deg[{i}]", v,
                                       "an elevation in degrees within [-90, 90]")
+        elif key == "not_reproduced":
+            for k, why in value.items():
+                if k not in CHECKED_KEYS or k not in published:
+                    raise ConfigError(f"{where}published.not_reproduced.{k}", why,
+                                      "a checked figure given in [published]: " + ", ".join(CHECKED_KEYS))
+                if not isinstance(why, str) or not why.strip():
+                    raise ConfigError(f"{where}published.not_reproduced.{k}", why, "the reason, as text")
         elif not isinstance(value, str):
             if not math.isfinite(value) or value <= 0:
                 raise ConfigError(f"{where}published.{key}", value, f"a finite number > 0 ({meaning})")
-            if key.endswith("reflectivity") and value > 1.0:
+            if (key.endswith("reflectivity") or key in ("range_detection_probability", "false_alarm_rate")) \
+                    and value > 1.0:
                 raise ConfigError(f"{where}published.{key}", value, "a reflectivity fraction in (0, 1]")
     for a, b in (("max_range_m", "max_range_reflectivity"), ("second_range_m", "second_reflectivity"),
                  ("precision_range_m", "precision_m"),
@@ -124,5 +142,5 @@ def preset_config(name_or_path, base=None):
     return config_from_dict(preset_settings(name_or_path), base)
 
 
-__all__ = ["PUBLISHED_KEYS", "Preset", "SENSORS_DIR", "list_presets", "load_preset", "preset_config",
+__all__ = ["CHECKED_KEYS", "PUBLISHED_KEYS", "Preset", "SENSORS_DIR", "list_presets", "load_preset", "preset_config",
            "preset_path", "preset_settings", "resolve_preset"]

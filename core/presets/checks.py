@@ -203,6 +203,15 @@ def _central_window(cfg: SimulationConfig) -> None:
     rx.width_px, rx.height_px = w, h
 
 
+#: The last scanner probe's false alarms (echoes outside ``RANGE_WINDOW_M`` of the panel) and the length of
+#: range gate they were counted over (m): :func:`detection_stats` reads them.
+_last_probe: dict = {}
+
+
+def _gate_span_m(cfg: SimulationConfig) -> float:
+    return cfg.gate.n_bins * cfg.gate.bin_width_s * SPEED_OF_LIGHT_M_S / 2.0
+
+
 def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, seed: int):
     """Ranges of the echoes near the panel and the number of trials (pulses or pixels)."""
     cfg = _quiet(cfg)
@@ -221,6 +230,7 @@ def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, s
         idx = pts["pulse_index"][near]
         r = pts["range_m"][near]
         _, first = np.unique(idx, return_index=True)  # one detection per pulse (the first echo near the panel)
+        _last_probe.update(false_alarms=int((~near).sum()), gate_m=_gate_span_m(cfg) - 2.0 * RANGE_WINDOW_M)
         return r[first], int(res.stats["n_pulses"])
     _central_window(cfg)
     rx = cfg.receiver
@@ -229,6 +239,7 @@ def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, s
     res = _simulate(_panel(range_m, half, reflectivity), cfg)
     r = np.asarray(res.range_image, float).ravel()
     near = np.isfinite(r) & (np.abs(r - range_m) < RANGE_WINDOW_M)
+    _last_probe.update(false_alarms=int((np.isfinite(r) & ~near).sum()), gate_m=math.nan)
     return r[near], int(r.size)
 
 
@@ -240,6 +251,53 @@ def detection_probability(cfg: SimulationConfig, range_m: float, reflectivity: f
     return len(r) / trials
 
 
+def detection_stats(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
+                    seed: int = 1) -> dict:
+    """:func:`detection_probability` with the false alarms of the same pulses: ``p`` (detection probability),
+    ``trials``, ``false_alarms`` (a scanner's echoes farther than ``RANGE_WINDOW_M`` from the panel) and
+    ``gate_m`` (the length of range gate they were counted over; NaN for a camera)."""
+    _last_probe.clear()
+    r, trials = _probe(cfg, range_m, reflectivity, n, seed)
+    return {"p": len(r) / trials, "trials": trials, **_last_probe}
+
+
+def false_alarms_per_pulse(cfg: SimulationConfig, window_m: float, n: int = 200_000, seed: int = 4) -> float:
+    """False alarms per pulse of a scanner preset over a range window [0, ``window_m``] with nothing in the beam
+    (``n`` pulses into an empty gate of that length): the rate a maker's false-alarm figure is compared with."""
+    cfg = _quiet(cfg)
+    cfg.run.seed = int(seed)
+    s = cfg.scanner
+    s.pattern, s.n_lines, s.scan_width_rad, s.scan_height_rad = "raster", 1, 0.0, 0.0
+    s.scan_rate_hz = s.pulse_rate_hz / n
+    s.duration_s = n / s.pulse_rate_hz
+    s.beam_subray_rings = 0
+    g = cfg.gate
+    g.gate_start_s = 0.0
+    g.n_bins = max(16, int(math.ceil(2.0 * window_m / SPEED_OF_LIGHT_M_S / g.bin_width_s)))
+    far = 10.0 * window_m + 1000.0  # a panel far outside the gate: the beam meets nothing within it
+    res = _simulate(_panel(far, 1.0, 0.01), cfg)
+    return len(res.points["range_m"]) / int(res.stats["n_pulses"])
+
+
+def derive_k_sigma(cfg: SimulationConfig, rate_per_pulse: float, window_m: float, n: int = 200_000,
+                   seed: int = 4, steps: int = 8) -> float:
+    """The detection threshold (``detection.k_sigma``, calibrated mode) at which the scanner's false alarms
+    over [0, ``window_m``] are ``rate_per_pulse`` (bisection on [3, 10] σ, ``n`` empty-gate pulses per step,
+    the same seed at every step): how a preset's unpublished threshold is derived from its maker's
+    false-alarm figure.  Resolution: the Poisson error of the count (1/√(rate·n), 22 % for 1e-4 × 2e5) over
+    the slope d ln(rate)/dk (about 2 per σ on the shipped scanners), i.e. about 0.1 σ."""
+    cfg = copy.deepcopy(cfg)
+    lo, hi = 3.0, 10.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        cfg.detection.k_sigma = mid
+        if false_alarms_per_pulse(cfg, window_m, n, seed) > rate_per_pulse:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
 def range_precision(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
                     seed: int = 2) -> float:
     """Standard deviation (m) of the ranges of the panel's echoes (≥ 10 echoes needed, else NaN)."""
@@ -248,18 +306,18 @@ def range_precision(cfg: SimulationConfig, range_m: float, reflectivity: float, 
 
 
 def derive_pulse_energy(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int = 2000,
-                        seed: int = 3, steps: int = 16) -> float:
+                        seed: int = 3, steps: int = 16, p_def: float = 0.5) -> float:
     """The pulse energy at which the simulator detects a ``reflectivity`` panel at ``range_m`` with probability
-    0.5 (``n`` trials each): whole decades (10^k J) from the one nearest the preset's energy until the
-    probability crosses 0.5, then ``steps`` bisections in log energy inside that decade — the same result from
+    ``p_def`` (the maker's definition of its maximum range; ``n`` trials each): whole decades (10^k J) from the one nearest the preset's energy until the
+    probability crosses p_def, then ``steps`` bisections in log energy inside that decade — the same result from
     any starting energy.  How a preset's unpublished pulse energy is derived from its maker's one
     maximum-range figure.  Its statistical resolution: the binomial error of P (≤ 0.5/√n) over the slope
-    dP/d(ln E) at P = 0.5 (about 1 % in energy for n = 2000 on the shipped scanners)."""
+    dP/d(ln E) at P = p_def (about 1 % in energy for n = 2000 on the shipped scanners)."""
     cfg = copy.deepcopy(cfg)
 
     def detected(log10_e):
         cfg.laser.pulse_energy_j = 10.0 ** log10_e
-        return detection_probability(cfg, range_m, reflectivity, n, seed) >= 0.5
+        return detection_probability(cfg, range_m, reflectivity, n, seed) >= p_def
 
     k = round(math.log10(cfg.laser.pulse_energy_j))
     if detected(k):
@@ -283,16 +341,45 @@ def derive_pulse_energy(cfg: SimulationConfig, range_m: float, reflectivity: flo
 N_PULSES = 2000
 
 
+def range_definition(published: dict) -> float:
+    """The detection probability at which the maker defines its maximum ranges (``range_detection_probability``;
+    0.5 where the maker states none)."""
+    return float(published.get("range_detection_probability", 0.5))
+
+
+def not_reproduced(published: dict, key: str) -> str | None:
+    """The preset's stated reason why the simulator does not reproduce the published figure ``key`` (its check
+    is then expected to fail, and the test asserts that it does), else None."""
+    return (published.get("not_reproduced") or {}).get(key)
+
+
+def false_alarm_text(stats: dict, window_m: float | None) -> str:
+    """The false alarms of a scanner probe, and their rate per pulse over the maker's range window [0, window_m]
+    (scaled by the window over the gate they were counted in)."""
+    k, n, gate = stats.get("false_alarms"), stats["trials"], stats.get("gate_m", math.nan)
+    if k is None or not math.isfinite(gate):
+        return ""
+    text = f"; false alarms {k} in {n} pulses over {gate:.0f} m of gate"
+    if window_m:
+        text += f" ({k / n * window_m / gate:.1e} per pulse over 0–{window_m:g} m)"
+    return text
+
+
 def data_sheet_rows(preset) -> list[dict]:
     """The preset's published figures next to the simulated ones, with the criterion each is held to (the same
     as tests/core/test_sensor_presets.py): rows of ``figure``, ``published``, ``simulated``, ``criterion``,
-    ``ok``.  Figures without a ``[published]`` key are left out."""
+    ``ok`` (True / False; None for a figure shown but not checked, the one a value was derived from) and
+    ``known`` (the preset's reason when the figure is one it states it does not reproduce: ``ok`` is then
+    expected to be False).  Figures without a ``[published]`` key are left out."""
     pub, cfg = preset.published, preset_config(preset.path)
+    p_def = range_definition(pub)
+    window = pub.get("max_range_m")
     rows = []
 
-    def row(figure, published, simulated, criterion, ok):
-        rows.append({"figure": figure, "published": published, "simulated": simulated, "criterion": criterion,
-                     "ok": bool(ok)})
+    def row(key, figure, published, simulated, criterion, ok):
+        rows.append({"key": key, "figure": figure, "published": published, "simulated": simulated,
+                     "criterion": criterion, "ok": None if ok is None else bool(ok),
+                     "known": not_reproduced(pub, key)})
 
     if {"fov_h_deg", "fov_v_deg", "channels", "points_per_s", "width_px", "height_px"} & set(pub):
         if cfg.system_type == "scanner":
@@ -303,46 +390,54 @@ def data_sheet_rows(preset) -> list[dict]:
                     tol = fov_tolerance_deg(cfg, key)
                     crit = (f"±{tol:g}° (fitted prism parameters, over {RISLEY_FOV_S:g} s)" if risley else
                             f"within 2 azimuth steps ({tol:.3f}°)" if key == "fov_h_deg" else "±0.000001°")
-                    row(label, f"{pub[key]:g}°", f"{g[key]:.2f}°", crit, abs(g[key] - pub[key]) <= tol)
+                    row(key, label, f"{pub[key]:g}°", f"{g[key]:.2f}°", crit, abs(g[key] - pub[key]) <= tol)
             if "channels" in pub:
                 elev = g["channel_elevations_deg"]
                 text = f"{g['channels']}" + (f" ({elev[0]:+.2f}° … {elev[-1]:+.2f}°)" if len(elev) > 1 else "")
-                row("channels", f"{pub['channels']}", text, "equal", g["channels"] == pub["channels"])
+                row("channels", "channels", f"{pub['channels']}", text, "equal", g["channels"] == pub["channels"])
             if "channel_elevations_deg" in pub:
                 want, got = sorted(pub["channel_elevations_deg"]), g["channel_elevations_deg"]
                 err = max((abs(a - b) for a, b in zip(got, want)), default=0.0) if len(got) == len(want) else math.inf
-                row("channel elevations", f"{len(want)} angles, {want[0]:+g}° … {want[-1]:+g}°",
+                row("channel_elevations_deg", "channel elevations",
+                    f"{len(want)} angles, {want[0]:+g}° … {want[-1]:+g}°",
                     f"largest difference {err:.4f}°", "each within 0.01°", err <= 0.01)
             if "points_per_s" in pub:
                 rate = f" at {pub['rotation_hz']:g} Hz" if "rotation_hz" in pub else ""
-                row("points per second" + rate, f"{pub['points_per_s']:,.0f}", f"{g['points_per_s']:,.0f}", "±4 %",
-                    abs(g["points_per_s"] / pub["points_per_s"] - 1) <= 0.04)
+                row("points_per_s", "points per second" + rate, f"{pub['points_per_s']:,.0f}",
+                    f"{g['points_per_s']:,.0f}", "±4 %", abs(g["points_per_s"] / pub["points_per_s"] - 1) <= 0.04)
         else:
             g = camera_geometry(cfg)
             for key, label in (("width_px", "columns"), ("height_px", "rows")):
                 if key in pub:
-                    row(f"detector {label}", f"{pub[key]}", f"{g[key]}", "equal", g[key] == pub[key])
+                    row(key, f"detector {label}", f"{pub[key]}", f"{g[key]}", "equal", g[key] == pub[key])
             for key, label in (("fov_h_deg", "horizontal FOV"), ("fov_v_deg", "vertical FOV")):
                 if key in pub:
-                    row(label, f"{pub[key]:g}°", f"{g[key]:.3f}°", "±0.001°", abs(g[key] - pub[key]) <= 1e-3)
+                    row(key, label, f"{pub[key]:g}°", f"{g[key]:.3f}°", "±0.001°", abs(g[key] - pub[key]) <= 1e-3)
+    if "false_alarm_rate" in pub and cfg.system_type == "scanner":
+        rate = false_alarms_per_pulse(cfg, window)
+        row("false_alarm_rate", f"false alarms per pulse over 0–{window:g} m (threshold derived from it)",
+            f"{pub['false_alarm_rate']:g}", f"{rate:.1e}",
+            "(not a check: detection.k_sigma is set so that the rate is the maker's)", None)
     if "max_range_m" in pub:
-        p = detection_probability(cfg, pub["max_range_m"], pub["max_range_reflectivity"], N_PULSES, seed=3)
-        row(f"max range @ {pub['max_range_reflectivity']:.0%} (energy derived from it)", f"{pub['max_range_m']:g} m",
-            f"P = {p:.2f}", "(not a check: the pulse energy is set so that P ≈ 0.5)", True)
+        st = detection_stats(cfg, pub["max_range_m"], pub["max_range_reflectivity"], N_PULSES, seed=3)
+        row("max_range_m", f"max range @ {pub['max_range_reflectivity']:.0%} (energy derived from it)",
+            f"{pub['max_range_m']:g} m", f"P = {st['p']:.2f}" + false_alarm_text(st, window),
+            f"(not a check: the pulse energy is set so that P ≈ {p_def:g})", None)
     if "second_range_m" in pub:
         r, rho = pub["second_range_m"], pub["second_reflectivity"]
-        p1 = detection_probability(cfg, r, rho, N_PULSES, seed=21)
-        p2 = detection_probability(cfg, 1.2 * r, rho, N_PULSES, seed=22)
-        row(f"max range @ {rho:.0%}", f"{r:g} m", f"P = {p1:.2f} at {r:g} m, {p2:.2f} at {1.2 * r:g} m",
-            "P ≥ 0.5 at R, < 0.5 at 1.2 R", p1 >= 0.5 > p2)
+        s1 = detection_stats(cfg, r, rho, N_PULSES, seed=21)
+        s2 = detection_stats(cfg, 1.2 * r, rho, N_PULSES, seed=22)
+        row("second_range_m", f"max range @ {rho:.0%}", f"{r:g} m",
+            f"P = {s1['p']:.2f} at {r:g} m, {s2['p']:.2f} at {1.2 * r:g} m" + false_alarm_text(s1, window),
+            f"P ≥ {p_def:g} at R, < {p_def:g} at 1.2 R", s1["p"] >= p_def > s2["p"])
     if "detected_range_m" in pub:
         r, rho = pub["detected_range_m"], pub["detected_reflectivity"]
         p = detection_probability(cfg, r, rho, N_PULSES, seed=23)
-        row(f"detected @ {rho:.0%}", f"{r:g} m", f"P = {p:.2f}", "P ≥ 0.5", p >= 0.5)
+        row("detected_range_m", f"detected @ {rho:.0%}", f"{r:g} m", f"P = {p:.2f}", f"P ≥ {p_def:g}", p >= p_def)
     if "precision_m" in pub:
         rho = pub.get("precision_reflectivity", 0.5)
         s = range_precision(cfg, pub["precision_range_m"], rho, N_PULSES, seed=24)
         limit = pub["precision_m"] * (1 + 3 / math.sqrt(2 * (N_PULSES - 1)))
-        row(f"precision (1σ) at {pub['precision_range_m']:g} m, {rho:.0%}", f"{pub['precision_m'] * 100:g} cm",
-            f"{s * 100:.2f} cm", "≤ published + 3 standard errors", s <= limit)
+        row("precision_m", f"precision (1σ) at {pub['precision_range_m']:g} m, {rho:.0%}",
+            f"{pub['precision_m'] * 100:g} cm", f"{s * 100:.2f} cm", "≤ published + 3 standard errors", s <= limit)
     return rows
