@@ -75,10 +75,15 @@ def test_rotating_presets_channel_elevations_and_fov(name):
         assert span == pytest.approx(table[:, 0].max() - table[:, 0].min(), abs=1e-9)
     else:
         assert abs(span - pub["fov_v_deg"]) <= 0.01
-    az = np.sort(np.degrees(angle[ch == 0]))
+    # channel 0's azimuths on the circle (its azimuth offset moves the turn's seam anywhere): every gap between
+    # neighbours is one step but the seam's, which holds the fraction of a step a turn does not fire
+    az = np.sort(np.degrees(angle[ch == 0]) % 360.0)
+    gaps = np.diff(np.concatenate([az, az[:1] + 360.0]))
+    seam = int(np.argmax(gaps))
     step = 360.0 * cfg.scanner.scan_rate_hz / cfg.scanner.pulse_rate_hz
-    assert np.diff(az).max() == pytest.approx(step, rel=1e-6)
-    assert az.max() - az.min() + step == pytest.approx(pub["fov_h_deg"], abs=step)
+    assert np.delete(gaps, seam).max() == pytest.approx(step, rel=1e-6)
+    assert np.delete(gaps, seam).min() == pytest.approx(step, rel=1e-6)
+    assert 360.0 - gaps[seam] + step == pytest.approx(pub["fov_h_deg"], abs=step)
 
 
 def test_pandar40p_azimuth_offsets_and_firing_times():
