@@ -13,6 +13,8 @@ from . import export_las  # noqa: E402 - LAS 1.4 export of a run's point cloud
 CLASSES += export_las.CLASSES
 from . import sweep  # noqa: E402 - parameter sweeps on Dask
 CLASSES += sweep.CLASSES
+from . import channel_table  # noqa: E402 - the rotating head's channel table from a CSV file
+CLASSES += channel_table.CLASSES
 
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)

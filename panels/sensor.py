@@ -11,6 +11,7 @@ import bpy
 from ..core.constants import SPEED_OF_LIGHT_M_S
 from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_detector_presets, LADAR_MT_sensor_presets, draw_preset_header
+from ..ladar_addon.channel_tables import channel_table_lines
 from ..ladar_addon.fields import SENSOR_FIELDS, TOP_FIELDS, read_value
 from ..ladar_addon.sensor import camera_receiver_fov_rad, field_used, group_used
 from .common import (atmosphere_settings, draw_lines, reference_range_m, sensor_config, simulate_button,
@@ -173,6 +174,18 @@ class LADAR_PT_sensor_scanner(_SensorGroupPanel, bpy.types.Panel):
                           scan_pattern=props.pattern)
         rings = props.beam_subray_rings
         layout.label(text=f"{1 + 3 * rings * (rings + 1)} sub-rays per pulse", icon="INFO")
+        if props.pattern == "rotating":
+            box = layout.box()
+            row = box.row()
+            row.label(text="Channel Table")
+            row.operator("ladar.channel_table_load", text="Load CSV", icon="FILEBROWSER")
+            row.operator("ladar.channel_table_clear", text="", icon="X")
+            try:
+                lines = channel_table_lines(context.object)
+            except Exception as exc:  # noqa: BLE001 - draw must never fail
+                lines = [f"Error: {exc}"]
+            for line in lines:
+                box.label(text=line, icon="ERROR" if line.startswith("Error") else "NONE")
 
 
 class LADAR_PT_sensor_gated(_SensorGroupPanel, bpy.types.Panel):

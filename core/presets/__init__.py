@@ -115,6 +115,8 @@ def _check_published(published, where: str) -> dict:
         if (a in published) != (b in published):
             missing = b if a in published else a
             raise ConfigError(f"{where}published.{missing}", None, f"given together with {a if missing == b else b}")
+    if "false_alarm_rate" in published and "max_range_m" not in published:
+        raise ConfigError(f"{where}published.max_range_m", None, "given with false_alarm_rate (its range window)")
     return dict(published)
 
 

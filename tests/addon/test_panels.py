@@ -5,6 +5,7 @@ Headless Blender draws no UI, so each panel's ``draw`` runs against a recording 
 ``layout.prop(data, name)`` against the data's RNA and each ``layout.operator(idname)`` (and the properties set
 on it) against the registry.
 """
+import importlib
 import types
 
 import bpy
@@ -252,3 +253,49 @@ def test_config_operators(lad, scene, tmp_path):
     with pytest.raises(RuntimeError, match="laser.pulse_energy_j"):
         bpy.ops.ladar.load_config(filepath=str(path))
     assert cam.ladar.laser.pulse_energy_uj == pytest.approx(2000.0)  # unchanged
+
+
+def test_channel_table_csv_in_the_scanner_panel(lad, scene, tmp_path):
+    """The Scanner panel of a rotating head offers a CSV channel table: loading a good file sets the table and the
+    channel count (the panel previews it, the config reads it); a bad file is refused with its row and column and
+    changes nothing; a file spoiled after loading shows its error in the panel; clearing restores even spacing."""
+    import bpy
+
+    panels = lad.package.panels
+    cam = add_camera(scene)
+    cam.ladar.system_type = "scanner"
+    cam.ladar.scanner.pattern = "rotating"
+    bpy.context.view_layer.objects.active = cam
+
+    def labels():
+        return [text for kind, text in _draw(panels.sensor.LADAR_PT_sensor_scanner, _context(scene, cam))
+                if kind == "label"]
+
+    log = _draw(panels.sensor.LADAR_PT_sensor_scanner, _context(scene, cam))
+    assert ("operator", "ladar.channel_table_load") in log and "Evenly spaced channels (no channel table)" in labels()
+    good = tmp_path / "table.csv"
+    good.write_text("elevation_deg,azimuth_offset_deg,fire_offset_s\n2.0,0.5,0\n# a comment\n-1.0,-0.25,1e-6\n"
+                    "0.5,0,2e-6\n", encoding="utf-8")
+    assert bpy.ops.ladar.channel_table_load(filepath=str(good)) == {"FINISHED"}
+    assert cam.ladar.scanner.n_channels == 3
+    text = labels()
+    assert "File table.csv" in text
+    assert ("3 channels, elevation -1.000° … +2.000°, azimuth offset -0.250° … +0.500°, fire offset ≤ 2 µs"
+            in text)
+    assert "  +2.0000, +0.5000, 0" in text
+    cfg = lad.blend_config.config_from_blender(scene, cam)
+    assert cfg.scanner.channel_table_file == str(good)
+    tables = importlib.import_module(f"{lad.package.__name__}.core.config.tables")
+    assert tables.channel_table_deg(cfg.scanner).tolist() == [[2.0, 0.5, 0.0], [-1.0, -0.25, 1e-6], [0.5, 0.0, 2e-6]]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("1.0,0,0\n2.0,x,0\n", encoding="utf-8")
+    with pytest.raises(RuntimeError, match=r"row 2 column 2.*'x'"):
+        bpy.ops.ladar.channel_table_load(filepath=str(bad))
+    assert lad.blend_config.read_scanner_tables(cam) == {"channel_table_file": str(good)}  # nothing changed
+    assert cam.ladar.scanner.n_channels == 3
+    good.write_text("1.0,0,0\n2.0,0,5\n", encoding="utf-8")  # spoiled after loading: fire offset out of range
+    errors = [t for t in labels() if t.startswith("Error")]
+    assert len(errors) == 1 and "row 2 column 3" in errors[0] and "5" in errors[0]
+    assert bpy.ops.ladar.channel_table_clear() == {"FINISHED"}
+    assert lad.blend_config.read_scanner_tables(cam) == {}
+    assert "Evenly spaced channels (no channel table)" in labels()

@@ -1,0 +1,73 @@
+"""The rotating head's channel table in Blender: a CSV file chosen in the Scanner panel, validated when it is
+chosen and again whenever the panel draws (core/config/tables.py reads it; a bad file's error names the row and
+column).  The table settings have no Blender property: they live in the sensor camera's JSON custom property
+(:data:`ladar_addon.blend_config.SCANNER_TABLES_KEY`), as config files hold them."""
+from __future__ import annotations
+
+import os
+
+from ..core.config.settings import ScannerSettings
+from ..core.config.tables import CHANNEL_COLUMNS, channel_table_deg, read_channel_csv
+from ..core.errors import ConfigError
+from .blend_config import SCANNER_TABLES_KEY, read_scanner_tables
+
+#: Rows of a table the panel lists (the first ones; the summary line covers all).
+PREVIEW_ROWS = 4
+
+
+def _store(sensor_obj, tables: dict) -> None:
+    import json
+
+    if tables:
+        sensor_obj[SCANNER_TABLES_KEY] = json.dumps(tables)
+    elif SCANNER_TABLES_KEY in sensor_obj:
+        del sensor_obj[SCANNER_TABLES_KEY]
+
+
+def set_channel_table_file(sensor_obj, path: str) -> int:
+    """Validate the CSV file ``path`` and make it the sensor's channel table (its number of channels set to the
+    rows; an inline table replaced).  Returns the number of channels.  A bad file raises the ConfigError naming
+    the row and column, and changes nothing."""
+    path = os.path.abspath(os.fspath(path))
+    table = read_channel_csv(path)  # ConfigError before anything is written
+    tables = read_scanner_tables(sensor_obj)
+    tables.pop("channel_table", None)
+    tables["channel_table_file"] = path
+    _store(sensor_obj, tables)
+    sensor_obj.ladar.scanner.n_channels = len(table)
+    return len(table)
+
+
+def clear_channel_table(sensor_obj) -> None:
+    """Back to evenly spaced channels: the inline table and the file removed (the other tables kept)."""
+    tables = read_scanner_tables(sensor_obj)
+    tables.pop("channel_table", None)
+    tables.pop("channel_table_file", None)
+    _store(sensor_obj, tables)
+
+
+def channel_table_lines(sensor_obj) -> list[str]:
+    """What the Scanner panel shows of the channel table: its source, a summary and the first rows, or the
+    validation error (a missing or changed file, a bad cell, a row count that is not n_channels)."""
+    tables = read_scanner_tables(sensor_obj)
+    if not tables.get("channel_table") and not tables.get("channel_table_file"):
+        return ["Evenly spaced channels (no channel table)"]
+    scanner = ScannerSettings(channel_table=tables.get("channel_table", []),
+                              channel_table_file=tables.get("channel_table_file", ""),
+                              n_channels=sensor_obj.ladar.scanner.n_channels)
+    src = (f"File {os.path.basename(scanner.channel_table_file)}" if scanner.channel_table_file
+           else "Inline table (from a preset or config file)")
+    try:
+        table = channel_table_deg(scanner)
+    except ConfigError as exc:
+        return [src, f"Error: {exc}"]
+    lines = [src, f"{len(table)} channels, elevation {table[:, 0].min():+.3f}° … {table[:, 0].max():+.3f}°, "
+                  f"azimuth offset {table[:, 1].min():+.3f}° … {table[:, 1].max():+.3f}°, "
+                  f"fire offset ≤ {table[:, 2].max() * 1e6:.3g} µs"]
+    if len(table) != scanner.n_channels:
+        lines.append(f"Error: scanner.n_channels = {scanner.n_channels}, the table has {len(table)} rows")
+    lines.append("  " + ", ".join(CHANNEL_COLUMNS))
+    lines += [f"  {e:+.4f}, {a:+.4f}, {t:.4g}" for e, a, t in table[:PREVIEW_ROWS]]
+    if len(table) > PREVIEW_ROWS:
+        lines.append(f"  … {len(table) - PREVIEW_ROWS} more")
+    return lines
