@@ -59,7 +59,7 @@ def test_rotating_presets_channel_elevations_and_fov(name):
     """The simulated elevations (asin of the pulses' vertical component over one revolution) are the channel
     table's and the published channel elevations; their span is the published vertical FOV (Pandar40P: 40°
     within 0.01°) or, where the preset states it does not reproduce it (HDL-64E: one unit's calibration spans
-    26.52°, the data sheet's nominal figure is 26.9°), differs from it by more than 0.01°; the azimuths cover
+    26.52°, the nominal data-sheet figure is 26.9°), differs from it by more than 0.01°; the azimuths cover
     360° in steps of 360°·f/PRF."""
     cfg, pub = load(name)
     t, d, ch, angle = _rotating_frame(cfg)
