@@ -97,6 +97,21 @@ def test_pandar40p_azimuth_offsets_and_firing_times():
     assert dphi == pytest.approx(3.125 + 5.208 + 360.0 * 10.0 * 7.21e-6, abs=1e-9)
 
 
+def test_hdl64e_calibration_angles():
+    """HDL-64E: lasers 29 and 53 of one firing (fire offsets 0) point at the unit calibration's vertical corrections
+    and differ in azimuth by minus the difference of its rotational corrections (MRPT's HDL-64E S3 calibration,
+    radians: laser 29 vert +0.03421014630846329, rot +0.03681404490741569; laser 53 vert −0.2409525119882134,
+    rot +0.16876716543828738), to the table's 1e-4° rounding."""
+    cfg, _ = load("velodyne_hdl64e")
+    t, d, ch, angle = pulse_schedule(cfg, 0, 64)
+    assert np.all(t == 0.0) and list(ch) == list(range(64))
+    elev = np.degrees(np.arcsin(d[:, 1]))
+    assert elev[29] == pytest.approx(np.degrees(0.03421014630846329), abs=6e-5)
+    assert elev[53] == pytest.approx(np.degrees(-0.2409525119882134), abs=6e-5)
+    dphi = (np.degrees(angle[53] - angle[29]) + 180.0) % 360.0 - 180.0
+    assert dphi == pytest.approx(-np.degrees(0.16876716543828738 - 0.03681404490741569), abs=1.2e-4)
+
+
 def _helios_frame_trace(t, freqs, wedges, index, incident_h):
     """The rosette as HELIOS++ defines its Risley deflector, computed here in HELIOS's frame (beam along +y):
     prism normals (sin θ sin a, −cos a, cos θ sin a) for an inclined first face, (0, −1, 0) for a flat face,
