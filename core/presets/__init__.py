@@ -49,6 +49,8 @@ PUBLISHED_KEYS = {
     "precision_m": ((int, float), "range precision (1 σ) the maker states"),
     "precision_range_m": ((int, float), "range at which precision_m is checked"),
     "precision_reflectivity": ((int, float), "Lambertian reflectivity of the precision check (fraction)"),
+    "precision_at_snr": (list, "range precision (1σ, m) at stated peak SNRs: rows [snr, sigma_m] (checked where the "
+                               "simulated echoes' median SNR is snr)"),
     "range_detection_probability": ((int, float), "detection probability at which the maker defines its maximum "
                                                   "ranges (fraction; 0.5 where the maker states none)"),
     "false_alarm_rate": ((int, float), "false alarms per pulse over the range window 0 … max_range_m the maker "
@@ -59,7 +61,7 @@ PUBLISHED_KEYS = {
 
 #: Keys of ``[published]`` whose check can be declared not reproduced.
 CHECKED_KEYS = ("fov_h_deg", "fov_v_deg", "channels", "channel_elevations_deg", "points_per_s", "width_px",
-                "height_px", "second_range_m", "detected_range_m", "precision_m")
+                "height_px", "second_range_m", "detected_range_m", "precision_m", "precision_at_snr")
 
 
 
@@ -96,6 +98,13 @@ def _check_published(published, where: str) -> dict:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) > 90:
                     raise ConfigError(f"{where}published.channel_elevations_deg[{i}]", v,
                                       "an elevation in degrees within [-90, 90]")
+        elif key == "precision_at_snr":
+            for i, pair in enumerate(value):
+                if (not isinstance(pair, list) or len(pair) != 2
+                        or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                               or v <= 0 for v in pair)):
+                    raise ConfigError(f"{where}published.precision_at_snr[{i}]", pair,
+                                      "a row [snr, sigma_m] of two finite numbers > 0")
         elif key == "not_reproduced":
             for k, why in value.items():
                 if k not in CHECKED_KEYS or k not in published:

@@ -143,6 +143,19 @@ def test_range_precision(name):
     assert sigma <= pub["precision_m"] * (1 + 3 / math.sqrt(2 * (N_PULSES - 1)))
 
 
+@pytest.mark.parametrize("name", [n for n in PRESETS if "precision_at_snr" in load_preset(n).published])
+def test_range_precision_at_the_stated_snr(name):
+    """Ouster's repeatability at SNR 250 / 100 / 12: the panel's range bisected until its echoes' median peak SNR
+    is the figure (within 5 %: 12 bisections of a 1 : 20 000 range interval), the 1σ of their ranges there at
+    most the figure plus 3 standard errors (about 1/√(2n), n = 2000 echoes)."""
+    pub, cfg = load_preset(name).published, preset_config(name)
+    for snr, sigma in pub["precision_at_snr"]:
+        st = checks.precision_at_snr(cfg, snr, pub.get("precision_reflectivity", 0.8), N_PULSES)
+        assert st["snr"] == pytest.approx(snr, rel=0.05), st
+        assert st["n_echoes"] >= 0.9 * N_PULSES, st
+        assert st["sigma_m"] <= sigma * (1 + 3 / math.sqrt(2 * (st["n_echoes"] - 1))), (snr, st)
+
+
 def test_derived_energy_reproduces_its_figure():
     """The derivation (bisection on the simulated detection probability) gives back the VLP-16's energy within
     the bisection's resolution and the shipped energy detects its 100 m / 80 % panel with probability ≈ 0.5."""
@@ -193,6 +206,9 @@ def test_user_preset_file_and_bad_values(tmp_path):
     bad.write_text('[published]\nprecision_m = 0.02\nprecision_range_m = 10.0\n'
                    '[published.not_reproduced]\nprecision_m = 3\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"published.not_reproduced.precision_m = 3.*the reason"):
+        load_preset(bad)
+    bad.write_text('[published]\nprecision_at_snr = [[250, 0.015], [100]]\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"published.precision_at_snr\[1\] = \[100\]"):
         load_preset(bad)
     bad.write_text('[published]\nrange_detection_probability = 1.5\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"published.range_detection_probability = 1.5"):
