@@ -220,3 +220,17 @@ def test_user_preset_file_and_bad_values(tmp_path):
         config_from_dict({"preset": "no_such_sensor"})
     with pytest.raises(ConfigError, match="preset = 3"):
         config_from_dict({"preset": 3})
+
+
+def test_the_makers_detection_probability_is_the_criterion():
+    """A maximum range is held to the maker's definition: the Mid-40's 90 m at 10 % (P = 0.55 at 90 m, 0.20 at
+    108 m) passes at the default 50 % and fails where the maker would define its ranges at 90 %."""
+    import dataclasses
+
+    p = load_preset("livox_mid40")
+    pub = {"second_range_m": 90.0, "second_reflectivity": 0.1}
+    rows = checks.data_sheet_rows(dataclasses.replace(p, published=pub))
+    assert [r["key"] for r in rows] == ["second_range_m"] and rows[0]["ok"] is True
+    assert "P ≥ 0.5 at R, < 0.5 at 1.2 R" == rows[0]["criterion"]
+    rows = checks.data_sheet_rows(dataclasses.replace(p, published={**pub, "range_detection_probability": 0.9}))
+    assert rows[0]["ok"] is False and rows[0]["criterion"] == "P ≥ 0.9 at R, < 0.9 at 1.2 R"
