@@ -7,6 +7,11 @@ from ..core.errors import ConfigError
 from ..ladar_addon.channel_tables import clear_channel_table, set_channel_table_file
 
 
+def _camera_poll(context) -> bool:
+    obj = context.object
+    return obj is not None and obj.type == "CAMERA"
+
+
 class LADAR_OT_channel_table_load(bpy.types.Operator, ImportHelper):
     """Use a CSV file (elevation_deg, azimuth_offset_deg, fire_offset_s per channel) as the rotating head's
     channel table; a bad file is refused with its row and column, and nothing changes"""
@@ -19,8 +24,7 @@ class LADAR_OT_channel_table_load(bpy.types.Operator, ImportHelper):
 
     @classmethod
     def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == "CAMERA"
+        return _camera_poll(context)
 
     def execute(self, context):
         try:
@@ -41,8 +45,7 @@ class LADAR_OT_channel_table_clear(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        obj = context.object
-        return obj is not None and obj.type == "CAMERA"
+        return _camera_poll(context)
 
     def execute(self, context):
         clear_channel_table(context.object)

@@ -193,29 +193,21 @@ def test_user_preset_file_and_bad_values(tmp_path):
     with pytest.raises(ConfigError) as e:
         load_preset(bad)
     assert "preset bad: laser.pulse_energy_j = -1.0" in str(e.value) and "\n" not in str(e.value)
-    bad.write_text('[published]\nfov_h_deg = "wide"\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"preset bad: published.fov_h_deg = 'wide'"):
-        load_preset(bad)
-    bad.write_text('[published]\nchannel_elevations_deg = [1.0, "up"]\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"published.channel_elevations_deg\[1\] = 'up'"):
-        load_preset(bad)
-    bad.write_text('[published]\nprecision_m = 0.02\nprecision_range_m = 10.0\n'
-                   '[published.not_reproduced]\nfov_v_deg = "no reason"\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"published.not_reproduced.fov_v_deg = 'no reason'.*checked figure"):
-        load_preset(bad)
-    bad.write_text('[published]\nprecision_m = 0.02\nprecision_range_m = 10.0\n'
-                   '[published.not_reproduced]\nprecision_m = 3\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"published.not_reproduced.precision_m = 3.*the reason"):
-        load_preset(bad)
-    bad.write_text('[published]\nprecision_at_snr = [[250, 0.015], [100]]\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"published.precision_at_snr\[1\] = \[100\]"):
-        load_preset(bad)
-    bad.write_text('[published]\nrange_detection_probability = 1.5\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"published.range_detection_probability = 1.5"):
-        load_preset(bad)
-    bad.write_text('[published]\nmax_range_m = 100.0\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match="max_range_reflectivity"):
-        load_preset(bad)
+    for text, message in [
+        ('[published]\nfov_h_deg = "wide"\n', r"preset bad: published.fov_h_deg = 'wide'"),
+        ('[published]\nchannel_elevations_deg = [1.0, "up"]\n', r"published.channel_elevations_deg\[1\] = 'up'"),
+        ('[published]\nprecision_m = 0.02\nprecision_range_m = 10.0\n[published.not_reproduced]\n'
+         'fov_v_deg = "no reason"\n', r"published.not_reproduced.fov_v_deg = 'no reason'.*checked figure"),
+        ('[published]\nprecision_m = 0.02\nprecision_range_m = 10.0\n[published.not_reproduced]\n'
+         'precision_m = 3\n', r"published.not_reproduced.precision_m = 3.*the reason"),
+        ('[published]\nprecision_at_snr = [[250, 0.015], [100]]\n', r"published.precision_at_snr\[1\] = \[100\]"),
+        ('[published]\nrange_detection_probability = 1.5\n', r"published.range_detection_probability = 1.5"),
+        ('[published]\nfalse_alarm_rate = 1e-4\n', r"published.max_range_m = None.*false_alarm_rate"),
+        ('[published]\nmax_range_m = 100.0\n', "max_range_reflectivity"),
+    ]:
+        bad.write_text(text, encoding="utf-8")
+        with pytest.raises(ConfigError, match=message):
+            load_preset(bad)
     with pytest.raises(ConfigError, match="preset = 'no_such_sensor'.*velodyne_vlp16"):
         config_from_dict({"preset": "no_such_sensor"})
     with pytest.raises(ConfigError, match="preset = 3"):
