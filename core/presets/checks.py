@@ -12,7 +12,15 @@ sheet states it:
 * :func:`detection_probability` — the fraction of pulses (scanner) or pixels (camera) that report an echo
   within ``RANGE_WINDOW_M`` of a Lambertian panel of a given reflectivity at a given range, normal to the
   line of sight and larger than the beam;
-* :func:`range_precision` — the standard deviation of those echoes' ranges.
+* :func:`range_precision` — the standard deviation of those echoes' ranges; :func:`precision_at_snr` — the same
+  where the echoes' median peak SNR is a stated SNR (the panel's range bisected);
+* :func:`false_alarms_per_pulse` — a scanner's false alarms per pulse over a range window with nothing in the
+  beam (:func:`derive_k_sigma` sets the detection threshold from a maker's false-alarm figure), and
+  :func:`detection_stats` — a detection probability with the false alarms of the same pulses.
+
+A maximum range is held to the maker's definition (:func:`range_definition`: the detection probability the
+maker states, 0.5 where it states none); a figure a preset states it does not reproduce
+(:func:`not_reproduced`, with the reason) is expected to fail its check.
 
 The scanner's detection and precision probes keep the preset's laser, receiver, gate bin width, detection and
 detector settings and hold the beam on the panel (a one-line raster of zero width at the preset's pulse rate):
