@@ -99,31 +99,84 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
 
 
 @kernel
-def _first_last(truth, level, first, last):
-    """Per row: the first and last bin above ``level`` (−1 when none)."""
+def _row_extents(truth, level, first, last, peak, bad):
+    """Per row: the first and last bin above ``level`` (−1 when none), the row's largest value when it has such a
+    bin (else −inf) and whether it holds a NaN.  One pass over each bin: 64-bin blocks tested with one vectorised
+    count from the front up to the first signal bin and from the back down to the last, the bins between them
+    (the signal stretch) in one vectorised max."""
     n_rows, n = truth.shape
     for r in range(n_rows):
+        t = truth[r]
+        nan = 0
         f = -1
-        for j in range(n):
-            if truth[r, j] > level:
-                f = j
+        j = 0
+        while j + 64 <= n:
+            c = 0
+            d = 0
+            for k in range(64):  # fixed trip count: compiled to SIMD compares
+                v = t[j + k]
+                c += v > level
+                d += v != v
+            nan += d
+            if c:
+                break
+            j += 64
+        for i in range(j, n):
+            v = t[i]
+            nan += v != v
+            if v > level:
+                f = i
                 break
         first[r] = f
         last[r] = -1
+        peak[r] = -np.inf
         if f >= 0:
-            for j in range(n - 1, f - 1, -1):
-                if truth[r, j] > level:
-                    last[r] = j
+            j = n
+            while j - 64 > f:
+                c = 0
+                d = 0
+                for k in range(j - 64, j):
+                    v = t[k]
+                    c += v > level
+                    d += v != v
+                nan += d
+                if c:
                     break
+                j -= 64
+            lst = f
+            for i in range(j - 1, f, -1):
+                v = t[i]
+                nan += v != v
+                if v > level:
+                    lst = i
+                    break
+            last[r] = lst
+            pk = t[f]
+            for i in range(f, lst + 1):
+                v = t[i]
+                pk = v if v > pk else pk
+                nan += v != v
+            peak[r] = pk
+        bad[r] = nan > 0
 
 
-def signal_windows(truth, level, h, n_bins, threads=1):
+def row_extents(truth, level, threads=1):
+    """(first, last, peak, has_nan) per row of ``truth`` for the signal level ``level`` in the rows' float type
+    (:func:`_row_extents`), in row chunks on ``threads`` threads."""
+    n_rows = len(truth)
+    first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
+    peak, bad = np.empty(n_rows, truth.dtype), np.empty(n_rows, np.bool_)
+    lv = truth.dtype.type(level)
+    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b]),
+                   n_rows, threads)
+    return first, last, peak, bad
+
+
+def signal_windows(truth, level, h, n_bins, threads=1, extents=None):
     """Per pixel: (C lo, C hi) half-open, clamped to [1, B − 1] (lo = hi: no signal), the window's start and
     length (0: nothing to simulate; lengths are powers of two from WINDOW_QUANTUM, or B), of the signal bins
-    truth > level (see the module docstring)."""
-    first, last = np.empty(len(truth), np.int64), np.empty(len(truth), np.int64)
-    lv = truth.dtype.type(level)
-    run_row_chunks(lambda a, b: _first_last(truth[a:b], lv, first[a:b], last[a:b]), len(truth), threads)
+    truth > level (see the module docstring).  ``extents``: :func:`row_extents` of these rows at this level."""
+    first, last = (row_extents(truth, level, threads) if extents is None else extents)[:2]
     has = first >= 0
     g = h + 1
     c_lo = np.where(has, np.clip(first - g, 1, n_bins - 1), 1)
@@ -136,6 +189,16 @@ def signal_windows(truth, level, h, n_bins, threads=1):
     length = np.where(has, np.minimum(pow2, n_bins), 0)
     start = np.where(has, np.minimum(s_lo, n_bins - length), 0)
     return c_lo, c_hi, start, length
+
+
+@kernel
+def _gather_windows(truth, rows, start, out):
+    """out[i] = truth[rows[i], start[i]:start[i] + L] as float32 (L = out.shape[1])."""
+    L = out.shape[1]
+    for i in range(rows.shape[0]):
+        r, s = rows[i], start[i]
+        for j in range(L):
+            out[i, j] = np.float32(truth[r, s + j])
 
 
 @kernel
@@ -420,7 +483,7 @@ def draw_false_alarms(c_lo, c_hi, n_bins, rates, rng):
 
 def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
                        interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
-                       min_noise_sigma=0.0, noise_law=None, threads=1):
+                       min_noise_sigma=0.0, noise_law=None, threads=1, extents_out=None):
     """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
 
     truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
@@ -429,6 +492,9 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     Threshold: calibrated, k_sigma × σ_n/‖pulse‖ above the baseline ``noise_mean``.  ``noise_law``: the chain's
     (codes, probabilities) of a signal-free bin (ChainOutput.noise_pmf) — the false-alarm rates from that exact law
     (:class:`LatticeRates`); None: white Gaussian noise of σ (:class:`GaussianRates`).
+    ``extents_out``: a dict that receives the rows' signal extents at the signal level (``first``, ``last``,
+    ``peak``, ``has_nan``: :func:`row_extents`; ``level``), from which the false-alarm classification needs only
+    the signal stretches (core.physics.detection.false_alarms.classify_false_alarms ``extents``).
     Returns (NoisyEchoes (P rows), info dict)."""
     truth = np.asarray(truth)
     P, B = truth.shape
@@ -442,22 +508,29 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     if min_separation_bins is None:
         min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
     level = SIGNAL_LEVEL_SIGMA * sigma / codes_per_joule
-    c_lo, c_hi, start, length = signal_windows(truth, level, h, B, threads)
+    extents = row_extents(truth, level, threads)
+    if extents_out is not None:
+        extents_out.update(first=extents[0], last=extents[1], peak=extents[2], has_nan=extents[3],
+                           level=truth.dtype.type(level))
+    c_lo, c_hi, start, length = signal_windows(truth, level, h, B, threads, extents)
     b32 = np.float32(base)
     cand_pix, cand_bin, cand_s = [], [], []
     n_sim = 0
     n_overflow = 0
     for k, L in enumerate(np.unique(length[length > 0])):
         rows = np.flatnonzero(length == L)
-        idx = start[rows, None] + np.arange(L)[None, :]
-        cube = np.ascontiguousarray(np.take_along_axis(truth[rows], idx, axis=1), dtype=np.float32)
+        cube = np.empty((len(rows), L), np.float32)
+        s_rows = np.ascontiguousarray(start[rows])
+        run_row_chunks(lambda a, b: _gather_windows(truth, rows[a:b], s_rows[a:b], cube[a:b]), len(rows), threads)
         codes, _ = chain(cube[None], np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + (1, k)))
         codes = codes.reshape(len(rows), L)
         m = 4 * max_echoes
         cb = np.full((len(rows), m), -1, np.int64)
         cs = np.zeros((len(rows), m, 3), np.float32)
         nc = np.zeros(len(rows), np.int64)
-        _window_candidates(codes, start[rows], c_lo[rows], c_hi[rows], b32, w, u, cb, cs, nc)
+        c_lo_r, c_hi_r = c_lo[rows], c_hi[rows]
+        run_row_chunks(lambda a, b: _window_candidates(codes[a:b], s_rows[a:b], c_lo_r[a:b], c_hi_r[a:b], b32, w, u,
+                                                       cb[a:b], cs[a:b], nc[a:b]), len(rows), threads)
         n_overflow += int(np.count_nonzero(nc > m))
         keep = cb >= 0
         cand_pix.append(np.repeat(rows, keep.sum(axis=1)))
@@ -496,4 +569,4 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
 
 
 __all__ = ["NoisyEchoes", "detect_statistical", "validity", "filtered_noise_shape", "gaussian_tail_error",
-           "draw_false_alarms", "signal_windows", "position_covariances"]
+           "draw_false_alarms", "signal_windows", "row_extents", "position_covariances"]
