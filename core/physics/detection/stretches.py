@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from ...jit import kernel
-from .false_alarms import filter_rows, local_max_probability
+from .false_alarms import filter_rows, local_max_probability, row_extents
 from .matched_filter import FILTER_BLOCK, correlate_row
 from .noisy import NoisyEchoes, echoes_from_slots, run_row_chunks
 
@@ -96,80 +96,6 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
         return "per_bin", (f"filtered noise not Gaussian at {k_sigma:g} σ: Edgeworth tail error {err:+.3f} "
                            f"(skewness {g1:.3g}, excess kurtosis {g2:.3g}; tolerance {GAUSSIAN_TAIL_TOLERANCE})"), err
     return "statistical", "signal stretches per bin, signal-free stretches from the Gaussian statistics", err
-
-
-@kernel
-def _row_extents(truth, level, first, last, peak, bad):
-    """Per row: the first and last bin above ``level`` (−1 when none), the row's largest value when it has such a
-    bin (else −inf) and whether it holds a NaN.  One pass over each bin: 64-bin blocks tested with one vectorised
-    count from the front up to the first signal bin and from the back down to the last, the bins between them
-    (the signal stretch) in one vectorised max."""
-    n_rows, n = truth.shape
-    for r in range(n_rows):
-        t = truth[r]
-        nan = 0
-        f = -1
-        j = 0
-        while j + 64 <= n:
-            c = 0
-            d = 0
-            for k in range(64):  # fixed trip count: compiled to SIMD compares
-                v = t[j + k]
-                c += v > level
-                d += v != v
-            nan += d
-            if c:
-                break
-            j += 64
-        for i in range(j, n):
-            v = t[i]
-            nan += v != v
-            if v > level:
-                f = i
-                break
-        first[r] = f
-        last[r] = -1
-        peak[r] = -np.inf
-        if f >= 0:
-            j = n
-            while j - 64 > f:
-                c = 0
-                d = 0
-                for k in range(j - 64, j):
-                    v = t[k]
-                    c += v > level
-                    d += v != v
-                nan += d
-                if c:
-                    break
-                j -= 64
-            lst = f
-            for i in range(j - 1, f, -1):
-                v = t[i]
-                nan += v != v
-                if v > level:
-                    lst = i
-                    break
-            last[r] = lst
-            pk = t[f]
-            for i in range(f, lst + 1):
-                v = t[i]
-                pk = v if v > pk else pk
-                nan += v != v
-            peak[r] = pk
-        bad[r] = nan > 0
-
-
-def row_extents(truth, level, threads=1):
-    """(first, last, peak, has_nan) per row of ``truth`` for the signal level ``level`` in the rows' float type
-    (:func:`_row_extents`), in row chunks on ``threads`` threads."""
-    n_rows = len(truth)
-    first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
-    peak, bad = np.empty(n_rows, truth.dtype), np.empty(n_rows, np.bool_)
-    lv = truth.dtype.type(level)
-    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b]),
-                   n_rows, threads)
-    return first, last, peak, bad
 
 
 def signal_windows(truth, level, h, n_bins, threads=1, extents=None):
