@@ -27,11 +27,14 @@ and Geiger histograms are skewed: they stay on the per-bin route.
 """
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+import tempfile
 
 import numpy as np
 
-from ...jit import kernel
+from ...jit import CACHE_DIR, cpu_key, kernel
 from .false_alarms import filter_rows, local_max_probability, row_extents
 from .matched_filter import FILTER_BLOCK, correlate_row
 from .noisy import NoisyEchoes, echoes_from_slots, run_row_chunks
@@ -367,16 +370,71 @@ class LatticeRates:
 
 
 _RATE_CACHE: dict = {}
+#: The importance-sampled rates (:class:`LatticeRates`, ≈ 1.5 s of one thread on the terrain frame) are also kept on
+#: disk, in this source's kernel cache folder (core/jit.py ``CACHE_DIR``, removed with it), one file per key: a new
+#: process (every run from Blender) loads them instead of sampling again.  The same numbers bit for bit: the file
+#: holds the arrays the sampling made, keyed by every input, the CPU and these constants.
+RATE_FILE_FORMAT = 1
+
+
+def _rate_file(key):
+    h = hashlib.sha256(repr((key, cpu_key(), IS_SAMPLES_INTERIOR, IS_SAMPLES_EDGE, RATE_FILE_FORMAT)).encode())
+    return CACHE_DIR / "false_alarm_rates" / f"{h.hexdigest()[:32]}.npz", h.hexdigest()
+
+
+def _load_lattice_rates(key, n_bins, pulse, u):
+    """The :class:`LatticeRates` of ``key`` from its file, or None (no file, unreadable, another key)."""
+    path, tag = _rate_file(key)
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if str(f["tag"]) != tag:
+                return None
+            n = len(f["rates"])
+            pools = [(f[f"y{k}"], f[f"w{k}"]) for k in range(n)]
+            rates, rel_se = f["rates"], f["rel_se"]
+    except Exception:  # no file, cut short, not a zip archive, a member missing: sampled again
+        return None
+    model = LatticeRates.__new__(LatticeRates)
+    model.cls, _ = position_classes(n_bins, pulse)
+    model.u = u
+    model.rates, model.rel_se, model.pools = rates, rel_se, pools
+    return model
+
+
+def _save_lattice_rates(key, model):
+    """Write the model's arrays to its file (a temporary file renamed into place; errors ignored: a cache)."""
+    path, tag = _rate_file(key)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {"tag": np.array(tag), "rates": model.rates, "rel_se": model.rel_se}
+        for k, (y, w) in enumerate(model.pools):
+            arrays[f"y{k}"], arrays[f"w{k}"] = y, w
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except OSError:
+        pass
 
 
 def rate_model(n_bins, pulse, sigma, u, law=None, base=0.0):
-    """The kept :class:`LatticeRates` (``law`` = (codes, probabilities)) or :class:`GaussianRates` (law None)."""
+    """The kept :class:`LatticeRates` (``law`` = (codes, probabilities); kept in memory and on disk) or
+    :class:`GaussianRates` (law None; in memory)."""
     key = (n_bins, None if pulse is None else np.asarray(pulse, float).tobytes(), float(sigma), float(u),
            None if law is None else (np.asarray(law[0]).tobytes(), np.asarray(law[1]).tobytes()), float(base))
     model = _RATE_CACHE.get(key)
     if model is None:
-        model = GaussianRates(n_bins, pulse, sigma, u) if law is None else \
-            LatticeRates(n_bins, pulse, law[0], law[1], base, u)
+        if law is None:
+            model = GaussianRates(n_bins, pulse, sigma, u)
+        else:
+            model = _load_lattice_rates(key, n_bins, pulse, u)
+            if model is None:
+                model = LatticeRates(n_bins, pulse, law[0], law[1], base, u)
+                _save_lattice_rates(key, model)
         if len(_RATE_CACHE) > 8:
             _RATE_CACHE.clear()
         _RATE_CACHE[key] = model
