@@ -9,7 +9,8 @@ the detector models (full physics, points only: adaptive / calibrated threshold,
 bins, docs/receiver.md) with each one's ratio to the floor; ``--terrain``: issue 28's second flash case on the HELIOS++
 terrain (1,996,002 triangles and a 4 m box, 128² px × 4×4 sub-rays, 1024 bins of 0.5 ns, FOV 0.6 rad).
 The first call of each case (compiling or loading the compiled kernels) is timed separately from the best of
-``--repeat`` runs, the floor and the frames interleaved (one of each per repeat; the medians are reported too).  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
+``--repeat`` runs, the floor and the frames interleaved (one of each per repeat; the medians are reported too);
+each frame's and the floor's process CPU time (all threads) too, and the load average at the start and the end.  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
 Writes ``flash.json`` to ``--out DIR`` (default runs/bench/); ``--update-committed`` regenerates
 bench/results/flash.json; ``--quick``: 32×32 px × 2×2 sub-rays, 256 bins, one run each (seconds).
 
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -123,6 +125,23 @@ def timed(fn):
     return time.perf_counter() - t, out
 
 
+CPU_S: dict = {}  # name → the process CPU times (all threads) of its timed runs: less sensitive to the load than wall
+
+
+def timed_cpu(name, fn):
+    """:func:`timed`, also recording the run's process CPU time (all threads) under ``name`` in CPU_S."""
+    c = time.process_time()
+    s, out = timed(fn)
+    CPU_S.setdefault(name, []).append(time.process_time() - c)
+    return s, out
+
+
+def cpu_ratios(names, floor_name):
+    """Each name's least CPU time over the floor's least CPU time (both: process CPU, all threads)."""
+    f = min(CPU_S[floor_name])
+    return {"floor_cpu_s": f, **{k: {"cpu_s": min(CPU_S[k]), "cpu_ratio_to_floor": min(CPU_S[k]) / f} for k in names}}
+
+
 def flash_demo_noisy_vs_ideal(repeat, min_repeat=9):
     """sample_blends/flash_demo.blend (as saved: ideal receiver) against the same frame with the noisy
     receiver chain, all cores."""
@@ -221,13 +240,15 @@ def terrain_case(repeat: int, quick: bool = False) -> dict:
     threads = last["ideal_cube"].stats["threads"]
     casts = []
     for _ in range(repeat):
-        casts.append(floor.bare_cast(tracer, blocks, threads))
+        casts.append(timed_cpu("terrain floor", lambda: floor.bare_cast(tracer, blocks, threads))[1])
         for k, c in cfgs.items():
-            s, last[k] = timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))
+            s, last[k] = timed_cpu(f"terrain {k}", lambda: simulate_frame(scene, pose, c, tracer=tracer))
             times[k].append(s)
     fl = floor.best(casts)
     targets = {"ideal_points_only": 1.8, "ideal_cube": 2.2, "full_physics": 3.0}
     return {"n_triangles": scene.n_triangles, "scene_and_bvh_s": build_s, "floor": fl, "threads": threads,
+            "cpu_time (process, all threads; best of the repeats)": cpu_ratios([f"terrain {k}" for k in cfgs],
+                                                                              "terrain floor"),
             "frames": {k: {"time_s": min(v), "median_s": float(np.median(v)), "ratio_to_floor": min(v) / fl["wall_s"],
                            "target": targets.get(k), "first_call_s": first[k], "n_points": last[k].stats["n_points"],
                            "stage_ratio_to_floor": floor.stage_ratios(last[k].stats["stage_times_s"], fl),
@@ -264,12 +285,13 @@ def main(argv=None):
     # changes between runs, not between the floor and the frames of one repeat)
     casts, casts1, times = [], [], {"pipeline": [], "points_only": [], "full_physics": [], **{k: [] for k in cfg_models}}
     last = {}
+    load_start = os.getloadavg()
     for _ in range(args.repeat):
-        casts.append(floor.bare_cast(tracer, blocks, threads))
+        casts.append(timed_cpu("floor", lambda: floor.bare_cast(tracer, blocks, threads))[1])
         casts1.append(floor.bare_cast(tracer, blocks, 1))  # the cast's own thread scaling (the machine's load)
         for name, c in (("pipeline", cfg), ("points_only", cfg_points), ("full_physics", cfg_full),
                         *cfg_models.items()):
-            s, last[name] = timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))
+            s, last[name] = timed_cpu(name, lambda: simulate_frame(scene, pose, c, tracer=tracer))
             times[name].append(s)
     fl, fl1 = floor.best(casts), floor.best(casts1)
     bare_s = fl["wall_s"]
@@ -295,6 +317,7 @@ def main(argv=None):
         "pipeline_full_physics_s": full_s,
         "ratio_full_physics_to_bare_cast": full_s / bare_s,
         "median_s": {k: float(np.median(v)) for k, v in times.items()},
+        "cpu_time (process, all threads; best of the repeats)": cpu_ratios(list(times), "floor"),
         "first_call_s": {"pipeline": first_s, "points_only": first_points_s, "full_physics": first_full_s},
         "stage_times_s (summed over threads, last run)": res.stats["stage_times_s"],
         "stage_times_s points only (summed over threads, last run)": res_points.stats["stage_times_s"],
@@ -316,6 +339,7 @@ def main(argv=None):
         "terrain_flash": terrain_case(args.repeat, args.quick) if args.terrain else None,
         "waveform_binning": res.stats["waveform_binning"],
         "n_points": res.stats["n_points"],
+        "load_average_1_5_15_min": {"start": list(load_start), "end": list(os.getloadavg())},
         "machine": machine_info(),
         "software": software_versions(),
     }

@@ -38,7 +38,7 @@ def threshold_model(config: SimulationConfig, noise_sigma=None, noise_mean=None)
 
 
 def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, noise_sigma=None,
-                 noise_floor=0.0, noise_mean=None, found=None, shape=None) -> Echoes:
+                 noise_floor=0.0, noise_mean=None, found=None, shape=None, extents=None) -> Echoes:
     """Echoes on the receiver's digital waveforms (threshold, matched filter, multi-echo, interpolation:
     core/physics/detection/noisy.py), in the per-echo layout of :class:`Echoes`, with the detection SNR.
 
@@ -49,7 +49,8 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     the smallest noise σ the detection assumes (the chain report's ``noise_sigma_floor``).  ``noise_mean``: the
     signal-free bins' mean (the chain report's ``noise_mean``), the baseline of the calibrated threshold.
     ``found``: echoes already detected (core.physics.detection.stretches: no ``digital``), of the (H, W, B)
-    ``shape``."""
+    ``shape``; ``extents``: the rows' signal extents the statistical route found (the classification then scans
+    the signal stretches only: classify_false_alarms)."""
     d, g = config.detection, config.gate
     h, w, n_bins = digital.shape if shape is None else shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
@@ -72,7 +73,7 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
         fa, summary = classify_false_alarms(
             found, np.asarray(truth).reshape(h * w, n_bins), config.laser.pulse_fwhm_s / g.bin_width_s,
             noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
-            abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j, threads=threads)
+            abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j, threads=threads, extents=extents)
         echoes.false_alarm = fa[pix, slot]
         summary["threshold_mode"] = mode
         summary["n_pixels"] = h * w
@@ -112,12 +113,13 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
         return out.data, out.report
 
     h, w, n_bins = truth.shape
+    extents = {}
     found, sinfo = detect_statistical(truth.reshape(h * w, n_bins), chain, probe, pulse=pulse, k_sigma=d.k_sigma,
                                       max_echoes=d.max_echoes, interpolation=d.interpolation,
                                       bin_width_s=g.bin_width_s, gate_start_s=g.gate_start_s,
                                       codes_per_joule=codes_per_j, seed=seed,
                                       min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law,
-                                      threads=worker_threads(config.run.threads))
+                                      threads=worker_threads(config.run.threads), extents_out=extents)
     report = dict(reports[0] if reports else probe)
     for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
         report[key] = int(sum(r.get(key, 0) for r in reports))
@@ -126,7 +128,7 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
     fa_info = {} if info is None else info
     echoes = noisy_echoes(None, config, truth=truth, info=fa_info, noise_sigma=probe.get("noise_sigma"),
                           noise_floor=probe.get("noise_sigma_floor", 0.0), noise_mean=probe.get("noise_mean"),
-                          found=found, shape=truth.shape)
+                          found=found, shape=truth.shape, extents=extents)
     report["false_alarms"] = fa_info
     return echoes, report
 

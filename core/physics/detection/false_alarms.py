@@ -178,6 +178,144 @@ def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, a
             fa[r, k] = _outside_runs(j, starts, ends, m) if j >= 0 else False
 
 
+@kernel
+def _row_extents(truth, level, first, last, peak, bad):
+    """Per row: the first and last bin above ``level`` (−1 when none), the row's largest value when it has such a
+    bin (else −inf) and whether it holds a NaN.  One pass over each bin: 64-bin blocks tested with one vectorised
+    count from the front up to the first signal bin and from the back down to the last, the bins between them
+    (the signal stretch) in one vectorised max."""
+    n_rows, n = truth.shape
+    for r in range(n_rows):
+        t = truth[r]
+        nan = 0
+        f = -1
+        j = 0
+        while j + 64 <= n:
+            c = 0
+            d = 0
+            for k in range(64):  # fixed trip count: compiled to SIMD compares
+                v = t[j + k]
+                c += v > level
+                d += v != v
+            nan += d
+            if c:
+                break
+            j += 64
+        for i in range(j, n):
+            v = t[i]
+            nan += v != v
+            if v > level:
+                f = i
+                break
+        first[r] = f
+        last[r] = -1
+        peak[r] = -np.inf
+        if f >= 0:
+            j = n
+            while j - 64 > f:
+                c = 0
+                d = 0
+                for k in range(j - 64, j):
+                    v = t[k]
+                    c += v > level
+                    d += v != v
+                nan += d
+                if c:
+                    break
+                j -= 64
+            lst = f
+            for i in range(j - 1, f, -1):
+                v = t[i]
+                nan += v != v
+                if v > level:
+                    lst = i
+                    break
+            last[r] = lst
+            pk = t[f]
+            for i in range(f, lst + 1):
+                v = t[i]
+                pk = v if v > pk else pk
+                nan += v != v
+            peak[r] = pk
+        bad[r] = nan > 0
+
+
+def row_extents(truth, level, threads=1):
+    """(first, last, peak, has_nan) per row of ``truth`` for the signal level ``level`` in the rows' float type
+    (:func:`_row_extents`), in row chunks on ``threads`` threads."""
+    n_rows = len(truth)
+    first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
+    peak, bad = np.empty(n_rows, truth.dtype), np.empty(n_rows, np.bool_)
+    lv = truth.dtype.type(level)
+    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b]),
+                   n_rows, threads)
+    return first, last, peak, bad
+
+
+@kernel
+def _guarded_runs_in(t, lv, guard, j_lo, j_hi, starts, ends):
+    """:func:`_guarded_runs` of the row t when no bin outside [j_lo, j_hi) exceeds max(lv, 0): the same runs, from
+    a scan of those bins alone (64-bin blocks tested with one vectorised count)."""
+    n = t.shape[0]
+    if lv < 0:
+        lv = 0
+    m = 0
+    j0 = j_lo
+    while j0 < j_hi:
+        j1 = min(j0 + 64, j_hi)
+        if j1 - j0 == 64:
+            c = 0
+            for k in range(j0, j0 + 64):
+                c += t[k] > lv
+            if c == 0:
+                j0 = j1
+                continue
+        for j in range(j0, j1):
+            if t[j] > lv:
+                a = max(j - guard, 0)
+                b = min(j + guard + 1, n)
+                if m > 0 and a <= ends[m - 1]:
+                    ends[m - 1] = max(ends[m - 1], b)
+                else:
+                    starts[m], ends[m] = a, b
+                    m += 1
+        j0 = j1
+    return m
+
+
+@kernel
+def _classify_rows_in(t, rel, absl, guard, lo, hi, cols, det_bin, first, last, peak, level, n_range, n_all, at_cols,
+                      fa):
+    """:func:`_classify_rows` given each row's extent at a signal level (no bin outside [first, last] above
+    ``level``; first −1 when no bin is; ``peak`` the row's largest value when first ≥ 0; no NaN in the rows): a row
+    whose false-alarm level max(rel × peak, absl, 0) is at least ``level`` is scanned over [first, last] only
+    (its signal bins all lie there), any other row whole, as :func:`_classify_rows` does."""
+    n = t.shape[1]
+    starts, ends = np.empty(n, np.int64), np.empty(n, np.int64)
+    zero = absl - absl
+    for r in range(t.shape[0]):
+        if first[r] >= 0:
+            lv = rel * peak[r]
+            lv = lv if lv >= absl else absl
+        else:
+            lv = absl
+        lv0 = lv if lv >= zero else zero
+        if lv0 >= level:
+            m = _guarded_runs_in(t[r], lv, guard, first[r], last[r] + 1, starts, ends) if first[r] >= 0 else 0
+        else:
+            m = _guarded_runs(t[r], _row_level(t[r], rel, absl), guard, starts, ends)
+        c_range, c_all = hi - lo, n
+        for i in range(m):
+            c_all -= ends[i] - starts[i]
+            c_range -= max(0, min(ends[i], hi) - max(starts[i], lo))
+        n_range[r], n_all[r] = c_range, c_all
+        for k in range(cols.size):
+            at_cols[r, k] = _outside_runs(cols[k], starts, ends, m)
+        for k in range(det_bin.shape[1]):
+            j = det_bin[r, k]
+            fa[r, k] = _outside_runs(j, starts, ends, m) if j >= 0 else False
+
+
 def filter_rows(n_bins, pulse, rows):
     """Rows of the linear map raw → detection waveform (matched filter with 'nearest' edges, as in
     :func:`matched_filter`; the identity without a pulse) for the given output positions."""
@@ -428,7 +566,7 @@ FALSE_ALARM_ABS_PRIMARIES = 1e-2
 
 def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_sigma=None, pulse=None,
                           abs_level=0.0, rel_level=FALSE_ALARM_REL_LEVEL, guard_fwhm=FALSE_ALARM_GUARD_FWHM,
-                          threads=1):
+                          threads=1, extents=None):
     """False alarms of a detection run against the noise-free waveforms ``truth`` (P, B), and their expected
     number for Gaussian noise of σ ``noise_sigma`` (raw-waveform units; None: no expectation).
 
@@ -436,7 +574,12 @@ def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_
     max(rel_level × the pixel's peak, abs_level) (:func:`false_alarm_mask`).  Expectation: Σ over pixels and
     eligible bins (outside those guard regions) of the probability that the bin is a local maximum of the
     detection waveform above the pixel's threshold (:func:`expected_false_alarms`).  ``threads``: the passes over
-    the waveforms run in row chunks on that many threads (never changes the result).
+    the waveforms run in row chunks on that many threads (never changes the result).  ``extents``: the rows'
+    signal extents (:func:`row_extents`: ``first``, ``last``, ``peak``, ``has_nan``, at ``level`` in the rows'
+    type) known from an earlier pass (the statistical route's, core.physics.detection.stretches): rows whose
+    false-alarm level is at least that level are then scanned over their signal stretch only, the others whole
+    (the same result; ignored when a row holds a NaN).  (Without them the rows are read whole: computing the
+    extents here first measured no faster, each row's passes then reading it from cache.)
     Returns ``(mask (P, K) bool, summary dict)``."""
     det = np.asarray(echoes.detected)
     P, K = det.shape[0], det.shape[-1]
@@ -456,9 +599,17 @@ def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_
 
     rel, absl = t.dtype.type(rel_level), t.dtype.type(abs_level)
 
-    def run(a, b):
-        _classify_rows(t[a:b], rel, absl, guard, lo, hi, cols, det_bin[a:b], n_int[a:b], n_all[a:b], at_cols[a:b],
-                       fa[a:b])
+    if extents is not None and not np.any(extents["has_nan"]) and np.asarray(extents["peak"]).dtype == t.dtype:
+        first, last, peak = extents["first"], extents["last"], extents["peak"]
+        level = t.dtype.type(extents["level"])
+
+        def run(a, b):
+            _classify_rows_in(t[a:b], rel, absl, guard, lo, hi, cols, det_bin[a:b], first[a:b], last[a:b], peak[a:b],
+                              level, n_int[a:b], n_all[a:b], at_cols[a:b], fa[a:b])
+    else:
+        def run(a, b):
+            _classify_rows(t[a:b], rel, absl, guard, lo, hi, cols, det_bin[a:b], n_int[a:b], n_all[a:b],
+                           at_cols[a:b], fa[a:b])
 
     run_row_chunks(run, P, threads)
     counts = {"n_bins": B, "n_interior": n_int, "n_eligible": n_all, "at_edges": at_cols}

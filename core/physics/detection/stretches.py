@@ -27,12 +27,15 @@ and Geiger histograms are skewed: they stay on the per-bin route.
 """
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+import tempfile
 
 import numpy as np
 
-from ...jit import kernel
-from .false_alarms import filter_rows, local_max_probability
+from ...jit import CACHE_DIR, cpu_key, kernel
+from .false_alarms import filter_rows, local_max_probability, row_extents
 from .matched_filter import FILTER_BLOCK, correlate_row
 from .noisy import NoisyEchoes, echoes_from_slots, run_row_chunks
 
@@ -98,32 +101,11 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
     return "statistical", "signal stretches per bin, signal-free stretches from the Gaussian statistics", err
 
 
-@kernel
-def _first_last(truth, level, first, last):
-    """Per row: the first and last bin above ``level`` (−1 when none)."""
-    n_rows, n = truth.shape
-    for r in range(n_rows):
-        f = -1
-        for j in range(n):
-            if truth[r, j] > level:
-                f = j
-                break
-        first[r] = f
-        last[r] = -1
-        if f >= 0:
-            for j in range(n - 1, f - 1, -1):
-                if truth[r, j] > level:
-                    last[r] = j
-                    break
-
-
-def signal_windows(truth, level, h, n_bins, threads=1):
+def signal_windows(truth, level, h, n_bins, threads=1, extents=None):
     """Per pixel: (C lo, C hi) half-open, clamped to [1, B − 1] (lo = hi: no signal), the window's start and
     length (0: nothing to simulate; lengths are powers of two from WINDOW_QUANTUM, or B), of the signal bins
-    truth > level (see the module docstring)."""
-    first, last = np.empty(len(truth), np.int64), np.empty(len(truth), np.int64)
-    lv = truth.dtype.type(level)
-    run_row_chunks(lambda a, b: _first_last(truth[a:b], lv, first[a:b], last[a:b]), len(truth), threads)
+    truth > level (see the module docstring).  ``extents``: :func:`row_extents` of these rows at this level."""
+    first, last = (row_extents(truth, level, threads) if extents is None else extents)[:2]
     has = first >= 0
     g = h + 1
     c_lo = np.where(has, np.clip(first - g, 1, n_bins - 1), 1)
@@ -136,6 +118,16 @@ def signal_windows(truth, level, h, n_bins, threads=1):
     length = np.where(has, np.minimum(pow2, n_bins), 0)
     start = np.where(has, np.minimum(s_lo, n_bins - length), 0)
     return c_lo, c_hi, start, length
+
+
+@kernel
+def _gather_windows(truth, rows, start, out):
+    """out[i] = truth[rows[i], start[i]:start[i] + L] as float32 (L = out.shape[1])."""
+    L = out.shape[1]
+    for i in range(rows.shape[0]):
+        r, s = rows[i], start[i]
+        for j in range(L):
+            out[i, j] = np.float32(truth[r, s + j])
 
 
 @kernel
@@ -378,16 +370,71 @@ class LatticeRates:
 
 
 _RATE_CACHE: dict = {}
+#: The importance-sampled rates (:class:`LatticeRates`, ≈ 1.5 s of one thread on the terrain frame) are also kept on
+#: disk, in this source's kernel cache folder (core/jit.py ``CACHE_DIR``, removed with it), one file per key: a new
+#: process (every run from Blender) loads them instead of sampling again.  The same numbers bit for bit: the file
+#: holds the arrays the sampling made, keyed by every input, the CPU and these constants.
+RATE_FILE_FORMAT = 1
+
+
+def _rate_file(key):
+    h = hashlib.sha256(repr((key, cpu_key(), IS_SAMPLES_INTERIOR, IS_SAMPLES_EDGE, RATE_FILE_FORMAT)).encode())
+    return CACHE_DIR / "false_alarm_rates" / f"{h.hexdigest()[:32]}.npz", h.hexdigest()
+
+
+def _load_lattice_rates(key, n_bins, pulse, u):
+    """The :class:`LatticeRates` of ``key`` from its file, or None (no file, unreadable, another key)."""
+    path, tag = _rate_file(key)
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if str(f["tag"]) != tag:
+                return None
+            n = len(f["rates"])
+            pools = [(f[f"y{k}"], f[f"w{k}"]) for k in range(n)]
+            rates, rel_se = f["rates"], f["rel_se"]
+    except Exception:  # no file, cut short, not a zip archive, a member missing: sampled again
+        return None
+    model = LatticeRates.__new__(LatticeRates)
+    model.cls, _ = position_classes(n_bins, pulse)
+    model.u = u
+    model.rates, model.rel_se, model.pools = rates, rel_se, pools
+    return model
+
+
+def _save_lattice_rates(key, model):
+    """Write the model's arrays to its file (a temporary file renamed into place; errors ignored: a cache)."""
+    path, tag = _rate_file(key)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {"tag": np.array(tag), "rates": model.rates, "rel_se": model.rel_se}
+        for k, (y, w) in enumerate(model.pools):
+            arrays[f"y{k}"], arrays[f"w{k}"] = y, w
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except OSError:
+        pass
 
 
 def rate_model(n_bins, pulse, sigma, u, law=None, base=0.0):
-    """The kept :class:`LatticeRates` (``law`` = (codes, probabilities)) or :class:`GaussianRates` (law None)."""
+    """The kept :class:`LatticeRates` (``law`` = (codes, probabilities); kept in memory and on disk) or
+    :class:`GaussianRates` (law None; in memory)."""
     key = (n_bins, None if pulse is None else np.asarray(pulse, float).tobytes(), float(sigma), float(u),
            None if law is None else (np.asarray(law[0]).tobytes(), np.asarray(law[1]).tobytes()), float(base))
     model = _RATE_CACHE.get(key)
     if model is None:
-        model = GaussianRates(n_bins, pulse, sigma, u) if law is None else \
-            LatticeRates(n_bins, pulse, law[0], law[1], base, u)
+        if law is None:
+            model = GaussianRates(n_bins, pulse, sigma, u)
+        else:
+            model = _load_lattice_rates(key, n_bins, pulse, u)
+            if model is None:
+                model = LatticeRates(n_bins, pulse, law[0], law[1], base, u)
+                _save_lattice_rates(key, model)
         if len(_RATE_CACHE) > 8:
             _RATE_CACHE.clear()
         _RATE_CACHE[key] = model
@@ -420,7 +467,7 @@ def draw_false_alarms(c_lo, c_hi, n_bins, rates, rng):
 
 def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
                        interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
-                       min_noise_sigma=0.0, noise_law=None, threads=1):
+                       min_noise_sigma=0.0, noise_law=None, threads=1, extents_out=None):
     """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
 
     truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
@@ -429,6 +476,9 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     Threshold: calibrated, k_sigma × σ_n/‖pulse‖ above the baseline ``noise_mean``.  ``noise_law``: the chain's
     (codes, probabilities) of a signal-free bin (ChainOutput.noise_pmf) — the false-alarm rates from that exact law
     (:class:`LatticeRates`); None: white Gaussian noise of σ (:class:`GaussianRates`).
+    ``extents_out``: a dict that receives the rows' signal extents at the signal level (``first``, ``last``,
+    ``peak``, ``has_nan``: :func:`row_extents`; ``level``), from which the false-alarm classification needs only
+    the signal stretches (core.physics.detection.false_alarms.classify_false_alarms ``extents``).
     Returns (NoisyEchoes (P rows), info dict)."""
     truth = np.asarray(truth)
     P, B = truth.shape
@@ -442,22 +492,29 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     if min_separation_bins is None:
         min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
     level = SIGNAL_LEVEL_SIGMA * sigma / codes_per_joule
-    c_lo, c_hi, start, length = signal_windows(truth, level, h, B, threads)
+    extents = row_extents(truth, level, threads)
+    if extents_out is not None:
+        extents_out.update(first=extents[0], last=extents[1], peak=extents[2], has_nan=extents[3],
+                           level=truth.dtype.type(level))
+    c_lo, c_hi, start, length = signal_windows(truth, level, h, B, threads, extents)
     b32 = np.float32(base)
     cand_pix, cand_bin, cand_s = [], [], []
     n_sim = 0
     n_overflow = 0
     for k, L in enumerate(np.unique(length[length > 0])):
         rows = np.flatnonzero(length == L)
-        idx = start[rows, None] + np.arange(L)[None, :]
-        cube = np.ascontiguousarray(np.take_along_axis(truth[rows], idx, axis=1), dtype=np.float32)
+        cube = np.empty((len(rows), L), np.float32)
+        s_rows = np.ascontiguousarray(start[rows])
+        run_row_chunks(lambda a, b: _gather_windows(truth, rows[a:b], s_rows[a:b], cube[a:b]), len(rows), threads)
         codes, _ = chain(cube[None], np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + (1, k)))
         codes = codes.reshape(len(rows), L)
         m = 4 * max_echoes
         cb = np.full((len(rows), m), -1, np.int64)
         cs = np.zeros((len(rows), m, 3), np.float32)
         nc = np.zeros(len(rows), np.int64)
-        _window_candidates(codes, start[rows], c_lo[rows], c_hi[rows], b32, w, u, cb, cs, nc)
+        c_lo_r, c_hi_r = c_lo[rows], c_hi[rows]
+        run_row_chunks(lambda a, b: _window_candidates(codes[a:b], s_rows[a:b], c_lo_r[a:b], c_hi_r[a:b], b32, w, u,
+                                                       cb[a:b], cs[a:b], nc[a:b]), len(rows), threads)
         n_overflow += int(np.count_nonzero(nc > m))
         keep = cb >= 0
         cand_pix.append(np.repeat(rows, keep.sum(axis=1)))
@@ -496,4 +553,4 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
 
 
 __all__ = ["NoisyEchoes", "detect_statistical", "validity", "filtered_noise_shape", "gaussian_tail_error",
-           "draw_false_alarms", "signal_windows", "position_covariances"]
+           "draw_false_alarms", "signal_windows", "row_extents", "position_covariances"]
