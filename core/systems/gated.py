@@ -262,8 +262,9 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     pattern = config.receiver.subray_pattern
     if pattern == "adaptive":  # refused, not silently ignored (docs/performance.md)
         raise ConfigError("receiver.subray_pattern", pattern,
-                          "'grid', 'stratified' or 'sobol' for the gated system (adaptive refinement is a "
-                          "flash and profiler pattern: a pixel's rays are traced once for all slices)")
+                          "'grid', 'stratified' or 'sobol' for the gated system (adaptive refinement is implemented "
+                          "for the flash and profiler systems only: its range-step tolerance comes from their "
+                          "time bins)")
     log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "gating", "products"), STAGES_PLANNED)
     fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer)
     scene, tracer, origin, rot = fr.scene, fr.tracer, fr.origin, fr.rot

@@ -30,8 +30,8 @@ times are *not* checked (a shared machine's load moves them), errors are.
   ‖w − w_ref‖/‖w_ref‖ over the waveform cube, the reference (Sobol 32 × 32 sub-rays, 0.05 ns bins) summed to the
   run's bins; for the noisy receiver, the same on its output converted back to joules (noise included).
 * **gated** (the flash scene, 24 × 24 pixels, 40 slices 1 ns apart, 4 ns gate, 2 ns pulse): S ∈ {1, 2, 4, 8} ×
-  pattern {grid, sobol} (the gated system refuses only `adaptive`: a pixel's rays are traced once for all
-  slices).  Error: ‖s − s_ref‖/‖s_ref‖ over the slice stack (energy per slice and pixel), reference grid 32 × 32.
+  pattern {grid, sobol} (the gated system refuses only `adaptive`).  Error: ‖s − s_ref‖/‖s_ref‖ over the slice
+  stack (energy per slice and pixel), reference grid 32 × 32.
 * **scanner** (raster, 20 × 20 pulses over the same scene): sub-ray rings per beam ∈ {0, 1, 2, 4}.  Error: RMS of
   the per-pulse received energy relative to the reference (8 rings), and of the first-echo range.
 * **profiler** (the aircraft sample): S ∈ {32, 64, 128, 256} × pattern {grid, sobol, adaptive}.  Error: L2 against
