@@ -41,7 +41,8 @@ PACKAGE_IGNORE = ("__pycache__", "*.pyc", ".*", "*.blend1", "*.zip")
 #: Tracked top-level entries that are deliberately not packaged (tests/test_packaging.py checks that every tracked
 #: entry is in PACKAGE_PATHS or here, so a new one is a decision).
 DEVELOPMENT_ONLY = (".ci", ".gitignore", "bench", "docs", "pyproject.toml", "requirements.txt",
-                    "requirements-worker.txt", "requirements-clients.txt", "scripts", "tests",
+                    "requirements-worker.txt", "requirements-clients.txt", "requirements-validation.txt", "scripts",
+                    "tests",
                     "sample_blends/build_samples.py")
 
 

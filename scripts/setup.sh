@@ -62,4 +62,10 @@ if [ "${LADAR_SETUP_CLIENTS:-1}" != 0 ]; then
       || echo "setup: warning: Open3D/plyfile/trimesh not installed in .venv-clients; their tests will be skipped" >&2
   fi
 fi
+# Optional: the validation report's independent transient renderer (Mitsuba 3 + mitransient in .venv-validation,
+# libllvm19 from apt-get where needed): only with LADAR_SETUP_VALIDATION=1; CI and the tests do not need it (the
+# report's transient page and its test are skipped, with the reason, without it).
+if [ "${LADAR_SETUP_VALIDATION:-0}" = 1 ]; then
+  bash scripts/setup_validation.sh
+fi
 echo "setup: .venv ready ($(.venv/bin/python --version))"

@@ -11,6 +11,9 @@ scripts/validation/__init__.py).  DIR receives summary.md, checks.json, <effect>
 there; never with --quick).  A full run also runs every effect in quick mode and records those values in
 checks.json (``quick_simulated``), so tests/test_validation_report.py can compare a quick run with the committed
 report.  ``--only`` runs the named effects and keeps the others' results already in DIR/checks.json.
+An effect whose optional environment is missing (its ``run`` raises ``validation.Skipped``) is listed as skipped
+with the reason; its results already in DIR/checks.json (and its page and plots) are kept, never overwritten by
+the skip.
 Exit status 0 when every check passed, 1 otherwise, 2 on bad arguments.
 """
 from __future__ import annotations
@@ -39,19 +42,10 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 
 import validation  # noqa: E402
-from validation import KINDS, within  # noqa: E402
+from validation import KINDS, Skipped, within  # noqa: E402
 
 #: Effects of issue 32 that have no module yet, and why (listed on the summary page until a module exists).
-NOT_YET = {
-    "mitsuba": "The profiler's waveforms against an independent transient renderer (Mitsuba 3 + mitransient, "
-               "PyPI `mitransient` 1.3.1) are not here yet.  Dr.Jit's LLVM backend needs a libLLVM ≥ 16; the "
-               "machine this report was written on has libLLVM 14 and 15 only (Debian 12 ships `libllvm19`, a "
-               "system package this project's sessions do not install), and the pieces the script would need are "
-               "not written: a pinned second virtualenv it creates (mitsuba, drjit, mitransient), an export of the "
-               "aircraft sample to a Mitsuba scene with matching radiometry (a pulsed point emitter, the "
-               "Steinvall BRDF as a measured table), and the L2 tolerance.  Until then the profiler is checked "
-               "against a brute-force ray grid written independently of the simulator (systems page).",
-}
+NOT_YET: dict = {}
 
 
 def discover() -> list[str]:
@@ -92,7 +86,8 @@ def normalise(effect: str, raw, seen: set) -> dict:
 
 
 def run_effect(name: str, out_dir: Path, quick: bool) -> tuple[list, float, str | None]:
-    """Runs one effect into ``out_dir``; returns (checks, seconds, error text or None)."""
+    """Runs one effect into ``out_dir``; returns (checks, seconds, error text or None).  An effect that cannot run
+    here raises :class:`validation.Skipped` through this function."""
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     try:
@@ -105,6 +100,8 @@ def run_effect(name: str, out_dir: Path, quick: bool) -> tuple[list, float, str 
         if not checks:
             raise ValueError(f"{name}: run() returned no checks")
         return checks, time.perf_counter() - t0, None
+    except Skipped:
+        raise
     except Exception as exc:  # one broken effect must not hide the others
         tb = traceback.format_exc()
         print(tb, file=sys.stderr)
@@ -167,8 +164,19 @@ def write_page(out: Path, name: str, mod, entry: dict) -> None:
     (out / f"{name}.md").write_text("\n".join(lines), encoding="utf-8")
 
 
+def write_skipped_page(out: Path, name: str, mod, reason: str) -> None:
+    title = getattr(mod, "TITLE", name) if mod is not None else name
+    lines = [f"# {title}", ""]
+    intro = getattr(mod, "INTRO", "") if mod is not None else ""
+    if intro:
+        lines += [intro.strip(), ""]
+    lines += [f"**Skipped on this machine:** {reason}", ""]
+    (out / f"{name}.md").write_text("\n".join(lines), encoding="utf-8")
+
+
 def write_summary(out: Path, data: dict, modules: dict) -> None:
-    effects = sorted(data["effects"], key=lambda n: order_key(n, modules))
+    skipped = {n: e["skipped"] for n, e in data["effects"].items() if e.get("skipped") and not e["checks"]}
+    effects = sorted((n for n in data["effects"] if n not in skipped), key=lambda n: order_key(n, modules))
     allc = [c for n in effects for c in data["effects"][n]["checks"]]
     n_pass = sum(c["passed"] for c in allc)
     lines = ["# Validation report: summary", "",
@@ -187,6 +195,12 @@ def write_summary(out: Path, data: dict, modules: dict) -> None:
         lines += ["| effect | quantity | simulated | reference | tolerance |", "|---|---|---|---|---|"]
         lines += [f"| [{n}]({n}.md) | {c['quantity']} | {fmt(c['simulated'])} | {fmt(c['reference'])} | "
                   f"{tol_text(c)} |" for n, c in failing]
+    kept = {n: e["skipped"] for n, e in data["effects"].items() if e.get("skipped") and e["checks"]}
+    if skipped or kept:
+        lines += ["", "## Skipped on this machine", ""]
+        lines += [f"- **{n}** (no results): {r}" for n, r in sorted(skipped.items())]
+        lines += [f"- **{n}** (the results above are from an earlier run where it could run): {r}"
+                  for n, r in sorted(kept.items())]
     missing = {k: v for k, v in NOT_YET.items() if k not in data["effects"]}
     if missing:
         lines += ["", "## Not validated yet", ""] + [f"- **{k}**: {v}" for k, v in missing.items()]
@@ -228,9 +242,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     data = {"effects": {}}
     old = out / "checks.json"
-    if args.only and old.exists():
-        data = json.loads(old.read_text(encoding="utf-8"))
-        data["effects"] = {k: v for k, v in data.get("effects", {}).items() if k in available}
+    previous = json.loads(old.read_text(encoding="utf-8")).get("effects", {}) if old.exists() else {}
+    if args.only:
+        data["effects"] = {k: v for k, v in previous.items() if k in available}
     modules = {}
     for n in available:
         try:
@@ -242,7 +256,18 @@ def main(argv=None) -> int:
         print(f"[validate] {name} ({'quick' if args.quick else 'full'}) …", flush=True)
         with tempfile.TemporaryDirectory(prefix=f"validate-{name}-") as tmp:
             stage = Path(tmp) / name  # staged: a failing run leaves the previous plots in place
-            checks, secs, err = run_effect(name, stage, args.quick)
+            try:
+                checks, secs, err = run_effect(name, stage, args.quick)
+            except Skipped as exc:
+                reason = str(exc)
+                print(f"[validate] {name}: skipped: {reason}", flush=True)
+                if previous.get(name, {}).get("checks"):  # keep the results (page, plots) of a run that could
+                    data["effects"][name] = {**previous[name], "skipped": reason}
+                else:
+                    data["effects"][name] = {"mode": "skipped", "seconds": 0.0, "error": None, "skipped": reason,
+                                             "checks": []}
+                    write_skipped_page(out, name, modules.get(name), reason)
+                continue
             if args.quick:
                 for c in checks:
                     c["quick_simulated"] = c["simulated"]
@@ -262,7 +287,7 @@ def main(argv=None) -> int:
         print(f"[validate] {name}: {n_pass}/{len(checks)} pass, {secs:.1f} s", flush=True)
     (out / "checks.json").write_text(json.dumps(data, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
     write_summary(out, data, modules)
-    allc = [c for e in data["effects"].values() for c in e["checks"]]
+    allc = [c for e in data["effects"].values() if not e.get("skipped") for c in e["checks"]]
     n_fail = sum(not c["passed"] for c in allc)
     print(f"[validate] {len(allc) - n_fail}/{len(allc)} checks pass, {time.perf_counter() - t_all:.0f} s; "
           f"report in {out}/summary.md", flush=True)

@@ -49,6 +49,9 @@ def test_quick_report_agrees_with_the_committed_report(quick_report):
     problems = []
     for effect, entry in now["effects"].items():
         assert entry["error"] is None, f"{effect}: {entry['error']}"
+        if entry.get("skipped"):  # an optional environment is missing here (the reason is on the summary page)
+            print(f"{effect}: skipped on this machine: {entry['skipped']}")
+            continue
         old = {c["quantity"]: c for c in committed["effects"][effect]["checks"]}
         quick_in_old = {q for q, c in old.items() if c.get("quick_simulated") is not None}
         new = {c["quantity"]: c for c in entry["checks"]}
@@ -75,9 +78,14 @@ def test_pages_and_plots_exist(quick_report):
     out, _, now = quick_report
     for folder in (out, COMMITTED):
         summary = (folder / "summary.md").read_text(encoding="utf-8")
+        entries = json.loads((folder / "checks.json").read_text(encoding="utf-8"))["effects"]
         for effect in now["effects"]:
-            assert f"]({effect}.md)" in summary
             page = (folder / f"{effect}.md").read_text(encoding="utf-8")
+            if entries[effect].get("skipped") and not entries[effect]["checks"]:
+                assert f"**{effect}** (no results): {entries[effect]['skipped']}" in summary
+                assert entries[effect]["skipped"] in page
+                continue
+            assert f"]({effect}.md)" in summary
             pngs = sorted((folder / effect).glob("*.png"))
             assert pngs, f"{folder}/{effect}/ has no plot"
             for png in pngs:
@@ -124,3 +132,43 @@ def test_a_broken_effect_module_is_reported_and_the_others_still_run(tmp_path, m
     checks, _, err = validate.run_effect("weather", tmp_path / "weather", quick=True)
     assert err == "ImportError: no module weather"
     assert len(checks) == 1 and checks[0]["passed"] is False and checks[0]["quantity"] == "effect module ran"
+
+
+def test_a_skipped_effect_is_listed_with_its_reason_and_keeps_earlier_results(tmp_path, monkeypatch):
+    """An effect whose optional environment is missing raises validation.Skipped: the run lists it with the
+    reason, counts none of its checks, and keeps the results an earlier run in the same folder recorded."""
+    validate = _runner()
+    import types
+    from validation import Skipped
+
+    calls = {"n": 0}
+
+    def run(out_dir, quick):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            (out_dir / "a.png").write_bytes(b"png")
+            return [check("x", 1.0, 1.0, 0.1)]
+        raise Skipped("the optional environment .venv-x is missing")
+
+    fake = types.SimpleNamespace(run=run, TITLE="Fake effect")
+    monkeypatch.setattr(validate, "discover", lambda: ["fake"])
+    monkeypatch.setattr(validate, "load", lambda name: fake)
+    out = tmp_path / "report"
+    assert validate.main(["--out", str(out), "--quick"]) == 0
+    first = json.loads((out / "checks.json").read_text(encoding="utf-8"))["effects"]["fake"]
+    assert first["checks"][0]["passed"] and not first.get("skipped")
+    assert validate.main(["--out", str(out), "--quick", "--only", "fake"]) == 0
+    kept = json.loads((out / "checks.json").read_text(encoding="utf-8"))["effects"]["fake"]
+    assert kept["checks"] == first["checks"] and kept["skipped"] == "the optional environment .venv-x is missing"
+    assert (out / "fake" / "a.png").exists()
+    summary = (out / "summary.md").read_text(encoding="utf-8")
+    assert "**fake** (the results above are from an earlier run where it could run): the optional environment" \
+        in summary
+    fresh = tmp_path / "fresh"
+    assert validate.main(["--out", str(fresh), "--quick"]) == 0
+    entry = json.loads((fresh / "checks.json").read_text(encoding="utf-8"))["effects"]["fake"]
+    assert entry["checks"] == [] and entry["mode"] == "skipped"
+    assert "0 of 0 checks pass over 0 effects" in (fresh / "summary.md").read_text(encoding="utf-8")
+    assert "**fake** (no results): the optional environment .venv-x is missing" in \
+        (fresh / "summary.md").read_text(encoding="utf-8")
+    assert "Skipped on this machine:** the optional environment" in (fresh / "fake.md").read_text(encoding="utf-8")

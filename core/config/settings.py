@@ -147,8 +147,8 @@ class ReceiverSettings:
     subray_pattern: str = setting("grid", choices=("grid", "stratified", "sobol", "adaptive"),
                                   doc="Where the S×S sub-rays of a pixel go: cell centres (grid), one jittered "
                                       "point per cell (stratified), a scrambled Sobol net (sobol), or Sobol "
-                                      "refined where a pixel's rays disagree (adaptive).  Flash and profiler only: the "
-                                      "gated system refuses any but grid; the scanner uses "
+                                      "refined where a pixel's rays disagree (adaptive).  Flash, profiler and gated "
+                                      "viewing (which refuses adaptive); the scanner uses "
                                       "scanner.beam_subray_rings",
                                   label="Sub-ray Pattern",
                                   choice_labels={'grid': 'Grid', 'stratified': 'Stratified', 'sobol': 'Sobol',

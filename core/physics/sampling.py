@@ -339,6 +339,16 @@ class SubraySampler:
         p = np.exp(log_p - log_p.max(axis=1, keepdims=True))
         return (p / p.sum(axis=1, keepdims=True)).reshape(-1) * total
 
+    def weights_of(self, smp: Samples) -> np.ndarray:
+        """The weights this sampler's cell fractions (and beam) give the first-pass rays ``smp`` of its pattern,
+        drawn by any sampler of the same detector, pattern and seed: the gated system draws its rays once and
+        weighs them per slice, each slice with its own beam (wander, broadening)."""
+        s = self.det.subsamples
+        if self.pattern == "sobol" and s & (s - 1):
+            return self._intensity_weights(smp.x_tan, smp.y_tan, smp.pixel % self.det.width_px,
+                                           smp.pixel // self.det.width_px, s * s)
+        return self.fy[smp.sub_y] * self.fx[smp.sub_x]
+
     # -- adaptive refinement --------------------------------------------------------------------------------
     def disagreeing(self, smp: Samples, prim, range_m, normal_sensor, material_ids, tolerance_m: float):
         """Pixels (global indices) whose sub-rays disagree: some hit and some miss (a silhouette), they hit

@@ -55,6 +55,7 @@ from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
 from ..jit import stage_clock
 from ..physics.laser import FWHM_TO_SIGMA, beam_half_angle_tan, cell_energy_fractions, pulse_cdf, pulse_half_support_s
 from ..physics.radiometry import received_energy
+from ..physics.sampling import SubraySampler, cell_returns
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import round_trip_time_s
 
@@ -258,10 +259,12 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     (n_slices, H, W), the range image from the slices, points and metadata.  The systems' common signature
     (core.run.SYSTEMS): the sweep is fired from one pose, ``world_from_sensor`` (``trajectory`` and
     ``start_time_s`` are not used)."""
-    if config.receiver.subray_pattern != "grid":  # refused, not silently ignored (docs/performance.md)
-        raise ConfigError("receiver.subray_pattern", config.receiver.subray_pattern,
-                          "'grid' for the gated system (it places its sub-rays on the S×S cell centres; "
-                          "stratified, sobol and adaptive are flash-system patterns)")
+    pattern = config.receiver.subray_pattern
+    if pattern == "adaptive":  # refused, not silently ignored (docs/performance.md)
+        raise ConfigError("receiver.subray_pattern", pattern,
+                          "'grid', 'stratified' or 'sobol' for the gated system (adaptive refinement is implemented "
+                          "for the flash and profiler systems only: its range-step tolerance comes from their "
+                          "time bins)")
     log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "gating", "products"), STAGES_PLANNED)
     fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer)
     scene, tracer, origin, rot = fr.scene, fr.tracer, fr.origin, fr.rot
@@ -284,6 +287,15 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                    for k in (range(1, n_sl) if per_slice_random else [])]
     atm = atm_slices[0]
     fractions = [cell_energy_fractions(laser, det, a.beam_offset_tan, a.beam_width_scale) for a in atm_slices]
+    # receiver.subray_pattern: the rays are drawn once for the sweep; a ray carries its cell's exact beam energy
+    # in each slice (fractions[j]), except Sobol nets with S not a power of two, whose rays are weighted by the
+    # beam at the point (core/physics/sampling.py): each slice's own beam (wander, broadening) weighs them
+    samplers = None
+    if pattern != "grid":
+        samplers = [SubraySampler(det, pattern, fr_j, config.run.seed, laser=laser,
+                                  beam_offset_tan=a.beam_offset_tan, beam_width_scale=a.beam_width_scale)
+                    for fr_j, a in zip(fractions, atm_slices)]
+    point_weights = pattern == "sobol" and det.subsamples & (det.subsamples - 1) != 0
     times["atmosphere"] = stage_clock() - t0
     t0 = stage_clock()
     for stage, reason in weather_switches(config).items():
@@ -313,7 +325,13 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         a, b = block
         local = {}
         t = stage_clock()
-        x_tan, y_tan, pixel, sub_x, sub_y = block_subray_tan(det, a, b)
+        if samplers is None:  # the S×S cell centres
+            x_tan, y_tan, pixel, sub_x, sub_y = block_subray_tan(det, a, b)
+            weights = None
+        else:
+            smp = samplers[0].block(a, b)
+            x_tan, y_tan, pixel, sub_x, sub_y = smp.x_tan, smp.y_tan, smp.pixel, smp.sub_x, smp.sub_y
+            weights = [sj.weights_of(smp) for sj in samplers] if point_weights else None
         d_world = tan_to_unit_direction(x_tan, y_tan) @ rot.T
         local["rays"] = stage_clock() - t
         t = stage_clock()
@@ -321,6 +339,13 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         local["trace"] = stage_clock() - t
         t = stage_clock()
         hit = prim >= 0
+        if samplers is not None and config.receiver.cell_range_spread:
+            # a jittered ray stands for its cell: range and cos θ where the cell centre's ray meets the plane the
+            # ray hit (as the flash system: a plane gives the grid's slices; only edges inside a cell differ)
+            idx = np.nonzero(hit)[0]
+            _, range_c, cos_c = cell_returns(smp, idx, range_m, cos_theta, prim, tracer.unit_normal, rot)
+            range_m, cos_theta = range_m.copy(), cos_theta.copy()
+            range_m[idx], cos_theta[idx] = range_c, cos_c
         e_unit = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials,
                                  scene.material_ids[prim[hit]], cos_theta[hit], range_m[hit], 1.0)
         pix = pixel[hit] - a
@@ -329,7 +354,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         out = np.zeros((n_sl, b - a))
         if wx is not None:  # drops: returns of their own, shadowing what lies behind; the volume from the table
             fx0, fy0 = fractions[0]
-            weight = fy0[sub_y] * fx0[sub_x]
+            weight = fy0[sub_y] * fx0[sub_x] if weights is None else weights[0]
             beam_fraction = np.bincount(pixel - a, weights=weight, minlength=b - a)
             drops_ret, shade = wx.block_returns(wx.drops_of(a, b), pixel - a, weight,
                                                 np.where(hit, range_m, np.inf), beam_fraction, pix, range_m[hit])
@@ -343,7 +368,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                     out[k] += np.bincount(pix, weights=hw * seen[:, k], minlength=b - a)
         per_slice = []
         for j, (fx, fy) in enumerate(fractions):
-            e = e_unit * fy[sy] * fx[sx] * shade
+            e = e_unit * fy[sy] * fx[sx] * shade if weights is None else e_unit * weights[j][hit] * shade
             if atm_slices[j].pattern is not None:
                 e = e * atm_slices[j].scintillation_at(xt, yt, sx, sy)
             energy[j, a:b] = np.bincount(pix, weights=e, minlength=b - a)

@@ -97,3 +97,9 @@ def save(fig, path: Path, dpi: int = 80) -> Path:
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return Path(path)
+
+
+class Skipped(Exception):
+    """Raised by an effect's ``run`` when it cannot run on this machine (an optional environment is missing);
+    the message is the exact reason.  scripts/validate.py lists the effect as skipped with that reason and keeps
+    the effect's results already in the report (they are not overwritten by a skip)."""

@@ -222,3 +222,19 @@ def test_grid_rays_are_the_cell_centres_bit_for_bit(s):
         assert not got.offset_x_tan.any() and not got.offset_y_tan.any()
         assert np.all(got.cell_x_tan == det.pixel_pitch_tan[0] / s)
         assert np.all(got.cell_y_tan == det.pixel_pitch_tan[1] / s)
+
+
+@pytest.mark.parametrize("pattern,s", [("grid", 4), ("stratified", 4), ("sobol", 4), ("sobol", 3)])
+def test_weights_of_gives_another_beams_weights_to_the_same_rays(pattern, s):
+    """The gated system draws its rays once (the first slice's sampler) and weighs them per slice with that slice's
+    beam: ``weights_of`` of a sampler with another beam offset/width gives exactly the weights that sampler would
+    draw for the same rays (same positions: the positions depend on the seed only), and the drawing sampler's own
+    weights back."""
+    laser = LaserSettings(beam_profile="gaussian", divergence_fills_fov=False, beam_divergence_rad=4e-3)
+    a = _sampler(pattern, s=s, laser=laser)[2]
+    b = _sampler(pattern, s=s, laser=laser, offset=(2e-4, -1e-4), scale=1.3)[2]
+    sa, sb = a.block(3, 17), b.block(3, 17)
+    np.testing.assert_array_equal(sa.x_tan, sb.x_tan)
+    np.testing.assert_array_equal(a.weights_of(sa), sa.weight)
+    np.testing.assert_array_equal(b.weights_of(sa), sb.weight)
+    assert not np.allclose(sa.weight, sb.weight)
