@@ -137,6 +137,18 @@ class ProgressPrinter:
                 self._next = min(1.0, max(self._next, fraction + 0.1))
                 self._last = now
 
+    def set(self, fraction, message="") -> None:
+        """The state the heartbeat repeats (nothing printed now): ``fraction`` done, ``message`` what runs."""
+        with self._lock:
+            self._fraction, self._message = float(fraction), str(message)
+
+    def say(self, text: str) -> None:
+        """Print ``text`` as it is (a line of its own, e.g. a finished step); the heartbeat waits
+        ``heartbeat_s`` from now."""
+        with self._lock:
+            emit(text)
+            self._last = time.perf_counter()
+
     def _beat(self):
         while not self._stop.wait(min(0.25, self.heartbeat_s)):
             with self._lock:
