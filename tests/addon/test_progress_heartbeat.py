@@ -52,6 +52,25 @@ def test_heartbeat_repeats_the_last_line_until_closed(lad, monkeypatch):
     assert max(b - a for a, b in zip(stamps, stamps[1:])) < 0.2 + 0.5  # a 0.25 s poll, loaded machine margin
 
 
+def test_a_step_after_the_blocks_has_its_own_count_and_eta(lad, monkeypatch):
+    """The previews (fraction 1: the blocks are done) print ``PNG previews done/total`` with an ETA from the time
+    since the step began (before: "100.0% PNG previews (…, finishing)" for the 11 s of a gated run's 33 PNGs)."""
+    lines = []
+    monkeypatch.setattr(lad.run_inputs, "emit", lambda text, **kw: lines.append(text) or True)
+    printer = lad.run_inputs.progress_printer(heartbeat_s=None)
+    printer(1.0, "block 4/4")
+    printer(1.0, "PNG previews", part=(0, 10))
+    time.sleep(0.4)
+    for k in range(1, 11):
+        printer(1.0, "PNG previews", part=(k, 10))
+    assert lines[0].startswith("ladar: 100.0% block 4/4 (") and lines[0].endswith(", finishing)")
+    assert lines[1].startswith("ladar: 100.0% PNG previews 0/10 (") and lines[1].endswith(", ETA unknown)")
+    # ≥ 0.4 s for the first tenth: ≥ 3.6 s left, from the step's own clock (a loaded machine sleeps longer)
+    assert re.fullmatch(r"ladar: 100\.0% PNG previews 1/10 \(\d+\.\d\d s, ETA ([4-9]|\d\d+) s\)", lines[2]), lines
+    assert len(lines) == 12 and lines[-1].endswith("PNG previews 10/10 (" + lines[-1].split("(")[1].split(",")[0]
+                                                   + ", finishing)")
+
+
 def test_gated_run_is_never_silent_from_process_start_to_exit(tmp_path):
     """The README's gated example, every gap from the process's start to its exit ≤ 2 s (before: the exit came
     2.0 s after the summary's last line at load 8, the interpreter freeing its modules one by one); the frame
@@ -66,6 +85,8 @@ def test_gated_run_is_never_silent_from_process_start_to_exit(tmp_path):
                             for text in progress)
     steps = [t for t in progress if re.match(r"ladar: +\d+\.\d% block \d+/\d+ ", t)]
     assert any(not t.startswith("ladar: 100.0%") and re.search(r", ETA \d", t) for t in steps), steps
+    # the 33 previews (3 images, 30 slices) count with their own ETA
+    assert any(re.search(r"% PNG previews \d+/33 \(.*, ETA \d", t) for t in progress), progress
     # the summary: points, false alarms, SNR (none possible with the ideal receiver), gate coverage, stage times
     for head in ("echoes   1", "false    none possible: ideal receiver", "gate     ", "stages   "):
         assert head in run.stdout, head
@@ -83,7 +104,8 @@ def test_flash_demo_is_never_silent_from_process_start_to_exit(tmp_path):
     assert not run.silences(), run.silences()
     texts = [text for _, text in run.lines]
     # each slow start-up step says what it is before it starts, in order
-    steps = ["ladar: loading Blender (bpy) \u2026", "ladar: installing the extension into a temporary user folder \u2026",
+    steps = ["ladar: loading Blender (bpy) \u2026",
+             "ladar: installing the extension into a temporary user folder \u2026",
              "ladar: opening flash_demo.blend \u2026"]
     assert all(s in texts for s in steps), texts[:8]
     assert [texts.index(s) for s in steps] == sorted(texts.index(s) for s in steps)

@@ -93,9 +93,11 @@ def test_gated_slices_are_labelled_and_their_faint_edges_show(tmp_path):
     first and last slices, holding 0.002 and 0.077 of the peak, are drawn in visible colours — before, a linear scale
     shared with the peak slice drew them black."""
     path, res, cfg = _gated_run(tmp_path)
-    written = preview.write_run_previews(path)
+    steps = []
+    written = preview.write_run_previews(path, progress=lambda done, total: steps.append((done, total)))
     names = sorted(p.relative_to(path).as_posix() for p in written)
     assert names == ["energy.png", "intensity.png", "range.png"] + [f"slices/slice_{k:04d}.png" for k in range(1, 6)]
+    assert steps == [(k, 8) for k in range(9)]  # before the first file and after each (the run's ETA comes from it)
     peak = res.slices.max()
     vmin, vmax = preview.slice_scale(res.slices.astype(np.float64))
     positive = res.slices[res.slices > 0]
