@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import io
 import json
+import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -227,13 +229,35 @@ def bin_centres_range_m(gate_start_s: float, bin_width_s: float, n_bins: int) ->
     return 0.5 * SPEED_OF_LIGHT_M_S * t
 
 
+#: SI prefixes of an energy axis (:func:`prefixed_energy`).
+_ENERGY_PREFIXES = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}
+
+
+def prefixed_energy(values, label: str):
+    """``values`` in joules and their axis ``label`` ("energy per bin (J)", "energy (J per bin)") on the SI prefix
+    that puts the largest magnitude in [1, 1000): (values / 10^k, "energy per bin (fJ)").  A label without a
+    unit in J, or values without a finite non-zero one, come back as they are (a linear axis of 2e-15 J showed
+    "1e-15" over ticks 0.25 … 2.00, issue 27)."""
+    values = np.asarray(values, dtype=np.float64)
+    m = re.search(r"\(J\b", label)
+    finite = np.abs(values[np.isfinite(values)])
+    if m is None or not finite.size or finite.max() == 0.0:
+        return values, label
+    k = min(0, max(min(_ENERGY_PREFIXES), 3 * math.floor(math.log10(finite.max()) / 3)))
+    if k == 0:
+        return values, label
+    return values / float(f"1e{k}"), label[:m.start()] + f"({_ENERGY_PREFIXES[k]}J" + label[m.end():]
+
+
 def waveform_figure(range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=()):
     """A line plot of one waveform against range, the detected echoes (``markers_m``) as dashed lines with
-    their ranges in the legend."""
+    their ranges in the legend.  Energies in J are drawn on the SI prefix that suits them
+    (:func:`prefixed_energy`)."""
     range_m = np.asarray(range_m, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if range_m.shape != values.shape or values.ndim != 1 or len(values) == 0:
         raise ValueError(f"range_m {range_m.shape} and values {values.shape} must be equal 1-D shapes")
+    values, ylabel = prefixed_energy(values, ylabel)
     fig = new_figure(6.4, 3.6)
     ax = fig.add_subplot()
     ax.plot(range_m, values, lw=1.0, color="#1f5fa8", label="waveform")
