@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import re
 from pathlib import Path
 
@@ -27,7 +26,7 @@ from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..physics.brdf import evaluate_brdf
 from .staging import write_file_atomically
-from .run_folder import read_exr
+from .run_folder import DISPLAY_PREFIXES, display_prefix, read_exr
 
 #: What each image product shows: (title, colour map, logarithmic colour scale).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
@@ -229,10 +228,6 @@ def bin_centres_range_m(gate_start_s: float, bin_width_s: float, n_bins: int) ->
     return 0.5 * SPEED_OF_LIGHT_M_S * t
 
 
-#: SI prefixes of an energy axis (:func:`prefixed_energy`).
-_ENERGY_PREFIXES = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}
-
-
 def prefixed_energy(values, label: str):
     """``values`` in joules and their axis ``label`` ("energy per bin (J)", "energy (J per bin)") on the SI prefix
     that puts the largest magnitude in [1, 1000): (values / 10^k, "energy per bin (fJ)").  A label without a
@@ -243,10 +238,10 @@ def prefixed_energy(values, label: str):
     finite = np.abs(values[np.isfinite(values)])
     if m is None or not finite.size or finite.max() == 0.0:
         return values, label
-    k = min(0, max(min(_ENERGY_PREFIXES), 3 * math.floor(math.log10(finite.max()) / 3)))
+    k = display_prefix(finite.max())
     if k == 0:
         return values, label
-    return values / float(f"1e{k}"), label[:m.start()] + f"({_ENERGY_PREFIXES[k]}J" + label[m.end():]
+    return values / float(f"1e{k}"), label[:m.start()] + f"({DISPLAY_PREFIXES[k]}J" + label[m.end():]
 
 
 def waveform_figure(range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=()):

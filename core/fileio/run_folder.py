@@ -314,17 +314,25 @@ def json_default(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
+#: SI prefixes of energies as people read them (µ for micro; the PLY header's ASCII ones: :data:`_SI_PREFIXES`).
+DISPLAY_PREFIXES = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}
+
+
+def display_prefix(magnitude: float) -> int:
+    """The power of ten (a multiple of 3 in [-24, 0]) that puts ``magnitude`` (> 0) in [1, 1000)."""
+    return min(0, max(min(DISPLAY_PREFIXES), 3 * math.floor(math.log10(magnitude) / 3)))
+
+
 def format_energy_j(joules: float) -> str:
     """An energy on the SI prefix that puts it in [1, 1000): "667.7 fJ", "1.094 pJ", "49.19 nJ", "0 J" (issue 27:
     "6.677e-13 J" is not a unit a person reads)."""
     j = float(joules)
     if j == 0.0 or not math.isfinite(j):
         return f"{j:g} J"
-    k = min(0, max(-24, 3 * math.floor(math.log10(abs(j)) / 3)))
+    k = display_prefix(abs(j))
     if k < 0 and abs(float(f"{j / float(f'1e{k}'):.4g}")) >= 1000.0:  # 999.96 fJ rounds to 1 pJ, not "1000 fJ"
         k += 3
-    prefix = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}[k]
-    return f"{j / float(f'1e{k}'):.4g} {prefix}J"
+    return f"{j / float(f'1e{k}'):.4g} {DISPLAY_PREFIXES[k]}J"
 
 
 def run_summary(run_path, result) -> str:
