@@ -221,7 +221,9 @@ def _cmd_sweep(scene, args) -> int:
     from .sweep import sweep_scene
 
     check_workers(args.workers)  # (before the scene is exported)
-    with progress_printer("ladar: sweep ", every_s=30.0) as progress:
+    # the sweep's lines carry its own ETA, from its tasks' times (a second one from the printer's clock, which
+    # counts the cluster's start, said "1/2 tasks, ETA 3 s (7.20 s, ETA 7 s)")
+    with progress_printer("ladar: sweep ", every_s=30.0, eta=False) as progress:
         outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
                               restart=args.restart, sensor=_sensor(scene, args.sensor), progress=progress)
     emit(outcome.summary())

@@ -114,8 +114,8 @@ class ProgressPrinter:
     ``done/total`` and their ETA is the step's own, from the time since its ``done = 0`` (a line at most every
     10 % of the step, the heartbeat between)."""
 
-    def __init__(self, prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S):
-        self.prefix, self.every_s, self.heartbeat_s = prefix, every_s, heartbeat_s
+    def __init__(self, prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S, eta=True):
+        self.prefix, self.every_s, self.heartbeat_s, self.eta = prefix, every_s, heartbeat_s, eta
         self._lock = threading.Lock()
         self._t0 = time.perf_counter()
         self._next, self._last = 0.0, time.perf_counter()
@@ -133,6 +133,8 @@ class ProgressPrinter:
             done, total, t_part, _ = self._part
             eta = format_eta(now - t_part, done / total if total else 1.0)
             return f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} {done}/{total} ({elapsed:.2f} s, {eta})"
+        if not self.eta:  # (the messages carry their own: the sweep's, from its tasks' times)
+            return f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} ({elapsed:.2f} s)"
         return (f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} "
                 f"({elapsed:.2f} s, {format_eta(elapsed, self._fraction)})")
 
@@ -191,9 +193,10 @@ class ProgressPrinter:
         return False
 
 
-def progress_printer(prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S) -> ProgressPrinter:
-    """A :class:`ProgressPrinter` (close it when the run is over: it has a heartbeat thread)."""
-    return ProgressPrinter(prefix, every_s, heartbeat_s)
+def progress_printer(prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S, eta=True) -> ProgressPrinter:
+    """A :class:`ProgressPrinter` (close it when the run is over: it has a heartbeat thread); ``eta=False`` when
+    the messages carry their own ETA."""
+    return ProgressPrinter(prefix, every_s, heartbeat_s, eta)
 
 
 def log(message):

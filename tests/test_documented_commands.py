@@ -225,6 +225,9 @@ def test_readme_sweep_example_runs_quick(tmp_path, git_before):
                       "sweep", str(quick), "--out", str(out_dir), "--workers", "1"], cwd=REPO, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     assert not proc.silences(), proc.silences()  # from the process's start to its exit (issue 27)
+    progress = [t for _, t in proc.lines if t.startswith("ladar: sweep ") and "%" in t]
+    assert all(t.count("ETA") <= 1 for t in progress), progress  # one ETA a line: the sweep's, from its tasks
+    assert any(re.search(r"2/2 tasks; plots \d+/\d+ \(", t) for t in progress), progress  # the plots count
     with open(out_dir / "results.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 and all(r["status"] == "done" for r in rows), rows
