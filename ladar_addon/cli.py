@@ -221,7 +221,9 @@ def _cmd_sweep(scene, args) -> int:
     from .sweep import sweep_scene
 
     check_workers(args.workers)  # (before the scene is exported)
-    with progress_printer("ladar: sweep ", every_s=30.0) as progress:
+    # the sweep's lines carry its own ETA, from its tasks' times (a second one from the printer's clock, which
+    # counts the cluster's start, said "1/2 tasks, ETA 3 s (7.20 s, ETA 7 s)")
+    with progress_printer("ladar: sweep ", every_s=30.0, eta=False) as progress:
         outcome = sweep_scene(scene, args.file, args.out, scheduler=args.scheduler, n_workers=args.workers,
                               restart=args.restart, sensor=_sensor(scene, args.sensor), progress=progress)
     emit(outcome.summary())
@@ -258,11 +260,22 @@ def _cmd_validate_config(scene, args) -> int:
 
 
 def _cmd_warm_up(scene, args) -> int:
-    """Compile (or load) every system's kernels on a tiny built-in scene (core/warmup.py); writes nothing."""
-    from ..core.warmup import warm_up
+    """Compile (or load) every system's kernels on a tiny built-in scene (core/warmup.py); writes nothing.  A
+    line per case when it is done, and while one compiles (10-40 s the first time) the heartbeat's line every
+    second: the case, the time so far and the ETA (issue 27: never silent for more than 2 s)."""
+    from ..core.warmup import cases, warm_up
+    from .run_inputs import progress_printer
+
+    names = [name for name, _ in cases()]
+    n = len(names)
+
+    def running(i):
+        return f"[{i + 1}/{n}] {names[i]}" if i < n else "done"
 
     emit("ladar: compiling the kernels of every sensor system (once per install and CPU; later runs load them)")
-    k = warm_up(progress=emit)
+    with progress_printer("ladar: warm-up ") as printer:
+        printer.set(0.0, running(0))
+        k = warm_up(progress=printer.say, fraction=lambda f: printer.set(f, running(round(f * n))))
     emit(f"ladar: kernels ready: {k['compiled']} compiled, {k['loaded']} loaded from the cache "
          f"({k['load_and_compile_s']:.1f} s)")
     return 0

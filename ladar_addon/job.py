@@ -153,11 +153,15 @@ class SimulationJob(BackgroundJob):
     def cancelled_requested(self) -> bool:
         return self._cancel.is_set()
 
-    def _on_progress(self, fraction, text=""):
+    def _on_progress(self, fraction, text="", part=None):
+        """``part=(done, total)``: a step after the blocks (the previews), shown as ``text done/total``."""
         self.fraction = float(fraction)
-        self.text = str(text)
+        self.text = str(text) + (f" {part[0]}/{part[1]}" if part is not None else "")
         if self.user_progress is not None:
-            self.user_progress(fraction, text)
+            if part is None:
+                self.user_progress(fraction, text)
+            else:
+                self.user_progress(fraction, text, part=part)
 
     # -- running ------------------------------------------------------------------------------------------------
     def start(self, threaded: bool = True) -> None:
@@ -292,8 +296,9 @@ class SimulationJob(BackgroundJob):
         for folder in folders:
             if self._cancel.is_set():
                 raise Cancelled()
-            self._on_progress(self.fraction, "PNG previews" + (f" {folder.name}" if self.sequence else ""))
-            write_run_previews(folder, cancel=self._cancel.is_set)
+            what = "PNG previews" + (f" {folder.name}" if self.sequence else "")
+            write_run_previews(folder, cancel=self._cancel.is_set,
+                               progress=lambda done, total, w=what: self._on_progress(self.fraction, w, (done, total)))
 
     def _finish(self):
         """Main thread, after the worker: import the results, restore the frame, set the final state."""

@@ -108,14 +108,19 @@ class ProgressPrinter:
     Blender draws nothing), also when ``every_s`` seconds passed since the last line (long sweeps), each with the
     time so far and the estimated time left; and a heartbeat thread that repeats the last line whenever nothing
     was printed for ``heartbeat_s`` (building the BVH, writing previews, a long block: never silent for more than
-    2 s).  The heartbeat starts with the printer; :meth:`close` (or leaving a ``with`` block) stops it."""
+    2 s).  The heartbeat starts with the printer; :meth:`close` (or leaving a ``with`` block) stops it.
 
-    def __init__(self, prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S):
-        self.prefix, self.every_s, self.heartbeat_s = prefix, every_s, heartbeat_s
+    A step after the frame's blocks (fraction 1: the PNG previews) passes ``part=(done, total)``: its lines say
+    ``done/total`` and their ETA is the step's own, from the time since its ``done = 0`` (a line at most every
+    10 % of the step, the heartbeat between)."""
+
+    def __init__(self, prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S, eta=True):
+        self.prefix, self.every_s, self.heartbeat_s, self.eta = prefix, every_s, heartbeat_s, eta
         self._lock = threading.Lock()
         self._t0 = time.perf_counter()
         self._next, self._last = 0.0, time.perf_counter()
         self._fraction, self._message = 0.0, "starting"
+        self._part = None  # (done, total, the step's start time, its next 10 % to print)
         self._stop = threading.Event()
         self._thread = None
         if heartbeat_s:
@@ -124,18 +129,48 @@ class ProgressPrinter:
 
     def _line(self, now) -> str:
         elapsed = now - self._t0
+        if self._part is not None:
+            done, total, t_part, _ = self._part
+            eta = format_eta(now - t_part, done / total if total else 1.0)
+            return f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} {done}/{total} ({elapsed:.2f} s, {eta})"
+        if not self.eta:  # (the messages carry their own: the sweep's, from its tasks' times)
+            return f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} ({elapsed:.2f} s)"
         return (f"{self.prefix}{100 * self._fraction:5.1f}% {self._message} "
                 f"({elapsed:.2f} s, {format_eta(elapsed, self._fraction)})")
 
-    def __call__(self, fraction, message=""):
+    def __call__(self, fraction, message="", part=None):
         with self._lock:
             now = time.perf_counter()
             self._fraction, self._message = float(fraction), str(message)
+            if part is not None:
+                done, total = int(part[0]), int(part[1])
+                if self._part is None or done == 0:
+                    self._part = (done, total, now, 0.0)
+                f = done / total if total else 1.0
+                self._part = (done, total, self._part[2], self._part[3])
+                if f + 1e-9 >= self._part[3]:
+                    emit(self._line(now))
+                    self._part = (done, total, self._part[2], min(1.0, f + 0.1) if f < 1.0 else 2.0)
+                    self._last = now
+                return
+            self._part = None
             if (fraction + 1e-9 >= self._next or fraction >= 1.0
                     or (self.every_s is not None and now - self._last >= self.every_s)):
                 emit(self._line(now))
                 self._next = min(1.0, max(self._next, fraction + 0.1))
                 self._last = now
+
+    def set(self, fraction, message="") -> None:
+        """The state the heartbeat repeats (nothing printed now): ``fraction`` done, ``message`` what runs."""
+        with self._lock:
+            self._fraction, self._message = float(fraction), str(message)
+
+    def say(self, text: str) -> None:
+        """Print ``text`` as it is (a line of its own, e.g. a finished step); the heartbeat waits
+        ``heartbeat_s`` from now."""
+        with self._lock:
+            emit(text)
+            self._last = time.perf_counter()
 
     def _beat(self):
         while not self._stop.wait(min(0.25, self.heartbeat_s)):
@@ -158,9 +193,10 @@ class ProgressPrinter:
         return False
 
 
-def progress_printer(prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S) -> ProgressPrinter:
-    """A :class:`ProgressPrinter` (close it when the run is over: it has a heartbeat thread)."""
-    return ProgressPrinter(prefix, every_s, heartbeat_s)
+def progress_printer(prefix="ladar: ", every_s=None, heartbeat_s=HEARTBEAT_S, eta=True) -> ProgressPrinter:
+    """A :class:`ProgressPrinter` (close it when the run is over: it has a heartbeat thread); ``eta=False`` when
+    the messages carry their own ETA."""
+    return ProgressPrinter(prefix, every_s, heartbeat_s, eta)
 
 
 def log(message):

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.silence import timed_run
+
 REPO = Path(__file__).resolve().parents[1]
 MAPPING = REPO / "docs" / "commands.toml"
 FENCE = re.compile(r"^```([\w-]*)[^\n]*\n(.*?)^```", re.S | re.M)
@@ -214,15 +216,18 @@ def quick_sweep_file(source: Path, dest: Path) -> dict:
 def test_readme_sweep_example_runs_quick(tmp_path, git_before):
     """``scripts/ladar_run.py sample_blends/flash_demo.blend sweep docs/examples/range_visibility.toml --out …``
     with one seed and two points (the first axis's ends, the last value of the others), on one worker; then
-    ``scripts/sweep_plots.py DIR`` draws the plots again from its table."""
+    ``scripts/sweep_plots.py DIR`` draws the plots again from its table.  Never silent for more than 2 s."""
     quick = tmp_path / "range_visibility_quick.toml"
     spec = quick_sweep_file(REPO / "docs" / "examples" / "range_visibility.toml", quick)
     assert spec["seeds"] == 1
     out_dir = tmp_path / "rv"
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"), "sample_blends/flash_demo.blend",
-                           "sweep", str(quick), "--out", str(out_dir), "--workers", "1"], cwd=REPO,
-                          capture_output=True, text=True, timeout=600)
+    proc = timed_run([sys.executable, str(REPO / "scripts" / "ladar_run.py"), "sample_blends/flash_demo.blend",
+                      "sweep", str(quick), "--out", str(out_dir), "--workers", "1"], cwd=REPO, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert not proc.silences(), proc.silences()  # from the process's start to its exit (issue 27)
+    progress = [t for _, t in proc.lines if t.startswith("ladar: sweep ") and "%" in t]
+    assert all(t.count("ETA") <= 1 for t in progress), progress  # one ETA a line: the sweep's, from its tasks
+    assert any(re.search(r"2/2 tasks; plots \d+/\d+ \(", t) for t in progress), progress  # the plots count
     with open(out_dir / "results.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 2 and all(r["status"] == "done" for r in rows), rows

@@ -30,19 +30,23 @@ def item_blocks(n_items: int, per_block: int) -> list[tuple[int, int]]:
     return [(a, min(a + per_block, n_items)) for a in range(0, n_items, per_block)]
 
 
-def balanced_block_size(per_block: int, n_items: int, threads: int, min_items: int) -> int:
+def balanced_block_size(per_block: int, n_items: int, threads: int, min_items: int, *,
+                        split_one_thread: bool = False) -> int:
     """With several threads, at least ``BLOCKS_PER_THREAD`` blocks each when the frame allows (blocks of
     ≥ ``min_items``): blocks differ in cost (sky, near ground), so a few big ones leave a thread idle
     (bench_scaling: 2 threads 1.0× → 1.6× with 4 a thread; bench_flash's 8 blocks of 2048 px ranged 4-44 ms, the
-    costly ones last: 8 a thread cut the frame ≈ 8 %)."""
-    if threads > 1:
+    costly ones last: 8 a thread cut the frame ≈ 8 %).  ``split_one_thread``: on one thread too (progress and an
+    ETA come from finished blocks: a frame of one block says nothing until it is done)."""
+    if threads > 1 or split_one_thread:
         per_block = min(per_block, max(-(-n_items // (BLOCKS_PER_THREAD * threads)), min_items))
     return per_block
 
 
-def run_blocks(process, blocks, threads: int, progress=None, label: str = "block", cancel=None) -> list:
+def run_blocks(process, blocks, threads: int, progress=None, label: str = "block", cancel=None,
+               each=None) -> list:
     """``process(block)`` for every block on ``threads`` threads of the shared pool (core/threads.py; results in
-    block order).
+    block order).  ``each(result)``, when given, is called on every result in block order as it arrives and
+    its return value is kept instead (a frame-wide sum folded in block order, the block's arrays dropped).
 
     ``progress(fraction, text)`` before the first block (fraction 0: it loads or compiles the kernels) and after
     each block; ``cancel()`` is asked before each block starts and a true answer raises
@@ -56,7 +60,7 @@ def run_blocks(process, blocks, threads: int, progress=None, label: str = "block
     if progress is not None and blocks:  # the first block loads the kernels (or compiles them: 15-40 s the first time)
         progress(0.0, "first block: kernels load from the cache, or compile on first use")
     for i, res in enumerate(imap(guarded, blocks, threads)):
-        results.append(res)
+        results.append(res if each is None else each(res))
         if progress is not None:
             progress((i + 1) / len(blocks), f"{label} {i + 1}/{len(blocks)}")
     return results

@@ -7,7 +7,8 @@ n_bins · bin_width_s)`` for the flash ladar, the profiler and the scanner, and 
 ``[first_delay_s, first_delay_s + (n_slices − 1) · delay_step_s + gate_width_s)`` for gated viewing.
 
 Each block of a frame adds its hits with :func:`gate_tally` (counts, energies, the smallest and largest hit
-range); :func:`coverage_record` turns the frame's sum into the ``gate_coverage`` record of the run's statistics
+range), or into an :class:`OrderedTally` (the same sums whatever the blocks); :func:`coverage_record` turns the
+frame's sum into the ``gate_coverage`` record of the run's statistics
 (metadata.json) with a ``warning`` when less than :data:`COVERAGE_WARN_FRACTION` of the hit energy is inside the
 gate: naming the gate, the ranges of the hits and the settings that would cover them.
 """
@@ -55,6 +56,28 @@ def gate_tally(range_m, energy_j, window_s) -> np.ndarray:
     out[3:6] = np.bincount(where, weights=e, minlength=3)
     out[6], out[7] = r.min(), r.max()
     return out
+
+
+class OrderedTally:
+    """A frame's tally folded block by block, in block order: bit for bit :func:`gate_tally` of all the frame's
+    hits at once (``np.add.at`` adds the energies one by one in element order, as ``np.bincount`` does; adding
+    blocks' sums would group them by block), so the record does not depend on how the frame is cut into
+    blocks or on the thread count.  Call :meth:`add` with each block's hits in block order."""
+
+    def __init__(self, window_s):
+        self.window_s = window_s
+        self.tally = empty_tally()
+
+    def add(self, range_m, energy_j) -> None:
+        r = np.asarray(range_m, dtype=np.float64)
+        if r.size == 0:
+            return
+        e = np.broadcast_to(np.asarray(energy_j, dtype=np.float64), r.shape)
+        t = 2.0 * r / SPEED_OF_LIGHT_M_S
+        where = np.where(t < self.window_s[0], 0, np.where(t >= self.window_s[1], 2, 1))
+        self.tally[0:3] += np.bincount(where, minlength=3)  # (counts: integers, exact in any grouping)
+        np.add.at(self.tally[3:6], where, e)
+        self.tally[6], self.tally[7] = min(self.tally[6], r.min()), max(self.tally[7], r.max())
 
 
 def add_tallies(tallies) -> np.ndarray:

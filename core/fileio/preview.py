@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..physics.brdf import evaluate_brdf
 from .staging import write_file_atomically
-from .run_folder import read_exr
+from .run_folder import DISPLAY_PREFIXES, display_prefix, read_exr
 
 #: What each image product shows: (title, colour map, logarithmic colour scale).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
@@ -227,13 +228,31 @@ def bin_centres_range_m(gate_start_s: float, bin_width_s: float, n_bins: int) ->
     return 0.5 * SPEED_OF_LIGHT_M_S * t
 
 
+def prefixed_energy(values, label: str):
+    """``values`` in joules and their axis ``label`` ("energy per bin (J)", "energy (J per bin)") on the SI prefix
+    that puts the largest magnitude in [1, 1000): (values / 10^k, "energy per bin (fJ)").  A label without a
+    unit in J, or values without a finite non-zero one, come back as they are (a linear axis of 2e-15 J showed
+    "1e-15" over ticks 0.25 … 2.00, issue 27)."""
+    values = np.asarray(values, dtype=np.float64)
+    m = re.search(r"\(J\b", label)
+    finite = np.abs(values[np.isfinite(values)])
+    if m is None or not finite.size or finite.max() == 0.0:
+        return values, label
+    k = display_prefix(finite.max())
+    if k == 0:
+        return values, label
+    return values / float(f"1e{k}"), label[:m.start()] + f"({DISPLAY_PREFIXES[k]}J" + label[m.end():]
+
+
 def waveform_figure(range_m, values, *, title: str = "", ylabel: str = "energy per bin (J)", markers_m=()):
     """A line plot of one waveform against range, the detected echoes (``markers_m``) as dashed lines with
-    their ranges in the legend."""
+    their ranges in the legend.  Energies in J are drawn on the SI prefix that suits them
+    (:func:`prefixed_energy`)."""
     range_m = np.asarray(range_m, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if range_m.shape != values.shape or values.ndim != 1 or len(values) == 0:
         raise ValueError(f"range_m {range_m.shape} and values {values.shape} must be equal 1-D shapes")
+    values, ylabel = prefixed_energy(values, ylabel)
     fig = new_figure(6.4, 3.6)
     ax = fig.add_subplot()
     ax.plot(range_m, values, lw=1.0, color="#1f5fa8", label="waveform")
@@ -355,7 +374,7 @@ def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = Fals
 # ----------------------------------------------------------------------------------------------------------
 # A run folder's previews
 # ----------------------------------------------------------------------------------------------------------
-def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
+def write_run_previews(run_dir, *, cancel=None, progress=None) -> list[Path]:
     """The previews of a run folder, beside its products (files that exist are left alone):
 
     * ``range.png``, ``intensity.png``, ``energy.png`` beside the EXRs of an image of more than one pixel;
@@ -364,14 +383,27 @@ def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
     * ``points.png`` for the scanner (:func:`scan_figure`);
     * ``waveform.png`` for the range profiler: its one waveform with the detected echoes marked.
 
-    Call it on a run folder that is still being assembled.  ``cancel()`` true stops between files.  Returns the
-    written paths."""
+    Call it on a run folder that is still being assembled.  ``cancel()`` true stops between files;
+    ``progress(done, total)`` is called before the first file and after each (the previews that may be drawn:
+    a gated run's 30 slices take seconds).  Returns the written paths."""
 
     run_dir = Path(run_dir)
     written = []
     meta = run_metadata(run_dir)
     units = dict(meta.get("units", {}))
     settings = meta.get("settings")
+    slices = sorted((run_dir / "slices").glob("slice_*.exr")) if (run_dir / "slices").is_dir() else []
+    total = (sum((run_dir / f"{p}.exr").is_file() for p in ("range", "intensity", "energy")) + len(slices)
+             + (run_dir / "pulses.npz").is_file() + (run_dir / "waveforms.npy").is_file())
+    done = [0]
+
+    def step():
+        done[0] = min(total, done[0] + 1)
+        if progress is not None:
+            progress(done[0], total)
+
+    if progress is not None:
+        progress(0, total)
 
     def stop():
         return cancel is not None and cancel()
@@ -379,18 +411,22 @@ def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
     for product in ("range", "intensity", "energy"):
         exr = run_dir / f"{product}.exr"
         png = exr.with_suffix(".png")
-        if not exr.is_file() or png.exists() or stop():
+        if not exr.is_file():
+            continue
+        if png.exists() or stop():
+            step()
             continue
         image = _first_channel(read_exr(exr))
         if image.size <= 1:  # the profiler's one pixel: its waveform plot is the preview
+            step()
             continue
         title, cmap, log = PRODUCTS[product]
         no_data = "no return" if product == "energy" else "no echo"
         written.append(false_colour_png(png, image, title=title, unit=units.get(product, ""), cmap=cmap,
                                         log=log, settings=settings, no_data=no_data))
-    slices = sorted((run_dir / "slices").glob("slice_*.exr")) if (run_dir / "slices").is_dir() else []
+        step()
     if slices and not stop():
-        written += _slice_previews(run_dir, slices, meta, units.get("slices", ""), stop)
+        written += _slice_previews(run_dir, slices, meta, units.get("slices", ""), stop, step)
     if (run_dir / "pulses.npz").is_file() and (run_dir / "points.npz").is_file() and not stop():
         png = run_dir / "points.png"
         if not png.exists():
@@ -399,6 +435,8 @@ def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
             if len(points.get("position_world", ())):
                 pose = (meta.get("sensor_pose") or {}).get("world_from_sensor", np.eye(4))
                 written.append(save_figure(scan_figure(points, pose), png))
+    if (run_dir / "pulses.npz").is_file():
+        step()
     wf_path = run_dir / "waveforms.npy"
     png = run_dir / "waveform.png"
     if wf_path.is_file() and not png.exists() and not stop():
@@ -413,10 +451,12 @@ def write_run_previews(run_dir, *, cancel=None) -> list[Path]:
             written.append(waveform_png(png, rng, np.asarray(cube[0, 0]), title="Range profile",
                                         ylabel=f"energy ({units.get('waveforms', 'J per bin')})",
                                         markers_m=echoes))
+    if wf_path.is_file():
+        step()
     return written
 
 
-def _slice_previews(run_dir, slice_files, meta, unit, stop) -> list[Path]:
+def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None) -> list[Path]:
     """One figure redrawn per slice (fast: the colour bar and axes are laid out once)."""
     stack = _slice_stack(run_dir, slice_files)
     vmin, vmax = slice_scale(stack)
@@ -431,6 +471,7 @@ def _slice_previews(run_dir, slice_files, meta, unit, stop) -> list[Path]:
     for k, exr in enumerate(slice_files):
         png = exr.with_suffix(".png")
         if png.exists() or stop():
+            step()
             continue
         name = f"{title} {k + 1}/{len(slice_files)}"
         if delays is not None and k < len(delays):
@@ -438,6 +479,7 @@ def _slice_previews(run_dir, slice_files, meta, unit, stop) -> list[Path]:
         written.append(false_colour_png(png, stack[k], title=name, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
                                         log=True, settings=meta.get("settings"), reuse=reuse,
                                         no_data="no signal"))
+        step()
     return written
 
 

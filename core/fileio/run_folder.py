@@ -314,6 +314,27 @@ def json_default(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
+#: SI prefixes of energies as people read them (µ for micro; the PLY header's ASCII ones: :data:`_SI_PREFIXES`).
+DISPLAY_PREFIXES = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}
+
+
+def display_prefix(magnitude: float) -> int:
+    """The power of ten (a multiple of 3 in [-24, 0]) that puts ``magnitude`` (> 0) in [1, 1000)."""
+    return min(0, max(min(DISPLAY_PREFIXES), 3 * math.floor(math.log10(magnitude) / 3)))
+
+
+def format_energy_j(joules: float) -> str:
+    """An energy on the SI prefix that puts it in [1, 1000): "667.7 fJ", "1.094 pJ", "49.19 nJ", "0 J" (issue 27:
+    "6.677e-13 J" is not a unit a person reads)."""
+    j = float(joules)
+    if j == 0.0 or not math.isfinite(j):
+        return f"{j:g} J"
+    k = display_prefix(abs(j))
+    if k < 0 and abs(float(f"{j / float(f'1e{k}'):.4g}")) >= 1000.0:  # 999.96 fJ rounds to 1 pJ, not "1000 fJ"
+        k += 3
+    return f"{j / float(f'1e{k}'):.4g} {DISPLAY_PREFIXES[k]}J"
+
+
 def run_summary(run_path, result) -> str:
     """A few lines a person reads after a run: what was seen (points, false alarms, SNR), how much of what the
     rays hit the range gate covers (with a warning below 90 %), what ran, what was skipped, where it went."""
@@ -359,8 +380,8 @@ def run_summary(run_path, result) -> str:
             part.append(f"false alarms {snr[fa != 0].min():.3g} – {snr[fa != 0].max():.3g}")
         lines.append("snr      " + "; ".join(part))
     cov = st.get("gate_coverage")
-    lines.append(f"energy   {st['received_energy_j']:.4g} J at the aperture from every hit sub-ray (before the range "
-                 "gate and time binning)")
+    lines.append(f"energy   {format_energy_j(st['received_energy_j'])} at the aperture from every hit sub-ray "
+                 "(before the range gate and time binning)")
     if cov and cov.get("hit_subrays"):
         ef, sf = cov["energy_fraction"], cov["subray_fraction"]
         g0, g1 = cov["gate_range_m"]

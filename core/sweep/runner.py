@@ -288,10 +288,11 @@ def figure_statistics(rows: list, axis: str, figure: str, other_axes: list) -> l
     return out
 
 
-def write_plots(folder: Path, rows: list, axis_names: list, axis_values: dict) -> list:
-    """``plots/<figure>_vs_<axis>.png`` for every figure defined somewhere and every numeric axis."""
+def write_plots(folder: Path, rows: list, axis_names: list, axis_values: dict, progress=None) -> list:
+    """``plots/<figure>_vs_<axis>.png`` for every figure defined somewhere and every numeric axis.
+    ``progress(done, total)`` before the first plot and after each (24 plots take seconds)."""
     folder.mkdir(exist_ok=True)
-    written = []
+    todo = []
     for axis in axis_names:
         values = axis_values[axis]
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
@@ -301,11 +302,16 @@ def write_plots(folder: Path, rows: list, axis_names: list, axis_values: dict) -
         others = [a for a in axis_names if a != axis]
         for figure in FIGURES:
             series = figure_statistics(rows, axis, figure, others)
-            if not series:
-                continue
-            path = folder / f"{figure}_vs_{axis.replace('.', '_')}.png"
-            sweep_plot_png(path, series, xlabel=axis, ylabel=figure, log_x=log_x, overwrite=True)
-            written.append(path)
+            if series:
+                todo.append((folder / f"{figure}_vs_{axis.replace('.', '_')}.png", series, axis, figure, log_x))
+    written = []
+    if progress is not None:
+        progress(0, len(todo))
+    for path, series, axis, figure, log_x in todo:
+        sweep_plot_png(path, series, xlabel=axis, ylabel=figure, log_x=log_x, overwrite=True)
+        written.append(path)
+        if progress is not None:
+            progress(len(written), len(todo))
     return written
 
 
@@ -525,8 +531,10 @@ def run_sweep(sweep, scene: SweepScene, out_dir, *, base: SimulationConfig | Non
     outcome.n_run = len(results) - n_before
     outcome.n_resumed = n_before
     if plots:
-        outcome.plots = write_plots(out / "plots", outcome.rows, spec.axis_names,
-                                    {a.name: a.values for a in spec.axes})
+        outcome.plots = write_plots(
+            out / "plots", outcome.rows, spec.axis_names, {a.name: a.values for a in spec.axes},
+            progress=None if progress is None else (
+                lambda done, total: progress(1.0, f"{n_total}/{n_total} tasks; plots {done}/{total}")))
     outcome.wall_time_s = time.perf_counter() - t0
     return outcome
 

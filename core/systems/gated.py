@@ -41,8 +41,8 @@ from scipy.special import ndtri
 from ..config.settings import LaserSettings, SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import blur_cube_and_image, prepare_frame_atmosphere, turbulence_switches
-from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
-from ..engine.blocks import item_blocks, run_blocks, worker_threads
+from ..engine.coverage import OrderedTally, coverage_record, gate_window_s
+from ..engine.blocks import balanced_block_size, item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import GATE_MAX_TERMS, check_memory, estimate_gated_memory, held_bytes
 from ..engine.products import points_along_rays, reference_range_m
@@ -313,13 +313,19 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     hits_of_blocks = {}
 
     s2 = det.rays_per_pixel
-    per_block = max(1, config.run.chunk_rays // s2)
+    threads = worker_threads(config.run.threads)
+    # at least 8 blocks a thread (of ≥ 8192 rays) when the frame allows, on one thread too: the blocks share the
+    # threads and give the progress its steps (a frame of one block showed no ETA until it was done).  Every
+    # product is the same for any cut: a pixel's slices and energies come from its own rays, the gate coverage
+    # is folded in block order (OrderedTally)
+    per_block = balanced_block_size(max(1, config.run.chunk_rays // s2), det.n_pixels, threads, -(-8192 // s2),
+                                    split_one_thread=True)
     blocks = item_blocks(det.n_pixels, per_block)
     slices = np.zeros((n_sl, det.n_pixels))
     energy = np.zeros((len(atm_slices), det.n_pixels))
     support = pulse_half_support_s(laser) + 0.5 * g.shutter_edge_s
     window = gate_window_s(config)
-    tallies = {}  # block start → its hits against the slice sweep (engine/coverage.py)
+    tally = OrderedTally(window)  # the hits against the slice sweep (engine/coverage.py), in block order
 
     def process(block):
         a, b = block
@@ -373,7 +379,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                 e = e * atm_slices[j].scintillation_at(xt, yt, sx, sy)
             energy[j, a:b] = np.bincount(pix, weights=e, minlength=b - a)
             per_slice.append(e)
-        tallies[a] = gate_tally(range_m[hit], per_slice[0], window)
+        hits_e = (range_m[hit], per_slice[0])  # (folded into the tally in block order)
         local["radiometry"] = stage_clock() - t
         t = stage_clock()
         t_rt = round_trip_time_s(range_m[hit])
@@ -403,10 +409,14 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                 out += np.bincount(flat[ok], weights=w_e[ok], minlength=n_sl * (b - a)).reshape(n_sl, b - a)
         slices[:, a:b] = out
         local["gating"] = stage_clock() - t
-        return int(hit.sum()), local
+        return int(hit.sum()), local, hits_e
 
-    threads = worker_threads(config.run.threads)
-    results = run_blocks(process, blocks, threads, progress, cancel=cancel)
+    def fold(result):
+        n, local, hits_e = result
+        tally.add(*hits_e)
+        return n, local
+
+    results = run_blocks(process, blocks, threads, progress, cancel=cancel, each=fold)
     n_hits = sum(r[0] for r in results)
     for _, local in results:
         log.add_times(local)
@@ -470,7 +480,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(energy_image.sum()),
              "stages_run": log.ran, "stages_skipped": log.skipped, "memory_estimate_bytes": memory["total"],
              "work_estimate_samples": memory["work"],
-             "gate_coverage": coverage_record(config, add_tallies(tallies[k] for k in sorted(tallies)))}
+             "gate_coverage": coverage_record(config, tally.tally)}
     if atm.metadata:
         stats["atmosphere"] = atm.metadata
         if per_slice_random:

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from core.config.settings import SimulationConfig
-from core.engine.coverage import COVERAGE_WARN_FRACTION, coverage_record, gate_tally, gate_window_s
+from core.engine.coverage import (COVERAGE_WARN_FRACTION, OrderedTally, add_tallies, coverage_record, gate_tally,
+                                  gate_window_s)
 from core.geometry.scene import SceneGeometry
 from core.run import simulate
 from tests.core.scenes import C, config_for, plate
@@ -28,6 +29,28 @@ def test_tally_counts_each_hit_by_its_round_trip_time_with_half_open_edges():
     assert t[:3].tolist() == [2, 3, 2]          # before: 50, 99.999; inside: 100, 150, 199.999; after: 200, 300
     assert t[3:6].tolist() == [3.0, 28.0, 96.0]
     assert (t[6], t[7]) == (50.0, 300.0)
+
+
+def test_ordered_tally_is_the_tally_of_all_hits_at_once_however_they_are_cut():
+    """Folded block by block in block order, the tally is bit for bit the tally of every hit at once (the
+    gated system's coverage record does not depend on the blocks or threads); summing blocks' tallies is not
+    (this data: it differs in the last bits, which is why the gated system folds)."""
+    rng = np.random.default_rng(7)
+    r = rng.uniform(80.0, 260.0, 50_000)
+    e = rng.random(50_000) ** 6 * 1e-12
+    window = (2 * 100.0 / C, 2 * 200.0 / C)
+    whole = gate_tally(r, e, window)
+    for cuts in ([0, 50_000], [0, 1, 777, 20_000, 50_000], list(range(0, 50_001, 911)) + [50_000]):
+        fold = OrderedTally(window)
+        for a, b in zip(cuts, cuts[1:]):
+            fold.add(r[a:b], e[a:b])
+        assert np.array_equal(fold.tally, whole), cuts
+    cuts = list(range(0, 50_001, 911)) + [50_000]
+    summed = add_tallies(gate_tally(r[a:b], e[a:b], window) for a, b in zip(cuts, cuts[1:]))
+    assert not np.array_equal(summed, whole)
+    empty = OrderedTally(window)
+    empty.add(np.zeros(0), np.zeros(0))
+    assert np.array_equal(empty.tally[:6], np.zeros(6)) and empty.tally[6] == np.inf
 
 
 def test_default_config_sees_a_plate_at_200_m():

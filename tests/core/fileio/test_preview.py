@@ -75,6 +75,27 @@ def test_waveform_plot_marks_the_detected_echoes(tmp_path):
         preview.waveform_png(tmp_path / "x.png", rng_m[:3], values)
 
 
+@pytest.mark.parametrize("peak, label, want_label, want_peak", [
+    (2e-15, "energy (J per bin)", "energy (fJ per bin)", 2.0),       # the aircraft profile's 2 fJ echo
+    (3.4e-13, "energy per bin (J)", "energy per bin (fJ)", 340.0),
+    (1e-6, "signal per slice (J)", "signal per slice (\u00b5J)", 1.0),
+    (0.5, "energy per bin (J)", "energy per bin (mJ)", 500.0),
+    (2.0, "energy per bin (J)", "energy per bin (J)", 2.0),           # ≥ 1 J: as it is
+    (2e-15, "counts per bin", "counts per bin", 2e-15)])              # not an energy: as it is
+def test_waveform_energy_axis_reads_on_an_si_prefix(peak, label, want_label, want_peak):
+    """The plot's energy axis in fJ/pJ/nJ/µJ/mJ, the largest value in [1, 1000): before, a 2 fJ profile was drawn
+    in J with matplotlib's '1e-15' above ticks 0.25 … 2.00."""
+    rng_m = preview.bin_centres_range_m(1e-6, 1e-9, 100)
+    values = peak * np.exp(-0.5 * ((np.arange(100) - 40) / 3.0) ** 2)
+    fig = preview.waveform_figure(rng_m, values, ylabel=label)
+    ax = fig.axes[0]
+    line = ax.get_lines()[0]
+    assert ax.get_ylabel() == want_label
+    assert max(line.get_ydata()) == pytest.approx(want_peak, rel=1e-12)
+    fig.canvas.draw()
+    assert ax.yaxis.get_offset_text().get_text() == ("" if want_label != "counts per bin" else "1e\u221215")
+
+
 def _gated_run(tmp_path):
     cfg = SimulationConfig(system_type="gated")
     cfg.receiver.width_px, cfg.receiver.height_px = 16, 8
@@ -93,9 +114,11 @@ def test_gated_slices_are_labelled_and_their_faint_edges_show(tmp_path):
     first and last slices, holding 0.002 and 0.077 of the peak, are drawn in visible colours — before, a linear scale
     shared with the peak slice drew them black."""
     path, res, cfg = _gated_run(tmp_path)
-    written = preview.write_run_previews(path)
+    steps = []
+    written = preview.write_run_previews(path, progress=lambda done, total: steps.append((done, total)))
     names = sorted(p.relative_to(path).as_posix() for p in written)
     assert names == ["energy.png", "intensity.png", "range.png"] + [f"slices/slice_{k:04d}.png" for k in range(1, 6)]
+    assert steps == [(k, 8) for k in range(9)]  # before the first file and after each (the run's ETA comes from it)
     peak = res.slices.max()
     vmin, vmax = preview.slice_scale(res.slices.astype(np.float64))
     positive = res.slices[res.slices > 0]

@@ -414,3 +414,12 @@ def test_a_run_folder_that_is_a_symbolic_link_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="not a symbolic link"):
         _run(link, overwrite=True)
     assert _names(tmp_path) == ["a", "r"] and (run / "metadata.json").is_file()
+
+
+@pytest.mark.parametrize("joules, text", [(6.677e-13, "667.7 fJ"), (1.094e-12, "1.094 pJ"), (4.919e-08, "49.19 nJ"),
+                                          (2e-7, "200 nJ"), (5e-5, "50 \u00b5J"), (0.1, "100 mJ"), (2.5, "2.5 J"),
+                                          (0.0, "0 J"), (9.99996e-13, "1 pJ"), (1e-30, "1e-06 yJ")])
+def test_summary_energies_read_on_an_si_prefix(joules, text):
+    """The summary's energy line (issue 27): before, "6.677e-13 J at the aperture"."""
+    from core.fileio.run_folder import format_energy_j
+    assert format_energy_j(joules) == text

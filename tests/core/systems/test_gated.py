@@ -169,6 +169,34 @@ def test_turbulence_is_drawn_per_slice():
     assert res.stats["atmosphere"]["per_slice_random"]
 
 
+def test_a_frame_is_cut_into_blocks_on_one_thread_too_and_the_cut_changes_nothing():
+    """A frame of 2,048 pixels × 9 sub-rays was one block (262,144 rays a block): its progress went from 0 to 100 %
+    with no step between, so no ETA.  Now 3 blocks on one thread (≥ 8,192 rays each) and 19 on two threads with
+    blocks of 1,024 rays: the progress steps through the blocks, and the slices, images, points and the gate
+    coverage record (hits before, inside and after the sweep) are bit-identical for both cuts."""
+    scene = staircase(r0=1000.0, depth_step=0.6, n=8)
+    runs, seen = [], []
+    for threads, chunk in ((1, 262_144), (2, 1024)):
+        cfg = gated_config(pixels=(64, 32), fov=(8e-3, 1.5e-3), n_slices=4, step_s=2e-9, width_s=4e-9, pulse_s=2e-9)
+        cfg.receiver.subsamples = 3
+        cfg.run.threads, cfg.run.chunk_rays = threads, chunk
+        steps = []
+        runs.append(simulate(scene, np.eye(4), cfg, progress=lambda f, text: steps.append((f, text))))
+        seen.append(steps)
+    one, two = runs
+    assert (one.stats["n_blocks"], two.stats["n_blocks"]) == (3, 19)
+    assert [f for f, _ in seen[0]] == [0.0, 1 / 3, 2 / 3, 1.0] and seen[0][1][1] == "block 1/3"
+    cov = one.stats["gate_coverage"]
+    assert 0.0 < cov["energy_fraction"]["inside"] < 1.0  # hits on both sides of the sweep: the sums are not trivial
+    assert cov == two.stats["gate_coverage"]
+    assert np.array_equal(one.slices, two.slices)
+    assert np.array_equal(one.energy_image, two.energy_image)
+    assert np.array_equal(one.range_image, two.range_image, equal_nan=True)
+    assert one.points.keys() == two.points.keys()
+    for k in one.points:
+        assert np.array_equal(one.points[k], two.points[k]), k
+
+
 def test_noisy_gated_viewing_still_ranges():
     cfg = gated_config()
     cfg.detector.mode = "noisy"
