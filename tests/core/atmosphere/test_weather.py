@@ -270,9 +270,10 @@ def test_validation_module_passes_and_plots(tmp_path):
 
 
 def test_too_many_drops_are_refused_naming_the_diameter_that_fits():
-    """A 12° flash field of view, gate 0–300 m, rain 25 mm/h, D ≥ 1 mm: ~1e9 drops would be drawn at once; the frame
-    is refused naming atmosphere.drop_min_diameter_mm and the diameter that brings it under the 2e6 limit (the
-    count falls as e^(−ΛD), Λ = 2.08 /mm)."""
+    """A 12° flash field of view of 8×8 px, gate 0–300 m, rain 25 mm/h, D ≥ 1 mm: ~1e9 drops are in the beams and
+    2.8e7 of them above the default detectability cut (0.01 photo-electrons; the pixels are large, so the near ones
+    all count); the frame is refused naming atmosphere.drop_min_diameter_mm and the diameter that brings the drawn
+    count under the 2e6 limit (bisection over the shells' counts n(D ≥ max(D_min, D_k)))."""
     cfg = _flash("rain", rain_rate_mm_h=25.0)
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(12.0)
     cfg.gate.n_bins = 2000
