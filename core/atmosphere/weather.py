@@ -369,6 +369,8 @@ DROP_SHADOW_CUT = 0.01
 #: cut sampled at this many ranges across it (the cut is then a piecewise constant: the split stays exact).
 CUT_SHELL_RATIO = 1.05
 CUT_SAMPLES = 9
+#: Points per shell of the tabulated optical depth of the particles (interpolated linearly between them).
+TAU_GRID = 64
 
 
 def _g_moment(k: int, lam: float, x):
@@ -445,29 +447,35 @@ class DropCut:
         return np.where(inside, drop_cross_section_per_m(self.n0, self.lam, self.d_min_mm, np.inf, self.omega_sr,
                                                          r), 0.0)
 
-    def _tau(self, sigma, range_m):
-        """∫_{r_lo}^{R} σ(r) dr: the shells' integrals (16-point Gauss–Legendre each, cumulated) plus the partial
-        one of R's shell."""
-        r = np.clip(np.asarray(range_m, np.float64), self.edges_m[0], self.edges_m[-1])
+    def _tau_table(self, sigma):
+        """(grid, ∫_{r_lo}^{grid} σ dr): :data:`TAU_GRID` points per shell, each interval integrated by 16-point
+        Gauss–Legendre and cumulated."""
         x, w = np.polynomial.legendre.leggauss(16)
         lo, hi = self.edges_m[:-1], self.edges_m[1:]
-        nodes = 0.5 * (lo + hi)[:, None] + 0.5 * (hi - lo)[:, None] * x[None, :]
-        full = 0.5 * (hi - lo) * (sigma(nodes) * w[None, :]).sum(axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(full)])
-        k = np.clip(np.searchsorted(self.edges_m, r, side="right") - 1, 0, len(lo) - 1)
-        a = self.edges_m[k]
-        flat = r.reshape(-1)
-        aa = a.reshape(-1)
-        qn = 0.5 * (aa + flat)[:, None] + 0.5 * (flat - aa)[:, None] * x[None, :]
-        part = 0.5 * (flat - aa) * (sigma(qn) * w[None, :]).sum(axis=1)
-        return cum[k] + part.reshape(r.shape)
+        t = np.linspace(0.0, 1.0, TAU_GRID + 1)[:-1]
+        grid = np.append((lo[:, None] + (hi - lo)[:, None] * t[None, :]).reshape(-1), self.edges_m[-1])
+        a, b = grid[:-1], grid[1:]
+        nodes = 0.5 * (a + b)[:, None] + 0.5 * (b - a)[:, None] * x[None, :]
+        part = 0.5 * (b - a) * (sigma(nodes) * w[None, :]).sum(axis=1)
+        return grid, np.concatenate([[0.0], np.cumsum(part)])
+
+    def _tau(self, which: str, range_m):
+        """∫_{r_lo}^{R} σ dr (σ_sub or σ_all): the table of :meth:`_tau_table` (computed once per cut), linearly
+        interpolated (error ≤ max|σ′| h²/8, h = a shell's width / TAU_GRID: ~1e-7 of τ for 5 % shells; exact where
+        σ is constant)."""
+        cache = self.__dict__.setdefault("_tau_cache", {})
+        if which not in cache:
+            cache[which] = self._tau_table(self.sigma_sub if which == "sub" else self.sigma_all)
+        grid, tau = cache[which]
+        r = np.clip(np.asarray(range_m, np.float64), self.edges_m[0], self.edges_m[-1])
+        return np.interp(r, grid, tau)
 
     def mean_shadow(self, range_m):
         """exp(−∫_{r_lo}^{R} σ_sub): the mean transmission through the undrawn particles nearer than R (for a
         Poisson process E[Π(1 − f_j)] = exp(−Σ E f)); 1 without a cut."""
         if self.is_trivial:
             return np.ones(np.shape(range_m))
-        return np.exp(-self._tau(self.sigma_sub, range_m))
+        return np.exp(-self._tau("sub", range_m))
 
     def beta_profile(self, range_m):
         """Backscatter (1/(m sr)) added to the volume at each range: (2/S) σ_sub(R) R²/(R² + r_a²) (W2 summed over
@@ -477,7 +485,7 @@ class DropCut:
         if not np.any(s > 0):
             return np.zeros(r.shape)
         return (2.0 / self.lidar_ratio_sr) * s * r * r / (r * r + self.aperture_r2) * np.exp(
-            -self._tau(self.sigma_all, r))
+            -self._tau("all", r))
 
 
 def drop_cut(weather: Weather, omega_sr: float, r_lo_m: float, r_hi_m: float, full_beam_pe, cut_pe: float,
