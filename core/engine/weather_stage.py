@@ -156,12 +156,14 @@ def check_drop_count(weather: Weather, expected: float, cut: DropCut | None = No
 def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, omega_sr: float,
                           tx_half_angle: float, rx_half_angle: float, pulse: int | None = None,
                           draw: bool = True, beams_at_once: int | None = None,
-                          max_beam_fraction: float = 1.0) -> FrameWeather | None:
+                          max_beam_fraction: float = 1.0, drop_range_m: tuple | None = None) -> FrameWeather | None:
     """The weather of one frame (of one pulse stream when ``pulse`` is given), None for weather = none; with
     ``draw`` the particles of all ``n_beams`` beams are drawn now (else per tile of ``beams_at_once`` beams:
     :meth:`FrameWeather.draw`).  ``max_beam_fraction``: the largest energy fraction of a beam (a flash pixel's
     share), which sets the detectability cut (:func:`~core.atmosphere.weather.drop_cut`; larger = more drops
-    drawn, never wrong).  Refuses (ConfigError) more than :data:`MAX_DROPS` particles at once."""
+    drawn, never wrong).  ``drop_range_m``: (near, far) of the particles (default: from
+    ``atmosphere.backscatter_min_range_m`` or the gate's start to the gate's end; gated viewing passes its slice
+    sweep's span).  Refuses (ConfigError) more than :data:`MAX_DROPS` particles at once."""
     atm, laser, gate = config.atmosphere, config.laser, config.gate
     w = weather_model(atm, laser.wavelength_m, aerosol_extinction_per_m(config))
     if w is None:
@@ -175,8 +177,10 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
     cut = None
     if w.has_drops:
         c2 = 0.5 * SPEED_OF_LIGHT_M_S
-        r_lo = max(atm.backscatter_min_range_m, c2 * gate.gate_start_s)
-        r_hi = max(r_lo, c2 * (gate.gate_start_s + gate.n_bins * gate.bin_width_s))
+        if drop_range_m is None:
+            drop_range_m = (c2 * gate.gate_start_s, c2 * (gate.gate_start_s + gate.n_bins * gate.bin_width_s))
+        r_lo = max(atm.backscatter_min_range_m, drop_range_m[0])
+        r_hi = max(r_lo, drop_range_m[1])
         # photo-electrons of a particle hiding the whole beam (W2 with f = 1) at the largest beam fraction
         pe_per_j = config.detector.quantum_efficiency * laser.wavelength_m / (H_PLANCK_J_S * SPEED_OF_LIGHT_M_S)
         k = scale * max_beam_fraction * (2.0 / w.lidar_ratio_sr) * pe_per_j

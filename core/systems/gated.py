@@ -289,9 +289,13 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     for stage, reason in weather_switches(config).items():
         log.skip(stage, reason)
     px_tan, py_tan = det.pixel_pitch_tan  # the drops are drawn once: frozen during the sweep (ms)
+    sweep_support = pulse_half_support_s(laser) + 0.5 * g.shutter_edge_s  # drops the slices can see
     wx = prepare_frame_weather(config, frame, det.n_pixels, px_tan * py_tan,
                                beam_half_angle_tan(laser, det) * atm.beam_width_scale, 0.5 * min(px_tan, py_tan),
-                               max_beam_fraction=max(max_pixel_fraction(det, fx, fy) for fx, fy in fractions))
+                               max_beam_fraction=max(max_pixel_fraction(det, fx, fy) for fx, fy in fractions),
+                               drop_range_m=(0.5 * SPEED_OF_LIGHT_M_S * max(0.0, float(delays.min()) - sweep_support),
+                                             0.5 * SPEED_OF_LIGHT_M_S * (float(delays.max()) + g.gate_width_s
+                                                                       + sweep_support)))
     vol_t = vol_table = None
     if wx is not None:
         vol_t, vol_table = gated_slab_table(
