@@ -223,11 +223,14 @@ def add_volume_rows(rows, template, beam_fraction, hit_beam, hit_time_s, hit_fra
     k = np.floor((np.asarray(hit_time_s) - gate.gate_start_s) / gate.bin_width_s)
     ok = k < nb
     kk = np.clip(k[ok], 0, nb - 1).astype(np.int64)
-    hidden = np.zeros((n, nb))
-    np.add.at(hidden, (np.asarray(hit_beam)[ok], kk), np.asarray(hit_fraction)[ok])
-    np.cumsum(hidden, axis=1, out=hidden)
-    vis = np.maximum(np.asarray(beam_fraction, np.float64)[:, None] - hidden, 0.0)
-    rows += (vis * template[None, :]).astype(rows.dtype)
+    # the hidden fraction per (beam, bin): one bincount (sums in input order, as np.add.at) and in-place passes
+    vis = np.bincount(np.asarray(hit_beam, np.int64)[ok] * nb + kk, weights=np.asarray(hit_fraction, np.float64)[ok],
+                      minlength=n * nb).reshape(n, nb)
+    np.cumsum(vis, axis=1, out=vis)
+    np.subtract(np.asarray(beam_fraction, np.float64)[:, None], vis, out=vis)
+    np.maximum(vis, 0.0, out=vis)
+    vis *= template[None, :]
+    rows += vis if rows.dtype == vis.dtype else vis.astype(rows.dtype)
 
 
 # ------------------------------------------------------------------------------------------------------------
