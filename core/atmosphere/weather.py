@@ -225,7 +225,7 @@ def add_volume_rows(rows, template, beam_fraction, hit_beam, hit_time_s, hit_fra
     kk = np.clip(k[ok], 0, nb - 1).astype(np.int64)
     # the hidden fraction per (beam, bin): one bincount (sums in input order, as np.add.at) and in-place passes
     vis = np.bincount(np.asarray(hit_beam, np.int64)[ok] * nb + kk, weights=np.asarray(hit_fraction, np.float64)[ok],
-                      minlength=n * nb).reshape(n, nb)
+                      minlength=n * nb).reshape(n, nb).astype(np.float64, copy=False)  # no hits: bincount gives int
     np.cumsum(vis, axis=1, out=vis)
     np.subtract(np.asarray(beam_fraction, np.float64)[:, None], vis, out=vis)
     np.maximum(vis, 0.0, out=vis)

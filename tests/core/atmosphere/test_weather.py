@@ -499,3 +499,21 @@ def test_scanner_cut_keeps_the_mean_waveform_of_the_brute_force_draw():
     assert len(b) == 3000
     z = (b.mean(0) - c.mean(0)) / np.sqrt(b.var(0, ddof=1) / len(b) + c.var(0, ddof=1) / len(c))
     assert stats.chi2.sf(np.sum(z ** 2), df=len(z)) > 1e-3, z
+
+
+def test_volume_rows_hidden_behind_surfaces_and_without_any_hit():
+    """add_volume_rows: beam 0 (F = 0.6) has sub-rays of 0.2 and 0.3 hitting surfaces in bins 2 and 4, beam 1
+    (F = 0.4) none: row 0 gets the template × (0.6, 0.6, 0.4, 0.4, 0.1, 0.1), row 1 × 0.4 everywhere; a block with
+    no hit at all gets F × the template (float32 rows as the flash cube, float64 as the scanner's)."""
+    from types import SimpleNamespace
+    from core.atmosphere.weather import add_volume_rows
+    gate = SimpleNamespace(gate_start_s=0.0, bin_width_s=1e-9)
+    tpl = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    for dtype in (np.float32, np.float64):
+        rows = np.zeros((2, 6), dtype)
+        add_volume_rows(rows, tpl, [0.6, 0.4], [0, 0], [2.5e-9, 4.5e-9], [0.2, 0.3], gate)
+        assert np.allclose(rows[0], tpl * [0.6, 0.6, 0.4, 0.4, 0.1, 0.1], rtol=1e-6, atol=0)
+        assert np.allclose(rows[1], tpl * 0.4, rtol=1e-6, atol=0)
+        rows = np.zeros((2, 6), dtype)
+        add_volume_rows(rows, tpl, [0.6, 0.4], np.zeros(0, np.int64), np.zeros(0), np.zeros(0), gate)
+        assert np.allclose(rows, np.outer([0.6, 0.4], tpl), rtol=1e-6, atol=0)
