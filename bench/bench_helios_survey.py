@@ -18,9 +18,11 @@ processes, on a 4096-pulse scan: with an empty kernel cache and with the cache f
 4.4 GB peak memory, 18 s scene load.  Writes ``helios_survey.json`` to ``--out DIR`` (default runs/bench/;
 ``--update-committed``: bench/results/helios_survey.json).  ``--quick``: a 0.02 s survey (10 000 pulses) over a
 101 × 101-vertex terrain, no first-call latency runs (seconds; the comparison with HELIOS++ is meaningless there).
+The survey again in fog (visibility 200 m) and in rain (25 mm/h) on 2 threads (issue 30; ``--no-weather`` skips):
+its time over the bare cast's and over the clear survey's, and the weather stage's thread-seconds over the floor's.
 
     .venv/bin/python bench/bench_helios_survey.py [--duration 3.0] [--grid 1000] [--repeat 1] [--no-first-call]
-        [--out DIR | --update-committed] [--quick]
+        [--no-weather] [--out DIR | --update-committed] [--quick]
 """
 from __future__ import annotations
 
@@ -98,10 +100,20 @@ def rss_bytes() -> int | None:
         return None
 
 
-def run_survey(scene, tracer, duration_s, threads):
+#: The survey in weather (issue 30): fog of 200 m visibility (volume backscatter), heavy rain (drops ≥ 1 mm above
+#: the default detectability cut, the smaller ones as volume).
+WEATHER = {"fog_200m": {"weather": "fog", "visibility_m": 200.0},
+           "rain_25mm_h": {"weather": "rain", "rain_rate_mm_h": 25.0}}
+
+
+def run_survey(scene, tracer, duration_s, threads, weather=None):
+    import dataclasses
+
     from core.systems.scanner import simulate_scan
 
     cfg, traj = survey(duration_s, threads)
+    if weather:
+        cfg.atmosphere = dataclasses.replace(cfg.atmosphere, **weather)
     t0 = time.perf_counter()
     res = simulate_scan(scene, np.eye(4), cfg, tracer=tracer, trajectory=traj)
     return time.perf_counter() - t0, res
@@ -168,6 +180,7 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", type=int, default=1000, help="terrain vertices per side")
     ap.add_argument("--repeat", type=int, default=1, help="survey runs per thread count (best taken)")
     ap.add_argument("--no-first-call", action="store_true", help="skip the fresh-process first-call latency")
+    ap.add_argument("--no-weather", action="store_true", help="skip the survey in fog and in rain (2 threads)")
     sys.path.insert(0, str(ROOT / "bench"))
     import floor
     from benchio import add_output_arguments, output_path, write_json
@@ -204,6 +217,17 @@ def main(argv=None) -> int:
         runs[threads] = (best, stats)
     peak = peak_rss_bytes()
     memory["after_surveys"] = (rss_bytes(), peak)
+    weather_runs = {}
+    if not args.no_weather:  # after the peak is read: the clear surveys' memory figures stay comparable
+        for name, atm in WEATHER.items():
+            run_survey(scene, tracer, 0.01, 2, atm)  # warm-up of the weather code paths
+            best, stats = np.inf, None
+            for _ in range(args.repeat):
+                s, res = run_survey(scene, tracer, args.duration, 2, atm)
+                if s < best:
+                    best, stats = s, res.stats
+                del res
+            weather_runs[name] = (best, stats)
     res1 = runs[1][1]
     n_pulses = res1["n_pulses"]
     floors = bare_cast(tracer, args.duration, res1["pulses_per_block"], (1, 2))
@@ -236,6 +260,15 @@ def main(argv=None) -> int:
         "memory_bytes (rss now, peak so far) at stage boundaries": memory,
         "stage_times_s (1 thread)": runs[1][1]["stage_times_s"],
         "stage_times_s (2 threads, summed over threads)": runs[2][1]["stage_times_s"],
+        "weather (2 threads)": {
+            name: {"pipeline_s": w[0], "ratio_pipeline_to_bare_cast": w[0] / bare[2],
+                   "ratio_to_clear_survey": w[0] / runs[2][0],
+                   "weather_stage_thread_s": w[1]["stage_times_s"].get("weather", 0.0),
+                   "ratio_weather_stage_to_floor": w[1]["stage_times_s"].get("weather", 0.0) / floors[2]["thread_s"],
+                   "n_points": w[1]["n_points"],
+                   "atmosphere_echoes": w[1].get("weather", {}).get("n_atmosphere_echoes", 0),
+                   "drops_expected": w[1].get("weather", {}).get("drops", {}).get("expected", 0),
+                   "stage_times_s": w[1]["stage_times_s"]} for name, w in weather_runs.items()},
         "first_call_latency": first,
         "helios_reference": HELIOS,
         "vs_helios": {"pulses_per_s_2_threads": pps[2] / HELIOS["pulses_per_s_2_threads"],

@@ -327,6 +327,14 @@ class AtmosphereSettings:
                                           doc="Rain/snow: particles at least this large are drawn one by one as "
                                               "discrete returns; smaller ones add to the volume backscatter",
                                           label="Smallest Discrete Drop")
+    drop_cut_photoelectrons: float = setting(0.01, lo=0.0, hi=1e6, unit="e-",
+                                             doc="Rain/snow detectability cut: a drop whose return would give fewer "
+                                                 "mean photo-electrons than this (at the frame's largest beam "
+                                                 "fraction) and that hides < 1 % of its beam is not drawn one by "
+                                                 "one: its mean return joins the volume backscatter and its mean "
+                                                 "shadow the extinction (docs/theory.md §14); 0 = draw every drop "
+                                                 "≥ drop_min_diameter_mm",
+                                             label="Drop Detectability Cut")
 
 
 @dataclass

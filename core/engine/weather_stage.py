@@ -15,15 +15,16 @@ With ``atmosphere.weather = none`` the planner skips both (:func:`weather_switch
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..atmosphere.weather import (Drops, Overlap, Weather, atmosphere_echo_mask, draw_drops, drop_returns,
-                                  expected_drop_count, shadow_factors, visible_drops, weather_model)
+from ..atmosphere.weather import (DropCut, Drops, Overlap, Weather, atmosphere_echo_mask, draw_drops, drop_cut,
+                                  drop_returns, shadow_factors, visible_drops, weather_model)
 from ..config.settings import SimulationConfig
-from ..constants import SPEED_OF_LIGHT_M_S
+from ..constants import H_PLANCK_J_S, SPEED_OF_LIGHT_M_S
 from ..errors import ConfigError
 from ..physics.propagation import aerosol_extinction_per_m, effective_extinction_per_m
 from ..physics.radiometry import aperture_r2, energy_scale
@@ -64,6 +65,7 @@ class FrameWeather:
     omega_sr: float                # solid angle of one beam
     drop_range_m: tuple = (0.0, 0.0)
     drops: Drops | None = None
+    cut: DropCut | None = None     # the detectability cut of the particles (None without particles)
     metadata: dict = field(default_factory=dict)
 
     def draw(self, config: SimulationConfig, frame: int, n_beams: int, stream: int | None = None) -> Drops | None:
@@ -72,7 +74,23 @@ class FrameWeather:
         if not self.weather.has_drops:
             return None
         return draw_drops(stage_rng(config.run.seed, frame, "weather_drops", stream), self.weather, n_beams,
-                          self.omega_sr, *self.drop_range_m)
+                          self.omega_sr, *self.drop_range_m, cut=self.cut)
+
+    @property
+    def beta_profile(self):
+        """The undrawn particles' backscatter profile β(R) added to the volume (None without a cut)."""
+        return None if self.cut is None or self.cut.is_trivial else self.cut.beta_profile
+
+    @property
+    def profile_breaks_m(self):
+        """Where :attr:`beta_profile` jumps (the cut's shell edges), None without a profile."""
+        return None if self.beta_profile is None else self.cut.edges_m
+
+    def mean_shadow(self, range_m):
+        """The mean transmission through the undrawn particles nearer than each range (ones without a cut)."""
+        if self.cut is None:
+            return np.ones(np.shape(range_m))
+        return self.cut.mean_shadow(range_m)
 
     def drops_of(self, a: int, b: int) -> Drops | None:
         """The drops of beams [a, b), beam indices local to the block."""
@@ -89,35 +107,63 @@ class FrameWeather:
                       hit_range_m):
         """For a block's drops: (beam, range, energy) of the visible ones, and the shadow factor of each surface
         hit (``hit_beam``, ``hit_range_m``; ones without drops).  ``ray_*``: every sub-ray of the block sorted by
-        beam, a missed ray with range inf; ``beam_fraction``: the energy fraction of each beam."""
+        beam, a missed ray with range inf; ``beam_fraction``: the energy fraction of each beam.  Both carry the
+        mean shadow of the undrawn particles nearer than them (:meth:`mean_shadow`)."""
+        hit_shadow = self.mean_shadow(np.asarray(hit_range_m, np.float64))
         if drops is None:
-            return None, np.ones(len(hit_beam))
+            return None, hit_shadow
         vis = drops.take(visible_drops(drops, ray_beam, ray_weight, ray_range_m))
         e, f = drop_returns(vis, beam_fraction, self.omega_sr, self.scale_jm2, self.aperture_r2, self.alpha_per_m,
                             self.weather.lidar_ratio_sr, self.overlap)
-        e = e * shadow_factors(vis, f, vis.beam, vis.range_m)
-        return (vis.beam, vis.range_m, e), shadow_factors(vis, f, hit_beam, hit_range_m)
+        e = e * shadow_factors(vis, f, vis.beam, vis.range_m) * self.mean_shadow(vis.range_m)
+        return (vis.beam, vis.range_m, e), shadow_factors(vis, f, hit_beam, hit_range_m) * hit_shadow
 
 
-def check_drop_count(weather: Weather, expected: float) -> None:
+def max_pixel_fraction(det, fx, fy) -> float:
+    """The largest share of the pulse energy in one pixel, from the per-axis sub-cell fractions (fx (W·S,),
+    fy (H·S,): core.physics.laser.cell_energy_fractions)."""
+    s = det.subsamples
+    return float(np.asarray(fx).reshape(det.width_px, s).sum(axis=1).max()
+                 * np.asarray(fy).reshape(det.height_px, s).sum(axis=1).max())
+
+
+def check_drop_count(weather: Weather, expected: float, cut: DropCut | None = None, n_beams: int = 1) -> None:
     """ConfigError when ``expected`` particles would be held at once (:data:`MAX_DROPS`): the message names
-    atmosphere.drop_min_diameter_mm, the count, and the smallest diameter that fits (N(D ≥ D) ∝ e^(−ΛD))."""
+    atmosphere.drop_min_diameter_mm, the count, and the smallest diameter that fits: N(D ≥ D) ∝ e^(−ΛD) when
+    every particle ≥ D_min is drawn; with a detectability ``cut`` (of ``n_beams`` beams at once), the smallest
+    D_min for which the shells' counts n(D ≥ max(D_min, D_k)) sum to at most the limit (bisection)."""
     if expected <= MAX_DROPS:
         return
     need = weather.d_min_mm + math.log(expected / MAX_DROPS) / weather.lam
+    if cut is not None and not cut.is_trivial:
+        def count(d):
+            c = dataclasses.replace(cut, d_cut_mm=np.maximum(cut.d_cut_mm, d), d_min_mm=d)
+            return float(c.expected_per_beam().sum()) * n_beams
+        lo, hi, step = weather.d_min_mm, weather.d_min_mm, 1.0 / weather.lam
+        while count(hi) > MAX_DROPS:
+            lo, hi, step = hi, hi + step, 2.0 * step
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if count(mid) > MAX_DROPS else (lo, mid)
+        need = hi
     raise ConfigError("atmosphere.drop_min_diameter_mm", weather.d_min_mm,
                       f"at least {math.ceil(need * 100) / 100:.2f} mm here: {expected:.3g} drops of "
                       f"≥ {weather.d_min_mm} mm would be drawn at once in this field of view and gate (at most "
                       f"{MAX_DROPS:.0e}); the smaller ones are then volume backscatter (or narrow the field of view "
-                      f"or the gate)")
+                      f"or the gate, or raise atmosphere.drop_cut_photoelectrons)")
 
 
 def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, omega_sr: float,
                           tx_half_angle: float, rx_half_angle: float, pulse: int | None = None,
-                          draw: bool = True, beams_at_once: int | None = None) -> FrameWeather | None:
+                          draw: bool = True, beams_at_once: int | None = None,
+                          max_beam_fraction: float = 1.0, drop_range_m: tuple | None = None) -> FrameWeather | None:
     """The weather of one frame (of one pulse stream when ``pulse`` is given), None for weather = none; with
     ``draw`` the particles of all ``n_beams`` beams are drawn now (else per tile of ``beams_at_once`` beams:
-    :meth:`FrameWeather.draw`).  Refuses (ConfigError) more than :data:`MAX_DROPS` particles at once."""
+    :meth:`FrameWeather.draw`).  ``max_beam_fraction``: the largest energy fraction of a beam (a flash pixel's
+    share), which sets the detectability cut (:func:`~core.atmosphere.weather.drop_cut`; larger = more drops
+    drawn, never wrong).  ``drop_range_m``: (near, far) of the particles (default: from
+    ``atmosphere.backscatter_min_range_m`` or the gate's start to the gate's end; gated viewing passes its slice
+    sweep's span).  Refuses (ConfigError) more than :data:`MAX_DROPS` particles at once."""
     atm, laser, gate = config.atmosphere, config.laser, config.gate
     w = weather_model(atm, laser.wavelength_m, aerosol_extinction_per_m(config))
     if w is None:
@@ -127,20 +173,40 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
                       0.5 * rx.aperture_diameter_m, rx_half_angle)
     alpha = effective_extinction_per_m(config)
     scale = energy_scale(laser, rx)
+    ra2 = aperture_r2(rx)
+    cut = None
+    if w.has_drops:
+        c2 = 0.5 * SPEED_OF_LIGHT_M_S
+        if drop_range_m is None:
+            drop_range_m = (c2 * gate.gate_start_s, c2 * (gate.gate_start_s + gate.n_bins * gate.bin_width_s))
+        r_lo = max(atm.backscatter_min_range_m, drop_range_m[0])
+        r_hi = max(r_lo, drop_range_m[1])
+        # photo-electrons of a particle hiding the whole beam (W2 with f = 1) at the largest beam fraction
+        pe_per_j = config.detector.quantum_efficiency * laser.wavelength_m / (H_PLANCK_J_S * SPEED_OF_LIGHT_M_S)
+        k = scale * max_beam_fraction * (2.0 / w.lidar_ratio_sr) * pe_per_j
+
+        def full_beam_pe(r):
+            return k * overlap(r) * np.exp(-2.0 * alpha * r) / (r * r + ra2)
+
+        cut = drop_cut(w, omega_sr, r_lo, r_hi, full_beam_pe, atm.drop_cut_photoelectrons, ra2)
+    profile = None if cut is None or cut.is_trivial else cut.beta_profile
     template = backscatter_template(laser, gate, scale, w.backscatter_per_m_sr, alpha, overlap,
-                                    atm.backscatter_min_range_m)
-    out = FrameWeather(w, overlap, template, alpha, scale, aperture_r2(rx), omega_sr)
+                                    atm.backscatter_min_range_m, profile=profile,
+                                    breaks_m=None if profile is None else cut.edges_m)
+    out = FrameWeather(w, overlap, template, alpha, scale, ra2, omega_sr, cut=cut)
     out.metadata = {"model": w.record(), "overlap": overlap.record(),
                     "volume_energy_per_beam_j": float(template.sum())}
     if w.has_drops:
-        c2 = 0.5 * SPEED_OF_LIGHT_M_S
-        r_lo = max(atm.backscatter_min_range_m, c2 * gate.gate_start_s)
-        r_hi = c2 * (gate.gate_start_s + gate.n_bins * gate.bin_width_s)
         out.drop_range_m = (r_lo, r_hi)
-        per_beam = expected_drop_count(w, omega_sr, r_lo, r_hi)
-        check_drop_count(w, per_beam * (n_beams if draw or beams_at_once is None else min(n_beams, beams_at_once)))
+        per_beam = float(cut.expected_per_beam().sum())
+        at_once = n_beams if draw or beams_at_once is None else min(n_beams, beams_at_once)
+        check_drop_count(w, per_beam * at_once, cut, at_once)
         out.metadata["drops"] = {"range_m": [r_lo, r_hi], "beam_solid_angle_sr": omega_sr,
-                                 "expected": expected_drop_count(w, omega_sr, r_lo, r_hi) * n_beams}
+                                 "expected": per_beam * n_beams,
+                                 "cut_photoelectrons": atm.drop_cut_photoelectrons,
+                                 "cut_diameter_mm": [float(np.min(cut.d_cut_mm)),  # None: no drop drawn in some shell
+                                                     float(np.max(cut.d_cut_mm)) if np.all(np.isfinite(cut.d_cut_mm))
+                                                     else None]}
         if draw:
             out.drops = out.draw(config, frame, n_beams, pulse)
             out.metadata["drops"]["drawn"] = len(out.drops)

@@ -17,6 +17,22 @@ from .laser import pulse_half_support_s
 from .waveform import accumulate_waveforms, round_trip_time_s
 
 
+def _with_breaks(edges, breaks_m):
+    """The slab edges with the profile's break points (where β(R) jumps) inside them added."""
+    if breaks_m is None or len(edges) < 2:
+        return edges
+    b = np.asarray(breaks_m, np.float64)
+    b = b[(b > edges[0]) & (b < edges[-1])]
+    return np.union1d(edges, b) if len(b) else edges
+
+
+def _beta(beta_per_m_sr, profile):
+    """w(R) = β + profile(R) for :func:`slab_integrals`: None for a constant β (multiplied afterwards)."""
+    if profile is None:
+        return None
+    return lambda r: beta_per_m_sr + profile(r)
+
+
 def slab_edges_m(laser, gate, min_range_m, slabs_per_width: int = 4):
     """Range edges of the slabs that can reach the gate (pulse support included), from ``min_range_m``."""
     c2 = 0.5 * SPEED_OF_LIGHT_M_S
@@ -31,21 +47,26 @@ def slab_edges_m(laser, gate, min_range_m, slabs_per_width: int = 4):
 
 
 def backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, overlap: Overlap,
-                         min_range_m, slabs_per_width: int = 4):
+                         min_range_m, slabs_per_width: int = 4, profile=None, breaks_m=None):
     """The volume-backscatter waveform (n_bins,) in J per bin for a beam of energy fraction F = 1 (W1),
-    ``energy_scale_jm2`` = E_T η_sys π r_a² (core.physics.radiometry.energy_scale)."""
+    ``energy_scale_jm2`` = E_T η_sys π r_a² (core.physics.radiometry.energy_scale).  ``profile(R)``: backscatter
+    (1/(m sr)) added to β at each range (the undrawn rain drops: core.atmosphere.weather.DropCut), with its jumps
+    at ``breaks_m`` (slab edges are put there)."""
     edges = slab_edges_m(laser, gate, min_range_m, slabs_per_width)
-    if len(edges) < 2 or beta_per_m_sr <= 0.0:
+    if len(edges) < 2 or (beta_per_m_sr <= 0.0 and profile is None):
         return np.zeros(gate.n_bins)
-    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
-    e = energy_scale_jm2 * beta_per_m_sr * integral
+    edges = _with_breaks(edges, breaks_m)
+    w = _beta(beta_per_m_sr, profile)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap, w)
+    e = energy_scale_jm2 * (beta_per_m_sr if w is None else 1.0) * integral
     keep = e > 0
     return accumulate_waveforms(np.zeros(int(keep.sum()), np.int64), round_trip_time_s(centroid[keep]), e[keep], 1,
                                 laser, gate)[0]
 
 
 def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
-                     overlap: Overlap, min_range_m, response, slabs_per_width: int = 4):
+                     overlap: Overlap, min_range_m, response, slabs_per_width: int = 4, profile=None,
+                     breaks_m=None):
     """Gated viewing: (slab round-trip times (M,), C (M + 1, n_slices)) with C[m] = Σ_{m' < m} e_m' g(t_m' − d_k),
     the volume backscatter of the slabs nearer than slab m in every slice (``response`` = g(τ), the slice
     response of core.systems.gated).  A pixel sees C[m_hit] for a sub-ray whose surface is at slab m_hit, C[M]
@@ -55,15 +76,16 @@ def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, be
     support = pulse_half_support_s(laser) + 0.5 * edge_s
     t_lo = max(min_range_m / c2, float(d.min()) - support)
     t_hi = float(d.max()) + gate_width_s + support
-    if t_hi <= t_lo or beta_per_m_sr <= 0.0:
+    if t_hi <= t_lo or (beta_per_m_sr <= 0.0 and profile is None):
         return np.zeros(0), np.zeros((1, len(d)))
     step = float(np.min(np.diff(d))) if len(d) > 1 else gate_width_s
     width = min(laser.pulse_fwhm_s, gate_width_s, step if step > 0 else gate_width_s) / slabs_per_width
     n = max(1, int(math.ceil((t_hi - t_lo) / width)))
-    edges = c2 * np.linspace(t_lo, t_hi, n + 1)
-    integral, centroid = slab_integrals(edges, alpha_per_m, overlap)
-    e = energy_scale_jm2 * beta_per_m_sr * integral
+    edges = _with_breaks(c2 * np.linspace(t_lo, t_hi, n + 1), breaks_m)
+    w = _beta(beta_per_m_sr, profile)
+    integral, centroid = slab_integrals(edges, alpha_per_m, overlap, w)
+    e = energy_scale_jm2 * (beta_per_m_sr if w is None else 1.0) * integral
     t = 2.0 * centroid / SPEED_OF_LIGHT_M_S
-    table = np.zeros((n + 1, len(d)))
+    table = np.zeros((len(e) + 1, len(d)))
     table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
     return t, table

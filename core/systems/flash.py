@@ -24,7 +24,7 @@ from ..engine.memory import BLOCK_WAVEFORM_BYTES
 from ..engine.products import statistical_noisy_echoes, noisy_echoes, points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
-from ..engine.weather_stage import (mark_atmosphere_echoes, merge_returns, prepare_frame_weather,
+from ..engine.weather_stage import (mark_atmosphere_echoes, max_pixel_fraction, merge_returns, prepare_frame_weather,
                                     weather_switches)
 from ..errors import ConfigError
 from ..geometry.rays import Detector, tan_to_unit_direction
@@ -112,7 +112,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         px_tan, py_tan = det.pixel_pitch_tan
         wx = prepare_frame_weather(config, frame, det.n_pixels, px_tan * py_tan,
                                    beam_half_angle_tan(config.laser, det) * atm.beam_width_scale,
-                                   0.5 * min(px_tan, py_tan))
+                                   0.5 * min(px_tan, py_tan), max_beam_fraction=max_pixel_fraction(det, fx, fy))
     if wx is None:
         del log.times["weather"]
     hits_of_blocks = {}  # block start → (pixel, range) of its surface hits: which echoes are the atmosphere's

@@ -48,7 +48,7 @@ from ..engine.memory import GATE_MAX_TERMS, check_memory, estimate_gated_memory,
 from ..engine.products import points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
-from ..engine.weather_stage import mark_atmosphere_echoes, prepare_frame_weather, weather_switches
+from ..engine.weather_stage import mark_atmosphere_echoes, max_pixel_fraction, prepare_frame_weather, weather_switches
 from ..physics.weather_waveform import gated_slab_table
 from ..errors import ConfigError
 from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
@@ -301,14 +301,20 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     for stage, reason in weather_switches(config).items():
         log.skip(stage, reason)
     px_tan, py_tan = det.pixel_pitch_tan  # the drops are drawn once: frozen during the sweep (ms)
+    sweep_support = pulse_half_support_s(laser) + 0.5 * g.shutter_edge_s  # drops the slices can see
     wx = prepare_frame_weather(config, frame, det.n_pixels, px_tan * py_tan,
-                               beam_half_angle_tan(laser, det) * atm.beam_width_scale, 0.5 * min(px_tan, py_tan))
+                               beam_half_angle_tan(laser, det) * atm.beam_width_scale, 0.5 * min(px_tan, py_tan),
+                               max_beam_fraction=max(max_pixel_fraction(det, fx, fy) for fx, fy in fractions),
+                               drop_range_m=(0.5 * SPEED_OF_LIGHT_M_S * max(0.0, float(delays.min()) - sweep_support),
+                                             0.5 * SPEED_OF_LIGHT_M_S * (float(delays.max()) + g.gate_width_s
+                                                                       + sweep_support)))
     vol_t = vol_table = None
     if wx is not None:
         vol_t, vol_table = gated_slab_table(
             laser, delays, g.gate_width_s, g.shutter_edge_s, wx.scale_jm2, wx.weather.backscatter_per_m_sr,
             wx.alpha_per_m, wx.overlap, config.atmosphere.backscatter_min_range_m,
-            lambda tau: gate_response(laser, g.gate_width_s, g.shutter_edge_s, tau))
+            lambda tau: gate_response(laser, g.gate_width_s, g.shutter_edge_s, tau), profile=wx.beta_profile,
+            breaks_m=wx.profile_breaks_m)
         times["weather"] = stage_clock() - t0
     hits_of_blocks = {}
 

@@ -333,7 +333,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     t0 = stage_clock()
     half_div = 0.5 * laser.beam_divergence_rad * atm.width_scale  # the receiver sees the beam's footprint
     wx = prepare_frame_weather(config, frame, n_pulses, np.pi * half_div ** 2, half_div, half_div, draw=False,
-                               beams_at_once=SCAN_NOISE_TILE_PULSES)
+                               beams_at_once=SCAN_NOISE_TILE_PULSES, max_beam_fraction=float(weight.sum()))
     if wx is None:
         for stage, reason in weather_switches(config).items():
             log.skip(stage, reason)

@@ -270,9 +270,10 @@ def test_validation_module_passes_and_plots(tmp_path):
 
 
 def test_too_many_drops_are_refused_naming_the_diameter_that_fits():
-    """A 12° flash field of view, gate 0–300 m, rain 25 mm/h, D ≥ 1 mm: ~1e9 drops would be drawn at once; the frame
-    is refused naming atmosphere.drop_min_diameter_mm and the diameter that brings it under the 2e6 limit (the
-    count falls as e^(−ΛD), Λ = 2.08 /mm)."""
+    """A 12° flash field of view of 8×8 px, gate 0–300 m, rain 25 mm/h, D ≥ 1 mm: ~1e9 drops are in the beams and
+    2.8e7 of them above the default detectability cut (0.01 photo-electrons; the pixels are large, so the near ones
+    all count); the frame is refused naming atmosphere.drop_min_diameter_mm and the diameter that brings the drawn
+    count under the 2e6 limit (bisection over the shells' counts n(D ≥ max(D_min, D_k)))."""
     cfg = _flash("rain", rain_rate_mm_h=25.0)
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(12.0)
     cfg.gate.n_bins = 2000
@@ -318,3 +319,201 @@ def test_gated_slices_of_a_pixel_seeing_only_fog_match_the_equation():
     sim = r.slices[:, 0, 0].astype(np.float64)
     big = ref > 0.01 * ref.max()
     assert np.allclose(sim[big], ref[big], rtol=1e-3)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# The detectability cut (atmosphere.drop_cut_photoelectrons): only the drops that can matter are drawn
+# ------------------------------------------------------------------------------------------------------------
+def _count_chi2_pvalue(counts, mean):
+    """χ² of a count histogram against Poisson(mean), tails lumped into bins of ≥ 5 expected."""
+    n = len(counts)
+    lo = int(stats.poisson.ppf(5 / n, mean)) + 1
+    hi = int(stats.poisson.isf(5 / n, mean)) - 1
+    obs = np.array([np.sum(counts < lo)] + [np.sum(counts == j) for j in range(lo, hi + 1)] + [np.sum(counts > hi)])
+    exp = np.array([stats.poisson.cdf(lo - 1, mean)] + list(stats.poisson.pmf(np.arange(lo, hi + 1), mean))
+                   + [stats.poisson.sf(hi, mean)]) * n
+    return stats.chisquare(obs, exp).pvalue
+
+
+def test_cut_draw_is_the_brute_force_draw_above_the_cut():
+    """Rain 10 mm/h, D ≥ 1 mm, 1 mrad beam, 0.5–80 m, a cut rising from D_min to 3 mm over 20 geometric shells:
+    20000 beams drawn with the cut against 20000 drawn brute force and kept above the cut.  Counts per beam are
+    Poisson with the shells' expected sum (χ², p > 0.001, fixed seeds) and agree with the filtered brute force
+    (4σ); the ranges agree (two-sample KS, p > 0.001) and with the analytic CDF Σ_k μ_k (R³ − r_k³)/(r_{k+1}³ − r_k³)
+    (KS, p > 0.001); D − D_k is Exp(Λ) (KS, p > 0.001)."""
+    from core.atmosphere.weather import DropCut
+    w = _rain()
+    omega = np.pi * 0.5e-3 ** 2
+    edges = np.geomspace(0.5, 80.0, 21)
+    d_cut = np.linspace(1.0, 3.0, 20)
+    cut = DropCut(edges, d_cut, omega, w.n0, w.lam, 1.0, 18.0, 0.0)
+    mu = cut.expected_per_beam()
+    # worked value of one shell: n(D ≥ D_k) Ω (r_{k+1}³ − r_k³)/3
+    assert mu[7] == pytest.approx(w.n0 / w.lam * math.exp(-w.lam * d_cut[7]) * omega
+                                  * (edges[8] ** 3 - edges[7] ** 3) / 3, rel=1e-12)
+    n_beams = 20000
+    dc = draw_drops(np.random.default_rng(7), w, n_beams, omega, 0.5, 80.0, cut=cut)
+    db = draw_drops(np.random.default_rng(8), w, n_beams, omega, 0.5, 80.0)
+    k_b = np.clip(np.searchsorted(edges, db.range_m, side="right") - 1, 0, 19)
+    db = db.take(db.diameter_mm >= d_cut[k_b])
+    mean = mu.sum()
+    c_c = np.bincount(dc.beam, minlength=n_beams)
+    c_b = np.bincount(db.beam, minlength=n_beams)
+    assert _count_chi2_pvalue(c_c, mean) > 1e-3 and _count_chi2_pvalue(c_b, mean) > 1e-3
+    assert abs(c_c.mean() - c_b.mean()) < 4 * math.sqrt(2 * mean / n_beams)
+    assert stats.ks_2samp(dc.range_m, db.range_m).pvalue > 1e-3
+
+    def cdf(r):
+        k = np.clip(np.searchsorted(edges, r, side="right") - 1, 0, 19)
+        inside = (r ** 3 - edges[k] ** 3) / (edges[k + 1] ** 3 - edges[k] ** 3)
+        return (np.concatenate([[0.0], np.cumsum(mu)])[k] + mu[k] * inside) / mean
+    assert stats.kstest(dc.range_m, cdf).pvalue > 1e-3
+    k_c = np.clip(np.searchsorted(edges, dc.range_m, side="right") - 1, 0, 19)
+    assert np.all(dc.diameter_mm >= d_cut[k_c])
+    assert stats.kstest(dc.diameter_mm - d_cut[k_c], "expon", args=(0, 1 / w.lam)).pvalue > 1e-3
+
+
+def test_cross_section_and_continuum_against_independent_forms():
+    """σ(R) = ∫ N(D) min(πD²/4, Ω R²) dD against adaptive quadrature (1e-9 relative) where the beam's
+    cross-section falls inside [D_lo, D_hi]; a cut above every drop (all continuum) with Ω = 1e-3 sr, wide enough
+    that no drop fills the beam (D* = 36 mm at 1 m): β(R) = (2/S)(π/4) N₀ ∫_{D_min}^∞ D² e^(−ΛD) dD · R²/(R² + r_a²) · e^(−σ (R − r_lo)) and the
+    mean shadow e^(−σ (R − r_lo)), σ constant (closed forms, 1e-9)."""
+    from core.atmosphere.weather import DropCut, drop_cross_section_per_m
+    w = _rain(25.0)
+    omega, r = 1e-6, 2.0   # Ω R² = 4e-6 m²: D* = 2.26 mm
+    num = integrate.quad(lambda d: w.n0 * math.exp(-w.lam * d) * min(math.pi / 4 * (d * 1e-3) ** 2, omega * r * r),
+                         1.0, 4.0, points=[2e3 * math.sqrt(omega * r * r / math.pi)], epsabs=0, epsrel=1e-12)[0]
+    assert drop_cross_section_per_m(w.n0, w.lam, 1.0, 4.0, omega, r) == pytest.approx(num, rel=1e-9)
+    omega = 1e-3
+    edges = np.geomspace(1.0, 100.0, 11)
+    cut = DropCut(edges, np.full(10, np.inf), omega, w.n0, w.lam, 1.0, 18.0, 0.025 ** 2)
+    assert cut.expected_per_beam().sum() == 0.0
+    x = w.lam
+    m2 = math.exp(-x) * (1 / x + 2 / x ** 2 + 2 / x ** 3)     # ∫_1^∞ D² e^(−ΛD) dD
+    sigma = w.n0 * math.pi / 4 * m2 * 1e-6
+    rr = np.array([1.0, 3.7, 50.0, 99.0])
+    assert np.allclose(cut.mean_shadow(rr), np.exp(-sigma * (rr - 1.0)), rtol=1e-9, atol=0)
+    beta = (2 / 18.0) * sigma * rr ** 2 / (rr ** 2 + 0.025 ** 2) * np.exp(-sigma * (rr - 1.0))
+    assert np.allclose(cut.beta_profile(rr), beta, rtol=1e-9, atol=0)
+
+
+def _rain_frames(cut_pe, seeds):
+    """Waveform rows of 32×32-px flash frames (0.02 rad, coaxial, gate 0–60 m, plate at 45 m filling the field of
+    view), rain 50 mm/h, D ≥ 0.5 mm, with this detectability cut."""
+    rows = []
+    for seed in seeds:
+        cfg = config_for(45.0, pixels=32, subsamples=2, fov_rad=0.02, bins=400, margin_bins=0)
+        cfg.gate.gate_start_s = 0.0
+        cfg.run.save_waveforms = True
+        cfg.run.seed = seed
+        cfg.atmosphere = dataclasses.replace(cfg.atmosphere, weather="rain", rain_rate_mm_h=50.0,
+                                             drop_min_diameter_mm=0.5, tx_rx_offset_m=0.0,
+                                             drop_cut_photoelectrons=cut_pe)
+        r = simulate_frame(plate(45.0, 5.0), np.eye(4), cfg)
+        rows.append(r.waveforms.reshape(-1, 400).astype(np.float64))
+    return np.concatenate(rows), r.stats["weather"]["drops"]
+
+
+def test_cut_keeps_the_mean_waveform_of_the_brute_force_draw():
+    """The flash frame of :func:`_rain_frames`, 4 frames × 1024 pixels each: brute force (cut 0: 5.2e4 drops a frame)
+    against cut 300 e- (1.3e4 drawn) and cut 1e6 e- (only the drops hiding ≥ 1 % of their beam: 1.8e3).  The mean
+    energy of each 7.5 m window from 7.5 m to the plate's echo (the drop returns, the continuum, and the plate
+    seen through the drops' mean shadow, which is 9 % at 45 m) agrees: χ² of the six windows' differences over
+    their standard errors, p > 0.001 (fixed seeds).  Cut 0.01 e- (the default) draws every drop here (the pixels
+    are small and the drops bright): the same frames bit for bit as cut 0."""
+    brute, info0 = _rain_frames(0.0, range(4))
+    assert info0["drawn"] > 4e4
+    win = lambda w: w.reshape(len(w), 8, 50).sum(axis=2)[:, 1:7]   # noqa: E731
+    wb = win(brute)
+    for cut_pe, most in ((300.0, 2e4), (1e6, 3e3)):
+        other, info = _rain_frames(cut_pe, range(10, 14))
+        assert info["drawn"] < most
+        wo = win(other)
+        z = (wb.mean(0) - wo.mean(0)) / np.sqrt(wb.var(0, ddof=1) / len(wb) + wo.var(0, ddof=1) / len(wo))
+        assert stats.chi2.sf(np.sum(z ** 2), df=len(z)) > 1e-3, (cut_pe, z)
+    same, _ = _rain_frames(0.01, range(1))
+    assert np.array_equal(same, brute[:1024])
+
+
+def test_gated_cut_keeps_the_mean_slices_of_the_brute_force_draw():
+    """Gated viewing (16×16 px, 0.02 rad, slices of 20 ns every 10 ns from 0, plate at 40 m) in 50 mm/h rain,
+    D ≥ 0.5 mm, coaxial: brute force (cut 0) against cut 1e6 e- (only the drops hiding ≥ 1 % of their beam drawn,
+    the rest through the slab table's β profile and the mean shadow), 6 frames each: the pixels' mean of every
+    other slice (no two share a delay window) agrees, χ² of the differences over their standard errors, p > 0.001
+    (fixed seeds)."""
+    from core.systems.gated import simulate_gated
+
+    def slices(cut_pe, seeds):
+        out, drawn = [], 0
+        for seed in seeds:
+            cfg = SimulationConfig(system_type="gated")
+            cfg.receiver.width_px = cfg.receiver.height_px = 16
+            cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.02
+            g = cfg.gated
+            g.gate_width_s, g.delay_step_s, g.n_slices, g.first_delay_s = 20e-9, 10e-9, 28, 0.0
+            cfg.atmosphere = dataclasses.replace(cfg.atmosphere, weather="rain", rain_rate_mm_h=50.0,
+                                                 drop_min_diameter_mm=0.5, tx_rx_offset_m=0.0,
+                                                 drop_cut_photoelectrons=cut_pe)
+            cfg.run.threads, cfg.run.seed = 1, seed
+            r = simulate_gated(plate(40.0, 5.0), np.eye(4), cfg)
+            out.append(r.slices.reshape(g.n_slices, -1).T.astype(np.float64))
+            drawn += r.stats["weather"]["drops"]["drawn"]
+        return np.concatenate(out)[:, 1::2], drawn
+
+    b, n_b = slices(0.0, range(6))
+    c, n_c = slices(1e6, range(20, 26))
+    assert n_c < 0.2 * n_b
+    z = (b.mean(0) - c.mean(0)) / np.sqrt(b.var(0, ddof=1) / len(b) + c.var(0, ddof=1) / len(c))
+    assert stats.chi2.sf(np.sum(z ** 2), df=len(z)) > 1e-3, z
+
+
+def test_scanner_cut_keeps_the_mean_waveform_of_the_brute_force_draw():
+    """Scanner (raster of 1000 pulses, 1 µJ, 1 mrad beam, 7 sub-rays, plate at 40 m, gate 0–60 m) in 50 mm/h
+    rain, D ≥ 0.5 mm, coaxial: brute force (cut 0, ~100 drops a pulse) against a cut of 1e6 e- (only the drops
+    hiding ≥ 1 % of the beam drawn, D ≥ 2 mm at 20 m; drawn per pulse tile) over 3 scans each: the mean energy
+    of five 7.5 m windows
+    from 7.5 m to the plate's echo agrees, χ² of the differences over their standard errors, p > 0.001 (fixed
+    seeds)."""
+    from core.systems.scanner import simulate_scan
+
+    def rows(cut_pe, seeds):
+        out = []
+        for seed in seeds:
+            cfg = SimulationConfig(system_type="scanner")
+            s = cfg.scanner
+            s.pattern, s.n_lines, s.scan_rate_hz, s.pulse_rate_hz = "raster", 10, 200.0, 20000.0
+            s.scan_width_rad, s.scan_height_rad, s.beam_subray_rings = 0.1, 0.1, 1
+            cfg.laser.beam_divergence_rad, cfg.laser.pulse_fwhm_s, cfg.laser.pulse_energy_j = 1e-3, 2e-9, 1e-6
+            cfg.gate.gate_start_s, cfg.gate.bin_width_s, cfg.gate.n_bins = 0.0, 1e-9, 400
+            cfg.run.save_waveforms, cfg.run.threads, cfg.run.seed = True, 1, seed
+            cfg.atmosphere = dataclasses.replace(cfg.atmosphere, weather="rain", rain_rate_mm_h=50.0,
+                                                 drop_min_diameter_mm=0.5, tx_rx_offset_m=0.0,
+                                                 drop_cut_photoelectrons=cut_pe)
+            r = simulate_scan(plate(40.0, 10.0), np.eye(4), cfg)
+            out.append(np.asarray(r.waveforms, np.float64).reshape(-1, 400))
+        w = np.concatenate(out)
+        return w.reshape(len(w), 8, 50).sum(axis=2)[:, 1:6]   # the plate's echo is in the fifth window
+
+    b = rows(0.0, range(3))
+    c = rows(1e6, range(30, 33))
+    assert len(b) == 3000
+    z = (b.mean(0) - c.mean(0)) / np.sqrt(b.var(0, ddof=1) / len(b) + c.var(0, ddof=1) / len(c))
+    assert stats.chi2.sf(np.sum(z ** 2), df=len(z)) > 1e-3, z
+
+
+def test_volume_rows_hidden_behind_surfaces_and_without_any_hit():
+    """add_volume_rows: beam 0 (F = 0.6) has sub-rays of 0.2 and 0.3 hitting surfaces in bins 2 and 4, beam 1
+    (F = 0.4) none: row 0 gets the template × (0.6, 0.6, 0.4, 0.4, 0.1, 0.1), row 1 × 0.4 everywhere; a block with
+    no hit at all gets F × the template (float32 rows as the flash cube, float64 as the scanner's)."""
+    from types import SimpleNamespace
+    from core.atmosphere.weather import add_volume_rows
+    gate = SimpleNamespace(gate_start_s=0.0, bin_width_s=1e-9)
+    tpl = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    for dtype in (np.float32, np.float64):
+        rows = np.zeros((2, 6), dtype)
+        add_volume_rows(rows, tpl, [0.6, 0.4], [0, 0], [2.5e-9, 4.5e-9], [0.2, 0.3], gate)
+        assert np.allclose(rows[0], tpl * [0.6, 0.6, 0.4, 0.4, 0.1, 0.1], rtol=1e-6, atol=0)
+        assert np.allclose(rows[1], tpl * 0.4, rtol=1e-6, atol=0)
+        rows = np.zeros((2, 6), dtype)
+        add_volume_rows(rows, tpl, [0.6, 0.4], np.zeros(0, np.int64), np.zeros(0), np.zeros(0), gate)
+        assert np.allclose(rows, np.outer([0.6, 0.4], tpl), rtol=1e-6, atol=0)
