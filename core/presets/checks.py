@@ -139,9 +139,9 @@ def scan_geometry(cfg: SimulationConfig) -> dict:
     if s.pattern == "risley":
         fov_h = float(np.ptp(np.degrees(np.arctan2(d[:, 0], -d[:, 2]))))
         fov_v = float(np.ptp(np.degrees(np.arctan2(d[:, 1], -d[:, 2]))))
-    if s.pattern == "palmer":  # a cone: the across-track extent is its full angle, measured along X
-        across = np.degrees(np.arctan2(d[:, 0], -d[:, 2]))
-        fov_h = fov_v = float(across.max() - across.min())
+    if s.pattern == "palmer":  # a cone about −Z: its full angles in the X–Z (across) and Y–Z (along) planes
+        fov_h = float(np.ptp(np.degrees(np.arctan2(d[:, 0], -d[:, 2]))))
+        fov_v = float(np.ptp(np.degrees(np.arctan2(d[:, 1], -d[:, 2]))))
     channels = int(np.unique(pts["channel"][first]).size)
     n_points = int(first.sum())
     period_s = float(res.stats["scan_duration_s"])
