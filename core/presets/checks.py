@@ -36,6 +36,7 @@ import numpy as np
 from ..config.settings import BRDFSettings, SimulationConfig
 from ..config.tables import channel_table_deg
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..errors import ConfigError
 from ..geometry.scene import SceneGeometry
 from ..run import simulate
 from . import preset_config
@@ -231,6 +232,9 @@ def _probe(cfg: SimulationConfig, range_m: float, reflectivity: float, n: int, s
     if cfg.system_type == "scanner":
         s = cfg.scanner
         table = channel_table_deg(s) if channel is not None and s.pattern == "rotating" else None
+        if table is not None and not 1 <= channel <= len(table):
+            raise ConfigError("published.second_range_channel", channel,
+                              f"a channel-table row from 1 to {len(table)}")
         if table is not None and table.shape[1] > 3:
             s.pattern, s.n_channels, s.scan_width_rad = "rotating", 1, 0.0
             s.channel_table, s.channel_table_file = [[0.0, 0.0, 0.0, float(table[channel - 1, 3])]], ""
