@@ -19,7 +19,10 @@ sheet states it:
   :func:`detection_stats` — a detection probability with the false alarms of the same pulses.
 
 A maximum range is held to the maker's definition (:func:`range_definition`: the detection probability the
-maker states, 0.5 where it states none); a figure a preset states it does not reproduce
+maker states, 0.5 where it states none), fired by the channel it is stated for (``second_range_channel``: that
+channel's relative pulse energy); one from which the preset derives a value by the range equation
+(``second_range_derives``) is checked for consistency (P within 3 binomial standard errors of the definition at
+R, below it at 1.2 R); a figure a preset states it does not reproduce
 (:func:`not_reproduced`, with the reason) is expected to fail its check.
 
 The scanner's detection and precision probes keep the preset's laser, receiver, gate bin width, detection and
