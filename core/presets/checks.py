@@ -488,7 +488,7 @@ def data_sheet_rows(preset) -> list[dict]:
         if "second_range_derives" in pub:  # derived by the range equation: the simulator must agree with it
             se = math.sqrt(p_def * (1 - p_def) / s1["trials"])
             row("second_range_m", label + f" ({pub['second_range_derives']} derived from it)", f"{r:g} m", sim,
-                f"|P − {p_def:g}| ≤ 3 binomial standard errors ({3 * se:.3f}) at R, < {p_def:g} at 1.2 R",
+                f"P = {p_def:g} ± 3 binomial standard errors ({3 * se:.3f}) at R, < {p_def:g} at 1.2 R",
                 abs(s1["p"] - p_def) <= 3 * se and s2["p"] < p_def)
         else:
             row("second_range_m", label, f"{r:g} m", sim, f"P ≥ {p_def:g} at R, < {p_def:g} at 1.2 R",
