@@ -130,6 +130,9 @@ def test_fourth_column_read_inline_and_from_csv(tmp_path):
     np.testing.assert_array_equal(channel_table_deg(a.scanner), np.array(TABLE4))
     np.testing.assert_array_equal(channel_table_deg(b.scanner), np.array(TABLE4))
     np.testing.assert_array_equal(channel_energy_scale(a.scanner), [1.0, 0.25, 2.0])
+    t = tmp_path / "c4.toml"  # the fourth column round-trips through a config file
+    t.write_text(dump_config_toml(a))
+    assert load_config(t).scanner.channel_table == TABLE4
     # the pattern is the 3-column table's
     for x, y in zip(pulse_schedule(a, 0, 12), pulse_schedule(_cfg(channel_table=TABLE), 0, 12)):
         np.testing.assert_array_equal(x, y)
