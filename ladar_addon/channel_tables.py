@@ -63,11 +63,14 @@ def channel_table_lines(sensor_obj) -> list[str]:
         return [src, f"Error: {exc}"]
     lines = [src, f"{len(table)} channels, elevation {table[:, 0].min():+.3f}° … {table[:, 0].max():+.3f}°, "
                   f"azimuth offset {table[:, 1].min():+.3f}° … {table[:, 1].max():+.3f}°, "
-                  f"fire offset ≤ {table[:, 2].max() * 1e6:.3g} µs"]
+                  f"fire offset ≤ {table[:, 2].max() * 1e6:.3g} µs"
+                  + (f", relative pulse energy {table[:, 3].min():.3g} … {table[:, 3].max():.3g}"
+                     if table.shape[1] > 3 else "")]
     if len(table) != scanner.n_channels:
         lines.append(f"Error: scanner.n_channels = {scanner.n_channels}, the table has {len(table)} rows")
-    lines.append("  " + ", ".join(CHANNEL_COLUMNS))
-    lines += [f"  {e:+.4f}, {a:+.4f}, {t:.4g}" for e, a, t in table[:PREVIEW_ROWS]]
+    lines.append("  " + ", ".join(CHANNEL_COLUMNS[:table.shape[1]]))
+    lines += [f"  {row[0]:+.4f}, {row[1]:+.4f}, {row[2]:.4g}" + "".join(f", {x:.4g}" for x in row[3:])
+              for row in table[:PREVIEW_ROWS]]
     if len(table) > PREVIEW_ROWS:
         lines.append(f"  … {len(table) - PREVIEW_ROWS} more")
     return lines

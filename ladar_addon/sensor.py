@@ -101,6 +101,7 @@ SYSTEM_HIDDEN_FIELDS = {
 }
 #: Scanner settings that apply to some scan patterns only.
 SCAN_PATTERN_FIELDS = {"n_lines": ("raster",), "n_channels": ("rotating",), "cone_half_angle_rad": ("palmer",),
+                       "cone_half_angle_y_rad": ("palmer",),
                        "scan_width_rad": ("raster", "oscillating", "rotating"),
                        "scan_height_rad": ("raster", "rotating")}
 

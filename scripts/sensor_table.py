@@ -100,7 +100,10 @@ def render() -> str:
         f"the standard deviation of {N_PULSES} ranges, at the stated range or where the echoes' median peak SNR is "
         "the stated SNR. `tests/core/test_sensor_presets.py` holds every preset to "
         "these criteria. A figure the source does not publish is not checked. ✓ passes, ✗ fails, — is shown but "
-        "not checked (the figure a value was derived from). A figure the preset states it does not reproduce "
+        "not checked (the figure a value was derived from). A maximum range from which a preset derives another "
+        "value by the range equation (Pandar40P: the outer channels' relative pulse energy) is checked for "
+        "consistency instead: the simulated detection probability at R within 3 binomial standard errors of the "
+        "maker's definition, and below it at 1.2 R. A figure the preset states it does not reproduce "
         "(`not_reproduced`, with the reason) is shown with ✗, and the test asserts that its check still fails: "
         "a change that makes it pass must update the preset.",
         "",

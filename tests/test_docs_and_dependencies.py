@@ -52,9 +52,10 @@ def test_settings_reference_is_generated_from_the_schema():
     # risley_prism_hz, risley_wedge_deg, risley_index, risley_phase_deg, risley_emitters_deg)
     # + 8 of issue 30: atmosphere.weather, rain_rate_mm_h, backscatter_per_m_sr, lidar_ratio_sr, overlap_model,
     # tx_rx_offset_m, backscatter_min_range_m, drop_min_diameter_mm; + 1 of issue 28: detection.signal_free_bins
-    # (noisy_threshold_mode existed; its new choice "calibrated" is its default); + 1 of issue 30 (session 27):
-    # atmosphere.drop_cut_photoelectrons
-    assert len(names) == 119 + len(dataclasses.fields(BRDFSettings))
+    # (noisy_threshold_mode existed; its new choice "calibrated" is its default); + 2 of session 27:
+    # atmosphere.drop_cut_photoelectrons (issue 30) and scanner.cone_half_angle_y_rad (issue 29: the elliptic
+    # Palmer cone)
+    assert len(names) == 120 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 

@@ -445,8 +445,13 @@ class ScannerSettings:
                                                      "the rows of channel_table",
                               label="Number of Channels")
     cone_half_angle_rad: float = setting(0.26, lo=0.0, hi=1.5, unit="rad", subtype="ANGLE",
-                                         doc="Palmer: half angle of the scan cone around −Z",
+                                         doc="Palmer: half angle of the scan cone around −Z (the off-nadir "
+                                             "angle in the X–Z plane, across the flight line when X is)",
                                          label="Cone Half Angle")
+    cone_half_angle_y_rad: float = setting(0.0, lo=0.0, hi=1.5, unit="rad", subtype="ANGLE",
+                                           doc="Palmer: half angle of an elliptic scan cone in the Y–Z plane (along "
+                                               "the flight line when Y is); 0 = circular (cone_half_angle_rad)",
+                                           label="Cone Half Angle Y")
     duration_s: float = setting(0.0, lo=0.0, hi=3600.0, unit="s", subtype="TIME_ABSOLUTE",
                                 doc="Scan duration; 0 = one full pattern (all raster lines, one mirror period, "
                                     "one revolution or azimuth sweep, one risley frame 1/scan_rate_hz)",
@@ -483,13 +488,17 @@ class ScannerSettings:
     #: Per-channel table of the rotating head (not a Blender property: config files and presets): one row
     #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).
     channel_table: list = field(default_factory=list, metadata={
-        "unit": "deg, deg, s", "allowed": "rows [elevation in [-90, 90], azimuth offset in [-360, 360], fire "
-                                           "offset in [-1, 1]], one per channel", "doc": "Rotating: one row [elevation_deg, azimuth_offset_deg, fire_offset_s] per "
-                                      "channel, replacing the evenly spaced channels (n_channels rows)"})
+        "unit": "deg, deg, s[, 1]", "allowed": "rows [elevation in [-90, 90], azimuth offset in [-360, 360], fire "
+                                           "offset in [-1, 1]] or with a 4th column [..., relative pulse energy in "
+                                           "[0.001, 1000]] in every row, one row per channel",
+        "doc": "Rotating: one row [elevation_deg, azimuth_offset_deg, fire_offset_s] per "
+               "channel, replacing the evenly spaced channels (n_channels rows); an optional 4th column "
+               "relative_pulse_energy scales that channel's pulse energy (its returns, not the background)"})
     #: ... or the same table read from a CSV file (three columns; an optional header row).
     channel_table_file: str = field(default_factory=str, metadata={
         "unit": "", "allowed": "a path to a CSV file (or empty)", "doc": "Rotating: a CSV file of the channel table (columns elevation_deg, "
-                           "azimuth_offset_deg, fire_offset_s; optional header row; '#' comments)"})
+                           "azimuth_offset_deg, fire_offset_s, optionally relative_pulse_energy; optional header "
+                           "row; '#' comments)"})
     #: Risley prisms (pattern risley), one entry per prism, beam order (core/systems/scan_patterns.py).
     risley_prism_hz: list = field(default_factory=list, metadata={
         "unit": "Hz", "allowed": "numbers in [-1e5, 1e5], one per prism (1 to 8)", "doc": "Risley: rotor frequency of each prism (signed: the sense of rotation)"})

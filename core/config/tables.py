@@ -4,11 +4,15 @@ Each is checked row by row and column by column; a bad entry is a one-line :clas
 setting (or file), the row and the column, the value and what is allowed.  Rows and columns are counted from 1
 as a person reads a CSV file.
 
-Channel table, one row per channel: ``[elevation_deg, azimuth_offset_deg, fire_offset_s]``:
+Channel table, one row per channel: ``[elevation_deg, azimuth_offset_deg, fire_offset_s]`` or, with a fourth
+column in every row, ``[..., relative_pulse_energy]``:
 
-* elevation_deg       the channel's elevation β above the sensor's horizontal plane, in [−90, 90] deg;
-* azimuth_offset_deg  added to the head's azimuth α at the channel's firing (to +X), in [−360, 360] deg;
-* fire_offset_s       the channel fires this long after the firing time k/PRF of its group, in [−1, 1] s.
+* elevation_deg          the channel's elevation β above the sensor's horizontal plane, in [−90, 90] deg;
+* azimuth_offset_deg     added to the head's azimuth α at the channel's firing (to +X), in [−360, 360] deg;
+* fire_offset_s          the channel fires this long after the firing time k/PRF of its group, in [−1, 1] s;
+* relative_pulse_energy  (optional) the channel's pulse energy over ``laser.pulse_energy_j``, in [0.001, 1000]:
+                         everything its pulse returns (surfaces, drops, volume backscatter) scales with it, the
+                         background (sunlight) and the detector's own noise do not.  Without the column: 1.
 """
 from __future__ import annotations
 
@@ -21,8 +25,8 @@ import numpy as np
 
 from ..errors import ConfigError
 
-CHANNEL_COLUMNS = ("elevation_deg", "azimuth_offset_deg", "fire_offset_s")
-CHANNEL_LIMITS = ((-90.0, 90.0, "deg"), (-360.0, 360.0, "deg"), (-1.0, 1.0, "s"))
+CHANNEL_COLUMNS = ("elevation_deg", "azimuth_offset_deg", "fire_offset_s", "relative_pulse_energy")
+CHANNEL_LIMITS = ((-90.0, 90.0, "deg"), (-360.0, 360.0, "deg"), (-1.0, 1.0, "s"), (1e-3, 1e3, ""))
 MAX_CHANNELS = 1024
 
 
@@ -45,8 +49,9 @@ def _number(value) -> float | None:
 
 
 def check_channel_rows(rows, where: str, text_cells: bool = False) -> np.ndarray:
-    """(n, 3) float64 array [elevation_deg, azimuth_offset_deg, fire_offset_s] from rows of 3 cells; ConfigError
-    naming ``where``, the row and the column of the first bad cell."""
+    """(n, 3) float64 array [elevation_deg, azimuth_offset_deg, fire_offset_s] from rows of 3 cells, or (n, 4)
+    with relative_pulse_energy from rows of 4 (every row as many as the first); ConfigError naming ``where``, the
+    row and the column of the first bad cell."""
     if not isinstance(rows, (list, tuple)):
         raise ConfigError(where, rows, "a list of rows [elevation_deg, azimuth_offset_deg, fire_offset_s]")
     if not rows:
@@ -54,22 +59,27 @@ def check_channel_rows(rows, where: str, text_cells: bool = False) -> np.ndarray
                                             "fire_offset_s]")
     if len(rows) > MAX_CHANNELS:
         raise ConfigError(where, f"{len(rows)} rows", f"at most {MAX_CHANNELS} channels")
-    out = np.empty((len(rows), 3))
+    first = rows[0]
+    ncol = len(first) if isinstance(first, (list, tuple)) and len(first) in (3, 4) else 3
+    out = np.empty((len(rows), ncol))
     for r, row in enumerate(rows, start=1):
-        if not isinstance(row, (list, tuple)) or len(row) != 3:
-            raise ConfigError(f"{where} row {r}", row, "3 columns: " + ", ".join(CHANNEL_COLUMNS))
+        if not isinstance(row, (list, tuple)) or len(row) != ncol:
+            allowed = (f"{ncol} columns like row 1: " + ", ".join(CHANNEL_COLUMNS[:ncol]) if r > 1 else
+                       "3 columns: " + ", ".join(CHANNEL_COLUMNS[:3]) + " (or 4: and " + CHANNEL_COLUMNS[3] + ")")
+            raise ConfigError(f"{where} row {r}", row, allowed)
         for c, (cell, name, (lo, hi, unit)) in enumerate(zip(row, CHANNEL_COLUMNS, CHANNEL_LIMITS), start=1):
             v = _number(cell) if text_cells or not isinstance(cell, str) else None
             if v is None or not lo <= v <= hi:
                 raise ConfigError(f"{where} row {r} column {c} ({name})", cell,
-                                  f"a finite number in [{lo:g}, {hi:g}] {unit}")
+                                  f"a finite number in [{lo:g}, {hi:g}]" + (f" {unit}" if unit else ""))
             out[r - 1, c - 1] = v
     return out
 
 
 def read_channel_csv(path) -> np.ndarray:
-    """The channel table a CSV file holds: three columns (elevation_deg, azimuth_offset_deg, fire_offset_s),
-    an optional header row naming them, blank lines and lines starting with '#' skipped."""
+    """The channel table a CSV file holds: three columns (elevation_deg, azimuth_offset_deg, fire_offset_s) or
+    four (and relative_pulse_energy), an optional header row naming them, blank lines and lines starting with
+    '#' skipped."""
     p = Path(path)
     where = f"scanner.channel_table_file {p.name[:60]!r}"
     if not p.is_file():
@@ -86,9 +96,10 @@ def read_channel_csv(path) -> np.ndarray:
         cells = next(csv.reader(io.StringIO(line)))
         if not rows and not line_rows and all(_number(c) is None for c in cells):
             names = tuple(c.strip() for c in cells)
-            if names != CHANNEL_COLUMNS:
+            if names not in (CHANNEL_COLUMNS[:3], CHANNEL_COLUMNS):
                 raise ConfigError(f"{where} row {line_no}", line.strip(),
-                                  "a header naming the columns " + ", ".join(CHANNEL_COLUMNS) + " or numbers")
+                                  "a header naming the columns " + ", ".join(CHANNEL_COLUMNS[:3]) + " (and "
+                                  + CHANNEL_COLUMNS[3] + ") or numbers")
             continue
         rows.append(cells)
         line_rows.append(line_no)
@@ -109,8 +120,8 @@ _CSV_CACHE: dict = {}
 
 
 def channel_table_deg(scanner) -> np.ndarray | None:
-    """The rotating head's channel table (n, 3) [elevation_deg, azimuth_offset_deg, fire_offset_s], or None for
-    the evenly spaced channels.  A CSV file is read once per (path, modification time, size)."""
+    """The rotating head's channel table (n, 3) [elevation_deg, azimuth_offset_deg, fire_offset_s] (or (n, 4) with
+    relative_pulse_energy), or None for the evenly spaced channels.  A CSV file is read once per (path, modification time, size)."""
     if scanner.channel_table:
         return check_channel_rows(scanner.channel_table, "scanner.channel_table")
     if scanner.channel_table_file:
@@ -128,6 +139,18 @@ def channel_table_deg(scanner) -> np.ndarray | None:
             _CSV_CACHE[key] = table
         return table
     return None
+
+
+def channel_energy_scale(scanner) -> np.ndarray | None:
+    """Each channel's pulse energy over laser.pulse_energy_j (n_channels,) for a rotating head whose channel table
+    has the relative_pulse_energy column with a value other than 1, else None (every pulse at the laser's
+    energy: the products are those of a table without the column, bit for bit)."""
+    if scanner.pattern != "rotating":
+        return None
+    table = channel_table_deg(scanner)
+    if table is None or table.shape[1] < 4 or np.all(table[:, 3] == 1.0):
+        return None
+    return np.ascontiguousarray(table[: scanner.n_channels, 3])
 
 
 def check_channel_table(scanner) -> None:

@@ -43,6 +43,11 @@ PUBLISHED_KEYS = {
     "second_range_m": ((int, float), "maximum range at second_reflectivity: the figure the simulator is "
                                      "checked against"),
     "second_reflectivity": ((int, float), "Lambertian reflectivity of second_range_m (fraction)"),
+    "second_range_channel": (int, "the channel (channel-table row, from 1) second_range_m is stated for: the "
+                                  "probe fires at that channel's relative_pulse_energy"),
+    "second_range_derives": (str, "what is derived from second_range_m (the range equation, not the "
+                                  "simulator): then checked for consistency, P within 3 binomial standard "
+                                  "errors of the maker's definition at R and below it at 1.2 R"),
     "detected_range_m": ((int, float), "a range at which the source reports the target detected (checked: "
                                        "detection probability ≥ 0.5 there; no maximum implied)"),
     "detected_reflectivity": ((int, float), "Lambertian reflectivity of detected_range_m (fraction)"),
@@ -124,6 +129,9 @@ def _check_published(published, where: str) -> dict:
         if (a in published) != (b in published):
             missing = b if a in published else a
             raise ConfigError(f"{where}published.{missing}", None, f"given together with {a if missing == b else b}")
+    for key in ("second_range_channel", "second_range_derives"):
+        if key in published and "second_range_m" not in published:
+            raise ConfigError(f"{where}published.second_range_m", None, f"given with {key}")
     if "false_alarm_rate" in published and "max_range_m" not in published:
         raise ConfigError(f"{where}published.max_range_m", None, "given with false_alarm_rate (its range window)")
     return dict(published)

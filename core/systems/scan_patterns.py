@@ -6,7 +6,10 @@ d = (cos β sin α, sin β, −cos β cos α)), pulse k fired at t_k = k / PRF:
 * raster       unidirectional lines, line period 1/scan_rate, α sweeps −W/2 → +W/2, lines from β = +H/2 down;
 * oscillating  a sinusoidal across-track mirror α = (W/2) sin(2π f t), β = 0 (along-track from motion);
 * rotating     a head spinning about +Y, α = −W/2 + 2π f t, n_channels fired together at β ∈ [+H/2, −H/2];
-* palmer       a conical scan: the beam at the cone half angle c around −Z, azimuth φ = 2π f t;
+* palmer       a conical scan: the beam at the cone half angle c around −Z, azimuth φ = 2π f t; with a second
+               half angle c_y (``cone_half_angle_y_rad``) an elliptic cone, d ∝ (tan c cos φ, tan c_y sin φ, −1):
+               on any plane normal to −Z the beam draws the ellipse of semi-axes tan c and tan c_y (times the
+               distance) at the eccentric angle φ, off-nadir c in the X–Z plane and c_y in the Y–Z plane;
 * risley       rotating wedge prisms on the −Z axis (a rosette): each emitter's beam refracted exactly at both
                faces of every prism, prism i turned to ψ_i = −(2π f_i t + φ_i) (core/config/tables.py).
 
@@ -91,7 +94,13 @@ def pulse_schedule(config: SimulationConfig, start: int = 0, stop: int | None = 
     else:  # palmer
         phi = 2 * np.pi * s.scan_rate_hz * t
         c = s.cone_half_angle_rad
-        d = np.stack([np.sin(c) * np.cos(phi), np.sin(c) * np.sin(phi), -np.cos(c) * np.ones_like(phi)], axis=-1)
+        if s.cone_half_angle_y_rad:  # elliptic cone: (tan c cos φ, tan c_y sin φ, −1), normalised
+            d = np.stack([np.tan(c) * np.cos(phi), np.tan(s.cone_half_angle_y_rad) * np.sin(phi),
+                          -np.ones_like(phi)], axis=-1)
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+        else:
+            d = np.stack([np.sin(c) * np.cos(phi), np.sin(c) * np.sin(phi), -np.cos(c) * np.ones_like(phi)],
+                         axis=-1)
         angle = np.mod(phi + np.pi, 2 * np.pi) - np.pi
     return t, d, channel.astype(np.int16), angle
 

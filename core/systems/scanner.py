@@ -44,6 +44,7 @@ from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
 from .returns import encode_intensity, intensity_unit, peak_per_joule, quantize_range, select_returns
+from ..config.tables import channel_energy_scale
 from .scan_patterns import beam_subrays, pulse_schedule, scan_beams
 
 
@@ -224,7 +225,8 @@ def _merge_echoes(parts) -> Echoes:
 
 
 def _block_points(echoes: Echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame,
-                  config=None, extinction_per_m: float = 0.0, peak: float | None = None) -> dict:
+                  config=None, extinction_per_m: float = 0.0, peak: float | None = None,
+                  channel_scale=None) -> dict:
     """The points of one block's echoes (pulse ``a + echoes.pixel``), in the products' types: each echo placed
     along its pulse's nominal axis at the echo range.  With ``config``: the echoes its scanner's return mode
     reports, ranges rounded to its range quantum, intensities in its encoding (core/systems/returns.py)."""
@@ -244,6 +246,8 @@ def _block_points(echoes: Echoes, a, t_s, channel, angle, origin, axis_world, ga
         if config.scanner.range_quantum_m:
             range_m = quantize_range(range_m, config.scanner.range_quantum_m)
             time_s = 2.0 * range_m / SPEED_OF_LIGHT_M_S
+        if peak is not None and channel_scale is not None:  # each channel calibrated at its own energy
+            peak = peak * channel_scale[channel[p]]
         intensity = encode_intensity(echoes.amplitude, range_m, config, extinction_per_m, peak)
     points = {"position_world": origin[p] + axis_world[p] * range_m[:, None],
               "intensity": intensity, "range_m": range_m,
@@ -367,6 +371,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
 
     window = gate_window_s(config)
     peak = peak_per_joule(config) if config.scanner.intensity_encoding != "amplitude" else None
+    ch_scale = channel_energy_scale(config.scanner)  # None: every pulse at laser.pulse_energy_j
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
 
     def process(block):
@@ -397,6 +402,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         del prim, range_m, cos_theta
         e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
                             range_hit, frac_hit)
+        if ch_scale is not None:  # the channel's relative pulse energy (channel table, 4th column)
+            e = e * ch_scale[channel[p_hit]]
         drops_ret = None
         if wx is not None and wx.weather.has_drops:  # the drops of each pulse tile (stream per tile)
             parts_d = []
@@ -409,6 +416,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             drops_ret, shade = wx.block_returns(drops, np.repeat(np.arange(n), m), np.tile(weight, n), ray_range,
                                                 np.full(n, float(weight.sum())), p_hit, range_hit)
             e = e * shade
+            if ch_scale is not None and drops_ret is not None:
+                drops_ret = (drops_ret[0], drops_ret[1], drops_ret[2] * ch_scale[channel[drops_ret[0]]])
             local["weather"] = stage_clock() - t
         _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
         tallies[a] = gate_tally(range_hit, e, window)
@@ -419,8 +428,12 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         if save or noisy or wx is not None:
             w_p, w_t, w_e, _ = merge_returns(p_hit, t_rt, e, None, drops_ret)
             wf = accumulate_waveforms(w_p, w_t, w_e, n, laser, gate, method)
-            if wx is not None:
+            if wx is not None and ch_scale is None:
                 add_volume_rows(wf, wx.template, np.full(n, float(weight.sum())), p_hit, t_rt, frac_hit, gate)
+            elif wx is not None:  # the volume backscatter of each pulse at its channel's energy
+                vol = np.zeros_like(wf)
+                add_volume_rows(vol, wx.template, np.full(n, float(weight.sum())), p_hit, t_rt, frac_hit, gate)
+                wf += (vol * ch_scale[channel][:, None]).astype(wf.dtype)
             if save:
                 waveforms[a:b] = wf
             local["waveform"] = stage_clock() - t
@@ -450,7 +463,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             local["waveform"] = stage_clock() - t  # waveform windows and echo detection together
         t = stage_clock()
         pts = _block_points(echoes, a, t_s, channel, angle, origin, axis_world, gate, start_time_s, frame,
-                            config, atm.extinction_per_m, peak)
+                            config, atm.extinction_per_m, peak, ch_scale)
         if wx is not None:  # (the echoes the return mode kept, at their quantised ranges)
             pts["atmosphere"] = mark_atmosphere_echoes(config, pts["pulse_index"] - a, pts["range_m"], p_hit,
                                                        range_hit)

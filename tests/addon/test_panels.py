@@ -175,10 +175,14 @@ def test_every_panel_draws_for_every_system_type(lad, scene, tmp_path, system_ty
 
 
 @pytest.mark.parametrize("pattern, shown, hidden", [
-    ("raster", {"n_lines", "scan_width_rad", "scan_height_rad"}, {"n_channels", "cone_half_angle_rad"}),
-    ("oscillating", {"scan_width_rad"}, {"n_lines", "n_channels", "scan_height_rad", "cone_half_angle_rad"}),
-    ("rotating", {"n_channels", "scan_width_rad", "scan_height_rad"}, {"n_lines", "cone_half_angle_rad"}),
-    ("palmer", {"cone_half_angle_rad"}, {"n_lines", "n_channels", "scan_width_rad", "scan_height_rad"}),
+    ("raster", {"n_lines", "scan_width_rad", "scan_height_rad"},
+     {"n_channels", "cone_half_angle_rad", "cone_half_angle_y_rad"}),
+    ("oscillating", {"scan_width_rad"},
+     {"n_lines", "n_channels", "scan_height_rad", "cone_half_angle_rad", "cone_half_angle_y_rad"}),
+    ("rotating", {"n_channels", "scan_width_rad", "scan_height_rad"},
+     {"n_lines", "cone_half_angle_rad", "cone_half_angle_y_rad"}),
+    ("palmer", {"cone_half_angle_rad", "cone_half_angle_y_rad"},
+     {"n_lines", "n_channels", "scan_width_rad", "scan_height_rad"}),
 ])
 def test_scan_pattern_settings(lad, scene, pattern, shown, hidden):
     panels = lad.package.panels
@@ -296,6 +300,14 @@ def test_channel_table_csv_in_the_scanner_panel(lad, scene, tmp_path):
     good.write_text("1.0,0,0\n2.0,0,5\n", encoding="utf-8")  # spoiled after loading: fire offset out of range
     errors = [t for t in labels() if t.startswith("Error")]
     assert len(errors) == 1 and "row 2 column 3" in errors[0] and "5" in errors[0]
+    four = tmp_path / "four.csv"  # with the relative pulse energy column
+    four.write_text("elevation_deg,azimuth_offset_deg,fire_offset_s,relative_pulse_energy\n2.0,0.5,0,0.5\n"
+                    "-1.0,-0.25,1e-6,1\n", encoding="utf-8")
+    assert bpy.ops.ladar.channel_table_load(filepath=str(four)) == {"FINISHED"}
+    text = labels()
+    assert any(t.endswith(", relative pulse energy 0.5 … 1") for t in text), text
+    assert "  elevation_deg, azimuth_offset_deg, fire_offset_s, relative_pulse_energy" in text
+    assert "  +2.0000, +0.5000, 0, 0.5" in text
     assert bpy.ops.ladar.channel_table_clear() == {"FINISHED"}
     assert lad.blend_config.read_scanner_tables(cam) == {}
     assert "Evenly spaced channels (no channel table)" in labels()

@@ -87,6 +87,44 @@ def test_palmer_cone_and_oscillating_amplitude():
     np.testing.assert_allclose(d[:, 1], 0.0, atol=1e-15)
 
 
+def test_elliptic_palmer_draws_the_ellipse_on_the_ground():
+    """cone_half_angle_y_rad: on the plane z = −H the pulse k (φ = 2π f k/PRF) lands at (H tan a cos φ,
+    H tan b sin φ) — the ellipse of semi-axes H tan a, H tan b at its eccentric angle; the off-nadir angle θ
+    obeys tan²θ = tan²a cos²φ + tan²b sin²φ, spanning a (X–Z plane) to b (Y–Z plane).  Simulated: the points
+    on a plate at 75 m lie on that ellipse."""
+    a, b, H = np.radians(20.0), np.radians(14.0), 75.0
+    cfg = scanner_config("palmer", cone_half_angle_rad=a, cone_half_angle_y_rad=b, scan_rate_hz=50.0,
+                         pulse_rate_hz=10_000.0)
+    t, d, _, _ = pulse_schedule(cfg)
+    phi = 2 * np.pi * 50.0 * np.arange(200) / 10_000.0
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-15)
+    x, y = H * d[:, 0] / -d[:, 2], H * d[:, 1] / -d[:, 2]
+    np.testing.assert_allclose(x, H * np.tan(a) * np.cos(phi), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(y, H * np.tan(b) * np.sin(phi), rtol=0, atol=1e-12)
+    theta = np.arccos(-d[:, 2])
+    np.testing.assert_allclose(np.tan(theta) ** 2, np.tan(a) ** 2 * np.cos(phi) ** 2
+                               + np.tan(b) ** 2 * np.sin(phi) ** 2, rtol=1e-12)
+    assert np.degrees(np.ptp(np.arctan2(d[:, 0], -d[:, 2]))) == pytest.approx(40.0, abs=1e-9)
+    assert np.degrees(np.ptp(np.arctan2(d[:, 1], -d[:, 2]))) == pytest.approx(28.0, abs=1e-9)
+    # equal half angles: the circular cone (within rounding); 0: the circular cone exactly, as before
+    cfg.scanner.cone_half_angle_y_rad = a
+    _, d_eq, _, _ = pulse_schedule(cfg)
+    cfg.scanner.cone_half_angle_y_rad = 0.0
+    _, d_c, _, _ = pulse_schedule(cfg)
+    np.testing.assert_allclose(d_eq, d_c, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(d_c[:, 2], -np.cos(a))
+    cfg.scanner.cone_half_angle_y_rad = b
+    cfg.scanner.beam_subray_rings = 0
+    cfg.gate.gate_start_s = 2 * 60.0 / 299792458.0
+    cfg.gate.n_bins = int(2 * 30.0 / 299792458.0 / cfg.gate.bin_width_s)  # 60–90 m
+    res = simulate(plate(H, 60.0), np.eye(4), cfg)
+    p = res.points["position_world"]
+    assert len(p) == 200
+    u, v = p[:, 0] / -p[:, 2] / np.tan(a), p[:, 1] / -p[:, 2] / np.tan(b)
+    np.testing.assert_allclose(u ** 2 + v ** 2, 1.0, atol=1e-6)
+    np.testing.assert_allclose(-p[:, 2], H, atol=0.2)  # the plate's plane, within a range bin
+
+
 @pytest.mark.parametrize("rings", [0, 1, 2, 4])
 def test_beam_subrays_carry_equal_shares_of_exact_energy(rings):
     rho, phi, w = beam_subrays(rings, "gaussian")
