@@ -22,6 +22,29 @@ def plate_scene(scene):
     return scene
 
 
+def test_warm_up_compiles_what_the_sample_scenes_need(tmp_path):
+    """``ladar_run.py warm-up`` (no .blend) compiles or loads every system's kernels with a line of progress per
+    case; afterwards the flash and the airborne-scanner samples (ideal receiver, waveforms kept / discarded,
+    moving platform, sub-ray rings) compile no kernel.  Uses the user's kernel cache, as a user's warm-up does.
+
+    First in this file: with a cold cache (the suite's ``build/kernel-cache/``) the warm-up compiles, once and
+    early, the kernels that the later ``scripts/ladar_run.py`` runs of the session (this file's, the fault-injection,
+    heartbeat and README-example tests') then load (the order of the tests changes nothing they check)."""
+    run = [sys.executable, str(REPO / "scripts" / "ladar_run.py")]
+    warm = subprocess.run([*run, "warm-up"], capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert warm.returncode == 0, warm.stderr
+    steps = [line for line in warm.stdout.splitlines() if line.startswith("warm-up  [")]
+    assert len(steps) >= 20 and steps[-1].startswith(f"warm-up  [{len(steps)}/{len(steps)}]")
+    assert "kernels ready:" in warm.stdout
+    for sample in ("flash_demo", "forest_scan"):
+        done = subprocess.run([*run, str(REPO / "sample_blends" / f"{sample}.blend"), "simulate", "--out",
+                               str(tmp_path / sample), "--no-previews"], capture_output=True, text=True,
+                              timeout=600, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr
+        kernels = json.loads((tmp_path / sample / "metadata.json").read_text())["kernels"]
+        assert kernels["compiled"] == 0 and kernels["loaded"] > 0, (sample, kernels)
+
+
 def _run(lad, capsys, *argv):
     code = lad.cli.cli_handler(list(argv))
     out, err = capsys.readouterr()
@@ -161,22 +184,3 @@ def test_a_second_run_in_a_new_blender_user_folder_loads_every_kernel(lad, plate
     same = subprocess.run([sys.executable, str(REPO / "scripts" / "compare_runs.py"), str(tmp_path / "r1"),
                            str(tmp_path / "r2"), "--quiet"], capture_output=True, text=True)
     assert same.returncode == 0, same.stdout + same.stderr
-
-
-def test_warm_up_compiles_what_the_sample_scenes_need(tmp_path):
-    """``ladar_run.py warm-up`` (no .blend) compiles or loads every system's kernels with a line of progress per
-    case; afterwards the flash and the airborne-scanner samples (ideal receiver, waveforms kept / discarded,
-    moving platform, sub-ray rings) compile no kernel.  Uses the user's kernel cache, as a user's warm-up does."""
-    run = [sys.executable, str(REPO / "scripts" / "ladar_run.py")]
-    warm = subprocess.run([*run, "warm-up"], capture_output=True, text=True, timeout=900, cwd=tmp_path)
-    assert warm.returncode == 0, warm.stderr
-    steps = [line for line in warm.stdout.splitlines() if line.startswith("warm-up  [")]
-    assert len(steps) >= 20 and steps[-1].startswith(f"warm-up  [{len(steps)}/{len(steps)}]")
-    assert "kernels ready:" in warm.stdout
-    for sample in ("flash_demo", "forest_scan"):
-        done = subprocess.run([*run, str(REPO / "sample_blends" / f"{sample}.blend"), "simulate", "--out",
-                               str(tmp_path / sample), "--no-previews"], capture_output=True, text=True,
-                              timeout=600, cwd=tmp_path)
-        assert done.returncode == 0, done.stderr
-        kernels = json.loads((tmp_path / sample / "metadata.json").read_text())["kernels"]
-        assert kernels["compiled"] == 0 and kernels["loaded"] > 0, (sample, kernels)
