@@ -20,12 +20,11 @@ import sys
 {pre}
 sys.path.insert(0, {pkg!r})
 import numpy as np
-from core.config.settings import DetectionSettings
-from core.physics.detection.peaks import detect_echoes
+from core.physics.detection.peaks import _compact, interpolate_at
 import core.jit
-w = np.zeros((1, 16)); w[0, 5:8] = (1.0, 3.0, 1.0)
-e = detect_echoes(w, DetectionSettings())
-assert len(e.pixel) == 1 and abs(e.position_bins[0] - 6.5) < 1e-12
+assert interpolate_at(1.0, 3.0, 1.0, 1) == (0.0, 3.0)  # a symmetric peak: no shift
+cand = np.array([4, 7, 9])
+assert _compact(cand, np.array([False, True, True]), 3) == 2 and cand[:2].tolist() == [7, 9]
 print(core.jit.CACHE_DIR)
 """
 
@@ -163,13 +162,33 @@ print(json.dumps({{"cache": str(core.jit.CACHE_DIR), "stats": core.jit.CACHE_STA
 """
 
 
-def _probe(pkg: Path, cache: Path, *, expect_ok=True):
-    """Run the probe on the core copy in ``pkg`` with the kernel cache in ``cache``: (report, stderr)."""
+#: The cache mechanism's probe: two small kernels of core/ (a scalar one and one on arrays), two cache entries,
+#: compiled in about 1 s of CPU where PROBE's echo detection (six kernels) takes about 7 s; for the tests whose
+#: point is the cache's handling of entries (damage, an unwritable folder, two writers), not which kernels a run
+#: needs (test_the_same_source_in_another_folder_loads_every_kernel_and_compiles_none keeps PROBE; every kernel of
+#: a whole run: tests/addon/test_cli.py::test_a_second_run_in_a_new_blender_user_folder_loads_every_kernel).
+SMALL_PROBE = """
+import json, sys
+sys.path.insert(0, {pkg!r})
+import numpy as np
+from core.physics.detection.peaks import _compact, interpolate_at
+import core.jit
+peaks = [interpolate_at(1.0, 3.0, 1.5, 2), interpolate_at(2.0, 5.0, 1.0, 1)]
+cand = np.array([4, 7, 9, 12])
+kept = _compact(cand, np.array([True, False, True, True]), 4)
+assert kept == 3 and cand[:3].tolist() == [4, 9, 12]
+print(json.dumps({{"cache": str(core.jit.CACHE_DIR), "stats": core.jit.CACHE_STATS,
+                  "positions": [float(x).hex() for p in peaks for x in p]}}))
+"""
+
+
+def _probe(pkg: Path, cache: Path, *, expect_ok=True, code=PROBE):
+    """Run ``code`` (a probe) on the core copy in ``pkg`` with the kernel cache in ``cache``: (report, stderr)."""
     import json
 
     env = {k: v for k, v in os.environ.items() if k not in DROP}
     env.update(LADAR_KERNEL_CACHE=str(cache), PYTHONDONTWRITEBYTECODE="1")
-    out = subprocess.run([sys.executable, "-c", PROBE.format(pkg=str(pkg))], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", code.format(pkg=str(pkg))], capture_output=True, text=True,
                          env=env, cwd=pkg)
     assert (out.returncode == 0) == expect_ok, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1]), out.stderr
@@ -200,7 +219,8 @@ def clean_install(tmp_path_factory):
     """A copy of core/ with its probe kernels compiled into a cache: (package folder, cache, probe report)."""
     root = tmp_path_factory.mktemp("clean")
     pkg = _copy_core(root / "install")
-    report, _ = _probe(pkg, root / "cache")
+    report, _ = _probe(pkg, root / "cache", code=SMALL_PROBE)
+    assert report["stats"]["saved"] == 2
     return pkg, root / "cache", report
 
 
@@ -214,7 +234,7 @@ def test_a_damaged_cache_entry_costs_a_compile_with_a_note(tmp_path, damage, cle
     cache = tmp_path / "cache"
     shutil.copytree(clean_cache, cache)
     files = sorted(cache.rglob("*.nbc"))
-    assert files
+    assert len(files) == 2  # ("foreign" swaps the two entries)
     rnd = random.Random(damage)
     for f in files:
         blob = bytearray(f.read_bytes())
@@ -232,13 +252,13 @@ def test_a_damaged_cache_entry_costs_a_compile_with_a_note(tmp_path, damage, cle
         blobs = [f.read_bytes() for f in files]
         for f, blob in zip(files, blobs[1:] + blobs[:1]):
             f.write_bytes(blob)
-    again, err = _probe(pkg, cache)
+    again, err = _probe(pkg, cache, code=SMALL_PROBE)
     assert again["positions"] == clean["positions"]
     assert again["stats"]["rejected"] > 0 and again["stats"]["compiled"] > 0
     notes = [line for line in err.splitlines() if line.startswith("ladar: note:")]
     assert len(notes) == 1 and "compiling it again" in notes[0], err[-2000:]
     assert "Traceback" not in err
-    healed, err = _probe(pkg, cache)
+    healed, err = _probe(pkg, cache, code=SMALL_PROBE)
     assert healed["stats"]["compiled"] == 0 and healed["stats"]["rejected"] == 0 and not err.strip()
 
 
@@ -248,7 +268,7 @@ def test_an_unwritable_cache_costs_only_the_keeping(tmp_path):
     blocker = tmp_path / "blocker"
     blocker.write_text("a file, not a folder")
     pkg = _copy_core(tmp_path / "install")
-    report, err = _probe(pkg, blocker / "cache")
+    report, err = _probe(pkg, blocker / "cache", code=SMALL_PROBE)
     assert report["stats"]["compiled"] > 0 and report["stats"]["saved"] == 0 and report["stats"]["unsaved"] > 0
     notes = [line for line in err.splitlines() if line.startswith("ladar: note:")]
     assert len(notes) == 1 and "not kept" in notes[0]
@@ -298,12 +318,12 @@ def test_two_runs_compiling_at_once_both_work_and_the_next_loads(tmp_path):
     pkg = _copy_core(tmp_path / "install")
     env = {k: v for k, v in os.environ.items() if k not in DROP}
     env.update(LADAR_KERNEL_CACHE=str(cache), PYTHONDONTWRITEBYTECODE="1")
-    procs = [subprocess.Popen([sys.executable, "-c", PROBE.format(pkg=str(pkg))], stdout=subprocess.PIPE,
+    procs = [subprocess.Popen([sys.executable, "-c", SMALL_PROBE.format(pkg=str(pkg))], stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, env=env, cwd=pkg) for _ in range(2)]
     outs = [p.communicate(timeout=600) for p in procs]
     assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
     results = [json.loads(o[0].strip().splitlines()[-1]) for o in outs]
     assert results[0]["positions"] == results[1]["positions"]
     assert not list(cache.rglob("*.tmp.*"))
-    third, err = _probe(pkg, cache)
+    third, err = _probe(pkg, cache, code=SMALL_PROBE)
     assert third["stats"]["compiled"] == 0 and third["positions"] == results[0]["positions"] and not err.strip()
