@@ -314,7 +314,8 @@ def json_default(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
-#: SI prefixes of energies as people read them (µ for micro; the PLY header's ASCII ones: :data:`_SI_PREFIXES`).
+#: SI prefixes of energies and times as people read them (µ for micro; the PLY header's ASCII ones:
+#: :data:`_SI_PREFIXES`).
 DISPLAY_PREFIXES = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}
 
 
@@ -323,16 +324,22 @@ def display_prefix(magnitude: float) -> int:
     return min(0, max(min(DISPLAY_PREFIXES), 3 * math.floor(math.log10(magnitude) / 3)))
 
 
+def format_si(value: float, unit: str) -> str:
+    """A value of an SI ``unit`` ("J", "s") on the prefix that puts it in [1, 1000), 4 significant digits:
+    "667.7 fJ", "13.24 µs", "100 mJ", "0 J" (at most the unit itself: "1500 s")."""
+    v = float(value)
+    if v == 0.0 or not math.isfinite(v):
+        return f"{v:g} {unit}"
+    k = display_prefix(abs(v))
+    if k < 0 and abs(float(f"{v / float(f'1e{k}'):.4g}")) >= 1000.0:  # 999.96 fJ rounds to 1 pJ, not "1000 fJ"
+        k += 3
+    return f"{v / float(f'1e{k}'):.4g} {DISPLAY_PREFIXES[k]}{unit}"
+
+
 def format_energy_j(joules: float) -> str:
     """An energy on the SI prefix that puts it in [1, 1000): "667.7 fJ", "1.094 pJ", "49.19 nJ", "0 J" (issue 27:
     "6.677e-13 J" is not a unit a person reads)."""
-    j = float(joules)
-    if j == 0.0 or not math.isfinite(j):
-        return f"{j:g} J"
-    k = display_prefix(abs(j))
-    if k < 0 and abs(float(f"{j / float(f'1e{k}'):.4g}")) >= 1000.0:  # 999.96 fJ rounds to 1 pJ, not "1000 fJ"
-        k += 3
-    return f"{j / float(f'1e{k}'):.4g} {DISPLAY_PREFIXES[k]}J"
+    return format_si(joules, "J")
 
 
 def _range(values) -> list | None:
