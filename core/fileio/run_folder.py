@@ -404,7 +404,8 @@ def combine_figures(figures: list[dict]) -> dict:
             if f.get(k) is not None:
                 out[k] = (out.get(k) or 0) + f[k]
         for k in ("points_per_frame", "false_alarms_per_frame", "range_m", "snr_true", "snr_false"):
-            out[k] = _merge_range(out.get(k), f.get(k))
+            if k in out or k in f:  # (an ideal receiver's frames have no SNR at all)
+                out[k] = _merge_range(out.get(k), f.get(k))
         out["ideal"] = out.get("ideal", True) and f["ideal"]
         if "coverage" in f:
             c = out.setdefault("coverage", {"gate_range_m": list(f["coverage"]["gate_range_m"]), "hit_range_m": None,

@@ -153,6 +153,7 @@ def test_cli_frames(lad, scene, tmp_path, capsys):
     # the figures a single run prints, over the frames (the ideal receiver: none possible, no SNR)
     assert "echoes   192 points (64 – 64 per frame), 192 pixels with an echo" in out
     assert "false    none possible: ideal receiver" in out and "summed over 3 frames" in out
+    assert "\nsnr " not in out  # no SNR line (it said "no true return": a key absent from every frame merged)
     assert "holds 100.0 % of the hit energy" in out and "(all 3 frames)" in out
     assert "frame 2 (2/3)" in out  # progress lines name the frame
     meta = json.loads((tmp_path / "cli_seq" / "metadata.json").read_text())
