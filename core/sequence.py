@@ -22,7 +22,8 @@ from .engine.memory import check_memory
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
-from .fileio.run_folder import json_default, naming, run_warnings, software_versions, write_ply, write_run_files
+from .fileio.run_folder import (json_default, naming, run_figures, run_warnings, software_versions, write_ply,
+                                write_run_files)
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
@@ -62,7 +63,8 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
     scene_for_frame(frame) -> SceneGeometry (return the same object for static geometry: its BVH is reused),
     pose_for_frame(frame) -> 4×4 sensor→world matrix, trajectory_for_frame(frame) -> Trajectory or None
     (scanner motion within a frame), start_time_for_frame(frame) -> seconds (the scanner's GPS-style time).
-    Returns (run_path, list of per-frame stats).
+    Returns (run_path, list of per-frame stats), each frame's with its summary ``figures``
+    (core.fileio.run_folder.run_figures: the terminal summary and Blender's report add them up over the frames).
     """
     try:  # whole numbers only: int() would truncate 1.5 to frame 1
         frames = [operator.index(f) for f in frames]
@@ -98,7 +100,7 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                                   start_time_s=start, progress=frame_progress, cancel=cancel)
                 meta = run_metadata(config, result, frame, extra_metadata)
                 write_run_files(tmp / f"frame_{frame:04d}", result, meta)
-                all_stats.append(result.stats)
+                all_stats.append({**result.stats, "figures": run_figures(result)})  # (the summary's: not in metadata)
                 point_sets.append(result.points)
                 units = result.units  # the same settings every frame: the same units
                 del result

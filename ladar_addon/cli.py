@@ -185,7 +185,7 @@ def _check_frames(frames, field: str) -> None:
 
 
 def _cmd_simulate(scene, args) -> int:
-    from ..core.fileio.run_folder import run_summary
+    from ..core.fileio.run_folder import combine_figures, figure_lines, run_summary
     from .frames import parse_frames
     from .job import SimulationJob
     from .run_inputs import progress_printer
@@ -208,8 +208,9 @@ def _cmd_simulate(scene, args) -> int:
         meta = json.loads((job.run_path / "metadata.json").read_text(encoding="utf-8"))
         emit(f"run      {job.run_path}\n"
              f"frames   {len(frames)} ({frames[0]} … {frames[-1]}), {n_points} points, "
-             f"{meta.get('bvh_builds')} BVH build(s), {job.source.exports} geometry export(s)\n"
-             f"time     {job.t_end - job.t_start:.2f} s")
+             f"{meta.get('bvh_builds')} BVH build(s), {job.source.exports} geometry export(s)")
+        emit("\n".join(figure_lines(combine_figures([s["figures"] for s in job.frame_stats]))))
+        emit(f"time     {job.t_end - job.t_start:.2f} s")
         for w in job.warnings():
             emit("WARNING  " + w)
     return EXIT_OK

@@ -146,6 +146,19 @@ class FieldMap:
             return bool(value)
         return str(value)
 
+    def readable(self, si) -> str:
+        """What the panel adds beside a field whose panel unit does not suit the value (issue 27): a Blender
+        property has one static unit, so 0.1 J in a µJ field reads "100000"; for energies and times (J, s) whose
+        panel number is outside [1, 1000) this is the value on the SI prefix that puts it there ("100 mJ",
+        "13.24 µs", core.fileio.run_folder.format_si), else "" (the field reads well by itself)."""
+        from ..core.fileio.run_folder import format_si
+
+        unit = self.meta.get("unit") or ""
+        if self.conversion != "pow10" or unit not in ("J", "s") or not si:
+            return ""
+        shown = abs(self.to_blender(si))  # the panel number, in decimal arithmetic (1e-6 s is 1000 ns, not 999.99…)
+        return "" if 1.0 <= shown < 1000.0 else format_si(si, unit)
+
     def legacy_to_core(self, value) -> float:
         """The SI value held in the legacy property (``legacy_attr``): a single-precision float of a file saved
         before the change, read as the add-on read it then (shortest decimal of the float32, scaled by

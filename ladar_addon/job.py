@@ -339,13 +339,14 @@ class SimulationJob(BackgroundJob):
     # -- reporting ------------------------------------------------------------------------------------------------
     def summary(self) -> str:
         if self.state == "done":
-            if self.sequence:
-                n = sum(s.get("n_points", 0) for s in self.frame_stats)
-                return f"{n} points in {len(self.frames)} frames in {self.run_path}"
-            pts = self.result.points
-            fa = pts.get("false_alarm")
-            what = f"{len(pts['range_m'])} points" + (f" ({int(fa.sum())} false alarms)" if fa is not None else "")
-            return f"{what} in {self.run_path}"
+            from ..core.fileio.run_folder import combine_figures, run_figures
+
+            fig = (combine_figures([s["figures"] for s in self.frame_stats]) if self.sequence
+                   else run_figures(self.result))
+            fa = fig.get("false_alarms")
+            what = f"{fig['points']} points" + (f" ({fa} false alarms)" if fa is not None else "")
+            return f"{what} in {len(self.frames)} frames in {self.run_path}" if self.sequence else \
+                f"{what} in {self.run_path}"
         if self.state == "failed":
             return str(self.error) or type(self.error).__name__
         return self.state

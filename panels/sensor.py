@@ -23,12 +23,25 @@ def si_values(props, group) -> dict:
     return {f.name: read_value(props, f) for f in SENSOR_FIELDS[group] if f.conversion != "distance"}
 
 
+def _readable(props, f) -> str:
+    """``FieldMap.readable`` of the field's value ("" if it cannot be read: draw must never fail)."""
+    try:
+        return f.readable(read_value(props, f))
+    except Exception:  # noqa: BLE001
+        return ""
+
+
 def draw_group_fields(layout, props, group, system_type, skip=(), scan_pattern=None):
     """One row per setting of ``group`` that ``system_type`` uses (labels, units and ranges come from the
     property definitions)."""
     for f in SENSOR_FIELDS[group]:
         if f.attr not in skip and f.name not in skip and field_used(system_type, group, f.name, scan_pattern):
             layout.prop(props, f.attr)
+            readable = _readable(props, f)  # "= 100 mJ" under a µJ field holding 100000
+            if readable:
+                row = layout.row()
+                row.alignment = "RIGHT"
+                row.label(text=f"= {readable}")
 
 
 class _SensorPanel:

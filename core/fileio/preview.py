@@ -26,7 +26,7 @@ from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..physics.brdf import evaluate_brdf
 from .staging import write_file_atomically
-from .run_folder import DISPLAY_PREFIXES, display_prefix, read_exr
+from .run_folder import DISPLAY_PREFIXES, display_prefix, format_energy_j, read_exr
 
 #: What each image product shows: (title, colour map, logarithmic colour scale).  Units come from the run's
 #: ``metadata.json`` (``units``, written from ``FrameResult.units``: core.engine.result.product_units).
@@ -170,7 +170,23 @@ def false_colour_figure(image, *, title: str, unit: str, cmap: str = "viridis", 
     bar.set_label(label)
     if not log:
         bar.formatter.set_useOffset(False)  # 299.98 m, not "+2.9998e2" above the bar
+    elif re.match(r"J\b", unit or ""):
+        si_energy_ticks(bar)
     return fig
+
+
+def si_energy_ticks(bar) -> None:
+    """Label a logarithmic colour bar in joules with SI prefixes ("10 fJ", "1 pJ", "3 nJ"), not powers of ten of
+    J (issue 27): matplotlib's log formatter still chooses which ticks get a label, only their text changes."""
+    from matplotlib.ticker import LogFormatterSciNotation
+
+    class SIEnergyFormatter(LogFormatterSciNotation):
+        def __call__(self, x, pos=None):
+            return format_energy_j(x) if super().__call__(x, pos) else ""
+
+    axis = bar.ax.yaxis if bar.orientation == "vertical" else bar.ax.xaxis
+    axis.set_major_formatter(SIEnergyFormatter())
+    axis.set_minor_formatter(SIEnergyFormatter(labelOnlyBase=False))
 
 
 def _log_shown(image: np.ndarray):

@@ -314,7 +314,8 @@ def json_default(obj):
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
-#: SI prefixes of energies as people read them (µ for micro; the PLY header's ASCII ones: :data:`_SI_PREFIXES`).
+#: SI prefixes of energies and times as people read them (µ for micro; the PLY header's ASCII ones:
+#: :data:`_SI_PREFIXES`).
 DISPLAY_PREFIXES = {0: "", -3: "m", -6: "\u00b5", -9: "n", -12: "p", -15: "f", -18: "a", -21: "z", -24: "y"}
 
 
@@ -323,23 +324,152 @@ def display_prefix(magnitude: float) -> int:
     return min(0, max(min(DISPLAY_PREFIXES), 3 * math.floor(math.log10(magnitude) / 3)))
 
 
+def format_si(value: float, unit: str) -> str:
+    """A value of an SI ``unit`` ("J", "s") on the prefix that puts it in [1, 1000), 4 significant digits:
+    "667.7 fJ", "13.24 µs", "100 mJ", "0 J" (at most the unit itself: "1500 s")."""
+    v = float(value)
+    if v == 0.0 or not math.isfinite(v):
+        return f"{v:g} {unit}"
+    k = display_prefix(abs(v))
+    if k < 0 and abs(float(f"{v / float(f'1e{k}'):.4g}")) >= 1000.0:  # 999.96 fJ rounds to 1 pJ, not "1000 fJ"
+        k += 3
+    return f"{v / float(f'1e{k}'):.4g} {DISPLAY_PREFIXES[k]}{unit}"
+
+
 def format_energy_j(joules: float) -> str:
     """An energy on the SI prefix that puts it in [1, 1000): "667.7 fJ", "1.094 pJ", "49.19 nJ", "0 J" (issue 27:
     "6.677e-13 J" is not a unit a person reads)."""
-    j = float(joules)
-    if j == 0.0 or not math.isfinite(j):
-        return f"{j:g} J"
-    k = display_prefix(abs(j))
-    if k < 0 and abs(float(f"{j / float(f'1e{k}'):.4g}")) >= 1000.0:  # 999.96 fJ rounds to 1 pJ, not "1000 fJ"
-        k += 3
-    return f"{j / float(f'1e{k}'):.4g} {DISPLAY_PREFIXES[k]}J"
+    return format_si(joules, "J")
+
+
+def _range(values) -> list | None:
+    return [float(np.min(values)), float(np.max(values))] if len(values) else None
+
+
+def run_figures(result) -> dict:
+    """What one run (or one frame of a sequence) saw, as the terminal summary and Blender's report print it:
+    points, cells with an echo, false alarms, returns of the atmosphere, the SNR ranges, the energy received and
+    the range gate's coverage in absolute sub-rays and joules (so frames add up: :func:`combine_figures`)."""
+    st, pts = result.stats, result.points
+    pulsed = "n_pulses" in st
+    image = getattr(result, "range_image", None)
+    fig = {"frames": 1, "unit": "pulses" if pulsed else "pixels",
+           "cells": int(st["n_pulses"]) if pulsed else (int(image.size) if image is not None else 1),
+           "points": int(len(pts["range_m"])), "points_per_frame": [int(len(pts["range_m"]))] * 2,
+           "range_m": _range(pts["range_m"]), "received_energy_j": float(st["received_energy_j"])}
+    if fig["points"]:
+        first = pts["echo_index"] == 1
+        fig["with_echo"] = int(first.sum())
+        fig["with_several"] = int((pts["n_echoes"][first] > 1).sum())
+    else:
+        fig["with_echo"] = fig["with_several"] = 0
+    fa, snr, atm = pts.get("false_alarm"), pts.get("snr"), pts.get("atmosphere")
+    fig["false_alarms"] = None if fa is None else int(np.count_nonzero(fa))
+    fig["false_alarms_per_frame"] = None if fa is None else [fig["false_alarms"]] * 2
+    fig["ideal"] = fa is None and snr is None
+    if atm is not None:
+        fig["atmosphere"] = int(np.count_nonzero(atm))
+        fig["weather"] = st["weather"]["model"]["condition"] if "weather" in st else None
+    if snr is not None:
+        fig["snr_true"] = _range(snr[fa == 0] if fa is not None else snr)
+        fig["snr_false"] = _range(snr[fa != 0]) if fa is not None else None
+    cov = st.get("gate_coverage")
+    if cov and cov.get("hit_subrays"):
+        n, e = cov["hit_subrays"], cov["hit_energy_j"]
+        fig["coverage"] = {"gate_range_m": list(cov["gate_range_m"]), "hit_range_m": list(cov["hit_range_m"]),
+                           "subrays": {k: v * n for k, v in cov["subray_fraction"].items()},
+                           "energy_j": {k: v * e for k, v in cov["energy_fraction"].items()}}
+    return fig
+
+
+def _merge_range(a, b):
+    return b if a is None else a if b is None else [min(a[0], b[0]), max(a[1], b[1])]
+
+
+def combine_figures(figures: list[dict]) -> dict:
+    """The figures of a sequence from its frames' (:func:`run_figures`): counts, cells and energies summed, value
+    ranges (range, SNR, the hits' range) from the smallest to the largest, points and false alarms per frame from
+    the fewest to the most, the gate's coverage from the summed sub-rays and joules."""
+    out = None
+    for f in figures:
+        if out is None:
+            out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in f.items()}
+            if "coverage" in f:
+                out["coverage"] = {k: (dict(v) if isinstance(v, dict) else list(v)) for k, v in f["coverage"].items()}
+            continue
+        for k in ("frames", "cells", "points", "with_echo", "with_several", "received_energy_j", "atmosphere"):
+            if k in f:
+                out[k] = out.get(k, 0) + f[k]
+        for k in ("false_alarms",):
+            if f.get(k) is not None:
+                out[k] = (out.get(k) or 0) + f[k]
+        for k in ("points_per_frame", "false_alarms_per_frame", "range_m", "snr_true", "snr_false"):
+            if k in out or k in f:  # (an ideal receiver's frames have no SNR at all)
+                out[k] = _merge_range(out.get(k), f.get(k))
+        out["ideal"] = out.get("ideal", True) and f["ideal"]
+        if "coverage" in f:
+            c = out.setdefault("coverage", {"gate_range_m": list(f["coverage"]["gate_range_m"]), "hit_range_m": None,
+                                            "subrays": dict.fromkeys(f["coverage"]["subrays"], 0.0),
+                                            "energy_j": dict.fromkeys(f["coverage"]["energy_j"], 0.0)})
+            c["hit_range_m"] = _merge_range(c["hit_range_m"], f["coverage"]["hit_range_m"])
+            for part in ("subrays", "energy_j"):
+                for k, v in f["coverage"][part].items():
+                    c[part][k] += v
+    return out or {}
+
+
+def figure_lines(fig: dict) -> list[str]:
+    """The summary's lines of what was seen (``run_figures`` of a run, ``combine_figures`` of a sequence's frames:
+    a sequence's counts are totals over its frames, with the fewest and most per frame)."""
+    lines, unit, frames = [], fig["unit"], fig["frames"]
+    per = unit[:-1] + (" and frame" if frames > 1 else "")
+    if fig["points"]:
+        lo, hi = fig["points_per_frame"]
+        each = f" ({lo} – {hi} per frame)" if frames > 1 else ""
+        lines.append(f"echoes   {fig['points']} points{each}, {fig['with_echo']} {unit} with an echo, "
+                     f"{fig['with_several']} with several; range "
+                     f"{fig['range_m'][0]:.3f} – {fig['range_m'][1]:.3f} m")
+    else:
+        lines.append("echoes   none detected")
+    n_fa = fig.get("false_alarms")
+    if n_fa is not None:
+        lo, hi = fig["false_alarms_per_frame"]
+        each = f", {lo} – {hi} per frame" if frames > 1 else ""
+        lines.append(f"false    {n_fa} false alarms of {fig['points']} points ({n_fa / max(fig['cells'], 1):.3g} "
+                     f"per {per}{each}; {fig['points'] - n_fa} true returns)")
+    if "atmosphere" in fig:
+        n_atm = fig["atmosphere"]
+        lines.append(f"weather  {n_atm} returns of the atmosphere of {fig['points']} points ({fig['weather']}"
+                     f"; LAS class 18, withheld)" if fig.get("weather") else
+                     f"weather  {n_atm} returns of the atmosphere")
+    if fig["ideal"]:
+        lines.append("false    none possible: ideal receiver (detector.mode = ideal: no noise, so no SNR either)")
+    if "snr_true" in fig and fig["points"]:
+        t, f = fig["snr_true"], fig.get("snr_false")
+        part = [f"true returns {t[0]:.3g} – {t[1]:.3g}" if t else "no true return"]
+        if f:
+            part.append(f"false alarms {f[0]:.3g} – {f[1]:.3g}")
+        lines.append("snr      " + "; ".join(part))
+    lines.append(f"energy   {format_energy_j(fig['received_energy_j'])} at the aperture from every hit sub-ray "
+                 "(before the range gate and time binning)" + (f", summed over {frames} frames" if frames > 1 else ""))
+    cov = fig.get("coverage")
+    if cov:
+        n, e = sum(cov["subrays"].values()), sum(cov["energy_j"].values())
+        ef = {k: (v / e if e > 0 else 0.0) for k, v in cov["energy_j"].items()}
+        sf = {k: (v / n if n > 0 else 0.0) for k, v in cov["subrays"].items()}
+        g0, g1 = cov["gate_range_m"]
+        h0, h1 = cov["hit_range_m"]
+        lines.append(f"gate     {g0:.1f} – {g1:.1f} m holds {100 * ef['inside']:.1f} % of the hit energy "
+                     f"({100 * ef['before']:.1f} % before, {100 * ef['after']:.1f} % after) and "
+                     f"{100 * sf['inside']:.1f} % of the hit sub-rays; hits at {h0:.1f} – {h1:.1f} m"
+                     + (f" (all {frames} frames)" if frames > 1 else ""))
+    return lines
 
 
 def run_summary(run_path, result) -> str:
     """A few lines a person reads after a run: what was seen (points, false alarms, SNR), how much of what the
     rays hit the range gate covers (with a warning below 90 %), what ran, what was skipped, where it went."""
     st = result.stats
-    pts = result.points
     lines = [f"run      {run_path}"]
     if "n_pulses" in st:
         lines.append(f"pulses   {st['n_pulses']} fired ({st['subrays_per_pulse']} sub-rays each) over "
@@ -350,45 +480,7 @@ def run_summary(run_path, result) -> str:
         d = np.asarray(st["slice_delays_s"])
         lines.append(f"slices   {len(d)} gates, delays {d[0] * 1e9:.1f} – {d[-1] * 1e9:.1f} ns; range by "
                      f"{st['range_method']}")
-    unit = "pulses" if "n_pulses" in st else "pixels"
-    n_cells = st["n_pulses"] if "n_pulses" in st else (
-        result.range_image.size if getattr(result, "range_image", None) is not None else 1)
-    if len(pts["range_m"]):
-        first = pts["echo_index"] == 1
-        lines.append(f"echoes   {len(pts['range_m'])} points, {int(first.sum())} {unit} with an echo, "
-                     f"{int((pts['n_echoes'][first] > 1).sum())} with several; range "
-                     f"{pts['range_m'].min():.3f} – {pts['range_m'].max():.3f} m")
-    else:
-        lines.append("echoes   none detected")
-    fa = pts.get("false_alarm")
-    if fa is not None:
-        n_fa = int(np.count_nonzero(fa))
-        lines.append(f"false    {n_fa} false alarms of {len(fa)} points ({n_fa / max(n_cells, 1):.3g} per "
-                     f"{unit[:-1]}; {len(fa) - n_fa} true returns)")
-    atm = pts.get("atmosphere")
-    if atm is not None:
-        n_atm = int(np.count_nonzero(atm))
-        lines.append(f"weather  {n_atm} returns of the atmosphere of {len(atm)} points ({st['weather']['model']['condition']}"
-                     f"; LAS class 18, withheld)" if "weather" in st else f"weather  {n_atm} returns of the atmosphere")
-    snr = pts.get("snr")
-    if fa is None and snr is None:
-        lines.append("false    none possible: ideal receiver (detector.mode = ideal: no noise, so no SNR either)")
-    if snr is not None and len(snr):
-        true = snr[fa == 0] if fa is not None else snr
-        part = [f"true returns {true.min():.3g} – {true.max():.3g}" if len(true) else "no true return"]
-        if fa is not None and np.count_nonzero(fa):
-            part.append(f"false alarms {snr[fa != 0].min():.3g} – {snr[fa != 0].max():.3g}")
-        lines.append("snr      " + "; ".join(part))
-    cov = st.get("gate_coverage")
-    lines.append(f"energy   {format_energy_j(st['received_energy_j'])} at the aperture from every hit sub-ray "
-                 "(before the range gate and time binning)")
-    if cov and cov.get("hit_subrays"):
-        ef, sf = cov["energy_fraction"], cov["subray_fraction"]
-        g0, g1 = cov["gate_range_m"]
-        h0, h1 = cov["hit_range_m"]
-        lines.append(f"gate     {g0:.1f} – {g1:.1f} m holds {100 * ef['inside']:.1f} % of the hit energy "
-                     f"({100 * ef['before']:.1f} % before, {100 * ef['after']:.1f} % after) and "
-                     f"{100 * sf['inside']:.1f} % of the hit sub-rays; hits at {h0:.1f} – {h1:.1f} m")
+    lines += figure_lines(run_figures(result))
     times = ", ".join(f"{k} {v:.3f}" for k, v in st["stage_times_s"].items() if v >= 5e-4)
     lines.append(f"stages   {times} (s, summed over threads; without loading or compiling kernels)")
     k = st.get("kernels")

@@ -229,6 +229,43 @@ def test_the_nanosecond_settings_of_issue_27_read_in_ns(lad, scene):
     assert _shown(scene, cam.ladar.laser, laser["pulse_energy_j"]) == ("0.2", "µJ")
 
 
+_PREFIX = {"": 1.0, "m": 1e-3, "µ": 1e-6, "n": 1e-9, "p": 1e-12, "f": 1e-15, "a": 1e-18}
+
+
+def test_energies_and_times_the_field_unit_does_not_suit_get_a_readable_companion(lad, scene):
+    """A FloatProperty has one static unit: 0.1 J in the µJ field shows "100000" through Blender's formatter.
+    For every energy and time field, at every representative value: either the number Blender shows is in
+    [1, 1000) and the panel adds nothing, or the panel adds ``FieldMap.readable`` — a number in [1, 1000) on an
+    SI prefix of the same unit that gives the SI value back to its 4 significant digits."""
+    cam = add_camera(scene)
+    checked = 0
+    for f in _maps(lad):
+        if f.kind != "float" or f.meta.get("unit") not in ("J", "s") or f.conversion != "pow10":
+            continue
+        props = _owner(scene, cam, f)
+        for si in _values(f):
+            lad.fields.write_value(props, f, si)
+            text, unit = _shown(scene, props, f)
+            readable = f.readable(lad.fields.read_value(props, f))
+            number = float(re.match(r"^-?[\d.]+", text).group(0))
+            if si == 0 or 1.0 <= number < 1000.0:
+                assert readable == "", (f.path, si, text, readable)
+                continue
+            m = re.match(r"^(-?[\d.]+) (\S?)" + f.meta["unit"] + "$", readable)
+            assert m and 1.0 <= float(m.group(1)) < 1000.0, (f.path, si, text, readable)
+            assert float(m.group(1)) * _PREFIX[m.group(2)] == pytest.approx(si, rel=5e-4), (f.path, si, readable)
+            checked += 1
+        lad.fields.write_value(props, f, f.default)
+    assert checked >= 5
+    laser = {f.name: f for f in lad.fields.SENSOR_FIELDS["laser"]}
+    lad.fields.write_value(cam.ladar.laser, laser["pulse_energy_j"], 0.1)
+    assert _shown(scene, cam.ladar.laser, laser["pulse_energy_j"]) == ("100000", "µJ")
+    assert laser["pulse_energy_j"].readable(0.1) == "100 mJ"
+    assert laser["pulse_energy_j"].readable(2e-7) == "200 nJ" and laser["pulse_energy_j"].readable(5e-5) == ""
+    gate = {f.name: f for f in lad.fields.SENSOR_FIELDS["gate"]}
+    assert gate["gate_start_s"].readable(1.3243e-5) == "13.24 µs"
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Files saved before the change
 # ---------------------------------------------------------------------------------------------------------------

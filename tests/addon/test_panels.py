@@ -127,6 +127,18 @@ def test_panels_draw_every_setting(lad, scene):
     assert _draw(panels.LADAR_PT_brdf, ctx, "draw_header") == [("prop", "enabled")]
 
 
+def test_laser_panel_adds_the_readable_energy_under_a_field_its_unit_does_not_suit(lad, scene):
+    """0.1 J in the µJ field: the panel draws "= 100 mJ" right under it; 50 µJ reads well: nothing added."""
+    cam = add_camera(scene)
+    lad.blend_config.set_settings(scene, cam, {"laser.pulse_energy_j": 0.1})
+    log = _draw(lad.package.panels.sensor.LADAR_PT_sensor_laser, _context(scene, cam))
+    at = log.index(("prop", "pulse_energy_uj"))
+    assert log[at + 1] == ("label", "= 100 mJ")
+    lad.blend_config.set_settings(scene, cam, {"laser.pulse_energy_j": 5e-5})
+    log = _draw(lad.package.panels.sensor.LADAR_PT_sensor_laser, _context(scene, cam))
+    assert not any(kind == "label" and text.startswith("= ") for kind, text in log)
+
+
 #: What each system type must show and hide (paper §2; issue 6: "show only what the system type uses").
 EXPECTED = {
     "flash": ({"laser", "receiver", "gate", "detection", "detector", "run"}, {"scanner", "gated"},

@@ -150,6 +150,11 @@ def test_cli_frames(lad, scene, tmp_path, capsys):
     out, err = capsys.readouterr()
     assert code == 0, err
     assert "frames   3 (1 … 3), 192 points, 1 BVH build(s), 1 geometry export(s)" in out
+    # the figures a single run prints, over the frames (the ideal receiver: none possible, no SNR)
+    assert "echoes   192 points (64 – 64 per frame), 192 pixels with an echo" in out
+    assert "false    none possible: ideal receiver" in out and "summed over 3 frames" in out
+    assert "\nsnr " not in out  # no SNR line (it said "no true return": a key absent from every frame merged)
+    assert "holds 100.0 % of the hit energy" in out and "(all 3 frames)" in out
     assert "frame 2 (2/3)" in out  # progress lines name the frame
     meta = json.loads((tmp_path / "cli_seq" / "metadata.json").read_text())
     assert meta["seed"] == 4 and meta["frames"] == [1, 2, 3]
@@ -176,3 +181,16 @@ def test_one_bvh_with_ladar_materials_and_the_full_settings_recorded(lad, scene,
     # the override is what the simulation used: received energy ∝ reflectance (0.8 from the file, not 0.2)
     _, single = lad.simulate.simulate_scene(scene, out_dir=tmp_path / "plain", frame=2, import_results=False)
     assert stats[1]["received_energy_j"] / single.stats["received_energy_j"] == pytest.approx(4.0, rel=1e-9)
+
+
+def test_sequence_report_counts_false_alarms(lad, scene, tmp_path):
+    """Blender's report of a noisy sequence says how many of its points are false alarms (points_merged.npz's
+    flags), as a single run's does."""
+    cam = _scene(scene, tmp_path)
+    cam.ladar.detector.mode = "noisy"
+    cam.ladar.detector.background_rate_photons_per_s = 5e9
+    cam.ladar.detection.k_sigma = 3.0
+    job = lad.job.SimulationJob(scene, frames=[1, 2], previews=False, import_results=False).run()
+    fa = np.load(job.run_path / "points_merged.npz")["false_alarm"]
+    assert fa.sum() > 0
+    assert job.summary() == f"{len(fa)} points ({int(fa.sum())} false alarms) in 2 frames in {job.run_path}"

@@ -246,3 +246,38 @@ def test_sequence_metadata_lists_each_frames_warning(tmp_path):
     assert len(meta["warnings"]) == 1 and meta["warnings"][0].startswith("frame 2: range gate: only 0.0 %")
     frame2 = json.loads((path / "frame_0002" / "metadata.json").read_text())
     assert frame2["warnings"] == [meta["warnings"][0].removeprefix("frame 2: ")]
+
+
+def test_sequence_summary_adds_up_its_frames_false_alarms_snr_and_coverage(tmp_path):
+    """A noisy two-frame sequence (frame 1: the two plates at 100 and 200 m, 80 % of the energy inside the gate;
+    frame 2: one plate at 100 m, all inside): the sequence's summary lines (core.fileio.run_folder.figure_lines of
+    combine_figures, as the CLI and Blender's report print them) count the false alarms of both frames' points,
+    give the SNR range of the merged points and the gate's coverage weighted by each frame's hit energy."""
+    import json
+
+    from core import sequence
+    from core.fileio.run_folder import combine_figures, figure_lines
+
+    cfg = config_for(100.0, pixels=8)
+    cfg.detector.mode = "noisy"
+    cfg.detector.background_rate_photons_per_s = 5e9
+    cfg.detection.k_sigma = 3.0
+    half = 0.5 * cfg.receiver.fov_x_rad
+    path, stats = sequence.run_sequence(
+        [1, 2], lambda f: _two_plates(100.0, 200.0, half) if f == 1 else plate(100.0, 5.0),
+        lambda f: np.eye(4), cfg, tmp_path / "seq")
+    merged = np.load(path / "points_merged.npz")
+    fa, snr = merged["false_alarm"], merged["snr"]
+    per_frame = [int(np.load(path / f"frame_{f:04d}" / "points.npz")["false_alarm"].sum()) for f in (1, 2)]
+    assert int(fa.sum()) == sum(per_frame) > 0
+    text = "\n".join(figure_lines(combine_figures([s["figures"] for s in stats])))
+    assert (f"false    {int(fa.sum())} false alarms of {len(fa)} points ({fa.sum() / 128:.3g} per pixel and frame, "
+            f"{min(per_frame)} – {max(per_frame)} per frame; {len(fa) - int(fa.sum())} true returns)") in text
+    assert f"snr      true returns {snr[fa == 0].min():.3g} – {snr[fa == 0].max():.3g}; false alarms " \
+           f"{snr[fa != 0].min():.3g} – {snr[fa != 0].max():.3g}" in text
+    cov = [json.loads((path / f"frame_{f:04d}" / "metadata.json").read_text())["gate_coverage"] for f in (1, 2)]
+    e = [c["hit_energy_j"] for c in cov]
+    inside = sum(c["energy_fraction"]["inside"] * ei for c, ei in zip(cov, e)) / sum(e)
+    assert 0.8 < inside < 1.0
+    assert f"holds {100 * inside:.1f} % of the hit energy" in text and "hits at 100.0 – 200.0 m (all 2 frames)" in text
+    assert len(merged["range_m"]) == sum(s["n_points"] for s in stats)

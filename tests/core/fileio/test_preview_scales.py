@@ -130,3 +130,19 @@ def test_sweep_plots_choose_a_log_axis_beyond_two_decades():
     assert signed.axes[0].get_yscale() == "linear"  # negative values: never log
     # the far points are drawn where their values are, not on zero: the y limits reach below the smallest
     assert far.axes[0].get_ylim()[0] < 1e-13
+
+
+@pytest.mark.parametrize("lo, hi, expect", [(1e-16, 3e-12, ["100 aJ", "1 fJ", "10 fJ", "100 fJ", "1 pJ"]),
+                                            (1e-9, 1e-3, ["1 nJ", "100 nJ", "1 µJ", "100 µJ", "1 mJ"])])
+def test_log_colour_bar_in_joules_ticks_in_si_prefixed_units(lo, hi, expect):
+    """A log colour bar of an energy image labels its decades "10 fJ", "1 µJ" (core.fileio.run_folder's SI
+    prefixes), not "10^-14"; a bar in counts keeps matplotlib's powers of ten."""
+    img = np.geomspace(lo, hi, 64).reshape(8, 8)
+    fig = preview.false_colour_figure(img, title="t", unit="J per bin", log=True)
+    fig.canvas.draw()
+    labels = [t.get_text() for t in fig.axes[1].yaxis.get_majorticklabels()]
+    assert set(expect) <= set(labels)
+    assert all(t == "" or t.endswith("J") and "^" not in t for t in labels)
+    counts = preview.false_colour_figure(img * 1e15, title="t", unit="counts", log=True)
+    counts.canvas.draw()
+    assert any("10^{" in t.get_text() for t in counts.axes[1].yaxis.get_majorticklabels())
