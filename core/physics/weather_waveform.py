@@ -11,7 +11,9 @@ import math
 
 import numpy as np
 
-from ..atmosphere.weather import Overlap, slab_integrals
+import functools
+
+from ..atmosphere.weather import Overlap, pixel_overlap, slab_integrals
 from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_half_support_s
 from .waveform import accumulate_waveforms, round_trip_time_s
@@ -62,6 +64,20 @@ def backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per
     keep = e > 0
     return accumulate_waveforms(np.zeros(int(keep.sum()), np.int64), round_trip_time_s(centroid[keep]), e[keep], 1,
                                 laser, gate)[0]
+
+
+def pixel_backscatter_templates(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, overlap: Overlap,
+                                min_range_m, tan_x, tan_y, slabs_per_width: int = 4, profile=None, breaks_m=None):
+    """:func:`backscatter_template` of flash pixels whose axes are (tan_x[k], tan_y[k]) (K,): (K, n_bins), each
+    with its own overlap :func:`~core.atmosphere.weather.pixel_overlap` (the pixel at t = 0 gets the on-axis
+    template exactly)."""
+    tx, ty = np.atleast_1d(np.asarray(tan_x, np.float64)), np.atleast_1d(np.asarray(tan_y, np.float64))
+    out = np.zeros((len(tx), gate.n_bins))
+    for k in range(len(tx)):
+        ov = functools.partial(pixel_overlap, overlap, tan_x=tx[k], tan_y=ty[k])
+        out[k] = backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, ov, min_range_m,
+                                      slabs_per_width, profile, breaks_m)
+    return out
 
 
 def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
