@@ -191,14 +191,19 @@ def pixel_overlap(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "
     T = 1 on axis (t_x = 0: :class:`Overlap` exactly), with d = 0, for ``model = none`` (O = 1) and for a uniform
     beam.  Broadcasts."""
     r = np.asarray(range_m, dtype=np.float64)
+    return overlap(r) * overlap_tilt(overlap, r, tan_x, tan_y, beam_profile)
+
+
+def overlap_tilt(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "gaussian"):
+    """T of :func:`pixel_overlap` (ones where it is 1 by construction).  Broadcasts."""
+    r = np.asarray(range_m, dtype=np.float64)
     tx, ty = np.asarray(tan_x, np.float64), np.asarray(tan_y, np.float64)
-    o = overlap(r)
     if overlap.model == "none" or beam_profile == "uniform" or overlap.offset_m == 0.0:
-        return np.broadcast_to(o, np.broadcast_shapes(r.shape, tx.shape, ty.shape)).copy()
+        return np.ones(np.broadcast_shapes(r.shape, tx.shape, ty.shape))
     z = r / np.sqrt(1.0 + tx * tx + ty * ty)
     w = overlap.tx_radius_m + z * overlap.tx_half_angle
     b = overlap.rx_radius_m + z * overlap.rx_half_angle
-    return o * np.exp(4.0 * z * tx * overlap.offset_m / (w * w + b * b))
+    return np.exp(4.0 * z * tx * overlap.offset_m / (w * w + b * b))
 
 
 # ------------------------------------------------------------------------------------------------------------
