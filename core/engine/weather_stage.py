@@ -77,16 +77,24 @@ class TemplateTable:
         t = self.templates
         jx = np.minimum(ix + 1, len(self.nodes_x) - 1)
         jy = np.minimum(iy + 1, len(self.nodes_y) - 1)
-        wx, wy = wx[:, None], wy[:, None]
+        wx, wy = wx[:, None].astype(np.float32), wy[:, None].astype(np.float32)
         lt = self.log_templates
-        g = np.exp((1.0 - wy) * ((1.0 - wx) * lt[iy, ix] + wx * lt[iy, jx])
-                   + wy * ((1.0 - wx) * lt[jy, ix] + wx * lt[jy, jx]))
-        return np.where(self.positive[None, :], g, 0.0)
+        g = (1.0 - wx) * lt[iy, ix]
+        g += wx * lt[iy, jx]
+        g *= 1.0 - wy
+        h = (1.0 - wx) * lt[jy, ix]
+        h += wx * lt[jy, jx]
+        h *= wy
+        g += h
+        return np.exp(g, out=g)
 
     def __post_init__(self):
-        # geometric interpolation: the overlap's tilt is exp(linear in tan_x) (core.atmosphere.weather.pixel_overlap)
-        self.positive = np.all(self.templates > 0.0, axis=(0, 1))
-        self.log_templates = np.log(np.where(self.positive[None, None, :], self.templates, 1.0))
+        # geometric interpolation: the overlap's tilt is exp(linear in tan_x) (core.atmosphere.weather.pixel_overlap);
+        # float32 as the cube it is added to; a bin that is zero at a node: log −1e30 (exp → 0)
+        positive = np.all(self.templates > 0.0, axis=(0, 1))
+        self.log_templates = np.where(positive[None, None, :], np.log(np.where(positive[None, None, :],
+                                                                              self.templates, 1.0)),
+                                      -1e30).astype(np.float32)
 
     def rows_of(self, a: int, b: int) -> np.ndarray:
         """(b − a, n_bins) templates of the pixels a … b − 1 (row-major)."""
@@ -95,7 +103,7 @@ class TemplateTable:
 
 
 def build_template_table(det, templates_at, tolerance: float = TEMPLATE_TABLE_TOLERANCE,
-                         first_nodes: int = 9) -> TemplateTable:
+                         first_nodes: int = 5) -> TemplateTable:
     """Tabulate ``templates_at(tan_x (K,), tan_y (K,)) → (K, n_bins)`` over the detector's pixel centres: nodes
     every ``step`` pixels (and the last pixel) starting from about ``first_nodes`` per axis; the templates at the
     cell centres are computed exactly and compared with the interpolation (relative L1 of each template), and the
