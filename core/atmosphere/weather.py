@@ -41,7 +41,7 @@ field of view (a flash pixel's, or the scanner receiver's = the beam's divergenc
 their axes parallel and ``tx_rx_offset_m`` = d apart; O is the area of their intersection over the area of the
 smaller disc (the fraction of the smaller cone that the other one covers; 0 while the discs are apart, → 1 at
 long range).  Per pixel (flash): the on-axis O(R) times the parallax tilt of the Gaussian beam across the field,
-exp(4 z t_x d/(w² + b²)) (:func:`pixel_overlap`, docs/theory.md §14 W3); gated viewing keeps the on-axis O(R).
+exp(4 z t_x d/(w² + b²)) (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash and gated pixels.
 
 This module does not import bpy.
 """

@@ -96,6 +96,19 @@ class TemplateTable:
                                                                               self.templates, 1.0)),
                                       -1e30).astype(np.float32)
 
+    def entries(self, cols, rows, m, n_cols: int) -> np.ndarray:
+        """Row ``m[i]`` (of length ``n_cols``) of each template seen as an (n_bins/n_cols, n_cols) table, at the
+        pixels (cols[i], rows[i]), interpolated as :meth:`interpolate`: (n, n_cols)."""
+        ix, wx = _bilinear_weights(self.nodes_x, cols)
+        iy, wy = _bilinear_weights(self.nodes_y, rows)
+        jx = np.minimum(ix + 1, len(self.nodes_x) - 1)
+        jy = np.minimum(iy + 1, len(self.nodes_y) - 1)
+        lt = self.log_templates.reshape(len(self.nodes_y), len(self.nodes_x), -1, n_cols)
+        wx, wy = wx[:, None].astype(np.float32), wy[:, None].astype(np.float32)
+        g = ((1.0 - wy) * ((1.0 - wx) * lt[iy, ix, m] + wx * lt[iy, jx, m])
+             + wy * ((1.0 - wx) * lt[jy, ix, m] + wx * lt[jy, jx, m]))
+        return np.exp(g).astype(np.float64)
+
     def rows_of(self, a: int, b: int) -> np.ndarray:
         """(b − a, n_bins) templates of the pixels a … b − 1 (row-major)."""
         p = np.arange(a, b)

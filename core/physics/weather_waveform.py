@@ -11,7 +11,9 @@ import math
 
 import numpy as np
 
-from ..atmosphere.weather import _GL_W, _GL_X, Overlap, overlap_tilt, slab_integrals
+import functools
+
+from ..atmosphere.weather import _GL_W, _GL_X, Overlap, overlap_tilt, pixel_overlap, slab_integrals
 from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_half_support_s
 from .waveform import accumulate_waveforms, round_trip_time_s
@@ -125,3 +127,19 @@ def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, be
     table = np.zeros((len(e) + 1, len(d)))
     table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
     return t, table
+
+
+def pixel_gated_slab_tables(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
+                            overlap: Overlap, min_range_m, response, tan_x, tan_y, slabs_per_width: int = 4,
+                            profile=None, breaks_m=None):
+    """:func:`gated_slab_table` (its C only, flattened: (K, (M + 1)·n_slices)) of pixels whose axes are
+    (tan_x[k], tan_y[k]), each with its own overlap :func:`~core.atmosphere.weather.pixel_overlap` (t = 0: the
+    on-axis table exactly)."""
+    tx, ty = np.atleast_1d(np.asarray(tan_x, np.float64)), np.atleast_1d(np.asarray(tan_y, np.float64))
+    rows = []
+    for k in range(len(tx)):
+        ov = functools.partial(pixel_overlap, overlap, tan_x=tx[k], tan_y=ty[k])
+        rows.append(gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr,
+                                     alpha_per_m, ov, min_range_m, response, slabs_per_width, profile,
+                                     breaks_m)[1].ravel())
+    return np.stack(rows)

@@ -636,3 +636,46 @@ def test_flash_geometric_overlap_gives_each_pixel_its_own_template():
     assert np.abs(corner - wx.template).sum() > 0.01 * wx.template.sum()  # the pixels' own overlap matters here
     rain = _flash("rain", rain_rate_mm_h=25.0, drop_min_diameter_mm=2.0)
     assert simulate_frame(plate(30.0, 0.06), np.eye(4), rain).waveforms.shape[:2] == (8, 8)
+
+
+def test_gated_geometric_overlap_gives_each_pixel_its_own_slices():
+    """Gated viewing in fog with the geometric overlap (offset 10 cm, slices from 0 m): a pixel with no surface
+    collects F_p × its own slab table's last row (pixel_gated_slab_tables at its field angle) within the table's
+    1e-3 (relative L1 over the slices; float32 slices); the corner pixels on the +x and −x sides differ; the
+    on-axis case is the existing one (overlap none: test above)."""
+    from core.systems.gated import gate_response, simulate_gated
+    from core.physics.laser import beam_half_angle_tan, cell_energy_fractions
+    from core.geometry.rays import Detector
+    from core.physics.weather_waveform import pixel_gated_slab_tables
+    from core.engine.weather_stage import TEMPLATE_TABLE_TOLERANCE, prepare_frame_weather
+    cfg = SimulationConfig(system_type="gated")
+    cfg.receiver.width_px = cfg.receiver.height_px = 8
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.2
+    cfg.laser.pulse_fwhm_s = 2e-9
+    g = cfg.gated
+    g.gate_width_s, g.delay_step_s, g.n_slices, g.first_delay_s = 4e-9, 2e-9, 30, 0.0
+    cfg.atmosphere = dataclasses.replace(cfg.atmosphere, weather="fog", visibility_m=200.0, tx_rx_offset_m=0.1,
+                                         backscatter_min_range_m=0.05)
+    cfg.run.threads = 1
+    r = simulate_gated(plate(40.0, 2.0), np.eye(4), cfg)  # the centre pixels see it, the corners do not
+    assert r.stats["weather"]["overlap"]["per_pixel"]["templates_computed"] > 1
+    det = Detector.from_settings(cfg.receiver)
+    fx, fy = cell_energy_fractions(cfg.laser, det)
+    s = det.subsamples
+    px, py = det.pixel_pitch_tan
+    wx = prepare_frame_weather(cfg, 0, det.n_pixels, px * py, beam_half_angle_tan(cfg.laser, det), 0.5 * min(px, py))
+    delays = g.first_delay_s + g.delay_step_s * np.arange(g.n_slices)
+    sims = {}
+    for col, row in ((0, 0), (7, 0), (0, 7), (7, 7)):
+        tx, ty = det.pixel_center_tan(col, row)
+        tab = pixel_gated_slab_tables(cfg.laser, delays, g.gate_width_s, g.shutter_edge_s, wx.scale_jm2,
+                                      wx.weather.backscatter_per_m_sr, wx.alpha_per_m, wx.overlap,
+                                      cfg.atmosphere.backscatter_min_range_m,
+                                      lambda tau: gate_response(cfg.laser, g.gate_width_s, g.shutter_edge_s, tau),
+                                      [tx], [ty])[0].reshape(-1, g.n_slices)
+        f_p = fx[col * s:(col + 1) * s].sum() * fy[row * s:(row + 1) * s].sum()
+        ref = f_p * tab[-1]
+        sim = r.slices[:, row, col].astype(np.float64)
+        assert np.abs(sim - ref).sum() <= TEMPLATE_TABLE_TOLERANCE * ref.sum() + 1e-6 * ref.sum()
+        sims[(col, row)] = sim.sum() / f_p
+    assert sims[(7, 0)] > 1.05 * sims[(0, 0)]  # +x: the transmitter's side sees more near-range fog
