@@ -112,11 +112,24 @@ class TemplateTable:
     def rows_of(self, a: int, b: int) -> np.ndarray:
         """(b − a, n_bins) templates of the pixels a … b − 1 (row-major)."""
         p = np.arange(a, b)
-        return self.interpolate(p % self.width_px, p // self.width_px)
+        cols = p % self.width_px
+        rows, inv = np.unique(p // self.width_px, return_inverse=True)
+        # along y once per image row of the block, then along x per pixel (the same bilinear form)
+        iy, wy = _bilinear_weights(self.nodes_y, rows)
+        jy = np.minimum(iy + 1, len(self.nodes_y) - 1)
+        wy = wy[:, None, None].astype(np.float32)
+        lt = self.log_templates
+        by_row = (1.0 - wy) * lt[iy] + wy * lt[jy]          # (rows, nodes_x, n_bins)
+        ix, wx = _bilinear_weights(self.nodes_x, cols)
+        jx = np.minimum(ix + 1, len(self.nodes_x) - 1)
+        wx = wx[:, None].astype(np.float32)
+        g = (1.0 - wx) * by_row[inv, ix]
+        g += wx * by_row[inv, jx]
+        return np.exp(g, out=g)
 
 
 def build_template_table(det, templates_at, tolerance: float = TEMPLATE_TABLE_TOLERANCE,
-                         first_nodes: int = 5) -> TemplateTable:
+                         first_nodes: int = 3) -> TemplateTable:
     """Tabulate ``templates_at(tan_x (K,), tan_y (K,)) → (K, n_bins)`` over the detector's pixel centres: nodes
     every ``step`` pixels (and the last pixel) starting from about ``first_nodes`` per axis; the templates at the
     cell centres are computed exactly and compared with the interpolation (relative L1 of each template), and the
