@@ -129,18 +129,27 @@ class TemplateTable:
 
 
 def build_template_table(det, templates_at, tolerance: float = TEMPLATE_TABLE_TOLERANCE,
-                         first_nodes: int = 3) -> TemplateTable:
+                         first_nodes: int = 3, max_bytes: float | None = None) -> TemplateTable:
     """Tabulate ``templates_at(tan_x (K,), tan_y (K,)) → (K, n_bins)`` over the detector's pixel centres: nodes
     every ``step`` pixels (and the last pixel) starting from about ``first_nodes`` per axis; the templates at the
     cell centres are computed exactly and compared with the interpolation (relative L1 of each template), and the
     step halved until the largest error is at most ``tolerance`` (step 1: every pixel exact).  Templates are
-    computed once per pixel (cached across refinements)."""
+    computed once per pixel (cached across refinements).  ``max_bytes``: ConfigError (naming
+    atmosphere.overlap_model) when the templates held would exceed it."""
     w, h = det.width_px, det.height_px
     cache = {}
 
     def get(cols, rows):
         cc, rr = np.meshgrid(cols, rows)
         need = [(c, r) for c, r in zip(cc.ravel().tolist(), rr.ravel().tolist()) if (c, r) not in cache]
+        if need and cache and max_bytes is not None:
+            row_bytes = 8 * next(iter(cache.values())).size
+            if (len(cache) + len(need)) * row_bytes > max_bytes:
+                raise ConfigError("atmosphere.overlap_model", "geometric",
+                                  f"none here, or tx_rx_offset_m = 0: each pixel's own overlap needs "
+                                  f"{(len(cache) + len(need)) * row_bytes / 1e6:.0f} MB of tabulated templates "
+                                  f"(more than run.max_memory_bytes = {max_bytes:.3g}) to keep the interpolation "
+                                  f"within {tolerance:g} (or shorten the gate or the slice sweep)")
         if need:
             nc, nr = np.array(need).T
             tx, ty = det.pixel_center_tan(nc, nr)
@@ -348,7 +357,7 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
             return pixel_backscatter_templates(laser, gate, scale, w.backscatter_per_m_sr, alpha, overlap,
                                                atm.backscatter_min_range_m, tx, ty, profile=profile,
                                                breaks_m=None if profile is None else cut.edges_m)
-        out.table = build_template_table(detector, templates_at)
+        out.table = build_template_table(detector, templates_at, max_bytes=config.run.max_memory_bytes)
         out.metadata["overlap"]["per_pixel"] = {"nodes": [len(out.table.nodes_x), len(out.table.nodes_y)],
                                                 "templates_computed": out.table.n_computed,
                                                 "checked_error": out.table.checked_error}

@@ -326,7 +326,7 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
                     wx.alpha_per_m, ov, config.atmosphere.backscatter_min_range_m,
                     lambda tau: gate_response(laser, g.gate_width_s, g.shutter_edge_s, tau), tx, ty,
                     profile=wx.beta_profile, breaks_m=wx.profile_breaks_m)
-            wx.table = build_template_table(det, tables_at)
+            wx.table = build_template_table(det, tables_at, max_bytes=config.run.max_memory_bytes)
             wx.metadata["overlap"]["per_pixel"] = {"nodes": [len(wx.table.nodes_x), len(wx.table.nodes_y)],
                                                    "templates_computed": wx.table.n_computed,
                                                    "checked_error": wx.table.checked_error}

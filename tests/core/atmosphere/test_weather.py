@@ -679,3 +679,11 @@ def test_gated_geometric_overlap_gives_each_pixel_its_own_slices():
         assert np.abs(sim - ref).sum() <= TEMPLATE_TABLE_TOLERANCE * ref.sum() + 1e-6 * ref.sum()
         sims[(col, row)] = sim.sum() / f_p
     assert sims[(7, 0)] > 1.05 * sims[(0, 0)]  # +x: the transmitter's side sees more near-range fog
+
+
+def test_template_table_beyond_the_memory_limit_is_refused_naming_the_setting():
+    """A table that would hold more than max_bytes of templates: ConfigError naming atmosphere.overlap_model."""
+    from core.engine.weather_stage import build_template_table
+    det, at = _table_case()
+    with pytest.raises(ConfigError, match="atmosphere.overlap_model"):
+        build_template_table(det, at, max_bytes=20 * 8 * 200)  # 20 templates of 200 bins: the first level is 13
