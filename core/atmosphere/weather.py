@@ -40,7 +40,8 @@ Overlap O(R) (``overlap_model = geometric``): the transmitted beam is a disc of 
 field of view (a flash pixel's, or the scanner receiver's = the beam's divergence) a disc of radius r_a + R θ_r,
 their axes parallel and ``tx_rx_offset_m`` = d apart; O is the area of their intersection over the area of the
 smaller disc (the fraction of the smaller cone that the other one covers; 0 while the discs are apart, → 1 at
-long range).  Every flash pixel is given the on-axis pixel's overlap.
+long range).  Per pixel (flash): the on-axis O(R) times the parallax tilt of the Gaussian beam across the field,
+exp(4 z t_x d/(w² + b²)) (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash and gated pixels.
 
 This module does not import bpy.
 """
@@ -169,19 +170,41 @@ class Overlap:
 
 def disc_overlap_fraction(a, b, d):
     """|disc(a) ∩ disc(b)| / (π min(a, b)²) for discs of radii a, b whose centres are d apart."""
-    a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
-    d = float(d)
+    a, b, d = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64), np.asarray(d, np.float64))
     small = np.minimum(a, b)
     out = np.where(d <= np.abs(a - b), 1.0, 0.0)
     part = (d > np.abs(a - b)) & (d < a + b)
-    if np.any(part) and d > 0.0:
-        ap, bp = a[part], b[part]
+    if np.any(part):  # d > |a − b| ≥ 0 there
+        ap, bp, d = a[part], b[part], d[part]
         c1 = np.clip((d * d + ap * ap - bp * bp) / (2 * d * ap), -1.0, 1.0)
         c2 = np.clip((d * d + bp * bp - ap * ap) / (2 * d * bp), -1.0, 1.0)
         k = (-d + ap + bp) * (d + ap - bp) * (d - ap + bp) * (d + ap + bp)
         area = ap * ap * np.arccos(c1) + bp * bp * np.arccos(c2) - 0.5 * np.sqrt(np.maximum(k, 0.0))
         out[part] = area / (np.pi * small[part] ** 2)
     return np.clip(out, 0.0, 1.0)
+
+
+def pixel_overlap(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "gaussian"):
+    """O(R) of a flash pixel whose axis is (tan_x, tan_y) in the tan plane (module docstring, "per pixel"):
+    the on-axis overlap O(R) times the parallax tilt of the Gaussian beam across the field,
+    T = exp(4 z t_x d / (w² + b²)) with z = R/√(1 + t²) the depth, w = r_t + z θ_t the beam's 1/e² radius,
+    b = r_a + z θ_r the radius of the pixel's view and d the offset (transmitter at +d along the tan plane's x).
+    T = 1 on axis (t_x = 0: :class:`Overlap` exactly), with d = 0, for ``model = none`` (O = 1) and for a uniform
+    beam.  Broadcasts."""
+    r = np.asarray(range_m, dtype=np.float64)
+    return overlap(r) * overlap_tilt(overlap, r, tan_x, tan_y, beam_profile)
+
+
+def overlap_tilt(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "gaussian"):
+    """T of :func:`pixel_overlap` (ones where it is 1 by construction).  Broadcasts."""
+    r = np.asarray(range_m, dtype=np.float64)
+    tx, ty = np.asarray(tan_x, np.float64), np.asarray(tan_y, np.float64)
+    if overlap.model == "none" or beam_profile == "uniform" or overlap.offset_m == 0.0:
+        return np.ones(np.broadcast_shapes(r.shape, tx.shape, ty.shape))
+    z = r / np.sqrt(1.0 + tx * tx + ty * ty)
+    w = overlap.tx_radius_m + z * overlap.tx_half_angle
+    b = overlap.rx_radius_m + z * overlap.rx_half_angle
+    return np.exp(4.0 * z * tx * overlap.offset_m / (w * w + b * b))
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -216,7 +239,8 @@ def slab_integrals(edges_m, alpha_per_m, overlap: Overlap, weight=None):
 def add_volume_rows(rows, template, beam_fraction, hit_beam, hit_time_s, hit_fraction, gate):
     """rows[p] += template × (the fraction of beam p still unobstructed at each bin): F_p minus the sub-rays
     that hit a surface at or before the bin (their volume behind the surface is hidden).  Bin-level truncation
-    (the pulse-convolved tail of the hidden volume within one pulse width of a surface is cut at the bin)."""
+    (the pulse-convolved tail of the hidden volume within one pulse width of a surface is cut at the bin).
+    ``template``: (n_bins,) for every beam, or (n, n_bins), one per beam (per-pixel overlap)."""
     n, nb = rows.shape
     if not np.any(template):
         return
@@ -229,7 +253,7 @@ def add_volume_rows(rows, template, beam_fraction, hit_beam, hit_time_s, hit_fra
     np.cumsum(vis, axis=1, out=vis)
     np.subtract(np.asarray(beam_fraction, np.float64)[:, None], vis, out=vis)
     np.maximum(vis, 0.0, out=vis)
-    vis *= template[None, :]
+    vis *= template if template.ndim == 2 else template[None, :]  # (n, nb): each beam's own template
     rows += vis if rows.dtype == vis.dtype else vis.astype(rows.dtype)
 
 

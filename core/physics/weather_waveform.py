@@ -11,7 +11,9 @@ import math
 
 import numpy as np
 
-from ..atmosphere.weather import Overlap, slab_integrals
+import functools
+
+from ..atmosphere.weather import _GL_W, _GL_X, Overlap, overlap_tilt, pixel_overlap, slab_integrals
 from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_half_support_s
 from .waveform import accumulate_waveforms, round_trip_time_s
@@ -64,6 +66,42 @@ def backscatter_template(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per
                                 laser, gate)[0]
 
 
+def pixel_backscatter_templates(laser, gate, energy_scale_jm2, beta_per_m_sr, alpha_per_m, overlap: Overlap,
+                                min_range_m, tan_x, tan_y, slabs_per_width: int = 4, profile=None, breaks_m=None):
+    """:func:`backscatter_template` of flash pixels whose axes are (tan_x[k], tan_y[k]) (K,): (K, n_bins), each
+    with its own overlap :func:`~core.atmosphere.weather.pixel_overlap` = O(R) × T (the same slabs and the same
+    arithmetic: the pixel at t = 0, T = 1, gets the on-axis template bit for bit)."""
+    tx, ty = np.atleast_1d(np.asarray(tan_x, np.float64)), np.atleast_1d(np.asarray(tan_y, np.float64))
+    out = np.zeros((len(tx), gate.n_bins))
+    edges = slab_edges_m(laser, gate, min_range_m, slabs_per_width)
+    if len(edges) < 2 or (beta_per_m_sr <= 0.0 and profile is None):
+        return out
+    edges = _with_breaks(edges, breaks_m)
+    w = _beta(beta_per_m_sr, profile)
+    lo, hi = edges[:-1], edges[1:]  # slab_integrals, for K overlaps at once
+    half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
+    r = mid[:, None] + half[:, None] * _GL_X[None, :]
+    o = overlap(r)
+    att = np.exp(-2.0 * alpha_per_m * r)
+    rr = r * r
+    wr = None if w is None else w(r)
+    per = max(1, 4_000_000 // r.size)
+    for k0 in range(0, len(tx), per):
+        kk = slice(k0, min(len(tx), k0 + per))
+        g = (o[None] * overlap_tilt(overlap, r[None], tx[kk, None, None], ty[kk, None, None])) * att / rr
+        if wr is not None:
+            g = g * wr
+        wg = g * _GL_W
+        integral = half * wg.sum(axis=-1)
+        s = wg.sum(axis=-1)
+        centroid = np.where(s > 0, (wg * r).sum(axis=-1) / np.where(s > 0, s, 1.0), mid)
+        e = energy_scale_jm2 * (beta_per_m_sr if w is None else 1.0) * integral
+        keep = e > 0
+        node, _ = np.nonzero(keep)
+        out[kk] = accumulate_waveforms(node, round_trip_time_s(centroid[keep]), e[keep], len(g), laser, gate)
+    return out
+
+
 def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
                      overlap: Overlap, min_range_m, response, slabs_per_width: int = 4, profile=None,
                      breaks_m=None):
@@ -89,3 +127,19 @@ def gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, be
     table = np.zeros((len(e) + 1, len(d)))
     table[1:] = np.cumsum(e[:, None] * response(t[:, None] - d[None, :]), axis=0)
     return t, table
+
+
+def pixel_gated_slab_tables(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr, alpha_per_m,
+                            overlap: Overlap, min_range_m, response, tan_x, tan_y, slabs_per_width: int = 4,
+                            profile=None, breaks_m=None):
+    """:func:`gated_slab_table` (its C only, flattened: (K, (M + 1)·n_slices)) of pixels whose axes are
+    (tan_x[k], tan_y[k]), each with its own overlap :func:`~core.atmosphere.weather.pixel_overlap` (t = 0: the
+    on-axis table exactly)."""
+    tx, ty = np.atleast_1d(np.asarray(tan_x, np.float64)), np.atleast_1d(np.asarray(tan_y, np.float64))
+    rows = []
+    for k in range(len(tx)):
+        ov = functools.partial(pixel_overlap, overlap, tan_x=tx[k], tan_y=ty[k])
+        rows.append(gated_slab_table(laser, delays_s, gate_width_s, edge_s, energy_scale_jm2, beta_per_m_sr,
+                                     alpha_per_m, ov, min_range_m, response, slabs_per_width, profile,
+                                     breaks_m)[1].ravel())
+    return np.stack(rows)

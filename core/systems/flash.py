@@ -112,7 +112,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         px_tan, py_tan = det.pixel_pitch_tan
         wx = prepare_frame_weather(config, frame, det.n_pixels, px_tan * py_tan,
                                    beam_half_angle_tan(config.laser, det) * atm.beam_width_scale,
-                                   0.5 * min(px_tan, py_tan), max_beam_fraction=max_pixel_fraction(det, fx, fy))
+                                   0.5 * min(px_tan, py_tan), max_beam_fraction=max_pixel_fraction(det, fx, fy),
+                                   detector=det)
     if wx is None:
         del log.times["weather"]
     hits_of_blocks = {}  # block start → (pixel, range) of its surface hits: which echoes are the atmosphere's
@@ -178,7 +179,9 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             beam_fraction = np.bincount(pixel - a, weights=fraction, minlength=b - a)
             ray_range = np.where(prim >= 0, range_m, np.inf)
             drops_ret, shade = wx.block_returns(wx.drops_of(a, b), pixel - a, fraction, ray_range, beam_fraction,
-                                                pix_local, range_hit)
+                                                pix_local, range_hit,
+                                                beam_tan=det.pixel_center_tan(np.arange(a, b) % det.width_px,
+                                                                              np.arange(a, b) // det.width_px))
             e = e * shade
             hits_of_blocks[a] = (pix_local + a, range_hit)
         energy[a:b] = np.bincount(pix_local, weights=e, minlength=b - a)
@@ -195,7 +198,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         local["waveform"] = stage_clock() - t
         if wx is not None:
             t = stage_clock()
-            add_volume_rows(waveforms[a:b], wx.template, beam_fraction, pix_local, t_hit, frac_hit, gate)
+            add_volume_rows(waveforms[a:b], wx.templates_of(a, b), beam_fraction, pix_local, t_hit, frac_hit, gate)
             local["weather"] = stage_clock() - t
             if not whole_cube:
                 t = stage_clock()

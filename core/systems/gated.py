@@ -48,8 +48,9 @@ from ..engine.memory import GATE_MAX_TERMS, check_memory, estimate_gated_memory,
 from ..engine.products import points_along_rays, reference_range_m
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
-from ..engine.weather_stage import mark_atmosphere_echoes, max_pixel_fraction, prepare_frame_weather, weather_switches
-from ..physics.weather_waveform import gated_slab_table
+from ..engine.weather_stage import (build_template_table, mark_atmosphere_echoes, max_pixel_fraction,
+                                   prepare_frame_weather, weather_switches)
+from ..physics.weather_waveform import gated_slab_table, pixel_gated_slab_tables
 from ..errors import ConfigError
 from ..geometry.rays import Detector, block_subray_tan, tan_to_unit_direction
 from ..jit import stage_clock
@@ -315,6 +316,20 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
             wx.alpha_per_m, wx.overlap, config.atmosphere.backscatter_min_range_m,
             lambda tau: gate_response(laser, g.gate_width_s, g.shutter_edge_s, tau), profile=wx.beta_profile,
             breaks_m=wx.profile_breaks_m)
+        ov = wx.overlap
+        if ov.model != "none" and ov.offset_m > 0.0 and laser.beam_profile != "uniform" and np.any(vol_table):
+            # each pixel's own overlap (theory §14 W3): its table interpolated over the field (as the flash's
+            # templates); the slab times (which slab a surface hides) stay the on-axis pixel's
+            def tables_at(tx, ty):
+                return pixel_gated_slab_tables(
+                    laser, delays, g.gate_width_s, g.shutter_edge_s, wx.scale_jm2, wx.weather.backscatter_per_m_sr,
+                    wx.alpha_per_m, ov, config.atmosphere.backscatter_min_range_m,
+                    lambda tau: gate_response(laser, g.gate_width_s, g.shutter_edge_s, tau), tx, ty,
+                    profile=wx.beta_profile, breaks_m=wx.profile_breaks_m)
+            wx.table = build_template_table(det, tables_at, max_bytes=config.run.max_memory_bytes)
+            wx.metadata["overlap"]["per_pixel"] = {"nodes": [len(wx.table.nodes_x), len(wx.table.nodes_y)],
+                                                   "templates_computed": wx.table.n_computed,
+                                                   "checked_error": wx.table.checked_error}
         times["weather"] = stage_clock() - t0
     hits_of_blocks = {}
 
@@ -369,12 +384,24 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
             weight = fy0[sub_y] * fx0[sub_x] if weights is None else weights[0]
             beam_fraction = np.bincount(pixel - a, weights=weight, minlength=b - a)
             drops_ret, shade = wx.block_returns(wx.drops_of(a, b), pixel - a, weight,
-                                                np.where(hit, range_m, np.inf), beam_fraction, pix, range_m[hit])
+                                                np.where(hit, range_m, np.inf), beam_fraction, pix, range_m[hit],
+                                                beam_tan=det.pixel_center_tan(np.arange(a, b) % det.width_px,
+                                                                              np.arange(a, b) // det.width_px))
             hits_of_blocks[a] = (pix + a, range_m[hit])
             m_hit = np.searchsorted(vol_t, round_trip_time_s(range_m[hit]))
-            out += (beam_fraction[:, None] * vol_table[-1][None, :]).T
+            if wx.table is None:
+                out += (beam_fraction[:, None] * vol_table[-1][None, :]).T
+            else:  # each pixel's own table (interpolated over the field)
+                p_all = np.arange(a, b)
+                last = wx.table.entries(p_all % det.width_px, p_all // det.width_px,
+                                        np.full(b - a, len(vol_table) - 1), n_sl)
+                out += (beam_fraction[:, None] * last).T
             if len(pix):
-                seen = vol_table[m_hit] - vol_table[-1][None, :]  # (hits, slices): minus the hidden volume
+                if wx.table is None:
+                    seen = vol_table[m_hit] - vol_table[-1][None, :]  # (hits, slices): minus the hidden volume
+                else:
+                    seen = (wx.table.entries((pix + a) % det.width_px, (pix + a) // det.width_px, m_hit, n_sl)
+                            - last[pix])
                 hw = weight[hit]
                 for k in range(n_sl):
                     out[k] += np.bincount(pix, weights=hw * seen[:, k], minlength=b - a)
