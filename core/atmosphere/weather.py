@@ -57,7 +57,8 @@ from ..constants import SPEED_OF_LIGHT_M_S
 
 DB_PER_KM_TO_PER_M = math.log(10.0) / 10.0 / 1000.0
 WEATHER_CONDITIONS = ("none", "haze", "fog", "rain", "snow", "custom")
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+#: 8-point Gauss-Legendre nodes and weights on [-1, 1] for the slab integrals (here and in physics.weather_waveform)
+GL_X, GL_W = np.polynomial.legendre.leggauss(8)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -225,11 +226,11 @@ def slab_integrals(edges_m, alpha_per_m, overlap: Overlap, weight=None):
     lo, hi = edges_m[:-1], edges_m[1:]
     half = 0.5 * (hi - lo)
     mid = 0.5 * (hi + lo)
-    r = mid[:, None] + half[:, None] * _GL_X[None, :]
+    r = mid[:, None] + half[:, None] * GL_X[None, :]
     g = overlap(r) * np.exp(-2.0 * alpha_per_m * r) / (r * r)
     if weight is not None:
         g = g * weight(r)
-    wg = g * _GL_W[None, :]
+    wg = g * GL_W[None, :]
     integral = half * wg.sum(axis=1)
     s = wg.sum(axis=1)
     centroid = np.where(s > 0, (wg * r).sum(axis=1) / np.where(s > 0, s, 1.0), mid)

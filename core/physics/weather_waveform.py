@@ -13,7 +13,7 @@ import numpy as np
 
 import functools
 
-from ..atmosphere.weather import _GL_W, _GL_X, Overlap, overlap_tilt, pixel_overlap, slab_integrals
+from ..atmosphere.weather import GL_W, GL_X, Overlap, overlap_tilt, pixel_overlap, slab_integrals
 from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_half_support_s
 from .waveform import accumulate_waveforms, round_trip_time_s
@@ -80,7 +80,7 @@ def pixel_backscatter_templates(laser, gate, energy_scale_jm2, beta_per_m_sr, al
     w = _beta(beta_per_m_sr, profile)
     lo, hi = edges[:-1], edges[1:]  # slab_integrals, for K overlaps at once
     half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
-    r = mid[:, None] + half[:, None] * _GL_X[None, :]
+    r = mid[:, None] + half[:, None] * GL_X[None, :]
     o = overlap(r)
     att = np.exp(-2.0 * alpha_per_m * r)
     rr = r * r
@@ -91,7 +91,7 @@ def pixel_backscatter_templates(laser, gate, energy_scale_jm2, beta_per_m_sr, al
         g = (o[None] * overlap_tilt(overlap, r[None], tx[kk, None, None], ty[kk, None, None])) * att / rr
         if wr is not None:
             g = g * wr
-        wg = g * _GL_W
+        wg = g * GL_W
         integral = half * wg.sum(axis=-1)
         s = wg.sum(axis=-1)
         centroid = np.where(s > 0, (wg * r).sum(axis=-1) / np.where(s > 0, s, 1.0), mid)
