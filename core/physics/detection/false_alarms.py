@@ -158,6 +158,22 @@ def _outside_runs(j, starts, ends, m):
 
 
 @kernel
+def _tally_row(r, starts, ends, m, lo, hi, n, cols, det_bin, n_range, n_all, at_cols, fa):
+    """Row ``r`` of :func:`_classify_rows` from its ``m`` guarded runs [starts, ends) (the ineligible bins): the
+    eligible bins in [lo, hi) and in all ``n``, the flags at ``cols`` and each detection's flag."""
+    c_range, c_all = hi - lo, n
+    for i in range(m):
+        c_all -= ends[i] - starts[i]
+        c_range -= max(0, min(ends[i], hi) - max(starts[i], lo))
+    n_range[r], n_all[r] = c_range, c_all
+    for k in range(cols.size):
+        at_cols[r, k] = _outside_runs(cols[k], starts, ends, m)
+    for k in range(det_bin.shape[1]):
+        j = det_bin[r, k]
+        fa[r, k] = _outside_runs(j, starts, ends, m) if j >= 0 else False
+
+
+@kernel
 def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, at_cols, fa):
     """What :func:`_eligible_rows` then :func:`_eligible_counts` give, from the guarded runs of each row without
     writing its flags: the eligible bins in [lo, hi) and in all, the flags at ``cols``, and each detection's
@@ -166,16 +182,7 @@ def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, a
     starts, ends = np.empty(n, np.int64), np.empty(n, np.int64)
     for r in range(t.shape[0]):
         m = _guarded_runs(t[r], _row_level(t[r], rel, absl), guard, starts, ends)
-        c_range, c_all = hi - lo, n
-        for i in range(m):
-            c_all -= ends[i] - starts[i]
-            c_range -= max(0, min(ends[i], hi) - max(starts[i], lo))
-        n_range[r], n_all[r] = c_range, c_all
-        for k in range(cols.size):
-            at_cols[r, k] = _outside_runs(cols[k], starts, ends, m)
-        for k in range(det_bin.shape[1]):
-            j = det_bin[r, k]
-            fa[r, k] = _outside_runs(j, starts, ends, m) if j >= 0 else False
+        _tally_row(r, starts, ends, m, lo, hi, n, cols, det_bin, n_range, n_all, at_cols, fa)
 
 
 @kernel
@@ -304,16 +311,7 @@ def _classify_rows_in(t, rel, absl, guard, lo, hi, cols, det_bin, first, last, p
             m = _guarded_runs_in(t[r], lv, guard, first[r], last[r] + 1, starts, ends) if first[r] >= 0 else 0
         else:
             m = _guarded_runs(t[r], _row_level(t[r], rel, absl), guard, starts, ends)
-        c_range, c_all = hi - lo, n
-        for i in range(m):
-            c_all -= ends[i] - starts[i]
-            c_range -= max(0, min(ends[i], hi) - max(starts[i], lo))
-        n_range[r], n_all[r] = c_range, c_all
-        for k in range(cols.size):
-            at_cols[r, k] = _outside_runs(cols[k], starts, ends, m)
-        for k in range(det_bin.shape[1]):
-            j = det_bin[r, k]
-            fa[r, k] = _outside_runs(j, starts, ends, m) if j >= 0 else False
+        _tally_row(r, starts, ends, m, lo, hi, n, cols, det_bin, n_range, n_all, at_cols, fa)
 
 
 def filter_rows(n_bins, pulse, rows):
