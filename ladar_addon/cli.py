@@ -28,7 +28,7 @@ import bpy
 from ..core.errors import ConfigError
 from ..core.config.settings import SimulationConfig
 from ..core.config.files import dump_config_json, dump_config_toml, load_config
-from ..core.fileio.staging import write_file_atomically
+from ..core.fileio.staging import release_live_claims, write_file_atomically
 from ..core.process import Interrupted, emit, exit_code, interrupts_as_exceptions
 from .errors import LadarError
 
@@ -323,6 +323,9 @@ def cli_handler(argv) -> int:
             else:
                 emit(f"ladar: interrupted{how}: nothing of the run was written", err=True)
             return exit_code(exc) if isinstance(exc, KeyboardInterrupt) else EXIT_INTERRUPTED
+        finally:
+            # a claim still held here was taken when the signal came (before its holder's clean-up could start)
+            release_live_claims()
 
 
 def register():

@@ -172,22 +172,24 @@ class SimulationJob(BackgroundJob):
             self.claim = claim_run_dir(self.requested_path, if_exists="new", taken=self._name_taken)
         else:
             self.claim = claim_run_dir(self.run_path, if_exists=self.if_exists)
-        self.run_path, self.run_name = self.claim.path, self.claim.path.name
-        self.threaded = threaded
-        self.state = "running"
-        self.t_start = time.perf_counter()
         try:
+            self.run_path, self.run_name = self.claim.path, self.claim.path.name
+            self.threaded = threaded
+            self.state = "running"
+            self.t_start = time.perf_counter()
             log(f"simulating {self.run_name} ({self.cfg.system_type}, "
                  + (f"frames {self.frames[0]}…{self.frames[-1]} ({len(self.frames)})" if self.sequence
                     else f"frame {self.frames[0]}") + f", seed {self.cfg.run.seed}) into {self.run_path}")
             if threaded:
                 self._thread = threading.Thread(target=self._worker_main, name="ladar-simulate", daemon=True)
                 self._thread.start()
-        except BaseException:
-            self.claim.release()
+            else:
+                self._worker_main()
+        except BaseException:  # (a signal between the claim and the worker's own clean-up included)
+            if self._thread is None or not self._thread.is_alive():  # (a started worker releases it itself)
+                self.claim.release()
             raise
         if not threaded:
-            self._worker_main()
             self._finish()
 
     def run(self):

@@ -260,6 +260,7 @@ class RunClaim:
         self.path, self.staging, self.replace = path, staging, replace
         self.work = staging / "run"
         self._lock, self._created, self.committed = lock, created, False
+        _live_claims.add(self)
 
     def commit(self) -> Path:
         """Rename :attr:`work` into place.  An existing folder is replaced only if this claim may replace it and
@@ -295,6 +296,7 @@ class RunClaim:
         """Remove the staging folder (and, if nothing was committed, the empty folders the claim created)."""
         if self._lock is None:
             return
+        _live_claims.discard(self)
         with deferred():
             # renamed while still locked: a process killed from here on leaves a folder that the next sweep
             # removes at once (unlocked owner file, or none under the removal name), never an ownerless claim
@@ -321,6 +323,20 @@ class RunClaim:
         return False
 
 
+#: The claims of this process not released yet.
+_live_claims: set[RunClaim] = set()
+
+
+def release_live_claims() -> int:
+    """Release every claim of this process that is still held (a command line's last step, however it ends: a
+    signal can arrive between a claim being taken and its holder's ``with`` or ``try`` — it must not leave the
+    staging folder behind).  Returns how many were released."""
+    claims = list(_live_claims)
+    for claim in claims:
+        claim.release()
+    return len(claims)
+
+
 #: The words of the error when another run holds a name.
 BUSY = "another run is writing this one"
 
@@ -339,18 +355,26 @@ def _try_claim(out: Path, replace: bool, created: list[Path]) -> RunClaim | None
     """Create the staging folder of ``out``; None if another live run holds it."""
     staging = staging_path(out)
     for _ in range(3):
-        with deferred():
-            try:
-                os.mkdir(staging)
-            except FileExistsError:
-                pass
-            else:
+        claim = None
+        try:
+            with deferred():  # a signal arriving inside is raised as the block ends: the claim is released then
                 try:
-                    lock = lock_new_folder(staging, run=out.name, path=str(out))
-                except BaseException:
-                    shutil.rmtree(staging, ignore_errors=True)
-                    raise
-                return RunClaim(out, staging, lock, replace, created)
+                    os.mkdir(staging)
+                except FileExistsError:
+                    pass
+                else:
+                    try:
+                        lock = lock_new_folder(staging, run=out.name, path=str(out))
+                    except BaseException:
+                        shutil.rmtree(staging, ignore_errors=True)
+                        raise
+                    claim = RunClaim(out, staging, lock, replace, created)
+        except BaseException:
+            if claim is not None:
+                claim.release()
+            raise
+        if claim is not None:
+            return claim
         if not remove_if_abandoned(staging, restore=_restore_previous):
             return None
     return None  # pragma: no cover - lost three races for an abandoned claim
@@ -372,6 +396,7 @@ def claim_run_dir(out_dir, *, if_exists: str = "stop", taken=None) -> RunClaim:
         created.append(parent)
         parent = parent.parent
     base.parent.mkdir(parents=True, exist_ok=True)
+    claim = None
     try:
         remove_abandoned_staging(base.parent)
         if mode != "new":
@@ -379,11 +404,7 @@ def claim_run_dir(out_dir, *, if_exists: str = "stop", taken=None) -> RunClaim:
             if claim is None:
                 _refuse(base, _busy(base, staging_path(base)))
             if base.exists() or base.is_symlink():  # re-checked under the claim
-                try:
-                    check_run_dir(base, overwrite=mode == "replace")
-                except BaseException:
-                    claim.release()
-                    raise
+                check_run_dir(base, overwrite=mode == "replace")
             return claim
         for cand in _numbered(base):
             if cand.exists() or cand.is_symlink() or (taken is not None and taken(cand)):
@@ -395,7 +416,9 @@ def claim_run_dir(out_dir, *, if_exists: str = "stop", taken=None) -> RunClaim:
                 claim.release()
                 continue
             return claim
-    except BaseException:
+    except BaseException:  # (a signal between taking a claim and returning it included)
+        if claim is not None:
+            claim.release()
         for folder in created:
             try:
                 folder.rmdir()
