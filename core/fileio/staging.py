@@ -296,8 +296,8 @@ class RunClaim:
         """Remove the staging folder (and, if nothing was committed, the empty folders the claim created)."""
         if self._lock is None:
             return
-        _live_claims.discard(self)
         with deferred():
+            _live_claims.discard(self)
             # renamed while still locked: a process killed from here on leaves a folder that the next sweep
             # removes at once (unlocked owner file, or none under the removal name), never an ownerless claim
             trash = removal_path(self.staging)
