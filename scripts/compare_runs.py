@@ -8,7 +8,7 @@ Every file in either folder (recursively) must exist in both and be byte-identic
 * ``*.json`` files (``metadata.json``, ``sequence.json``) are compared as JSON after dropping, at any depth, the
   keys that record when and with what the run was made: timing (``created_unix_s``, ``wall_time_s``,
   ``time_s`` (the BVH build), ``export_s`` and ``main_thread_s`` (the Blender export), any key ending in
-  ``_times_s``), the compiled kernels loaded or compiled (``kernels``) and versions (``software``,
+  ``_times_s`` or ``_wall_time_s``), the compiled kernels loaded or compiled (``kernels``) and versions (``software``,
   ``simulator_version``, ``addon_version``), plus any ``--ignore KEY``;
 * ``*.npz`` archives are compared member by member (names and the bytes of each ``.npy`` member), because the
   zip container stamps each member with the time it was written;
@@ -30,7 +30,7 @@ from pathlib import Path
 
 IGNORED_KEYS = {"created_unix_s", "wall_time_s", "time_s", "export_s", "main_thread_s", "software", "kernels",
                 "simulator_version", "addon_version"}
-IGNORED_SUFFIXES = ("_times_s",)
+IGNORED_SUFFIXES = ("_times_s", "_wall_time_s")
 
 
 def _strip(obj, ignored: set[str]):
