@@ -27,6 +27,20 @@ def test_eta_is_linear_in_the_fraction_done(lad, elapsed, fraction, text):
     assert lad.run_inputs.format_eta(elapsed, fraction) == text
 
 
+def test_eta_leaves_out_the_time_before_the_first_block(lad, monkeypatch):
+    """The first block carries the kernels' compile (once per run): a 9 s compile and blocks of 1 s, 10 % each.
+    At 20 % (t = 11 s) the time left is 8 blocks = 8 s (counted from the start it was 11 × 0.8/0.2 = 44 s); the
+    first block's own line can only count from the start: 10 × 0.9/0.1 = 90 s."""
+    lines, clock = [], [0.0]
+    monkeypatch.setattr(lad.run_inputs, "emit", lambda text, **kw: lines.append(text) or True)
+    monkeypatch.setattr(lad.run_inputs.time, "perf_counter", lambda: clock[0])
+    printer = lad.run_inputs.progress_printer(heartbeat_s=None)
+    for t, f in ((10.0, 0.1), (11.0, 0.2), (13.0, 0.4)):
+        clock[0] = t
+        printer(f, "block")
+    assert [line.split(", ")[-1] for line in lines] == ["ETA 1 min 30 s)", "ETA 8 s)", "ETA 6 s)"], lines
+
+
 def test_heartbeat_repeats_the_last_line_until_closed(lad, monkeypatch):
     out = io.StringIO()
     lock = threading.Lock()
