@@ -4,16 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-PY=""
-for cand in python3.11 python3; do
-  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
-    PY="$cand"; break
-  fi
-done
-if [ -z "$PY" ]; then
-  echo "setup: Python 3.11 is required (the bpy 5.0.1 wheel is built for CPython 3.11); found: $(python3 --version 2>&1)" >&2
-  exit 1
-fi
+. scripts/lib/python311.sh
+find_python311 setup "the bpy 5.0.1 wheel is built for CPython 3.11"
 
 stamp=.venv/.requirements.sha
 want=$(sha256sum requirements.txt | cut -d' ' -f1)

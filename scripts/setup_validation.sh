@@ -7,13 +7,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-PY=""
-for cand in python3.11 python3; do
-  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
-    PY="$cand"; break
-  fi
-done
-[ -n "$PY" ] || { echo "setup_validation: Python 3.11 is required" >&2; exit 1; }
+. scripts/lib/python311.sh
+find_python311 setup_validation "the validation environment is pinned for CPython 3.11"
 
 have_llvm() {  # Dr.Jit's LLVM backend: DRJIT_LIBLLVM_PATH, or a libLLVM >= 16 the loader finds
   if [ -n "${DRJIT_LIBLLVM_PATH:-}" ]; then [ -e "$DRJIT_LIBLLVM_PATH" ]; return; fi

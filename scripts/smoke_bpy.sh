@@ -9,13 +9,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-PY=""
-for cand in python3.11 python3; do
-  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
-    PY="$cand"; break
-  fi
-done
-[ -n "$PY" ] || { echo "smoke_bpy: Python 3.11 is required (bpy wheels are built for CPython 3.11)" >&2; exit 1; }
+. scripts/lib/python311.sh
+find_python311 smoke_bpy "bpy wheels are built for CPython 3.11"
 
 clean_venv() {  # clean_venv <dir> <requirements file>
   local dir=$1 req=$2 want
