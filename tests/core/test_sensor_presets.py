@@ -220,6 +220,19 @@ def test_user_preset_file_and_bad_values(tmp_path):
         bad.write_text(text, encoding="utf-8")
         with pytest.raises(ConfigError, match=message):
             load_preset(bad)
+    # a user's channel table in a preset file, inline or from a CSV beside it: the row and column of the bad cell
+    bad.write_text('system_type = "scanner"\n[scanner]\npattern = "rotating"\nn_channels = 2\n'
+                   'channel_table = [[1.0, 0.0, 0.0], [2.0, "x", 0.0]]\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"preset bad: scanner\.channel_table row 2 column 2 "
+                                          r"\(azimuth_offset_deg\) = 'x'"):
+        load_preset(bad)
+    csv = tmp_path / "mine.csv"
+    csv.write_text("elevation_deg,azimuth_offset_deg,fire_offset_s\n1.0,0.0,0.0\n2.0,0.0,abc\n", encoding="utf-8")
+    bad.write_text('system_type = "scanner"\n[scanner]\npattern = "rotating"\nn_channels = 2\n'
+                   f'channel_table_file = "{csv.as_posix()}"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"preset bad: scanner\.channel_table_file .*mine\.csv.* row 3 column 3 "
+                                          r"\(fire_offset_s\) = 'abc'"):
+        load_preset(bad)
     with pytest.raises(ConfigError, match="preset = 'no_such_sensor'.*velodyne_vlp16"):
         config_from_dict({"preset": "no_such_sensor"})
     with pytest.raises(ConfigError, match="preset = 3"):
