@@ -128,7 +128,9 @@ def render() -> str:
         "of date. A preset's unpublished pulse energy is derived with "
         "`.venv/bin/python scripts/sensor_table.py --derive velodyne_vlp16` (the energy at which its `max_range_m` "
         "figure is detected with probability 0.5). A full settings file from a preset: "
-        "`blender -b scene.blend -c ladar export-config --preset velodyne_vlp16 --out vlp16.toml`.",
+        "`blender -b scene.blend -c ladar export-config --preset velodyne_vlp16 --out vlp16.toml`. A preset added "
+        "or renamed also changes the list of presets in [settings.md](settings.md#system): regenerate it with "
+        "`.venv/bin/python scripts/settings_reference.py`.",
         "",
         "| Preset | Figure | Published | Simulated | Criterion | |",
         "|---|---|---|---|---|---|",
