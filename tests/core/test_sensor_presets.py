@@ -172,6 +172,26 @@ def test_derived_energy_reproduces_its_figure():
     assert abs(p - 0.5) < 0.05  # 0.05 = 4.5 binomial standard errors, plus the 4-digit rounding of the energy
 
 
+def test_geiger_dark_current_gives_back_its_dark_count_rate():
+    """The Geiger camera's dark current is derived from ONE published figure, the dark count rate below 20 kHz
+    of the 1.06 µm arrays (Itzler et al., Proc. SPIE 7780, 2010): I = 2.0e4 /s × q.  The derivation gives it
+    back through the simulator: with nothing in the gate, the detections of the preset's 100 pulses × 1024
+    pixels over its 2048 × 0.25 ns gate are 1 − exp(−DCR·T) = 1.019 % of the pixel-pulses, within 4 binomial
+    standard errors (√(p(1−p)/102 400) = 0.031 %).  (A check of the derivation, not of the data sheet: the
+    sources state no range or precision to check the camera against.)"""
+    import numpy as np
+
+    cfg = checks._quiet(preset_config("pli_geiger_32"))
+    cfg.run.save_waveforms = True
+    cfg.run.seed = 5
+    res = checks._simulate(checks._panel(10_000.0, 1.0, 0.01), cfg)  # the panel far beyond the 77 m gate
+    assert res.units["counts"] == "detections"
+    trials = cfg.detector.geiger_pulses * cfg.receiver.width_px * cfg.receiver.height_px
+    p = float(np.sum(res.digital_waveforms)) / trials
+    want = -math.expm1(-2.0e4 * cfg.gate.n_bins * cfg.gate.bin_width_s)
+    assert abs(p - want) <= 4 * math.sqrt(want * (1 - want) / trials), (p, want)
+
+
 # ----------------------------------------------------------------------------------------------------------
 # The mechanism
 # ----------------------------------------------------------------------------------------------------------
