@@ -74,6 +74,22 @@ def preset_rows(name: str) -> tuple:
     return tuple(data_sheet_rows(load_preset(name)))
 
 
+#: The kinds of check a preset can have, and the ``[published]`` keys each one runs on.
+CHECK_KINDS = (("field of view", ("fov_h_deg", "fov_v_deg")),
+               ("points per second", ("points_per_s",)),
+               ("maximum range at a second reflectivity (or a detection range)", ("second_range_m",
+                                                                                   "detected_range_m")),
+               ("range precision", ("precision_m", "precision_at_snr")))
+
+
+def unchecked(published: dict, system_type: str) -> list[str]:
+    """The kinds of check a preset lacks because its sources publish no such figure (a camera has no points per
+    second)."""
+    return [kind for kind, keys in CHECK_KINDS
+            if not (kind == "points per second" and system_type != "scanner")
+            and not any(k in published for k in keys)]
+
+
 def render() -> str:
     from core.presets.checks import N_PULSES
 
@@ -112,7 +128,9 @@ def render() -> str:
         "of date. A preset's unpublished pulse energy is derived with "
         "`.venv/bin/python scripts/sensor_table.py --derive velodyne_vlp16` (the energy at which its `max_range_m` "
         "figure is detected with probability 0.5). A full settings file from a preset: "
-        "`blender -b scene.blend -c ladar export-config --preset velodyne_vlp16 --out vlp16.toml`.",
+        "`blender -b scene.blend -c ladar export-config --preset velodyne_vlp16 --out vlp16.toml`. A preset added "
+        "or renamed also changes the list of presets in [settings.md](settings.md#system): regenerate it with "
+        "`.venv/bin/python scripts/settings_reference.py`.",
         "",
         "| Preset | Figure | Published | Simulated | Criterion | |",
         "|---|---|---|---|---|---|",
@@ -129,6 +147,10 @@ def render() -> str:
                     f"System `{cfg.system_type}`, {cfg.laser.wavelength_m * 1e9:.0f} nm. Menu entry: "
                     f"*{menu_label(p).replace('_', ' ')}*. Sources:", ""]
         sources += [f"- {s}" for s in p.published["sources"]]
+        missing = unchecked(p.published, cfg.system_type)
+        if missing:
+            sources += ["", "Not checked (no such figure in the preset's `[published]` table: its sources, as "
+                        "found, state none): " + "; ".join(missing) + "."]
     from core.presets import PUBLISHED_KEYS
 
     lines += ["", "## Presets and their sources"] + sources

@@ -20,6 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from core.config import GROUPS, SCHEMA_VERSION, BRDFSettings, SimulationConfig  # noqa: E402
 from core.config.settings import panel_unit  # noqa: E402
+from core.presets import list_presets, load_preset  # noqa: E402
 
 OUT = REPO / "docs" / "settings.md"
 THEORY = REPO / "docs" / "theory.md"
@@ -149,9 +150,10 @@ def render() -> str:
         "(`core/presets/sensors/NAME.toml`, listed with its sources in [sensors.md](sensors.md)) or the path of "
         "your own preset file ending in `.toml`. Its settings are applied first, then the file's other keys over "
         "them; `export-config --preset NAME` writes the expanded settings. A preset's `[published]` table is the "
-        "maker's figures, not settings.",
+        "maker's figures, not settings. The shipped presets (`NAME`: maker and model):",
         "",
     ]
+    lines += [f"- `{name}`: {load_preset(name).title}" for name in list_presets()] + [""]
     top = [f for f in dataclasses.fields(SimulationConfig) if f.name not in GROUPS and f.name != "materials"]
     lines += list(HEADER)
     for f in top:

@@ -54,3 +54,17 @@ def test_derive_gives_back_the_shipped_energy(capsys):
     # the derivation is deterministic (fixed seed, the same decade grid from any start); the shipped value is
     # written to 3-4 significant digits
     assert derived == pytest.approx(shipped, rel=5e-3)
+
+
+def test_unchecked_names_the_checks_a_preset_lacks():
+    """docs/sensors.md says under each preset which kinds of check its [published] table gives no figure for (a
+    camera has no points per second); the Geiger camera's sources are focal-plane-array papers: no range or
+    precision."""
+    assert sensor_table.unchecked({"width_px": 32, "height_px": 32}, "flash") == [
+        "field of view", "maximum range at a second reflectivity (or a detection range)", "range precision"]
+    full = {"fov_h_deg": 360.0, "points_per_s": 1e5, "detected_range_m": 50.0, "precision_at_snr": [[12, 0.1]]}
+    assert sensor_table.unchecked(full, "scanner") == []
+    assert sensor_table.unchecked({k: v for k, v in full.items() if k != "points_per_s"}, "scanner") == [
+        "points per second"]
+    pub = sensor_table.load_preset("pli_geiger_32").published
+    assert "range precision" in sensor_table.unchecked(pub, "flash")

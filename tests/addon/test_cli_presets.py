@@ -44,6 +44,18 @@ def test_export_config_bad_preset_writes_nothing(lad, plate_scene, tmp_path, cap
     assert "preset = 'velodyne_vlp99' is not allowed" in err and "velodyne_vlp16" in err
     assert len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+    # the user's own preset file with a bad channel-table cell: the row and column named, nothing written
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    mine = src / "mine.toml"
+    mine.write_text('system_type = "scanner"\n[scanner]\npattern = "rotating"\nn_channels = 2\n'
+                    'channel_table = [[1.0, 0.0, 0.0], [2.0, 0.0, 5.0]]\n', encoding="utf-8")
+    code, _, err = _run(lad, capsys, "export-config", "--preset", str(mine), "--out", str(out / "x.toml"))
+    assert code == 1
+    assert "scanner.channel_table row 2 column 3 (fire_offset_s) = 5.0 is not allowed" in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert list(out.iterdir()) == []
 
 
 def test_config_file_preset_for_validate_and_simulate(lad, plate_scene, tmp_path, capsys):
