@@ -38,10 +38,11 @@ for water fog in the near IR (e.g. Pinnick et al. 1983, J. Atmos. Sci. 40; Klett
 
 Overlap O(R) (``overlap_model = geometric``): the transmitted beam is a disc of radius r_t + R θ_t, the receiver's
 field of view (a flash pixel's, or the scanner receiver's = the beam's divergence) a disc of radius r_a + R θ_r,
-their axes parallel and ``tx_rx_offset_m`` = d apart; O is the area of their intersection over the area of the
+their axes parallel and ``tx_rx_offset_m`` = d apart (in the direction ``tx_rx_offset_angle_deg`` from the
+sensor frame's +x); O is the area of their intersection over the area of the
 smaller disc (the fraction of the smaller cone that the other one covers; 0 while the discs are apart, → 1 at
 long range).  Per pixel (flash): the on-axis O(R) times the parallax tilt of the Gaussian beam across the field,
-exp(4 z t_x d/(w² + b²)) (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash and gated pixels.
+exp(4 z (t·u) d/(w² + b²)), u the offset's direction (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash and gated pixels.
 
 This module does not import bpy.
 """
@@ -156,6 +157,7 @@ class Overlap:
     tx_half_angle: float = 0.0
     rx_radius_m: float = 0.0
     rx_half_angle: float = 0.0
+    offset_angle_rad: float = 0.0  # direction of the transmitter from the receiver in the tan plane (0: +x)
 
     def __call__(self, range_m):
         r = np.asarray(range_m, dtype=np.float64)
@@ -188,10 +190,11 @@ def disc_overlap_fraction(a, b, d):
 def pixel_overlap(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "gaussian"):
     """O(R) of a flash pixel whose axis is (tan_x, tan_y) in the tan plane (module docstring, "per pixel"):
     the on-axis overlap O(R) times the parallax tilt of the Gaussian beam across the field,
-    T = exp(4 z t_x d / (w² + b²)) with z = R/√(1 + t²) the depth, w = r_t + z θ_t the beam's 1/e² radius,
-    b = r_a + z θ_r the radius of the pixel's view and d the offset (transmitter at +d along the tan plane's x).
-    T = 1 on axis (t_x = 0: :class:`Overlap` exactly), with d = 0, for ``model = none`` (O = 1) and for a uniform
-    beam.  Broadcasts."""
+    T = exp(4 z (t·u) d / (w² + b²)) with z = R/√(1 + t²) the depth, w = r_t + z θ_t the beam's 1/e² radius,
+    b = r_a + z θ_r the radius of the pixel's view, d the offset and u = (cos φ, sin φ) its direction in the tan
+    plane (φ = ``offset_angle_rad``; 0: the transmitter at +d along x, t·u = t_x exactly).  T = 1 on axis
+    (t = 0: :class:`Overlap` exactly), with d = 0, for ``model = none`` (O = 1) and for a uniform beam.
+    Broadcasts."""
     r = np.asarray(range_m, dtype=np.float64)
     return overlap(r) * overlap_tilt(overlap, r, tan_x, tan_y, beam_profile)
 
@@ -205,7 +208,9 @@ def overlap_tilt(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "g
     z = r / np.sqrt(1.0 + tx * tx + ty * ty)
     w = overlap.tx_radius_m + z * overlap.tx_half_angle
     b = overlap.rx_radius_m + z * overlap.rx_half_angle
-    return np.exp(4.0 * z * tx * overlap.offset_m / (w * w + b * b))
+    phi = overlap.offset_angle_rad
+    along = tx if phi == 0.0 else tx * math.cos(phi) + ty * math.sin(phi)  # t·u
+    return np.exp(4.0 * z * along * overlap.offset_m / (w * w + b * b))
 
 
 # ------------------------------------------------------------------------------------------------------------

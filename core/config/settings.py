@@ -319,6 +319,12 @@ class AtmosphereSettings:
                                     doc="Distance between the transmitter and receiver optical axes (biaxial "
                                         "offset; 0 = coaxial)",
                                     label="Transmitter–Receiver Offset")
+    tx_rx_offset_angle_deg: float = setting(0.0, lo=-180.0, hi=180.0, unit="deg",
+                                            doc="Direction of the transmitter's axis from the receiver's in the "
+                                                "sensor frame: the angle from its +x (image right) towards +y "
+                                                "(image up); 0 = +x.  Sets which side of a flash field sees more "
+                                                "near-range backscatter (docs/theory.md §14 W3)",
+                                            label="Transmitter Offset Direction")
     backscatter_min_range_m: float = setting(0.5, lo=0.01, hi=1e4, unit="m", subtype="DISTANCE",
                                              doc="No atmosphere returns nearer than this (the receiver's near field; "
                                                  "the 1/R² form diverges at R = 0)",

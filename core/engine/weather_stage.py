@@ -60,8 +60,8 @@ def _bilinear_weights(nodes: np.ndarray, idx):
 class TemplateTable:
     """Volume templates of flash pixels tabulated over the pixel grid (field angle): exact at the node pixels
     (columns ``nodes_x`` × rows ``nodes_y``), between them bilinear in pixel index of the templates' logarithm
-    (geometric: exact for the tilt exp(c·tan_x) of the overlap), bin by bin; a bin that is zero at any node is
-    zero (:func:`build_template_table`)."""
+    (geometric: exact for the tilt exp(c_x tan_x + c_y tan_y) of the overlap), bin by bin; a bin that is zero at
+    any node is zero (:func:`build_template_table`)."""
 
     width_px: int
     nodes_x: np.ndarray
@@ -325,7 +325,7 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
         return None
     rx = config.receiver
     overlap = Overlap(atm.overlap_model, atm.tx_rx_offset_m, laser.beam_waist_radius_m, tx_half_angle,
-                      0.5 * rx.aperture_diameter_m, rx_half_angle)
+                      0.5 * rx.aperture_diameter_m, rx_half_angle, math.radians(atm.tx_rx_offset_angle_deg))
     alpha = effective_extinction_per_m(config)
     scale = energy_scale(laser, rx)
     ra2 = aperture_r2(rx)
