@@ -55,6 +55,7 @@ import numpy as np
 from scipy.special import exp1
 
 from ..constants import SPEED_OF_LIGHT_M_S
+from .extinction import two_way_transmission
 
 DB_PER_KM_TO_PER_M = math.log(10.0) / 10.0 / 1000.0
 WEATHER_CONDITIONS = ("none", "haze", "fog", "rain", "snow", "custom")
@@ -225,14 +226,31 @@ def closed_form_integral(a_m, b_m, alpha_per_m):
             - 2 * al * (float(exp1(2 * al * a)) - float(exp1(2 * al * b))))
 
 
+def layer_backscatter(table):
+    """β(R) (1/(m sr)) of the aerosol layers, ``table`` (n, 4) rows [start_m, end_m, α, β] (core.config.tables.
+    aerosol_layer_table): Σ_i β_i 1[s_i ≤ R < e_i], a callable; None without a layer of β > 0."""
+    rows = [(float(a), float(b), float(beta)) for a, b, _, beta in np.asarray(table, np.float64) if beta > 0.0]
+    if not rows:
+        return None
+
+    def beta_of(range_m):
+        r = np.asarray(range_m, np.float64)
+        out = np.zeros(r.shape)
+        for a, b, beta in rows:
+            out += np.where((r >= a) & (r < b), beta, 0.0)
+        return out
+    return beta_of
+
+
 def slab_integrals(edges_m, alpha_per_m, overlap: Overlap, weight=None):
     """Per slab [edges[i], edges[i+1]]: ∫ w(R) O(R) e^(−2αR)/R² dR and the energy centroid range (8-point
-    Gauss–Legendre); ``weight`` = w(R) (a callable; None: 1)."""
+    Gauss–Legendre); ``weight`` = w(R) (a callable; None: 1).  ``alpha_per_m``: α, or a layered extinction
+    (core.atmosphere.extinction.LayeredExtinction: e^(−2τ(R)))."""
     lo, hi = edges_m[:-1], edges_m[1:]
     half = 0.5 * (hi - lo)
     mid = 0.5 * (hi + lo)
     r = mid[:, None] + half[:, None] * GL_X[None, :]
-    g = overlap(r) * np.exp(-2.0 * alpha_per_m * r) / (r * r)
+    g = overlap(r) * two_way_transmission(alpha_per_m, r) / (r * r)
     if weight is not None:
         g = g * weight(r)
     wg = g * GL_W[None, :]
@@ -328,7 +346,7 @@ def drop_returns(drops: Drops, beam_fraction, omega_sr, energy_scale_jm2, apertu
     r = drops.range_m
     f = np.minimum(1.0, area / (omega_sr * r * r))
     e = (energy_scale_jm2 * np.asarray(beam_fraction)[drops.beam] * f * (2.0 / lidar_ratio_sr) * overlap(r)
-         * np.exp(-2.0 * alpha_per_m * r) / (r * r + aperture_r2))
+         * two_way_transmission(alpha_per_m, r) / (r * r + aperture_r2))
     return e, f
 
 

@@ -341,6 +341,16 @@ class AtmosphereSettings:
                                                  "shadow the extinction (docs/theory.md §14); 0 = draw every drop "
                                                  "≥ drop_min_diameter_mm",
                                              label="Drop Detectability Cut")
+    #: Range-layered aerosol (not a Blender property: config files and presets): one row per layer
+    #: [start_m, end_m, extinction_per_m(, backscatter_per_m_sr)] (core/config/tables.py).
+    aerosol_layers: list = field(default_factory=list, metadata={
+        "unit": "m, m, 1/m[, 1/(m sr)]",
+        "allowed": "rows [start in [0, 1e6], end in (start, 1e6], extinction in [0, 1]] or with a 4th column "
+                   "[..., backscatter in [0, 1]] in every row, in increasing range and not overlapping, at most 256",
+        "doc": "Layers of aerosol at ranges from the sensor (e.g. a fog bank): inside [start_m, end_m) the "
+               "extinction α and the backscatter β (without the 4th column α/lidar_ratio_sr) add to the "
+               "homogeneous ones; every ray's two-way transmission is exp(−2∫α dR) (surfaces, drops and the "
+               "volume backscatter), the backscatter needs weather ≠ none (docs/theory.md §14); empty: homogeneous"})
 
 
 @dataclass
