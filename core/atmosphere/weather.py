@@ -42,7 +42,8 @@ their axes parallel and ``tx_rx_offset_m`` = d apart (in the direction ``tx_rx_o
 sensor frame's +x); O is the area of their intersection over the area of the
 smaller disc (the fraction of the smaller cone that the other one covers; 0 while the discs are apart, → 1 at
 long range).  Per pixel (flash): the on-axis O(R) times the parallax tilt of the Gaussian beam across the field,
-exp(4 z (t·u) d/(w² + b²)), u the offset's direction (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash and gated pixels.
+exp(4 z (t·u) d/(w² + b²)), u the offset's direction (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash
+and gated pixels.
 
 This module does not import bpy.
 """
@@ -224,6 +225,17 @@ def closed_form_integral(a_m, b_m, alpha_per_m):
         return 1.0 / a - 1.0 / b
     return (math.exp(-2 * al * a) / a - math.exp(-2 * al * b) / b
             - 2 * al * (float(exp1(2 * al * a)) - float(exp1(2 * al * b))))
+
+
+def layers_closed_form_integral(table):
+    """Σ_i β_i ∫_{s_i}^{e_i} e^(−2τ(R))/R² dR of aerosol layers in clear air (α₀ = β₀ = 0), ``table`` rows
+    [s_i, e_i, α_i, β_i] in increasing range: inside layer i, τ(R) = τ(s_i) + α_i (R − s_i), so each term is
+    β_i e^(−2(τ(s_i) − α_i s_i)) × :func:`closed_form_integral` (s_i, e_i, α_i) (docs/theory.md §14 W4)."""
+    total, tau = 0.0, 0.0
+    for s, e, a, b in np.asarray(table, np.float64):
+        total += b * math.exp(-2.0 * (tau - a * s)) * closed_form_integral(s, e, a)
+        tau += a * (e - s)
+    return total
 
 
 def layer_backscatter(table):

@@ -10,7 +10,7 @@ import pytest
 from scipy import integrate
 
 from core.atmosphere.extinction import LayeredExtinction, log_two_way_transmission, two_way_transmission
-from core.atmosphere.weather import Drops, Overlap, closed_form_integral, drop_returns, layer_backscatter
+from core.atmosphere.weather import Drops, Overlap, drop_returns, layer_backscatter, layers_closed_form_integral
 from core.config.settings import LaserSettings, RangeGateSettings, SimulationConfig
 from core.config.validate import validate_config
 from core.errors import ConfigError
@@ -58,17 +58,6 @@ def _reference_bins(laser, gate, beta_of, tau_of, r_min, breaks):
     return out
 
 
-def _closed_form_sum(rows, base_beta=0.0, base_alpha=0.0):
-    """Σ_i β_i ∫_{s_i}^{e_i} e^(−2τ(R))/R² dR for layers in clear air (σ₀ = β₀ = 0): inside layer i
-    τ(R) = τ(s_i) + α_i (R − s_i), so the integral is e^(−2(τ(s_i) − α_i s_i)) × the homogeneous closed form."""
-    assert base_beta == 0.0 and base_alpha == 0.0
-    total, tau = 0.0, 0.0
-    for s, e, a, b in rows:
-        total += b * math.exp(-2.0 * (tau - a * s)) * closed_form_integral(s, e, a)
-        tau += a * (e - s)
-    return total
-
-
 def test_two_layer_backscatter_waveform_matches_the_piecewise_equation_and_its_integral():
     """Two layers in clear air (10–30 m α = 0.02, 40–70 m α = 0.05, β = α/18), O = 1, 5 ns pulse, 1 ns bins from 0
     to 150 m: the simulated waveform against the bin integrals of β(R) e^(−2τ(R))/R² within 1e-3 L2 (the
@@ -83,7 +72,7 @@ def test_two_layer_backscatter_waveform_matches_the_piecewise_equation_and_its_i
     wf = backscatter_template(laser, gate, 1.0, 0.0, ext, Overlap("none"), 1.0, profile=beta, breaks_m=edges)
     ref = _reference_bins(laser, gate, beta, ext.optical_depth, 1.0, edges)
     assert np.linalg.norm(wf - ref) / np.linalg.norm(ref) < 1e-3
-    assert wf.sum() == pytest.approx(_closed_form_sum(TWO), rel=1e-6)
+    assert wf.sum() == pytest.approx(layers_closed_form_integral(TWO), rel=1e-6)
     t = 2 * np.array([5.0, 35.0, 90.0]) / C  # before, between and after the layers (≥ 3 FWHM from an edge)
     assert np.all(wf[(t / gate.bin_width_s).astype(int)] < 1e-9 * wf.max())
 
@@ -158,7 +147,7 @@ def test_weather_stage_applies_the_layers_to_the_volume_and_the_drops():
     cfg.gate.n_bins, cfg.gate.bin_width_s, cfg.laser.pulse_fwhm_s = 1000, 1e-9, 5e-9
     validate_config(cfg)
     wx = prepare_frame_weather(cfg, 0, 64, 1e-6, 1e-3, 1e-3)
-    assert wx.template.sum() == pytest.approx(energy_scale(cfg.laser, cfg.receiver) * _closed_form_sum(TWO),
+    assert wx.template.sum() == pytest.approx(energy_scale(cfg.laser, cfg.receiver) * layers_closed_form_integral(TWO),
                                               rel=1e-6)
     assert wx.metadata["aerosol_layers"] == TWO
     drops = Drops(np.array([0, 0, 1]), np.array([8.0, 25.0, 60.0]), np.array([1.0, 2.0, 3.0]), np.zeros(3))
