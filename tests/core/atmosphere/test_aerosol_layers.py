@@ -190,9 +190,30 @@ def test_bad_layers_are_refused_naming_the_row_and_column(rows, where, allowed):
         validate_config(cfg)
 
 
-def test_three_column_rows_take_beta_from_the_lidar_ratio():
-    """A row without β: β = α/S (S = lidar_ratio_sr); the table read from a config dict (TOML/JSON) too."""
-    from core.config import config_from_dict
+def test_three_column_rows_take_beta_from_the_lidar_ratio(tmp_path):
+    """A row without β: β = α/S (S = lidar_ratio_sr); the table read from a config dict, and through a TOML
+    config file written by dump_config_toml and read by load_config (the layers survive the round trip)."""
+    from core.config import config_from_dict, dump_config_toml, load_config
     from core.config.tables import aerosol_layer_table
     cfg = config_from_dict({"atmosphere": {"aerosol_layers": [[0, 50, 0.02]], "lidar_ratio_sr": 20.0}})
     assert aerosol_layer_table(cfg.atmosphere).tolist() == [[0.0, 50.0, 0.02, 0.001]]
+    cfg.atmosphere.aerosol_layers = TWO
+    path = tmp_path / "layers.toml"
+    path.write_text(dump_config_toml(cfg), encoding="utf-8")
+    assert load_config(path).atmosphere.aerosol_layers == TWO
+
+
+def test_the_documented_layer_example_loads():
+    """docs/atmosphere.md's config-file example of a fog bank: the TOML block that sets aerosol_layers is a valid
+    config whose layer table is [40, 60, 0.02, 0.02/S]."""
+    import re
+    import tomllib
+    from pathlib import Path
+    from core.config import config_from_dict
+    from core.config.tables import aerosol_layer_table
+    text = (Path(__file__).resolve().parents[3] / "docs" / "atmosphere.md").read_text(encoding="utf-8")
+    blocks = [b for b in re.findall(r"```toml\n(.*?)```", text, re.S) if "aerosol_layers" in b]
+    assert len(blocks) == 1
+    cfg = config_from_dict(tomllib.loads(blocks[0]))
+    table = aerosol_layer_table(cfg.atmosphere)
+    assert table.tolist() == [[40.0, 60.0, 0.02, 0.02 / cfg.atmosphere.lidar_ratio_sr]]
