@@ -550,6 +550,21 @@ def _gauss_over_disc(c, b, s, w, n=200):
     return float((np.exp(-2 * (x * x + y * y) / w ** 2) * rr * (0.5 * b * wg)[:, None] * (np.pi * wg)[None, :]).sum())
 
 
+def _tilt_and_quadrature(ov, tx, ty, rng_m):
+    """(quadrature, model, b/w) of the tilt O_p/O of the pixel t = (tx, ty) at ``rng_m``: the Gaussian beam (1/e²
+    radius w at the depth z, centred at the offset d·(cos φ, sin φ) or at 0) over the pixel's view disc (radius b,
+    centre z t), over the same for the on-axis pixel; and pixel_overlap's O_p/O."""
+    from core.atmosphere.weather import pixel_overlap
+    z = rng_m / math.sqrt(1 + tx * tx + ty * ty)
+    w, b = ov.tx_radius_m + z * ov.tx_half_angle, ov.rx_radius_m + z * ov.rx_half_angle
+    w0, b0 = ov.tx_radius_m + rng_m * ov.tx_half_angle, ov.rx_radius_m + rng_m * ov.rx_half_angle
+    c = (z * tx, z * ty)
+    d = (ov.offset_m * math.cos(ov.offset_angle_rad), ov.offset_m * math.sin(ov.offset_angle_rad))
+    quad = (_gauss_over_disc(c, b, d, w) / _gauss_over_disc(c, b, (0, 0), w)
+            / (_gauss_over_disc((0, 0), b0, d, w0) / _gauss_over_disc((0, 0), b0, (0, 0), w0)))
+    return quad, float(pixel_overlap(ov, rng_m, tx, ty) / ov(rng_m)), b / w
+
+
 def test_pixel_overlap_tilt_matches_a_quadrature_of_the_beam_over_the_pixels_view():
     """The per-pixel factor O_p/O against an independent quadrature: the Gaussian beam (1/e² radius
     w = r_t + z θ_t, centre at the offset d or at 0) integrated over the pixel's view (a disc of radius
@@ -562,14 +577,8 @@ def test_pixel_overlap_tilt_matches_a_quadrature_of_the_beam_over_the_pixels_vie
     strong = 0
     for tx, ty in [(0.1, 0.07), (-0.1, 0.0), (0.05, 0.02), (-0.03, -0.09), (0.0, 0.1), (0.1, -0.1)]:
         for rng_m in (0.2, 0.5, 1.0, 3.0, 10.0, 100.0):
-            z = rng_m / math.sqrt(1 + tx * tx + ty * ty)
-            w, b = ov.tx_radius_m + z * ov.tx_half_angle, ov.rx_radius_m + z * ov.rx_half_angle
-            w0, b0 = ov.tx_radius_m + rng_m * ov.tx_half_angle, ov.rx_radius_m + rng_m * ov.rx_half_angle
-            c, d = (z * tx, z * ty), (ov.offset_m, 0.0)
-            quad = (_gauss_over_disc(c, b, d, w) / _gauss_over_disc(c, b, (0, 0), w)
-                    / (_gauss_over_disc((0, 0), b0, d, w0) / _gauss_over_disc((0, 0), b0, (0, 0), w0)))
-            t = float(pixel_overlap(ov, rng_m, tx, ty) / ov(rng_m))
-            bound = 0.2 * (b / w) ** 2 if b / w <= 0.4 else 0.3
+            quad, t, b_w = _tilt_and_quadrature(ov, tx, ty, rng_m)
+            bound = 0.2 * b_w ** 2 if b_w <= 0.4 else 0.3
             assert abs(quad / t - 1) <= bound, (tx, ty, rng_m, quad, t)
             strong += abs(math.log(t)) > 0.5
     assert strong >= 4  # the cases test a tilt far from 1
@@ -580,18 +589,11 @@ def test_pixel_overlap_tilt_at_the_field_corners_within_the_documented_bound():
     """The corners of a ±0.1 field (|t| = 0.14), where the tilt away from the transmitter is strongest, against
     the same quadrature: |ratio − 1| ≤ 0.25 (b/w)² for b/w ≤ 0.4, ≤ 0.35 above (theory §14: measured 0.24 (b/w)²
     at R = 0.5 m, 0.334 at R = 0.2 m)."""
-    from core.atmosphere.weather import pixel_overlap
     ov = Overlap("geometric", 0.05, 0.01, 0.125, 0.025, 1.5e-3)
     for tx, ty in [(0.1, 0.1), (0.1, -0.1), (-0.1, 0.1), (-0.1, -0.1)]:
         for rng_m in (0.2, 0.5, 1.0, 3.0, 10.0):
-            z = rng_m / math.sqrt(1 + tx * tx + ty * ty)
-            w, b = ov.tx_radius_m + z * ov.tx_half_angle, ov.rx_radius_m + z * ov.rx_half_angle
-            w0, b0 = ov.tx_radius_m + rng_m * ov.tx_half_angle, ov.rx_radius_m + rng_m * ov.rx_half_angle
-            c, d = (z * tx, z * ty), (ov.offset_m, 0.0)
-            quad = (_gauss_over_disc(c, b, d, w) / _gauss_over_disc(c, b, (0, 0), w)
-                    / (_gauss_over_disc((0, 0), b0, d, w0) / _gauss_over_disc((0, 0), b0, (0, 0), w0)))
-            t = float(pixel_overlap(ov, rng_m, tx, ty) / ov(rng_m))
-            bound = 0.25 * (b / w) ** 2 if b / w <= 0.4 else 0.35
+            quad, t, b_w = _tilt_and_quadrature(ov, tx, ty, rng_m)
+            bound = 0.25 * b_w ** 2 if b_w <= 0.4 else 0.35
             assert abs(quad / t - 1) <= bound, (tx, ty, rng_m, quad, t)
 
 
@@ -611,14 +613,8 @@ def test_pixel_overlap_follows_the_offset_direction(angle_deg):
     for tx0, ty0 in [(0.1, 0.07), (-0.1, 0.0), (0.05, 0.02), (-0.03, -0.09), (0.0, 0.1), (0.1, -0.1)]:
         tx, ty = tx0 * u[0] - ty0 * u[1], tx0 * u[1] + ty0 * u[0]
         for rng_m in (0.2, 0.5, 1.0, 3.0, 10.0):
-            z = rng_m / math.sqrt(1 + tx * tx + ty * ty)
-            w, b = ov.tx_radius_m + z * ov.tx_half_angle, ov.rx_radius_m + z * ov.rx_half_angle
-            w0, b0 = ov.tx_radius_m + rng_m * ov.tx_half_angle, ov.rx_radius_m + rng_m * ov.rx_half_angle
-            d = (ov.offset_m * u[0], ov.offset_m * u[1])
-            quad = (_gauss_over_disc((z * tx, z * ty), b, d, w) / _gauss_over_disc((z * tx, z * ty), b, (0, 0), w)
-                    / (_gauss_over_disc((0, 0), b0, d, w0) / _gauss_over_disc((0, 0), b0, (0, 0), w0)))
-            t = float(pixel_overlap(ov, rng_m, tx, ty) / ov(rng_m))
-            bound = 0.2 * (b / w) ** 2 if b / w <= 0.4 else 0.3
+            quad, t, b_w = _tilt_and_quadrature(ov, tx, ty, rng_m)
+            bound = 0.2 * b_w ** 2 if b_w <= 0.4 else 0.3
             assert abs(quad / t - 1) <= bound, (angle_deg, tx, ty, rng_m, quad, t)
             # the same pixel seen from the unturned offset: the pixel turned back by −φ
             assert float(pixel_overlap(ov, rng_m, tx, ty)) == pytest.approx(
