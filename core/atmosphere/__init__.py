@@ -13,8 +13,8 @@
 
 See ``docs/atmosphere.md``.
 """
-from .extinction import (EXTINCTION_MODELS, extinction_from_visibility, log_two_way_transmission,
-                         two_way_transmission, visibility_size_exponent)
+from .extinction import (EXTINCTION_MODELS, LayeredExtinction, extinction_from_visibility,
+                         log_two_way_transmission, two_way_transmission, visibility_size_exponent)
 from .phasescreen import (IntensityStatistics, one_over_e_radius, periodic_autocorrelation, phase_screens,
                           split_step_intensity, split_step_plane_wave, split_step_reference, von_karman_phase_psd,
                           wave_optics_statistics)

@@ -38,10 +38,12 @@ for water fog in the near IR (e.g. Pinnick et al. 1983, J. Atmos. Sci. 40; Klett
 
 Overlap O(R) (``overlap_model = geometric``): the transmitted beam is a disc of radius r_t + R θ_t, the receiver's
 field of view (a flash pixel's, or the scanner receiver's = the beam's divergence) a disc of radius r_a + R θ_r,
-their axes parallel and ``tx_rx_offset_m`` = d apart; O is the area of their intersection over the area of the
+their axes parallel and ``tx_rx_offset_m`` = d apart (in the direction ``tx_rx_offset_angle_deg`` from the
+sensor frame's +x); O is the area of their intersection over the area of the
 smaller disc (the fraction of the smaller cone that the other one covers; 0 while the discs are apart, → 1 at
 long range).  Per pixel (flash): the on-axis O(R) times the parallax tilt of the Gaussian beam across the field,
-exp(4 z t_x d/(w² + b²)) (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash and gated pixels.
+exp(4 z (t·u) d/(w² + b²)), u the offset's direction (:func:`pixel_overlap`, docs/theory.md §14 W3), for flash
+and gated pixels.
 
 This module does not import bpy.
 """
@@ -54,6 +56,7 @@ import numpy as np
 from scipy.special import exp1
 
 from ..constants import SPEED_OF_LIGHT_M_S
+from .extinction import two_way_transmission
 
 DB_PER_KM_TO_PER_M = math.log(10.0) / 10.0 / 1000.0
 WEATHER_CONDITIONS = ("none", "haze", "fog", "rain", "snow", "custom")
@@ -156,6 +159,7 @@ class Overlap:
     tx_half_angle: float = 0.0
     rx_radius_m: float = 0.0
     rx_half_angle: float = 0.0
+    offset_angle_rad: float = 0.0  # direction of the transmitter from the receiver in the tan plane (0: +x)
 
     def __call__(self, range_m):
         r = np.asarray(range_m, dtype=np.float64)
@@ -188,10 +192,11 @@ def disc_overlap_fraction(a, b, d):
 def pixel_overlap(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "gaussian"):
     """O(R) of a flash pixel whose axis is (tan_x, tan_y) in the tan plane (module docstring, "per pixel"):
     the on-axis overlap O(R) times the parallax tilt of the Gaussian beam across the field,
-    T = exp(4 z t_x d / (w² + b²)) with z = R/√(1 + t²) the depth, w = r_t + z θ_t the beam's 1/e² radius,
-    b = r_a + z θ_r the radius of the pixel's view and d the offset (transmitter at +d along the tan plane's x).
-    T = 1 on axis (t_x = 0: :class:`Overlap` exactly), with d = 0, for ``model = none`` (O = 1) and for a uniform
-    beam.  Broadcasts."""
+    T = exp(4 z (t·u) d / (w² + b²)) with z = R/√(1 + t²) the depth, w = r_t + z θ_t the beam's 1/e² radius,
+    b = r_a + z θ_r the radius of the pixel's view, d the offset and u = (cos φ, sin φ) its direction in the tan
+    plane (φ = ``offset_angle_rad``; 0: the transmitter at +d along x, t·u = t_x exactly).  T = 1 on axis
+    (t = 0: :class:`Overlap` exactly), with d = 0, for ``model = none`` (O = 1) and for a uniform beam.
+    Broadcasts."""
     r = np.asarray(range_m, dtype=np.float64)
     return overlap(r) * overlap_tilt(overlap, r, tan_x, tan_y, beam_profile)
 
@@ -205,7 +210,9 @@ def overlap_tilt(overlap: Overlap, range_m, tan_x, tan_y, beam_profile: str = "g
     z = r / np.sqrt(1.0 + tx * tx + ty * ty)
     w = overlap.tx_radius_m + z * overlap.tx_half_angle
     b = overlap.rx_radius_m + z * overlap.rx_half_angle
-    return np.exp(4.0 * z * tx * overlap.offset_m / (w * w + b * b))
+    phi = overlap.offset_angle_rad
+    along = tx if phi == 0.0 else tx * math.cos(phi) + ty * math.sin(phi)  # t·u
+    return np.exp(4.0 * z * along * overlap.offset_m / (w * w + b * b))
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -220,14 +227,42 @@ def closed_form_integral(a_m, b_m, alpha_per_m):
             - 2 * al * (float(exp1(2 * al * a)) - float(exp1(2 * al * b))))
 
 
+def layers_closed_form_integral(table):
+    """Σ_i β_i ∫_{s_i}^{e_i} e^(−2τ(R))/R² dR of aerosol layers in clear air (α₀ = β₀ = 0), ``table`` rows
+    [s_i, e_i, α_i, β_i] in increasing range: inside layer i, τ(R) = τ(s_i) + α_i (R − s_i), so each term is
+    β_i e^(−2(τ(s_i) − α_i s_i)) × :func:`closed_form_integral` (s_i, e_i, α_i) (docs/theory.md §14 W4)."""
+    total, tau = 0.0, 0.0
+    for s, e, a, b in np.asarray(table, np.float64):
+        total += b * math.exp(-2.0 * (tau - a * s)) * closed_form_integral(s, e, a)
+        tau += a * (e - s)
+    return total
+
+
+def layer_backscatter(table):
+    """β(R) (1/(m sr)) of the aerosol layers, ``table`` (n, 4) rows [start_m, end_m, α, β] (core.config.tables.
+    aerosol_layer_table): Σ_i β_i 1[s_i ≤ R < e_i], a callable; None without a layer of β > 0."""
+    rows = [(float(a), float(b), float(beta)) for a, b, _, beta in np.asarray(table, np.float64) if beta > 0.0]
+    if not rows:
+        return None
+
+    def beta_of(range_m):
+        r = np.asarray(range_m, np.float64)
+        out = np.zeros(r.shape)
+        for a, b, beta in rows:
+            out += np.where((r >= a) & (r < b), beta, 0.0)
+        return out
+    return beta_of
+
+
 def slab_integrals(edges_m, alpha_per_m, overlap: Overlap, weight=None):
     """Per slab [edges[i], edges[i+1]]: ∫ w(R) O(R) e^(−2αR)/R² dR and the energy centroid range (8-point
-    Gauss–Legendre); ``weight`` = w(R) (a callable; None: 1)."""
+    Gauss–Legendre); ``weight`` = w(R) (a callable; None: 1).  ``alpha_per_m``: α, or a layered extinction
+    (core.atmosphere.extinction.LayeredExtinction: e^(−2τ(R)))."""
     lo, hi = edges_m[:-1], edges_m[1:]
     half = 0.5 * (hi - lo)
     mid = 0.5 * (hi + lo)
     r = mid[:, None] + half[:, None] * GL_X[None, :]
-    g = overlap(r) * np.exp(-2.0 * alpha_per_m * r) / (r * r)
+    g = overlap(r) * two_way_transmission(alpha_per_m, r) / (r * r)
     if weight is not None:
         g = g * weight(r)
     wg = g * GL_W[None, :]
@@ -323,7 +358,7 @@ def drop_returns(drops: Drops, beam_fraction, omega_sr, energy_scale_jm2, apertu
     r = drops.range_m
     f = np.minimum(1.0, area / (omega_sr * r * r))
     e = (energy_scale_jm2 * np.asarray(beam_fraction)[drops.beam] * f * (2.0 / lidar_ratio_sr) * overlap(r)
-         * np.exp(-2.0 * alpha_per_m * r) / (r * r + aperture_r2))
+         * two_way_transmission(alpha_per_m, r) / (r * r + aperture_r2))
     return e, f
 
 

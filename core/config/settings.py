@@ -319,6 +319,12 @@ class AtmosphereSettings:
                                     doc="Distance between the transmitter and receiver optical axes (biaxial "
                                         "offset; 0 = coaxial)",
                                     label="Transmitter–Receiver Offset")
+    tx_rx_offset_angle_deg: float = setting(0.0, lo=-180.0, hi=180.0, unit="deg",
+                                            doc="Direction of the transmitter's axis from the receiver's in the "
+                                                "sensor frame: the angle from its +x (image right) towards +y "
+                                                "(image up); 0 = +x.  Sets which side of a flash field sees more "
+                                                "near-range backscatter (docs/theory.md §14 W3)",
+                                            label="Transmitter Offset Direction")
     backscatter_min_range_m: float = setting(0.5, lo=0.01, hi=1e4, unit="m", subtype="DISTANCE",
                                              doc="No atmosphere returns nearer than this (the receiver's near field; "
                                                  "the 1/R² form diverges at R = 0)",
@@ -335,6 +341,16 @@ class AtmosphereSettings:
                                                  "shadow the extinction (docs/theory.md §14); 0 = draw every drop "
                                                  "≥ drop_min_diameter_mm",
                                              label="Drop Detectability Cut")
+    #: Range-layered aerosol (not a Blender property: config files and presets): one row per layer
+    #: [start_m, end_m, extinction_per_m(, backscatter_per_m_sr)] (core/config/tables.py).
+    aerosol_layers: list = field(default_factory=list, metadata={
+        "unit": "m, m, 1/m[, 1/(m sr)]",
+        "allowed": "rows [start in [0, 1e6], end in (start, 1e6], extinction in [0, 1]] or with a 4th column "
+                   "[..., backscatter in [0, 1]] in every row, in increasing range and not overlapping, at most 256",
+        "doc": "Layers of aerosol at ranges from the sensor (e.g. a fog bank): inside [start_m, end_m) the "
+               "extinction α and the backscatter β (without the 4th column α/lidar_ratio_sr) add to the "
+               "homogeneous ones; every ray's two-way transmission is exp(−2∫α dR) (surfaces, drops and the "
+               "volume backscatter), the backscatter needs weather ≠ none (docs/theory.md §14); empty: homogeneous"})
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""The scanner's tables: the rotating head's per-channel table (inline or from a CSV file) and the Risley prisms.
+"""The settings' tables: the rotating head's per-channel table (inline or from a CSV file), the Risley prisms and
+the range-layered aerosol (``atmosphere.aerosol_layers``).
 
 Each is checked row by row and column by column; a bad entry is a one-line :class:`ConfigError` naming the
 setting (or file), the row and the column, the value and what is allowed.  Rows and columns are counted from 1
@@ -13,6 +14,11 @@ column in every row, ``[..., relative_pulse_energy]``:
 * relative_pulse_energy  (optional) the channel's pulse energy over ``laser.pulse_energy_j``, in [0.001, 1000]:
                          everything its pulse returns (surfaces, drops, volume backscatter) scales with it, the
                          background (sunlight) and the detector's own noise do not.  Without the column: 1.
+
+Aerosol layers, one row per layer: ``[start_m, end_m, extinction_per_m]`` or ``[..., backscatter_per_m_sr]``
+(ranges from the sensor in [0, 1e6] m, end beyond start, rows in increasing range and not overlapping; α in
+[0, 1] 1/m and β in [0, 1] 1/(m sr), added to the homogeneous ones inside the layer; without the fourth column
+β = α/S).
 """
 from __future__ import annotations
 
@@ -28,6 +34,10 @@ from ..errors import ConfigError
 CHANNEL_COLUMNS = ("elevation_deg", "azimuth_offset_deg", "fire_offset_s", "relative_pulse_energy")
 CHANNEL_LIMITS = ((-90.0, 90.0, "deg"), (-360.0, 360.0, "deg"), (-1.0, 1.0, "s"), (1e-3, 1e3, ""))
 MAX_CHANNELS = 1024
+#: The range-layered aerosol (atmosphere.aerosol_layers): one row per layer, the backscatter column optional (α/S).
+LAYER_COLUMNS = ("start_m", "end_m", "extinction_per_m", "backscatter_per_m_sr")
+LAYER_LIMITS = ((0.0, 1e6, "m"), (0.0, 1e6, "m"), (0.0, 1.0, "1/m"), (0.0, 1.0, "1/(m sr)"))
+MAX_LAYERS = 256
 
 
 def _number(value) -> float | None:
@@ -48,32 +58,41 @@ def _number(value) -> float | None:
     return value if np.isfinite(value) else None
 
 
-def check_channel_rows(rows, where: str, text_cells: bool = False) -> np.ndarray:
-    """(n, 3) float64 array [elevation_deg, azimuth_offset_deg, fire_offset_s] from rows of 3 cells, or (n, 4)
-    with relative_pulse_energy from rows of 4 (every row as many as the first); ConfigError naming ``where``, the
-    row and the column of the first bad cell."""
+def check_table_rows(rows, where: str, columns, limits, row_name: str, max_rows: int,
+                     text_cells: bool = False) -> np.ndarray:
+    """(n, k) float64 array from rows of k cells, k = len(columns) − 1 or len(columns) (the last column optional;
+    every row as many as the first), each cell a finite number within its (lo, hi, unit) of ``limits``;
+    ConfigError naming ``where``, the row and the column of the first bad cell (rows and columns from 1)."""
+    first_cols = ", ".join(columns[:-1])
     if not isinstance(rows, (list, tuple)):
-        raise ConfigError(where, rows, "a list of rows [elevation_deg, azimuth_offset_deg, fire_offset_s]")
+        raise ConfigError(where, rows, f"a list of rows [{first_cols}]")
     if not rows:
-        raise ConfigError(where, "no rows", "at least one channel row [elevation_deg, azimuth_offset_deg, "
-                                            "fire_offset_s]")
-    if len(rows) > MAX_CHANNELS:
-        raise ConfigError(where, f"{len(rows)} rows", f"at most {MAX_CHANNELS} channels")
+        raise ConfigError(where, "no rows", f"at least one {row_name} row [{first_cols}]")
+    if len(rows) > max_rows:
+        raise ConfigError(where, f"{len(rows)} rows", f"at most {max_rows} {row_name}s")
     first = rows[0]
-    ncol = len(first) if isinstance(first, (list, tuple)) and len(first) in (3, 4) else 3
+    short = len(columns) - 1
+    ncol = len(first) if isinstance(first, (list, tuple)) and len(first) in (short, short + 1) else short
     out = np.empty((len(rows), ncol))
     for r, row in enumerate(rows, start=1):
         if not isinstance(row, (list, tuple)) or len(row) != ncol:
-            allowed = (f"{ncol} columns like row 1: " + ", ".join(CHANNEL_COLUMNS[:ncol]) if r > 1 else
-                       "3 columns: " + ", ".join(CHANNEL_COLUMNS[:3]) + " (or 4: and " + CHANNEL_COLUMNS[3] + ")")
+            allowed = (f"{ncol} columns like row 1: " + ", ".join(columns[:ncol]) if r > 1 else
+                       f"{short} columns: {first_cols} (or {short + 1}: and {columns[-1]})")
             raise ConfigError(f"{where} row {r}", row, allowed)
-        for c, (cell, name, (lo, hi, unit)) in enumerate(zip(row, CHANNEL_COLUMNS, CHANNEL_LIMITS), start=1):
+        for c, (cell, name, (lo, hi, unit)) in enumerate(zip(row, columns, limits), start=1):
             v = _number(cell) if text_cells or not isinstance(cell, str) else None
             if v is None or not lo <= v <= hi:
                 raise ConfigError(f"{where} row {r} column {c} ({name})", cell,
                                   f"a finite number in [{lo:g}, {hi:g}]" + (f" {unit}" if unit else ""))
             out[r - 1, c - 1] = v
     return out
+
+
+def check_channel_rows(rows, where: str, text_cells: bool = False) -> np.ndarray:
+    """(n, 3) float64 array [elevation_deg, azimuth_offset_deg, fire_offset_s] from rows of 3 cells, or (n, 4)
+    with relative_pulse_energy from rows of 4 (every row as many as the first); ConfigError naming ``where``, the
+    row and the column of the first bad cell."""
+    return check_table_rows(rows, where, CHANNEL_COLUMNS, CHANNEL_LIMITS, "channel", MAX_CHANNELS, text_cells)
 
 
 def read_channel_csv(path) -> np.ndarray:
@@ -168,6 +187,28 @@ def check_channel_table(scanner) -> None:
         src = "scanner.channel_table" if scanner.channel_table else "scanner.channel_table_file"
         raise ConfigError("scanner.n_channels", scanner.n_channels,
                           f"{len(table)}, the number of rows of {src} (one row per channel)")
+
+
+def aerosol_layer_table(atm, where: str = "atmosphere.aerosol_layers") -> np.ndarray | None:
+    """The range-layered aerosol (``atm.aerosol_layers``): (n, 4) [start_m, end_m, extinction_per_m,
+    backscatter_per_m_sr], the backscatter of a 3-column row α/S (S = ``atm.lidar_ratio_sr``), or None without
+    layers.  Each row's end beyond its start, each row's start at or beyond the previous row's end (increasing,
+    not overlapping); ConfigError naming the row and the column otherwise."""
+    rows = atm.aerosol_layers
+    if isinstance(rows, (list, tuple)) and not rows:
+        return None
+    t = check_table_rows(rows, where, LAYER_COLUMNS, LAYER_LIMITS, "layer", MAX_LAYERS)
+    for r in range(len(t)):
+        if not t[r, 1] > t[r, 0]:
+            raise ConfigError(f"{where} row {r + 1} column 2 (end_m)", rows[r][1],
+                              f"a range beyond the row's start_m {t[r, 0]:g} m")
+        if r and t[r, 0] < t[r - 1, 1]:
+            raise ConfigError(f"{where} row {r + 1} column 1 (start_m)", rows[r][0],
+                              f"at least the previous row's end_m {t[r - 1, 1]:g} m (rows in increasing range, "
+                              f"not overlapping)")
+    if t.shape[1] == 3:
+        t = np.column_stack([t, t[:, 2] / atm.lidar_ratio_sr])
+    return t
 
 
 RISLEY_LISTS = (("risley_prism_hz", -1e5, 1e5, "Hz"), ("risley_wedge_deg", -60.0, 60.0, "deg"),

@@ -8,8 +8,8 @@ import math
 
 from ..errors import ConfigError
 from .derived import n_scan_pulses
-from .settings import BRDF_TABLE_FIELDS, BRDFSettings, ScannerSettings, SimulationConfig
-from .tables import check_channel_table, check_risley
+from .settings import BRDF_TABLE_FIELDS, AtmosphereSettings, BRDFSettings, ScannerSettings, SimulationConfig
+from .tables import aerosol_layer_table, check_channel_table, check_risley
 
 RISLEY_FIELDS = ("risley_prism_hz", "risley_wedge_deg", "risley_index", "risley_phase_deg", "risley_emitters_deg")
 
@@ -126,6 +126,8 @@ def validate(obj, prefix: str = "") -> None:
         check_channel_table(obj)
         if obj.pattern == "risley" or any(getattr(obj, n) != [] for n in RISLEY_FIELDS):
             check_risley(obj)  # (a prism table another pattern keeps is checked too, as BRDF tables are)
+    if isinstance(obj, AtmosphereSettings):
+        aerosol_layer_table(obj, f"{prefix}aerosol_layers")
     if isinstance(obj, SimulationConfig):
         _check_cross_field(obj)
 

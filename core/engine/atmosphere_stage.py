@@ -15,7 +15,8 @@ rays that hit the scene (the paper applies one scintillation pattern at the targ
      (box_average_variance_factor, correlation radius ρ_l) — small for a resolved diffuse target ("the return
      path is an incoherent extended source"), up to A·SI for footprints below a cell; switch
      ``atmosphere.return_scintillation`` (within B);
-* C  extinction: from ``extinction_per_m`` or from the visibility (Kim/Kruse) at the laser wavelength;
+* C  extinction: from ``extinction_per_m`` or from the visibility (Kim/Kruse) at the laser wavelength, with
+  ``aerosol_layers`` a range-layered one (core.physics.propagation.path_extinction);
 * D  wander: the beam centre is displaced by a random offset drawn per pulse with ⟨r_c²⟩ (2.42 form);
 * E  blur: the turbulence MTF (spherical-wave r0 at R_ref) applied to every time slice of the received
      waveforms and to the energy image; skipped (and said so) when the MTF at the pixel Nyquist frequency
@@ -37,7 +38,7 @@ from ..atmosphere import (beam_wander_offsets, beam_wander_variance, derived_tur
                           turbulence_mtf_long)
 from ..config.settings import SimulationConfig
 from ..jit import kernel
-from ..physics.propagation import (FootprintAveragedPattern, draw_return_factor, effective_extinction_per_m,
+from ..physics.propagation import (FootprintAveragedPattern, draw_return_factor, extinction_record, path_extinction,
                                    return_scintillation_variance, turbulence_model_settings)
 from .blocks import worker_threads
 from .rng import stage_rng, stage_seed
@@ -48,7 +49,7 @@ BLUR_NEGLIGIBLE_MTF = 0.999
 
 @dataclass
 class FrameAtmosphere:
-    extinction_per_m: float = 0.0
+    extinction_per_m: float = 0.0  # or a LayeredExtinction (atmosphere.aerosol_layers: core.physics.propagation)
     beam_width_scale: float = 1.0
     beam_offset_tan: tuple = (0.0, 0.0)
     pattern: object = None
@@ -133,12 +134,12 @@ def prepare_frame_atmosphere(config: SimulationConfig, det, reference_range_m, f
     """Evaluate the atmosphere of one frame: extinction, and the turbulence realisation at R_ref (of one pulse
     of the frame when ``pulse`` is given: gated viewing draws a new realisation per slice)."""
     atm, laser = config.atmosphere, config.laser
-    out = FrameAtmosphere(extinction_per_m=effective_extinction_per_m(config))
+    out = FrameAtmosphere(extinction_per_m=path_extinction(config))
     if out.extinction_per_m == 0.0:
-        out.skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
+        out.skipped["extinction"] = "no extinction (extinction_per_m = 0, no visibility and no aerosol layers)"
     else:
         out.ran.append("extinction")
-        out.metadata["extinction_per_m"] = out.extinction_per_m
+        out.metadata.update(extinction_record(out.extinction_per_m))
     out.skipped.update(turbulence_switches(config))
     active = [s for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur")
               if s not in out.skipped]

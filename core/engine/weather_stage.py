@@ -22,13 +22,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..atmosphere.extinction import two_way_transmission
 from ..atmosphere.weather import (DropCut, Drops, Overlap, Weather, atmosphere_echo_mask, draw_drops, drop_cut,
-                                  drop_returns, pixel_overlap, shadow_factors, visible_drops,
+                                  drop_returns, layer_backscatter, pixel_overlap, shadow_factors, visible_drops,
                                   weather_model)
 from ..config.settings import SimulationConfig
+from ..config.tables import aerosol_layer_table
 from ..constants import H_PLANCK_J_S, SPEED_OF_LIGHT_M_S
 from ..errors import ConfigError
-from ..physics.propagation import aerosol_extinction_per_m, effective_extinction_per_m
+from ..physics.propagation import aerosol_extinction_per_m, path_extinction
 from ..physics.radiometry import aperture_r2, energy_scale
 from ..physics.weather_waveform import backscatter_template, pixel_backscatter_templates
 from .rng import stage_rng
@@ -60,8 +62,8 @@ def _bilinear_weights(nodes: np.ndarray, idx):
 class TemplateTable:
     """Volume templates of flash pixels tabulated over the pixel grid (field angle): exact at the node pixels
     (columns ``nodes_x`` × rows ``nodes_y``), between them bilinear in pixel index of the templates' logarithm
-    (geometric: exact for the tilt exp(c·tan_x) of the overlap), bin by bin; a bin that is zero at any node is
-    zero (:func:`build_template_table`)."""
+    (geometric: exact for the tilt exp(c_x tan_x + c_y tan_y) of the overlap), bin by bin; a bin that is zero at
+    any node is zero (:func:`build_template_table`)."""
 
     width_px: int
     nodes_x: np.ndarray
@@ -201,7 +203,7 @@ class FrameWeather:
     weather: Weather
     overlap: Overlap
     template: np.ndarray           # (n_bins,) J per bin for a beam of fraction 1
-    alpha_per_m: float
+    alpha_per_m: object            # α (a float), or a LayeredExtinction (atmosphere.aerosol_layers)
     scale_jm2: float
     aperture_r2: float
     omega_sr: float                # solid angle of one beam
@@ -210,6 +212,8 @@ class FrameWeather:
     cut: DropCut | None = None     # the detectability cut of the particles (None without particles)
     table: TemplateTable | None = None  # flash pixels' own templates (per-pixel overlap), None: ``template``
     metadata: dict = field(default_factory=dict)
+    layer_beta: object = None      # β(R) of the aerosol layers (core.atmosphere.weather.layer_backscatter), or None
+    layer_edges_m: np.ndarray | None = None  # the layers' start and end ranges (None without layers)
 
     def templates_of(self, a: int, b: int) -> np.ndarray:
         """The volume templates of beams a … b − 1: (b − a, n_bins) from the pixel table, else ``template``."""
@@ -225,13 +229,21 @@ class FrameWeather:
 
     @property
     def beta_profile(self):
-        """The undrawn particles' backscatter profile β(R) added to the volume (None without a cut)."""
-        return None if self.cut is None or self.cut.is_trivial else self.cut.beta_profile
+        """The backscatter profile β(R) added to the volume's constant β: the undrawn particles' (the cut) plus the
+        aerosol layers' (None without either)."""
+        parts = [p for p in (None if self.cut is None or self.cut.is_trivial else self.cut.beta_profile,
+                             self.layer_beta) if p is not None]
+        if len(parts) < 2:
+            return parts[0] if parts else None
+        return lambda r: parts[0](r) + parts[1](r)
 
     @property
     def profile_breaks_m(self):
-        """Where :attr:`beta_profile` jumps (the cut's shell edges), None without a profile."""
-        return None if self.beta_profile is None else self.cut.edges_m
+        """Where :attr:`beta_profile` or the extinction jumps (the cut's shell edges, the layers' edges), None
+        without either."""
+        parts = [e for e in (None if self.cut is None or self.cut.is_trivial else self.cut.edges_m,
+                             self.layer_edges_m) if e is not None]
+        return np.unique(np.concatenate(parts)) if parts else None
 
     def mean_shadow(self, range_m):
         """The mean transmission through the undrawn particles nearer than each range (ones without a cut)."""
@@ -324,9 +336,10 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
     if w is None:
         return None
     rx = config.receiver
+    layers = aerosol_layer_table(atm)
     overlap = Overlap(atm.overlap_model, atm.tx_rx_offset_m, laser.beam_waist_radius_m, tx_half_angle,
-                      0.5 * rx.aperture_diameter_m, rx_half_angle)
-    alpha = effective_extinction_per_m(config)
+                      0.5 * rx.aperture_diameter_m, rx_half_angle, math.radians(atm.tx_rx_offset_angle_deg))
+    alpha = path_extinction(config)  # a float, or layered (two_way_transmission: e^(−2τ(R)))
     scale = energy_scale(laser, rx)
     ra2 = aperture_r2(rx)
     cut = None
@@ -341,22 +354,27 @@ def prepare_frame_weather(config: SimulationConfig, frame: int, n_beams: int, om
         k = scale * max_beam_fraction * (2.0 / w.lidar_ratio_sr) * pe_per_j
 
         def full_beam_pe(r):
-            return k * overlap(r) * np.exp(-2.0 * alpha * r) / (r * r + ra2)
+            return k * overlap(r) * two_way_transmission(alpha, r) / (r * r + ra2)
 
         cut = drop_cut(w, omega_sr, r_lo, r_hi, full_beam_pe, atm.drop_cut_photoelectrons, ra2)
-    profile = None if cut is None or cut.is_trivial else cut.beta_profile
+    out = FrameWeather(w, overlap, np.zeros(0), alpha, scale, ra2, omega_sr, cut=cut)
+    if layers is not None:
+        out.layer_beta = layer_backscatter(layers)
+        out.layer_edges_m = np.unique(layers[:, :2])
+    profile, breaks = out.beta_profile, out.profile_breaks_m
     template = backscatter_template(laser, gate, scale, w.backscatter_per_m_sr, alpha, overlap,
-                                    atm.backscatter_min_range_m, profile=profile,
-                                    breaks_m=None if profile is None else cut.edges_m)
-    out = FrameWeather(w, overlap, template, alpha, scale, ra2, omega_sr, cut=cut)
+                                    atm.backscatter_min_range_m, profile=profile, breaks_m=breaks)
+    out.template = template
     out.metadata = {"model": w.record(), "overlap": overlap.record(),
                     "volume_energy_per_beam_j": float(template.sum())}
+    if layers is not None:
+        out.metadata["aerosol_layers"] = layers.tolist()
     if (detector is not None and overlap.model != "none" and overlap.offset_m > 0.0 and laser.beam_profile != "uniform"
             and np.any(template)):  # else every pixel's overlap is the on-axis one (core.atmosphere.weather)
         def templates_at(tx, ty):
             return pixel_backscatter_templates(laser, gate, scale, w.backscatter_per_m_sr, alpha, overlap,
                                                atm.backscatter_min_range_m, tx, ty, profile=profile,
-                                               breaks_m=None if profile is None else cut.edges_m)
+                                               breaks_m=breaks)
         out.table = build_template_table(detector, templates_at, max_bytes=config.run.max_memory_bytes)
         out.metadata["overlap"]["per_pixel"] = {"nodes": [len(out.table.nodes_x), len(out.table.nodes_y)],
                                                 "templates_computed": out.table.n_computed,

@@ -14,8 +14,10 @@ from scipy.special import erf
 from ..atmosphere import (extinction_from_visibility, gamma_factor_g_correlation, gaussian_random_field,
                           unit_gamma_from_gaussian)
 from ..atmosphere import wave_optics as wo
+from ..atmosphere.extinction import LayeredExtinction
 from ..atmosphere.weather import rain_extinction_per_m, snow_extinction_per_m
 from ..config.settings import SimulationConfig
+from ..config.tables import aerosol_layer_table
 from ..threads import map_list
 
 
@@ -37,6 +39,26 @@ def effective_extinction_per_m(config: SimulationConfig) -> float:
         sigma += float(rain_extinction_per_m(atm.rain_rate_mm_h) if atm.weather == "rain"
                        else snow_extinction_per_m(atm.rain_rate_mm_h, config.laser.wavelength_m))
     return sigma
+
+
+def path_extinction(config: SimulationConfig):
+    """The extinction along every ray: :func:`effective_extinction_per_m` (a float: homogeneous, as before) or,
+    with ``atmosphere.aerosol_layers``, a :class:`~core.atmosphere.extinction.LayeredExtinction` of it and the
+    layers (two-way transmission exp(−2τ(R)): core.atmosphere.extinction.two_way_transmission)."""
+    sigma = effective_extinction_per_m(config)
+    table = aerosol_layer_table(config.atmosphere)
+    if table is None:
+        return sigma
+    return LayeredExtinction(sigma, tuple(table[:, 0].tolist()), tuple(table[:, 1].tolist()),
+                             tuple(table[:, 2].tolist()))
+
+
+def extinction_record(extinction) -> dict:
+    """The metadata of :func:`path_extinction`: ``extinction_per_m`` (the homogeneous σ) and, layered,
+    ``aerosol_layers`` ([start_m, end_m, α] rows)."""
+    if isinstance(extinction, LayeredExtinction):
+        return {"extinction_per_m": extinction.base_per_m, "aerosol_layers": extinction.record()["layers"]}
+    return {"extinction_per_m": extinction}
 
 
 def return_scintillation_variance(derived: dict, pixel_footprint_m) -> dict:

@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 
+from ..atmosphere.extinction import LayeredExtinction
 from ..jit import kernel
 from .brdf import bad_material, material_brdf_at, material_table
 
@@ -89,7 +90,9 @@ def received_energy(laser, receiver, extinction_per_m, materials, material_ids, 
                     cell_fraction):
     """E_r (J, float64) per ray of eq. 3-1 for the settings groups: rays hitting materials
     ``materials[material_ids]`` at incidence ``cos_theta`` and range ``range_m`` (1-D, one per ray), each
-    carrying the fraction ``cell_fraction`` (per ray, or one number for all) of the pulse energy."""
+    carrying the fraction ``cell_fraction`` (per ray, or one number for all) of the pulse energy.
+    ``extinction_per_m``: σ (a number: e^(−2σR)) or a :class:`~core.atmosphere.extinction.LayeredExtinction`
+    (e^(−2τ(R)): e^(−2σ₀R) in the kernel times e^(−2 Σ α_i L_i(R)) of the layers)."""
     cos_theta = np.asarray(cos_theta, dtype=np.float64)
     range_m = np.asarray(range_m, dtype=np.float64)
     fraction = np.asarray(cell_fraction, dtype=np.float64)
@@ -102,7 +105,11 @@ def received_energy(laser, receiver, extinction_per_m, materials, material_ids, 
     if ids.shape != cos_theta.shape:
         raise ValueError("material_ids needs one value per ray")
     out = np.empty(cos_theta.shape[0])
-    bad_material(_received_energy(float(energy_scale(laser, receiver)), 2.0 * float(extinction_per_m),
+    layered = isinstance(extinction_per_m, LayeredExtinction)
+    sigma = extinction_per_m.base_per_m if layered else extinction_per_m
+    bad_material(_received_energy(float(energy_scale(laser, receiver)), 2.0 * float(sigma),
                                   aperture_r2(receiver), *table, ids, cos_theta, range_m, fraction, step, out),
                  ids, len(materials))
+    if layered:
+        out *= np.exp(-2.0 * extinction_per_m.layer_depth(range_m))
     return out

@@ -13,6 +13,7 @@ import numpy as np
 
 import functools
 
+from ..atmosphere.extinction import two_way_transmission
 from ..atmosphere.weather import GL_W, GL_X, Overlap, overlap_tilt, pixel_overlap, slab_integrals
 from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_half_support_s
@@ -82,7 +83,7 @@ def pixel_backscatter_templates(laser, gate, energy_scale_jm2, beta_per_m_sr, al
     half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
     r = mid[:, None] + half[:, None] * GL_X[None, :]
     o = overlap(r)
-    att = np.exp(-2.0 * alpha_per_m * r)
+    att = two_way_transmission(alpha_per_m, r)
     rr = r * r
     wr = None if w is None else w(r)
     per = max(1, 4_000_000 // r.size)

@@ -34,7 +34,7 @@ from ..jit import kernel, stage_clock
 from ..physics.detection.peaks import detect_echoes, detect_echoes_windows
 from ..atmosphere.weather import add_volume_rows
 from ..physics.laser import beam_half_angle_tan, cell_energy_fractions
-from ..physics.propagation import effective_extinction_per_m
+from ..physics.propagation import path_extinction
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
@@ -64,8 +64,8 @@ def _block_hits(prim, pixel, first_pixel, material_ids, fraction, index, pix, ma
 def plan(config: SimulationConfig) -> dict:
     """Which stages this run executes and which it skips (with the reason)."""
     skipped = {}
-    if effective_extinction_per_m(config) == 0.0:
-        skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
+    if path_extinction(config) == 0.0:
+        skipped["extinction"] = "no extinction (extinction_per_m = 0, no visibility and no aerosol layers)"
     skipped.update(turbulence_switches(config))
     skipped.update(weather_switches(config))
     if config.detector.mode == "ideal":

@@ -38,7 +38,7 @@ from ..geometry.motion import Trajectory
 from ..jit import kernel, stage_clock
 from ..physics.detection.peaks import Echoes, detect_echoes
 from ..physics.laser import pulse_half_support_s
-from ..physics.propagation import (effective_extinction_per_m, footprint_variance_factor, return_scintillation_variance,
+from ..physics.propagation import (footprint_variance_factor, path_extinction, return_scintillation_variance,
                                    turbulence_model_settings)
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
@@ -53,7 +53,7 @@ from .scan_patterns import beam_subrays, pulse_schedule, scan_beams
 # ----------------------------------------------------------------------------------------------------------
 @dataclasses.dataclass
 class ScanAtmosphere:
-    extinction_per_m: float
+    extinction_per_m: float  # or a LayeredExtinction (atmosphere.aerosol_layers: core.physics.propagation)
     width_scale: float = 1.0
     wander_r2_rad2: float = 0.0      # ⟨r_c²⟩/R_ref²: mean square angular wander of the beam centre
     scint_model: str | None = None
@@ -97,9 +97,9 @@ def scan_atmosphere(config: SimulationConfig, reference_range_m: float | None) -
     The turbulence blur (E) of an imaging receiver has no meaning for a single-element scanner (its effect on
     the beam is the broadening)."""
     atm, laser = config.atmosphere, config.laser
-    out = ScanAtmosphere(effective_extinction_per_m(config))
+    out = ScanAtmosphere(path_extinction(config))
     if out.extinction_per_m == 0.0:
-        out.skipped["extinction"] = "no extinction (extinction_per_m = 0 and no visibility)"
+        out.skipped["extinction"] = "no extinction (extinction_per_m = 0, no visibility and no aerosol layers)"
     out.skipped.update(turbulence_switches(config))
     out.skipped.setdefault("turbulence_blur", "scanner: single-element receiver, no image to blur")
     active = [s for s in ("beam_broadening", "scintillation", "return_scintillation", "beam_wander")

@@ -2,7 +2,8 @@
 
 ``run(out_dir, quick)`` returns checks {"quantity", "simulated", "reference", "tolerance", "passed"} and writes
 ``weather_fog_backscatter.png``: the simulated volume-backscatter waveform of a homogeneous fog (overlap O = 1)
-against the single-scattering lidar equation integrated over each bin by adaptive quadrature.
+against the single-scattering lidar equation integrated over each bin by adaptive quadrature (the range-layered
+case: weather_layers.py).
 """
 from __future__ import annotations
 
@@ -19,7 +20,9 @@ if str(REPO) not in sys.path:
 C = 299_792_458.0
 
 
-def _reference_bins(laser, gate, beta, alpha, r_min):
+def reference_bins(laser, gate, beta_of, tau_of, r_min, breaks=()):
+    """Each bin of ∫ β(R) e^(−2τ(R))/R² [P(t_{k+1} − 2R/c) − P(t_k − 2R/c)] dR by adaptive quadrature (split at
+    ``breaks``, where β jumps); ``beta_of``, ``tau_of``: callables of the range (homogeneous: β, αR)."""
     from scipy import integrate
     from core.physics.laser import pulse_cdf
     c2 = 0.5 * C
@@ -28,10 +31,12 @@ def _reference_bins(laser, gate, beta, alpha, r_min):
     out = np.empty(gate.n_bins)
     for k in range(gate.n_bins):
         def f(r):
-            return beta * math.exp(-2 * alpha * r) / r ** 2 * (pulse_cdf(laser, tk[k + 1] - r / c2)
-                                                               - pulse_cdf(laser, tk[k] - r / c2))
-        out[k] = integrate.quad(f, max(r_min, c2 * (tk[k] - half)), c2 * (tk[k + 1] + half), epsabs=0,
-                                epsrel=1e-11, limit=200)[0]
+            return beta_of(r) * math.exp(-2 * tau_of(r)) / r ** 2 * (pulse_cdf(laser, tk[k + 1] - r / c2)
+                                                                    - pulse_cdf(laser, tk[k] - r / c2))
+        lo, hi = max(r_min, c2 * (tk[k] - half)), c2 * (tk[k + 1] + half)
+        pts = [b for b in breaks if lo < b < hi]
+        out[k] = integrate.quad(f, lo, hi, points=pts or None, epsabs=1e-20 if pts or breaks else 0,
+                                epsrel=1e-11, limit=400 if breaks else 200)[0]
     return out
 
 
@@ -58,7 +63,7 @@ def run(out_dir: Path, quick: bool) -> list[dict]:
     alpha = float(extinction_from_visibility(200.0, 1.064e-6, "kim"))
     beta, r_min = alpha / 18.0, 3.0
     sim = backscatter_template(laser, gate, 1.0, beta, alpha, Overlap("none"), r_min)
-    ref = _reference_bins(laser, gate, beta, alpha, r_min)
+    ref = reference_bins(laser, gate, lambda r: beta, lambda r: alpha * r, r_min)
     l2 = float(np.linalg.norm(sim - ref) / np.linalg.norm(ref))
     checks.append(_check("fog backscatter waveform, relative L2 error over the gate (V = 200 m, O = 1)", l2, 0.0,
                          1e-2, l2 < 1e-2))
@@ -94,11 +99,14 @@ def run(out_dir: Path, quick: bool) -> list[dict]:
     a_db = rain_extinction_per_m(10.0) / (math.log(10) / 1e4)
     checks.append(_check("rain 10 mm/h extinction, dB/km (1.076 R^0.67)", a_db, 1.076 * 10 ** 0.67, 1e-9,
                          abs(a_db - 1.076 * 10 ** 0.67) < 1e-9))
-    _plot(out_dir / "weather_fog_backscatter.png", gate, sim, ref, l2)
+    plot_waveform(out_dir / "weather_fog_backscatter.png", gate, sim, ref, l2,
+                  "Fog backscatter, V = 200 m at 1064 nm, S = 18 sr, overlap O = 1, 5 ns pulse")
     return checks
 
 
-def _plot(path, gate, sim, ref, l2):
+def plot_waveform(path, gate, sim, ref, l2, title, floor=None):
+    """The simulated waveform over the reference bins (log scale; ``floor``: the lowest value shown, relative to
+    the peak)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -106,7 +114,9 @@ def _plot(path, gate, sim, ref, l2):
     fig, ax = plt.subplots(figsize=(7, 4.2))
     ax.semilogy(r, ref, "k-", lw=2.5, alpha=0.5, label="single-scattering equation (bin integrals, quadrature)")
     ax.semilogy(r, sim, "C1--", lw=1.2, label=f"simulated waveform (relative L2 error {l2:.1e})")
-    ax.set_title("Fog backscatter, V = 200 m at 1064 nm, S = 18 sr, overlap O = 1, 5 ns pulse")
+    ax.set_title(title, fontsize=10)
+    if floor is not None:  # the gaps between the layers: down to the pulse's tails, not to zero
+        ax.set_ylim(floor * max(ref.max(), sim.max()), 2 * max(ref.max(), sim.max()))
     ax.set_xlabel("range (m)")
     ax.set_ylabel("energy per 1 ns bin (J per J·m² of E·η·A_r)")
     ax.legend()
