@@ -13,7 +13,7 @@ memory of the process up to the end of the survey runs (scene, BVH, kernels and 
 memory at the stage boundaries, the bare embreex cast of as many rays along the same scan lines (the very same
 sub-rays, generated outside the timing, cast in the pipeline's blocks on 1 and 2 threads of the shared pool: the
 floor of bench/floor.py) and the ratio of the pipeline, and of each stage, to it; the survey's thread scaling 1 → 2
-against the floor's and each side's process CPU (all threads).  The first call's latency
+against the floor's and each side's process CPU (all threads); the load average at the start and the end.  The first call's latency
 (JIT compilation, or loading the compiled kernels from the per-user cache) is measured separately, in fresh
 processes, on a 4096-pulse scan: with an empty kernel cache and with the cache filled.  HELIOS++'s figures are the stated reference: 37.4k pulses/s on 2 threads, 20.1k on 1,
 4.4 GB peak memory, 18 s scene load.  Writes ``helios_survey.json`` to ``--out DIR`` (default runs/bench/;
@@ -202,6 +202,7 @@ def main(argv=None) -> int:
     from core.geometry.trace import SceneTracer
     from machine import machine_info
 
+    load_start = os.getloadavg()
     first = None if args.no_first_call else first_call_latency()
     import core.systems.scanner  # noqa: F401  (the libraries and the compiled-kernel modules)
     memory = {"after_imports": (rss_bytes(), peak_rss_bytes())}
@@ -287,6 +288,7 @@ def main(argv=None) -> int:
                       "pulses_per_s_1_thread": pps[1] / HELIOS["pulses_per_s_1_thread"],
                       "peak_memory": peak / HELIOS["peak_memory_bytes"],
                       "scene_load": load_s / HELIOS["scene_load_s"]},
+        "load_average_1_5_15_min": {"start": list(load_start), "end": list(os.getloadavg())},
         "cpu_count": os.cpu_count(),
         "machine": machine_info(),
         "software": software_versions(),
