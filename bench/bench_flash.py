@@ -228,10 +228,11 @@ def terrain_configs(quick: bool = False) -> dict:
 
 
 def one_thread(cfg: SimulationConfig) -> SimulationConfig:
-    """``cfg`` on one thread (``run.threads`` = 1)."""
+    """``cfg`` on one thread: ``run.threads`` = 1 and ``detector.threads`` = 1 (the receiver chain's own)."""
     import dataclasses
 
-    return dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, threads=1))
+    return dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, threads=1),
+                               detector=dataclasses.replace(cfg.detector, threads=1))
 
 
 def scaling_report(names, times, times1, floor2, floor1, cpu_prefix="") -> dict:
