@@ -8,6 +8,9 @@ noisy receiver against the ideal one (``--no-flash-demo`` to skip: its export ne
 the detector models (full physics, points only: adaptive / calibrated threshold, per-bin / statistical signal-free
 bins, docs/receiver.md) with each one's ratio to the floor; ``--terrain``: issue 28's second flash case on the HELIOS++
 terrain (1,996,002 triangles and a 4 m box, 128² px × 4×4 sub-rays, 1024 bins of 0.5 ns, FOV 0.6 rad).
+The thread scaling 1 → 2 (issue 28: each frame's ≥ 0.9 × the cast's): the project's three frames and every terrain
+frame also run on one thread, against the floor cast on one thread in the one-thread frame's blocks
+(``thread_scaling_1_to_2``: wall speed-ups, their ratio, and each side's process CPU on 1 and 2 threads).
 The first call of each case (compiling or loading the compiled kernels) is timed separately from the best of
 ``--repeat`` runs, the floor and the frames interleaved (one of each per repeat; the medians are reported too);
 each frame's and the floor's process CPU time (all threads) too, and the load average at the start and the end.  Absolute times on a shared 2-core machine are noisy; the ratios are the figures to track.
@@ -224,34 +227,65 @@ def terrain_configs(quick: bool = False) -> dict:
             "full_physics_points_only": full_points}
 
 
+def one_thread(cfg: SimulationConfig) -> SimulationConfig:
+    """``cfg`` on one thread: ``run.threads`` = 1 and ``detector.threads`` = 1 (the receiver chain's own)."""
+    import dataclasses
+
+    return dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, threads=1),
+                               detector=dataclasses.replace(cfg.detector, threads=1))
+
+
+def scaling_report(names, times, times1, floor2, floor1, cpu_prefix="") -> dict:
+    """Each frame's thread scaling 1 → 2 against the floor's (bench/floor.py ``thread_scaling``): ``times`` and
+    ``times1`` name → wall times on 2 and 1 threads; the floors' best wall times; process CPU from CPU_S."""
+    f_cpu = {1: min(CPU_S[f"{cpu_prefix}floor 1 thread"]), 2: min(CPU_S[f"{cpu_prefix}floor"])}
+    return {k: floor.thread_scaling({1: min(times1[k]), 2: min(times[k])}, {1: floor1["wall_s"], 2: floor2["wall_s"]},
+                                    {1: min(CPU_S[f"{cpu_prefix}{k} 1 thread"]), 2: min(CPU_S[f"{cpu_prefix}{k}"])},
+                                    f_cpu) for k in names}
+
+
 def terrain_case(repeat: int, quick: bool = False) -> dict:
     """Each terrain frame's wall time over the floor (the bare cast of its rays on the same threads), interleaved,
-    with its stages' ratios; issue 28's targets: ideal points only ≤ 1.8×, cube ≤ 2.2×, full physics ≤ 3×."""
+    with its stages' ratios; issue 28's targets: ideal points only ≤ 1.8×, cube ≤ 2.2×, full physics ≤ 3×; and
+    each frame on one thread against the floor on one thread (its blocks): the thread scaling 1 → 2."""
     t0 = time.perf_counter()
     scene, pose = terrain_scene(100 if quick else 1000), terrain_pose()
     tracer = SceneTracer(scene)
     build_s = time.perf_counter() - t0
     cfgs = terrain_configs(quick)
-    first, times, last = {}, {k: [] for k in cfgs}, {}
+    cfgs1 = {k: one_thread(c) for k, c in cfgs.items()}
+    first, times, times1, last, last1 = {}, {k: [] for k in cfgs}, {k: [] for k in cfgs}, {}, {}
     for k, c in cfgs.items():
         first[k], last[k] = timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))
+        last1[k] = simulate_frame(scene, pose, cfgs1[k], tracer=tracer)
     det = Detector.from_settings(cfgs["ideal_cube"].receiver)
     blocks = flash_floor_blocks(tracer, det, pose, last["ideal_cube"].stats["pixels_per_block"])
+    blocks1 = flash_floor_blocks(tracer, det, pose, last1["ideal_cube"].stats["pixels_per_block"])
     threads = last["ideal_cube"].stats["threads"]
-    casts = []
+    casts, casts1 = [], []
     for _ in range(repeat):
         casts.append(timed_cpu("terrain floor", lambda: floor.bare_cast(tracer, blocks, threads))[1])
+        casts1.append(timed_cpu("terrain floor 1 thread", lambda: floor.bare_cast(tracer, blocks1, 1))[1])
         for k, c in cfgs.items():
             s, last[k] = timed_cpu(f"terrain {k}", lambda: simulate_frame(scene, pose, c, tracer=tracer))
             times[k].append(s)
-    fl = floor.best(casts)
+            s, last1[k] = timed_cpu(f"terrain {k} 1 thread", lambda: simulate_frame(scene, pose, cfgs1[k], tracer=tracer))
+            times1[k].append(s)
+    fl, fl1 = floor.best(casts), floor.best(casts1)
     targets = {"ideal_points_only": 1.8, "ideal_cube": 2.2, "full_physics": 3.0}
-    return {"n_triangles": scene.n_triangles, "scene_and_bvh_s": build_s, "floor": fl, "threads": threads,
+    return {"n_triangles": scene.n_triangles, "scene_and_bvh_s": build_s, "floor": fl, "floor_one_thread": fl1,
+            "threads": threads,
             "cpu_time (process, all threads; best of the repeats)": cpu_ratios([f"terrain {k}" for k in cfgs],
                                                                               "terrain floor"),
+            "cpu_time one thread (process; best of the repeats)": cpu_ratios([f"terrain {k} 1 thread" for k in cfgs],
+                                                                            "terrain floor 1 thread"),
+            "thread_scaling_1_to_2": scaling_report(list(cfgs), times, times1, fl, fl1, "terrain "),
             "frames": {k: {"time_s": min(v), "median_s": float(np.median(v)), "ratio_to_floor": min(v) / fl["wall_s"],
                            "target": targets.get(k), "first_call_s": first[k], "n_points": last[k].stats["n_points"],
                            "stage_ratio_to_floor": floor.stage_ratios(last[k].stats["stage_times_s"], fl),
+                           "one_thread": {"time_s": min(times1[k]), "ratio_to_floor": min(times1[k]) / fl1["wall_s"],
+                                          "stage_ratio_to_floor": floor.stage_ratios(last1[k].stats["stage_times_s"],
+                                                                                     fl1)},
                            "detector_model": last[k].stats.get("receiver", {}).get("detector_model")}
                        for k, v in times.items()}}
 
@@ -281,18 +315,26 @@ def main(argv=None):
     first_models = {k: timed(lambda: simulate_frame(scene, pose, c, tracer=tracer))[0] for k, c in cfg_models.items()}
     threads = res.stats["threads"]
     blocks = flash_floor_blocks(tracer, det, pose, res.stats["pixels_per_block"])
+    # the thread scaling 1 → 2: the three frames on one thread, the floor on one thread in their blocks
+    cfg_one = {"pipeline": one_thread(cfg), "points_only": one_thread(cfg_points), "full_physics": one_thread(cfg_full)}
+    res1 = simulate_frame(scene, pose, cfg_one["pipeline"], tracer=tracer)
+    blocks1 = flash_floor_blocks(tracer, det, pose, res1.stats["pixels_per_block"])
     # interleaved: each repeat casts the floor, then runs the three frames (the load of a shared machine
     # changes between runs, not between the floor and the frames of one repeat)
     casts, casts1, times = [], [], {"pipeline": [], "points_only": [], "full_physics": [], **{k: [] for k in cfg_models}}
+    times1 = {k: [] for k in cfg_one}
     last = {}
     load_start = os.getloadavg()
     for _ in range(args.repeat):
         casts.append(timed_cpu("floor", lambda: floor.bare_cast(tracer, blocks, threads))[1])
-        casts1.append(floor.bare_cast(tracer, blocks, 1))  # the cast's own thread scaling (the machine's load)
+        casts1.append(timed_cpu("floor 1 thread", lambda: floor.bare_cast(tracer, blocks1, 1))[1])
         for name, c in (("pipeline", cfg), ("points_only", cfg_points), ("full_physics", cfg_full),
                         *cfg_models.items()):
             s, last[name] = timed_cpu(name, lambda: simulate_frame(scene, pose, c, tracer=tracer))
             times[name].append(s)
+        for name, c in cfg_one.items():
+            times1[name].append(timed_cpu(f"{name} 1 thread",
+                                          lambda: simulate_frame(scene, pose, c, tracer=tracer))[0])
     fl, fl1 = floor.best(casts), floor.best(casts1)
     bare_s = fl["wall_s"]
     pipe_s, points_s, full_s = (min(times[k]) for k in ("pipeline", "points_only", "full_physics"))
@@ -309,6 +351,7 @@ def main(argv=None):
         "floor": fl,
         "floor_one_thread": fl1,
         "floor_thread_scaling": fl1["wall_s"] / bare_s,
+        "thread_scaling_1_to_2": scaling_report(list(cfg_one), times, times1, fl, fl1),
         "bare_embreex_cast_s": bare_s,
         "pipeline_s": pipe_s,
         "pipeline_points_only_s": points_s,

@@ -12,7 +12,8 @@ Measured in one run (one process): the scene load (terrain built and its BVH), t
 memory of the process up to the end of the survey runs (scene, BVH, kernels and the surveys) with the resident
 memory at the stage boundaries, the bare embreex cast of as many rays along the same scan lines (the very same
 sub-rays, generated outside the timing, cast in the pipeline's blocks on 1 and 2 threads of the shared pool: the
-floor of bench/floor.py) and the ratio of the pipeline, and of each stage, to it.  The first call's latency
+floor of bench/floor.py) and the ratio of the pipeline, and of each stage, to it; the survey's thread scaling 1 → 2
+against the floor's and each side's process CPU (all threads); the load average at the start and the end.  The first call's latency
 (JIT compilation, or loading the compiled kernels from the per-user cache) is measured separately, in fresh
 processes, on a 4096-pulse scan: with an empty kernel cache and with the cache filled.  HELIOS++'s figures are the stated reference: 37.4k pulses/s on 2 threads, 20.1k on 1,
 4.4 GB peak memory, 18 s scene load.  Writes ``helios_survey.json`` to ``--out DIR`` (default runs/bench/;
@@ -114,8 +115,9 @@ def run_survey(scene, tracer, duration_s, threads, weather=None):
     cfg, traj = survey(duration_s, threads)
     if weather:
         cfg.atmosphere = dataclasses.replace(cfg.atmosphere, **weather)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = simulate_scan(scene, np.eye(4), cfg, tracer=tracer, trajectory=traj)
+    res.stats["process_cpu_s"] = time.process_time() - c0  # all threads
     return time.perf_counter() - t0, res
 
 
@@ -132,7 +134,12 @@ def bare_cast(tracer, duration_s, per_block, threads_list):
     for a in range(0, n, per_block):
         *_, o_world, d_world = scan_rays(cfg, traj, a, min(a + per_block, n))
         blocks += floor.float32_blocks(tracer, o_world, d_world, [(0, len(d_world))])
-    return {threads: floor.best([floor.bare_cast(tracer, blocks, threads)]) for threads in threads_list}
+    out = {}
+    for threads in threads_list:
+        c0 = time.process_time()
+        out[threads] = floor.best([floor.bare_cast(tracer, blocks, threads)])
+        out[threads]["cpu_s"] = time.process_time() - c0  # process CPU, all threads
+    return out
 
 
 _FIRST_CALL = r"""
@@ -195,6 +202,7 @@ def main(argv=None) -> int:
     from core.geometry.trace import SceneTracer
     from machine import machine_info
 
+    load_start = os.getloadavg()
     first = None if args.no_first_call else first_call_latency()
     import core.systems.scanner  # noqa: F401  (the libraries and the compiled-kernel modules)
     memory = {"after_imports": (rss_bytes(), peak_rss_bytes())}
@@ -246,6 +254,11 @@ def main(argv=None) -> int:
         "pipeline_s": {str(t): runs[t][0] for t in (1, 2)},
         "pulses_per_s": {str(t): pps[t] for t in (1, 2)},
         "thread_scaling_1_to_2": runs[1][0] / runs[2][0],
+        "thread_scaling_against_floor": floor.thread_scaling(
+            {t: runs[t][0] for t in (1, 2)}, bare, {t: runs[t][1]["process_cpu_s"] for t in (1, 2)},
+            {t: floors[t]["cpu_s"] for t in (1, 2)}),
+        "cpu_ratio_pipeline_to_floor (process CPU, all threads)": {
+            str(t): runs[t][1]["process_cpu_s"] / floors[t]["cpu_s"] for t in (1, 2)},
         "bare_cast_s": {str(t): bare[t] for t in (1, 2)},
         "bare_rays_per_s_per_thread": n_rays / bare[1],
         "ratio_pipeline_to_bare_cast": {str(t): runs[t][0] / bare[t] for t in (1, 2)},
@@ -275,6 +288,7 @@ def main(argv=None) -> int:
                       "pulses_per_s_1_thread": pps[1] / HELIOS["pulses_per_s_1_thread"],
                       "peak_memory": peak / HELIOS["peak_memory_bytes"],
                       "scene_load": load_s / HELIOS["scene_load_s"]},
+        "load_average_1_5_15_min": {"start": list(load_start), "end": list(os.getloadavg())},
         "cpu_count": os.cpu_count(),
         "machine": machine_info(),
         "software": software_versions(),

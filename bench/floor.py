@@ -74,3 +74,22 @@ def best(runs: list) -> dict:
 def stage_ratios(stage_times_s: dict, floor: dict) -> dict:
     """Each stage's thread-seconds over the floor's thread-seconds."""
     return {k: v / floor["thread_s"] for k, v in stage_times_s.items() if isinstance(v, (int, float))}
+
+
+def thread_scaling(frame_wall_s: dict, floor_wall_s: dict, frame_cpu_s: dict | None = None,
+                   floor_cpu_s: dict | None = None) -> dict:
+    """A frame's thread scaling 1 → 2 against its floor's (issue 28's target: the frame's ≥ 0.9 × the cast's).
+
+    ``frame_wall_s`` / ``floor_wall_s``: {1: s, 2: s}, each the best of its repeats, the floor cast in the
+    frame's own blocks on the same thread count.  ``relative_to_floor``: (frame 1 → 2 speed-up) / (floor 1 → 2
+    speed-up), wall times (on a loaded machine both speed-ups fall towards 1: read it with the load average).
+    ``frame_cpu_s`` / ``floor_cpu_s`` (optional, process CPU, all threads): the CPU each side spends more on 2
+    threads than on 1 (``cpu_growth_1_to_2``: cpu(2) / cpu(1)), the part of the scaling the load does not set."""
+    out = {"frame_1_to_2": frame_wall_s[1] / frame_wall_s[2], "floor_1_to_2": floor_wall_s[1] / floor_wall_s[2]}
+    out["relative_to_floor"] = out["frame_1_to_2"] / out["floor_1_to_2"]
+    out["target_relative_to_floor"] = 0.9
+    if frame_cpu_s and floor_cpu_s:
+        out["cpu_s"] = {"frame": {str(k): v for k, v in frame_cpu_s.items()},
+                        "floor": {str(k): v for k, v in floor_cpu_s.items()}}
+        out["cpu_growth_1_to_2"] = {"frame": frame_cpu_s[2] / frame_cpu_s[1], "floor": floor_cpu_s[2] / floor_cpu_s[1]}
+    return out

@@ -44,7 +44,8 @@ BENCHMARKS = {
                                    "flash_demo_noisy_vs_ideal/ratio_noisy_to_ideal", "n_points",
                                    "cpu_time (process, all threads; best of the repeats)/floor_cpu_s",
                                    "cpu_time (process, all threads; best of the repeats)/full_physics/"
-                                   "cpu_ratio_to_floor"],
+                                   "cpu_ratio_to_floor", "thread_scaling_1_to_2/full_physics/relative_to_floor",
+                                   "thread_scaling_1_to_2/pipeline/cpu_growth_1_to_2/frame"],
                     lambda d: d["hit_fraction"] > 0 and len(d["load_average_1_5_15_min"]["end"]) == 3),
     "bench_turbulence": ("turbulence.json", ["cases/wide_12deg/calm_s", "cases/wide_12deg/turbulent_s",
                                              "cases/narrow_0.06deg/calm_s", "cases/narrow_0.06deg/turbulent_s"],
@@ -62,6 +63,8 @@ BENCHMARKS = {
     "bench_helios_survey": ("helios_survey.json", ["pulses_per_s/1", "pulses_per_s/2", "thread_scaling_1_to_2",
                                                    "ratio_pipeline_to_bare_cast/1", "ratio_pipeline_to_bare_cast/2",
                                                    "floor/2/thread_s", "stage_ratio_to_floor/2/trace",
+                                                   "thread_scaling_against_floor/relative_to_floor",
+                                                   "cpu_ratio_pipeline_to_floor (process CPU, all threads)/2",
                                                    "vs_helios/pulses_per_s_2_threads",
                                                    "peak_rss_bytes (scene, kernels and one survey run)"],
                             lambda d: d["survey"]["n_pulses"] == 10_000),

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..jit import kernel
 from ..physics.laser import pulse_half_support_s
 
 #: Warn when less than this fraction of the hit energy falls inside the range gate.
@@ -45,22 +46,16 @@ def empty_tally() -> np.ndarray:
 def gate_tally(range_m, energy_j, window_s) -> np.ndarray:
     """The tally (:func:`empty_tally`'s layout) of hits at ``range_m`` (m) with energies ``energy_j`` (J) against
     the gate ``window_s`` = (start, end) in round-trip time."""
-    r = np.asarray(range_m, dtype=np.float64)
-    e = np.broadcast_to(np.asarray(energy_j, dtype=np.float64), r.shape)
     out = empty_tally()
-    if r.size == 0:
-        return out
-    t = 2.0 * r / SPEED_OF_LIGHT_M_S
-    where = np.where(t < window_s[0], 0, np.where(t >= window_s[1], 2, 1))
-    out[0:3] = np.bincount(where, minlength=3)
-    out[3:6] = np.bincount(where, weights=e, minlength=3)
-    out[6], out[7] = r.min(), r.max()
+    r, e = _tally_inputs(range_m, energy_j)
+    if r.size:
+        out[6], out[7] = _add_hits(r, e, window_s, out)
     return out
 
 
 class OrderedTally:
     """A frame's tally folded block by block, in block order: bit for bit :func:`gate_tally` of all the frame's
-    hits at once (``np.add.at`` adds the energies one by one in element order, as ``np.bincount`` does; adding
+    hits at once (the energies are added one by one in element order, as :func:`gate_tally` adds them; adding
     blocks' sums would group them by block), so the record does not depend on how the frame is cut into
     blocks or on the thread count.  Call :meth:`add` with each block's hits in block order."""
 
@@ -69,15 +64,47 @@ class OrderedTally:
         self.tally = empty_tally()
 
     def add(self, range_m, energy_j) -> None:
-        r = np.asarray(range_m, dtype=np.float64)
+        r, e = _tally_inputs(range_m, energy_j)
         if r.size == 0:
             return
-        e = np.broadcast_to(np.asarray(energy_j, dtype=np.float64), r.shape)
-        t = 2.0 * r / SPEED_OF_LIGHT_M_S
-        where = np.where(t < self.window_s[0], 0, np.where(t >= self.window_s[1], 2, 1))
-        self.tally[0:3] += np.bincount(where, minlength=3)  # (counts: integers, exact in any grouping)
-        np.add.at(self.tally[3:6], where, e)
-        self.tally[6], self.tally[7] = min(self.tally[6], r.min()), max(self.tally[7], r.max())
+        r_min, r_max = _add_hits(r, e, self.window_s, self.tally)
+        self.tally[6], self.tally[7] = min(self.tally[6], r_min), max(self.tally[7], r_max)
+
+
+def _tally_inputs(range_m, energy_j):
+    """(ranges (n,) float64, energies (n,) or one for all (1,) float64), contiguous."""
+    r = np.ascontiguousarray(np.asarray(range_m, dtype=np.float64).ravel())
+    e = np.asarray(energy_j, dtype=np.float64)
+    e = e.reshape(1) if e.size == 1 else np.ascontiguousarray(np.broadcast_to(e, np.shape(range_m)).ravel())
+    return r, e
+
+
+def _add_hits(r, e, window_s, tally) -> tuple[float, float]:
+    """Add the hits (r, e) to the counts and energies of ``tally`` in place, element by element (a hit is
+    before the gate when t = 2r/c < start, after it when t ≥ end, inside otherwise: a NaN range inside); returns
+    the hits' smallest and largest range (NaN when a range is NaN, as ``ndarray.min``)."""
+    return _tally_kernel(r, e, float(window_s[0]), float(window_s[1]), SPEED_OF_LIGHT_M_S, tally)
+
+
+@kernel
+def _tally_kernel(r, e, start, end, c, tally):
+    one = e.shape[0] == 1 and r.shape[0] != 1
+    r_min, r_max, nan = r[0], r[0], False
+    for i in range(r.shape[0]):
+        x = r[i]
+        t = 2.0 * x / c
+        k = 0 if t < start else (2 if t >= end else 1)
+        tally[k] += 1.0
+        tally[3 + k] += e[0] if one else e[i]
+        if x != x:
+            nan = True
+        elif x < r_min:
+            r_min = x
+        elif x > r_max:
+            r_max = x
+    if nan:
+        return np.nan, np.nan
+    return r_min, r_max
 
 
 def add_tallies(tallies) -> np.ndarray:
