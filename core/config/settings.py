@@ -419,7 +419,8 @@ class DetectorSettings:
                                       label="Read Noise")
     enable_adc: bool = setting(True, doc="A/D conversion to integer counts (else float32 electrons)",
                                label="A/D Conversion")
-    threads: int = setting(0, lo=0, hi=256, doc="Worker threads (0: all cores); never changes the result",
+    threads: int = setting(0, lo=0, hi=256, doc="Worker threads of the receiver chain (0: as run.threads); "
+                                                "never changes the result",
                            label="Detector Threads")
 
 

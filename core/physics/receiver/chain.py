@@ -66,6 +66,8 @@ class ChainSettings:
     aperture_diameter_m: float = 0.05
     ifov_x_rad: float = 0.02 / 64
     ifov_y_rad: float = 0.02 / 64
+    #: the run's threads (``run.threads``), used when ``detector.threads`` is 0; 0 here too: one per CPU
+    run_threads: int = 0
 
     @classmethod
     def from_config(cls, cfg, detector: DetectorSettings | None = None) -> "ChainSettings":
@@ -73,7 +75,7 @@ class ChainSettings:
         det = detector if detector is not None else getattr(cfg, "detector", DetectorSettings())
         r = cfg.receiver
         return cls(det, cfg.laser.wavelength_m, cfg.gate.bin_width_s, r.aperture_diameter_m,
-                   r.fov_x_rad / r.width_px, r.fov_y_rad / r.height_px)
+                   r.fov_x_rad / r.width_px, r.fov_y_rad / r.height_px, cfg.run.threads)
 
 
 @dataclass
@@ -302,7 +304,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
             st["tail"] = (st["tail"][0] + r0 * B, st["tail"][1])
         return st
 
-    threads = det.threads or (os.cpu_count() or 1)
+    threads = det.threads or settings.run_threads or (os.cpu_count() or 1)  # 0: as the run (run.threads = 1 is 1)
     stats = map_list(work, blocks, threads)  # (core/threads.py: the caller and the shared pool)
     stats += _tail_stats(stats, deferred, params, ss, out, threads)
     if deferred and table is not None:

@@ -156,6 +156,28 @@ def test_seed_reproducibility_and_thread_independence():
     assert np.array_equal(g, chain(cube, rng=np.random.default_rng(7), **SEC8).data)
 
 
+def test_the_chain_runs_on_the_runs_threads_unless_the_detector_says_otherwise(monkeypatch):
+    """detector.threads = 0 follows run.threads (a run on one thread ran its chain on every core: session 28's
+    one-thread benchmarks); an explicit detector.threads wins; both 0: one per CPU."""
+    import os
+
+    import core.physics.receiver.chain as chain_module
+    from core.config.settings import SimulationConfig
+
+    seen = []
+    real = chain_module.map_list
+    monkeypatch.setattr(chain_module, "map_list", lambda fn, items, threads: seen.append(threads) or
+                        real(fn, items, threads))
+    cube = np.zeros((4, 4, 16), np.float32)
+    for run_threads, det_threads, want in ((1, 0, 1), (3, 0, 3), (1, 2, 2), (0, 0, os.cpu_count() or 1)):
+        cfg = SimulationConfig()
+        cfg.run.threads = run_threads
+        det = DetectorSettings(**{**SEC8, "mode": "noisy", "threads": det_threads})
+        seen.clear()
+        apply_receiver_chain(cube, ChainSettings.from_config(cfg, det), 5)
+        assert seen and set(seen) == {want}, (run_threads, det_threads, seen)
+
+
 @pytest.mark.parametrize("energy", [0.0, 1e-30, 1.0, 3e38])
 def test_no_nan_or_inf_for_zero_or_huge_energy(energy):
     cube = np.full((8, 8, 32), energy, dtype=np.float32)
