@@ -143,6 +143,35 @@ def atmosphere_lines(atmosphere, wavelength_m: float, range_m: float) -> list[st
     return lines
 
 
+#: Layers the Atmosphere panel lists one by one (the summary line counts them all).
+PREVIEW_LAYERS = 4
+
+
+def aerosol_layer_lines(atmosphere) -> list[str]:
+    """What the Atmosphere panel shows of ``atmosphere.aerosol_layers`` (set by a config file or preset, kept on
+    the scene): a count and the first layers in the panel's units (range in m, extinction α in 1/km as the
+    Extinction field, backscatter β in 1/(m sr), "α/S" when the row has no β column), or the validation error;
+    never raises."""
+    from ..core.config.tables import aerosol_layer_table
+
+    rows = atmosphere.aerosol_layers
+    if isinstance(rows, (list, tuple)) and not rows:
+        return ["No aerosol layers (homogeneous atmosphere)"]
+    try:
+        table = aerosol_layer_table(atmosphere)
+    except Exception as exc:  # noqa: BLE001 - draw must never fail
+        return [f"Aerosol layers: error: {exc}"]
+    n = len(table)
+    lines = [f"{n} aerosol layer{'s' if n != 1 else ''} (from a config file or preset)"]
+    for row, (start, end, alpha, beta) in zip(rows, table[:PREVIEW_LAYERS]):
+        b = (f"β {beta:.4g} /(m sr)" if len(row) > 3
+             else f"β = α/S = {beta:.4g} /(m sr)")
+        lines.append(f"  {start:.4g}–{end:.4g} m: α {alpha * 1e3:.4g} /km, {b}")
+    if n > PREVIEW_LAYERS:
+        lines.append(f"  … {n - PREVIEW_LAYERS} more")
+    return lines
+
+
 def detector_lines(cfg, range_m: float, transmission: float = 1.0) -> list[str]:
     """Panel text lines for :func:`detector_figures`; never raises."""
     try:

@@ -152,8 +152,8 @@ def apply_sensor_preset(settings: dict, context=None):
             if f is not None:
                 write_value(props, f, getattr(getattr(cfg, group), name), scale)
     if "scanner" in settings:
-        from .blend_config import write_scanner_tables
-        write_scanner_tables(obj, cfg.scanner)
+        from .blend_config import write_tables
+        write_tables(obj, "scanner", cfg.scanner)
     rx = cfg.receiver
     if "fov_x_rad" in settings.get("receiver", {}):
         set_camera_receiver_fov(obj.data, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)

@@ -530,11 +530,6 @@ class ScannerSettings:
                               "entering the prisms (empty: one beam along −Z)"})
 
 
-#: List/string fields of ScannerSettings (config files only; not Blender scalar properties).
-SCANNER_TABLE_FIELDS = ("channel_table", "channel_table_file", "risley_prism_hz", "risley_wedge_deg",
-                        "risley_index", "risley_phase_deg", "risley_emitters_deg")
-
-
 @dataclass
 class GatedSettings:
     """Burst illumination / gated viewing (paper §2.2, §5.1): a flood-lit camera whose shutter opens
@@ -679,3 +674,15 @@ def field_specs(cls) -> list[tuple[str, Any, dict]]:
             continue
         out.append((f.name, f.default, dict(f.metadata)))
     return out
+
+
+def table_fields(cls) -> tuple[str, ...]:
+    """Names of the settings of a settings class that are not plain settings (the list-valued ones such as the
+    scanner's channel table and Risley prisms and the atmosphere's aerosol layers, and the channel table's file
+    path): config files hold them; the add-on has no Blender property for them and keeps them as JSON
+    (ladar_addon/blend_config.py)."""
+    return tuple(f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING)
+
+
+#: The table fields of ScannerSettings (channel table, its file, Risley prisms and emitters).
+SCANNER_TABLE_FIELDS = table_fields(ScannerSettings)
