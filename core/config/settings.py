@@ -341,7 +341,8 @@ class AtmosphereSettings:
                                                  "shadow the extinction (docs/theory.md §14); 0 = draw every drop "
                                                  "≥ drop_min_diameter_mm",
                                              label="Drop Detectability Cut")
-    #: Range-layered aerosol (not a Blender property: config files and presets): one row per layer
+    #: Range-layered aerosol (no Blender property: set by config files; the add-on keeps it as JSON on the scene,
+    #: ladar_addon/blend_config.py, and shows it read only): one row per layer
     #: [start_m, end_m, extinction_per_m(, backscatter_per_m_sr)] (core/config/tables.py).
     aerosol_layers: list = field(default_factory=list, metadata={
         "unit": "m, m, 1/m[, 1/(m sr)]",
@@ -501,7 +502,8 @@ class ScannerSettings:
                                       choice_labels={'amplitude': 'Amplitude (J per Bin)',
                                                      'reflectivity': 'Calibrated Reflectivity (0–255)',
                                                      'intensity8': '8-bit Intensity'})
-    #: Per-channel table of the rotating head (not a Blender property: config files and presets): one row
+    #: Per-channel table of the rotating head (no Blender property: config files and presets; the add-on keeps it
+    #: as JSON on the sensor camera, ladar_addon/blend_config.py): one row
     #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).
     channel_table: list = field(default_factory=list, metadata={
         "unit": "deg, deg, s[, 1]", "allowed": "rows [elevation in [-90, 90], azimuth offset in [-360, 360], fire "

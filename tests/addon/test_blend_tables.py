@@ -90,12 +90,22 @@ def test_every_table_field_round_trips_config_blender_config(lad, plate_scene, t
 
 
 def test_a_config_without_layers_clears_them(lad, plate_scene, tmp_path):
-    """Loading a config (or any ``apply_config_to_blender``) stores exactly its layers: none removes the old ones
-    (and the custom property), and a .blend saved before the atmosphere had tables (no property) reads none."""
+    """``apply_config_to_blender`` stores exactly the config's layers: none removes the old ones (and the custom
+    property), and a .blend saved before the atmosphere had tables (no property) reads none.  A config file loaded
+    with ``ladar.load_config`` sets what it names (docs/atmosphere.md): ``aerosol_layers = []`` removes the layers,
+    a file without the setting leaves them."""
     scene, cam = plate_scene, bpy.data.objects["Ladar"]
     bc = lad.blend_config
     assert "ladar_atmosphere_tables" not in scene
     assert bc.config_from_blender(scene, cam).atmosphere.aerosol_layers == []
+    layers, other, empty = (tmp_path / f"{n}.toml" for n in ("layers", "other", "empty"))
+    layers.write_text("schema_version = 1\n[atmosphere]\naerosol_layers = [[40.0, 60.0, 0.02]]\n", encoding="utf-8")
+    other.write_text("schema_version = 1\n[atmosphere]\nlidar_ratio_sr = 20.0\n", encoding="utf-8")
+    empty.write_text("schema_version = 1\n[atmosphere]\naerosol_layers = []\n", encoding="utf-8")
+    for path, expected in [(layers, LAYERS_3), (other, LAYERS_3), (empty, [])]:
+        assert bpy.ops.ladar.load_config(filepath=str(path)) == {"FINISHED"}
+        assert bc.config_from_blender(scene, cam).atmosphere.aerosol_layers == expected, path.name
+    assert "ladar_atmosphere_tables" not in scene
     cfg = bc.config_from_blender(scene, cam)
     cfg.atmosphere.aerosol_layers = LAYERS_3
     bc.apply_config_to_blender(cfg, scene, cam)
