@@ -147,7 +147,11 @@ def test_atmosphere_panel_lists_the_layers_and_clears_them(lad, plate_scene):
     assert "  40–60 m: α 20 /km, β 0.001 /(m sr)" in text
     assert "  70–80 m: α 5 /km, β 0.0002 /(m sr)" in text
     lad.blend_config.set_settings(scene, cam, {"atmosphere.aerosol_layers": LAYERS_3})
-    assert "  40–60 m: α 20 /km, β = α/S = 0.001 /(m sr)" in labels()  # 0.02 / 20 sr
+    text = labels()
+    assert "  40–60 m: α 20 /km, β = α/S = 0.001 /(m sr)" in text  # 0.02 / 20 sr
+    # the derived figures' transmission at the reference range crosses the layer: exp(-2 * 0.02 /m * 20 m)
+    assert scene.ladar.reference_range_m == 1000.0 and scene.ladar_atmosphere.extinction_per_km == 0.0
+    assert f"Two-way transmission {np.exp(-0.8):.4g} at 1000 m (aerosol layers included)" in text, text
     rows = [[10.0 * i, 10.0 * i + 5.0, 0.01] for i in range(6)]
     lad.blend_config.set_settings(scene, cam, {"atmosphere.aerosol_layers": rows})
     text = labels()
