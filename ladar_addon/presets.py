@@ -54,7 +54,7 @@ class LADAR_MT_detector_presets(bpy.types.Menu):
 
 
 class LADAR_OT_atmosphere_preset_add(AddPresetBase, bpy.types.Operator):
-    """Add or remove a ladar atmosphere preset (all atmosphere settings of the scene)"""
+    """Add or remove a ladar atmosphere preset (the atmosphere panel's fields; not the aerosol layers)"""
     bl_idname = "ladar.atmosphere_preset_add"
     bl_label = "Add Atmosphere Preset"
     preset_menu = "LADAR_MT_atmosphere_presets"

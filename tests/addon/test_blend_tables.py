@@ -9,29 +9,15 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_scenes import add_camera, add_plate
+from test_cli import _run, plate_scene  # noqa: F401 - the fixture: an 8 x 8 px flash camera, a plate at 100 m
 from test_panels import _context, _draw
 
 LAYERS_4 = [[40.0, 60.0, 0.02, 1e-3], [70.0, 80.0, 0.005, 2e-4]]
 LAYERS_3 = [[40.0, 60.0, 0.02]]
 
 
-@pytest.fixture
-def plate_scene(scene):
-    cam = add_camera(scene, width_px=8, height_px=8, fov_rad=0.004)
-    cam.ladar.receiver.subsamples = 1
-    add_plate(scene, size=2.0, location=(0, 0, -100))
-    return scene
-
-
 def _settings(lad):
     return importlib.import_module(f"{lad.package.__name__}.core.config.settings")
-
-
-def _run(lad, capsys, *argv):
-    code = lad.cli.cli_handler(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _tables_configs(tmp_path):
