@@ -7,13 +7,12 @@ import json
 
 import bpy
 
-from ..core.config.settings import (DEFAULT_BRDF, GROUPS, SCANNER_TABLE_FIELDS, BRDFSettings, ScannerSettings,
-                                    SimulationConfig)
+from ..core.config.settings import DEFAULT_BRDF, GROUPS, BRDFSettings, SimulationConfig, table_fields
 from ..core.config.validate import validate
 from ..core.config.files import config_from_dict, config_to_dict
 from ..core.errors import ConfigError
 from .errors import LadarError
-from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS, SENSOR_GROUPS,
+from .fields import (ATMOSPHERE_FIELDS, BRDF_FIELDS, CORE_GROUPS, SCENE_GROUPS, SEED_FIELD, SENSOR_FIELDS, SENSOR_GROUPS,
                      TOP_FIELDS, migrate_group, read_value, shortest_float32, write_value)
 from .sensor import camera_receiver_fov_rad, set_camera_receiver_fov
 
@@ -111,25 +110,72 @@ def check_sensor(sensor_obj) -> None:
                          f"not a camera")
 
 
-#: The scanner's list-valued settings (channel table, Risley prisms and emitters: SCANNER_TABLE_FIELDS) have no
-#: Blender property; they are kept as JSON in this custom property of the sensor camera object (absent: defaults).
-SCANNER_TABLES_KEY = "ladar_scanner_tables"
+#: The settings of a group that have no Blender property (:func:`core.config.settings.table_fields`: the scanner's
+#: channel table, its file and the Risley prisms and emitters; the atmosphere's aerosol layers) are kept as JSON in a
+#: custom property ``ladar_<group>_tables`` of the ID that holds the group's Blender properties: the sensor camera
+#: object for a sensor group, the scene for the atmosphere (absent: defaults).  Only values that differ from the
+#: defaults are stored.
+def tables_key(group: str) -> str:
+    return f"ladar_{group}_tables"
 
 
-def read_scanner_tables(sensor_obj) -> dict:
-    """The scanner table settings stored on ``sensor_obj`` (only those that differ from the defaults)."""
-    text = sensor_obj.get(SCANNER_TABLES_KEY, "")
-    return json.loads(text) if text else {}
+#: The scanner's key (the name .blend files saved before the atmosphere had tables already use).
+SCANNER_TABLES_KEY = tables_key("scanner")
 
 
-def write_scanner_tables(sensor_obj, scanner) -> None:
-    """Store ``scanner``'s table settings on ``sensor_obj`` (the custom property removed when all are defaults)."""
-    default = ScannerSettings()
-    values = {k: getattr(scanner, k) for k in SCANNER_TABLE_FIELDS if getattr(scanner, k) != getattr(default, k)}
+def tables_owner(group: str, scene, sensor_obj):
+    """The ID whose custom property holds ``group``'s tables: the scene for a scene group, else the sensor."""
+    return scene if group in SCENE_GROUPS else sensor_obj
+
+
+def _table_fields(group: str) -> tuple[str, ...]:
+    return table_fields(CORE_GROUPS[group])
+
+
+def read_tables(owner, group: str) -> dict:
+    """The table settings of ``group`` stored on ``owner`` (only those that differ from the defaults).  A custom
+    property that is not a JSON object of the group's table fields (edited by hand) raises a ConfigError naming
+    it."""
+    key = tables_key(group)
+    text = owner.get(key, "")
+    if not text:
+        return {}
+    where = f"{owner.name}[{key!r}]"
+    allowed = "a JSON object of " + (", ".join(_table_fields(group)) or "no settings")
+    try:
+        values = json.loads(text) if isinstance(text, str) else None
+    except ValueError:
+        values = None
+    if not isinstance(values, dict):
+        raise ConfigError(where, str(text)[:80], allowed)
+    unknown = [k for k in values if k not in _table_fields(group)]
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]}", values[unknown[0]], allowed)
+    return values
+
+
+def store_tables(owner, group: str, values: dict) -> None:
+    """Store ``values`` (table settings of ``group``) on ``owner``; the custom property removed when empty."""
+    key = tables_key(group)
     if values:
-        sensor_obj[SCANNER_TABLES_KEY] = json.dumps(values)
-    elif SCANNER_TABLES_KEY in sensor_obj:
-        del sensor_obj[SCANNER_TABLES_KEY]
+        owner[key] = json.dumps(values)
+    elif key in owner:
+        del owner[key]
+
+
+def remove_tables(owner, group: str, names) -> None:
+    """Back to the defaults for the table settings ``names`` of ``group`` on ``owner`` (the others kept)."""
+    tables = read_tables(owner, group)
+    for name in names:
+        tables.pop(name, None)
+    store_tables(owner, group, tables)
+
+
+def write_tables(owner, group: str, settings) -> None:
+    """Store the table settings of ``settings`` (a core settings group) that differ from the defaults."""
+    default = CORE_GROUPS[group]()
+    store_tables(owner, group, {k: getattr(settings, k) for k in _table_fields(group)
+                                if getattr(settings, k) != getattr(default, k)})
 
 
 def config_from_blender(scene, sensor_obj) -> SimulationConfig:
@@ -143,12 +189,13 @@ def config_from_blender(scene, sensor_obj) -> SimulationConfig:
     sensor = sensor_obj.ladar
     groups = {g: read_group(getattr(sensor, g), SENSOR_FIELDS[g], scale) for g in SENSOR_GROUPS}
     groups["run"]["seed"] = SEED_FIELD.to_core(scene.ladar.seed)
-    groups["scanner"].update(read_scanner_tables(sensor_obj))
+    for g in SENSOR_GROUPS:
+        groups[g].update(read_tables(sensor_obj, g))
     rx = groups["receiver"]
     rx["fov_x_rad"], rx["fov_y_rad"] = camera_receiver_fov_rad(sensor_obj.data, rx["width_px"], rx["height_px"])
     kwargs = {g: cls(**groups[g]) for g, cls in SENSOR_GROUPS.items()}
     kwargs["atmosphere"] = SCENE_GROUPS["atmosphere"](**read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS,
-                                                                    scale))
+                                                                    scale), **read_tables(scene, "atmosphere"))
     kwargs.update({f.name: f.to_core(getattr(sensor, f.attr)) for f in TOP_FIELDS})
     kwargs["materials"] = {material_key(m): brdf_from_material(m) for m in bpy.data.materials
                            if m.ladar_brdf.enabled}
@@ -191,7 +238,8 @@ def apply_config_to_blender(cfg: SimulationConfig, scene, sensor_obj) -> None:
             setattr(sensor, f.attr, f.to_blender(getattr(cfg, f.name), scale))
         for group in SENSOR_GROUPS:
             write_group(getattr(sensor, group), SENSOR_FIELDS[group], getattr(cfg, group), scale)
-        write_scanner_tables(sensor_obj, cfg.scanner)
+        for g in GROUPS:
+            write_tables(tables_owner(g, scene, sensor_obj), g, getattr(cfg, g))
         scene.ladar.seed = SEED_FIELD.to_blender(cfg.run.seed)
         write_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, cfg.atmosphere, scale)
         for m in bpy.data.materials:

@@ -1,7 +1,7 @@
 """The rotating head's channel table in Blender: a CSV file chosen in the Scanner panel, validated when it is
 chosen and again whenever the panel draws (core/config/tables.py reads it; a bad file's error names the row and
 column).  The table settings have no Blender property: they live in the sensor camera's JSON custom property
-(:data:`ladar_addon.blend_config.SCANNER_TABLES_KEY`), as config files hold them."""
+(:func:`ladar_addon.blend_config.read_tables`, key ``ladar_scanner_tables``), as config files hold them."""
 from __future__ import annotations
 
 import os
@@ -9,19 +9,10 @@ import os
 from ..core.config.settings import ScannerSettings
 from ..core.config.tables import CHANNEL_COLUMNS, channel_table_deg, read_channel_csv
 from ..core.errors import ConfigError
-from .blend_config import SCANNER_TABLES_KEY, read_scanner_tables
+from .blend_config import read_tables, remove_tables, store_tables
 
 #: Rows of a table the panel lists (the first ones; the summary line covers all).
 PREVIEW_ROWS = 4
-
-
-def _store(sensor_obj, tables: dict) -> None:
-    import json
-
-    if tables:
-        sensor_obj[SCANNER_TABLES_KEY] = json.dumps(tables)
-    elif SCANNER_TABLES_KEY in sensor_obj:
-        del sensor_obj[SCANNER_TABLES_KEY]
 
 
 def set_channel_table_file(sensor_obj, path: str) -> int:
@@ -30,26 +21,23 @@ def set_channel_table_file(sensor_obj, path: str) -> int:
     the row and column, and changes nothing."""
     path = os.path.abspath(os.fspath(path))
     table = read_channel_csv(path)  # ConfigError before anything is written
-    tables = read_scanner_tables(sensor_obj)
+    tables = read_tables(sensor_obj, "scanner")
     tables.pop("channel_table", None)
     tables["channel_table_file"] = path
-    _store(sensor_obj, tables)
+    store_tables(sensor_obj, "scanner", tables)
     sensor_obj.ladar.scanner.n_channels = len(table)
     return len(table)
 
 
 def clear_channel_table(sensor_obj) -> None:
     """Back to evenly spaced channels: the inline table and the file removed (the other tables kept)."""
-    tables = read_scanner_tables(sensor_obj)
-    tables.pop("channel_table", None)
-    tables.pop("channel_table_file", None)
-    _store(sensor_obj, tables)
+    remove_tables(sensor_obj, "scanner", ("channel_table", "channel_table_file"))
 
 
 def channel_table_lines(sensor_obj) -> list[str]:
     """What the Scanner panel shows of the channel table: its source, a summary and the first rows, or the
     validation error (a missing or changed file, a bad cell, a row count that is not n_channels)."""
-    tables = read_scanner_tables(sensor_obj)
+    tables = read_tables(sensor_obj, "scanner")
     if not tables.get("channel_table") and not tables.get("channel_table_file"):
         return ["Evenly spaced channels (no channel table)"]
     scanner = ScannerSettings(channel_table=tables.get("channel_table", []),

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import math
 
-from ..core.atmosphere.extinction import extinction_from_visibility
+from ..core.atmosphere.extinction import extinction_from_visibility, two_way_transmission
 from ..core.atmosphere.derived import derived_turbulence
 from ..core.physics.laser import pulse_cdf
+from ..core.physics.propagation import with_aerosol_layers
 from ..core.physics.receiver.conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons,
                                                  mcintyre_excess_noise, photons_per_joule)
 
@@ -28,11 +29,14 @@ def extinction_per_m(atmosphere, wavelength_m: float) -> float:
 
 
 def atmosphere_figures(atmosphere, wavelength_m: float, range_m: float) -> dict:
-    """Extinction, two-way transmission at ``range_m`` and (when Cn² > 0) the spherical-wave turbulence figures
+    """Extinction, two-way transmission at ``range_m`` (through the aerosol layers too) and (when Cn² > 0) the spherical-wave turbulence figures
     of :func:`core.atmosphere.derived.derived_turbulence`."""
     sigma = extinction_per_m(atmosphere, wavelength_m)
+    path = with_aerosol_layers(sigma, atmosphere)  # with atmosphere.aerosol_layers: exp(−2τ(R)), τ with the layers
     out = {"wavelength_m": float(wavelength_m), "range_m": float(range_m), "extinction_per_m": sigma,
-           "extinction_per_km": sigma * 1e3, "two_way_transmission": math.exp(-2.0 * sigma * range_m)}
+           "extinction_per_km": sigma * 1e3,
+           "two_way_transmission": (math.exp(-2.0 * sigma * range_m) if path is sigma
+                                    else float(two_way_transmission(path, range_m)))}
     if atmosphere.cn2_m_23 > 0.0:
         out["turbulence"] = derived_turbulence(
             atmosphere.cn2_m_23, wavelength_m, range_m, wave="spherical",
@@ -130,7 +134,8 @@ def atmosphere_lines(atmosphere, wavelength_m: float, range_m: float) -> list[st
     except Exception as exc:  # noqa: BLE001 - draw must never fail
         return [f"Derived figures unavailable: {exc}"]
     lines = [f"Extinction {fig['extinction_per_km']:.4g} /km at {wavelength_m * 1e9:.0f} nm",
-             f"Two-way transmission {fig['two_way_transmission']:.4g} at {range_m:.4g} m"]
+             f"Two-way transmission {fig['two_way_transmission']:.4g} at {range_m:.4g} m"
+             + (" (aerosol layers included)" if atmosphere.aerosol_layers else "")]
     t = fig.get("turbulence")
     if t:
         lines += [f"Rytov variance σ_R² {t['rytov_variance_plane']:.4g} (spherical β0² "
@@ -140,6 +145,35 @@ def atmosphere_lines(atmosphere, wavelength_m: float, range_m: float) -> list[st
                    else f"Cell radius (wave-optics 1/e) {t['cell_radius_m']:.4g} m"),
                   f"σ_lnI² {t['sigma2_lnI']:.4g}, scintillation index {t['scintillation_index']:.4g} "
                   f"({t['scintillation_statistics'].replace('_', ' ')})"]
+    return lines
+
+
+#: Layers the Atmosphere panel lists one by one (the summary line counts them all).
+PREVIEW_LAYERS = 4
+
+
+def aerosol_layer_lines(atmosphere) -> list[str]:
+    """What the Atmosphere panel shows of ``atmosphere.aerosol_layers`` (set by a config file or preset, kept on
+    the scene): a count and the first layers in the panel's units (range in m, extinction α in 1/km as the
+    Extinction field, backscatter β in 1/(m sr), "α/S" when the row has no β column), or the validation error;
+    never raises."""
+    from ..core.config.tables import aerosol_layer_table
+
+    rows = atmosphere.aerosol_layers
+    if isinstance(rows, (list, tuple)) and not rows:
+        return ["No aerosol layers (homogeneous atmosphere)"]
+    try:
+        table = aerosol_layer_table(atmosphere)
+    except Exception as exc:  # noqa: BLE001 - draw must never fail
+        return [f"Aerosol layers: error: {exc}"]
+    n = len(table)
+    lines = [f"{n} aerosol layer{'s' if n != 1 else ''} (from a config file or preset)"]
+    for row, (start, end, alpha, beta) in zip(rows, table[:PREVIEW_LAYERS]):
+        b = (f"β {beta:.4g} /(m sr)" if len(row) > 3
+             else f"β = α/S = {beta:.4g} /(m sr)")
+        lines.append(f"  {start:.4g}–{end:.4g} m: α {alpha * 1e3:.4g} /km, {b}")
+    if n > PREVIEW_LAYERS:
+        lines.append(f"  … {n - PREVIEW_LAYERS} more")
     return lines
 
 

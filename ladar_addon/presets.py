@@ -54,7 +54,7 @@ class LADAR_MT_detector_presets(bpy.types.Menu):
 
 
 class LADAR_OT_atmosphere_preset_add(AddPresetBase, bpy.types.Operator):
-    """Add or remove a ladar atmosphere preset (all atmosphere settings of the scene)"""
+    """Add or remove a ladar atmosphere preset (the atmosphere panel's fields; not the aerosol layers)"""
     bl_idname = "ladar.atmosphere_preset_add"
     bl_label = "Add Atmosphere Preset"
     preset_menu = "LADAR_MT_atmosphere_presets"
@@ -152,8 +152,8 @@ def apply_sensor_preset(settings: dict, context=None):
             if f is not None:
                 write_value(props, f, getattr(getattr(cfg, group), name), scale)
     if "scanner" in settings:
-        from .blend_config import write_scanner_tables
-        write_scanner_tables(obj, cfg.scanner)
+        from .blend_config import write_tables
+        write_tables(obj, "scanner", cfg.scanner)
     rx = cfg.receiver
     if "fov_x_rad" in settings.get("receiver", {}):
         set_camera_receiver_fov(obj.data, rx.fov_x_rad, rx.fov_y_rad, rx.width_px, rx.height_px)

@@ -15,6 +15,8 @@ from . import sweep  # noqa: E402 - parameter sweeps on Dask
 CLASSES += sweep.CLASSES
 from . import channel_table  # noqa: E402 - the rotating head's channel table from a CSV file
 CLASSES += channel_table.CLASSES
+from . import aerosol_layers  # noqa: E402 - clear the atmosphere's aerosol layers (set by a config file)
+CLASSES += aerosol_layers.CLASSES
 
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)

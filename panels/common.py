@@ -60,9 +60,10 @@ def sensor_config(scene, obj):
 
 def atmosphere_settings(scene):
     from ..core.config.settings import AtmosphereSettings
-    from ..ladar_addon.blend_config import read_group, unit_scale
+    from ..ladar_addon.blend_config import read_group, read_tables, unit_scale
     from ..ladar_addon.fields import ATMOSPHERE_FIELDS
-    return AtmosphereSettings(**read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, unit_scale(scene)))
+    return AtmosphereSettings(**read_group(scene.ladar_atmosphere, ATMOSPHERE_FIELDS, unit_scale(scene)),
+                              **read_tables(scene, "atmosphere"))
 
 
 def draw_lines(layout, lines, icon="INFO"):

@@ -22,6 +22,20 @@ def draw_atmosphere_figures(layout, scene):
     draw_lines(layout.box(), lines)
 
 
+def draw_aerosol_layers(layout, scene):
+    """The read-only Aerosol Layers box (``atmosphere.aerosol_layers``: set by loading a config file) with a clear
+    button (never raises)."""
+    box = layout.box()
+    row = box.row()
+    row.label(text="Aerosol Layers")
+    row.operator("ladar.aerosol_layers_clear", text="", icon="X")
+    try:
+        lines = derived.aerosol_layer_lines(atmosphere_settings(scene))
+    except Exception as exc:  # noqa: BLE001 - draw must never fail
+        lines = [f"Aerosol layers unavailable: {exc}"]
+    draw_lines(box, lines)
+
+
 def _draw_scene_settings(layout, scene):
     props = scene.ladar
     layout.prop(props, "sensor")
@@ -134,6 +148,7 @@ class LADAR_PT_atmosphere(_ScenePanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         draw_fields(layout, context.scene.ladar_atmosphere, ATMOSPHERE_FIELDS)
+        draw_aerosol_layers(layout, context.scene)
         layout.prop(context.scene.ladar, "reference_range_m")
         draw_atmosphere_figures(layout, context.scene)
 

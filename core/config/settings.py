@@ -341,7 +341,8 @@ class AtmosphereSettings:
                                                  "shadow the extinction (docs/theory.md §14); 0 = draw every drop "
                                                  "≥ drop_min_diameter_mm",
                                              label="Drop Detectability Cut")
-    #: Range-layered aerosol (not a Blender property: config files and presets): one row per layer
+    #: Range-layered aerosol (no Blender property: set by config files; the add-on keeps it as JSON on the scene,
+    #: ladar_addon/blend_config.py, and shows it read only): one row per layer
     #: [start_m, end_m, extinction_per_m(, backscatter_per_m_sr)] (core/config/tables.py).
     aerosol_layers: list = field(default_factory=list, metadata={
         "unit": "m, m, 1/m[, 1/(m sr)]",
@@ -502,7 +503,8 @@ class ScannerSettings:
                                       choice_labels={'amplitude': 'Amplitude (J per Bin)',
                                                      'reflectivity': 'Calibrated Reflectivity (0–255)',
                                                      'intensity8': '8-bit Intensity'})
-    #: Per-channel table of the rotating head (not a Blender property: config files and presets): one row
+    #: Per-channel table of the rotating head (no Blender property: config files and presets; the add-on keeps it
+    #: as JSON on the sensor camera, ladar_addon/blend_config.py): one row
     #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).
     channel_table: list = field(default_factory=list, metadata={
         "unit": "deg, deg, s[, 1]", "allowed": "rows [elevation in [-90, 90], azimuth offset in [-360, 360], fire "
@@ -529,11 +531,6 @@ class ScannerSettings:
     risley_emitters_deg: list = field(default_factory=list, metadata={
         "unit": "deg", "allowed": "rows [alpha, beta] in [-30, 30], at most 256", "doc": "Risley: one [alpha_deg, beta_deg] row per emitter, the direction of its beam "
                               "entering the prisms (empty: one beam along −Z)"})
-
-
-#: List/string fields of ScannerSettings (config files only; not Blender scalar properties).
-SCANNER_TABLE_FIELDS = ("channel_table", "channel_table_file", "risley_prism_hz", "risley_wedge_deg",
-                        "risley_index", "risley_phase_deg", "risley_emitters_deg")
 
 
 @dataclass
@@ -680,3 +677,15 @@ def field_specs(cls) -> list[tuple[str, Any, dict]]:
             continue
         out.append((f.name, f.default, dict(f.metadata)))
     return out
+
+
+def table_fields(cls) -> tuple[str, ...]:
+    """Names of the settings of a settings class that are not plain settings (the list-valued ones such as the
+    scanner's channel table and Risley prisms and the atmosphere's aerosol layers, and the channel table's file
+    path): config files hold them; the add-on has no Blender property for them and keeps them as JSON
+    (ladar_addon/blend_config.py)."""
+    return tuple(f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING)
+
+
+#: The table fields of ScannerSettings (channel table, its file, Risley prisms and emitters).
+SCANNER_TABLE_FIELDS = table_fields(ScannerSettings)

@@ -45,8 +45,13 @@ def path_extinction(config: SimulationConfig):
     """The extinction along every ray: :func:`effective_extinction_per_m` (a float: homogeneous, as before) or,
     with ``atmosphere.aerosol_layers``, a :class:`~core.atmosphere.extinction.LayeredExtinction` of it and the
     layers (two-way transmission exp(−2τ(R)): core.atmosphere.extinction.two_way_transmission)."""
-    sigma = effective_extinction_per_m(config)
-    table = aerosol_layer_table(config.atmosphere)
+    return with_aerosol_layers(effective_extinction_per_m(config), config.atmosphere)
+
+
+def with_aerosol_layers(sigma: float, atmosphere):
+    """``sigma`` (a homogeneous extinction, 1/m) as it is, or with ``atmosphere.aerosol_layers`` a
+    :class:`~core.atmosphere.extinction.LayeredExtinction` of it and the layers."""
+    table = aerosol_layer_table(atmosphere)
     if table is None:
         return sigma
     return LayeredExtinction(sigma, tuple(table[:, 0].tolist()), tuple(table[:, 1].tolist()),

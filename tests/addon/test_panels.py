@@ -307,7 +307,7 @@ def test_channel_table_csv_in_the_scanner_panel(lad, scene, tmp_path):
     bad.write_text("1.0,0,0\n2.0,x,0\n", encoding="utf-8")
     with pytest.raises(RuntimeError, match=r"row 2 column 2.*'x'"):
         bpy.ops.ladar.channel_table_load(filepath=str(bad))
-    assert lad.blend_config.read_scanner_tables(cam) == {"channel_table_file": str(good)}  # nothing changed
+    assert lad.blend_config.read_tables(cam, "scanner") == {"channel_table_file": str(good)}  # nothing changed
     assert cam.ladar.scanner.n_channels == 3
     good.write_text("1.0,0,0\n2.0,0,5\n", encoding="utf-8")  # spoiled after loading: fire offset out of range
     errors = [t for t in labels() if t.startswith("Error")]
@@ -321,5 +321,5 @@ def test_channel_table_csv_in_the_scanner_panel(lad, scene, tmp_path):
     assert "  elevation_deg, azimuth_offset_deg, fire_offset_s, relative_pulse_energy" in text
     assert "  +2.0000, +0.5000, 0, 0.5" in text
     assert bpy.ops.ladar.channel_table_clear() == {"FINISHED"}
-    assert lad.blend_config.read_scanner_tables(cam) == {}
+    assert lad.blend_config.read_tables(cam, "scanner") == {}
     assert "Evenly spaced channels (no channel table)" in labels()
