@@ -56,13 +56,14 @@ def pytest_configure(config):
 #: Test files that take longest: the sum of their tests' seconds in one run of the whole suite on two workers with an
 #: empty kernel cache (``--junitxml``; 3,424 s wall at load 7-13 on the shared 2-core machine, about 6 times the
 #: quiet 562 s, so each figure is that sum divided by 6; test_jit_cache.py scaled by its later change's CPU,
-#: 118.7 s -> 43.6 s).  A file not listed counts as quick; only the order in which the files are handed to the
-#: workers depends on these figures.
+#: 118.7 s -> 43.6 s; test_bench_quick.py likewise, 96 s -> 68 s of CPU warm with most benchmarks in process).  A
+#: file not listed counts as quick; only the order in which the files are handed to the workers depends on these
+#: figures.
 SLOW_FILES = {
     "tests/core/sweep/test_sweep.py": 170.5,
-    "tests/test_bench_quick.py": 121.6,
     "tests/addon/test_cli.py": 109.7,
     "tests/test_documented_commands.py": 108.1,
+    "tests/test_bench_quick.py": 86.0,
     "tests/addon/test_fault_injection.py": 67.7,
     "tests/addon/test_sweep_cluster.py": 32.2,
     "tests/test_validation_report.py": 32.0,
