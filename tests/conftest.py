@@ -30,16 +30,40 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 os.environ.setdefault("LADAR_KERNEL_CACHE", str(REPO / "build" / "kernel-cache"))
 
+#: The project's Python folders whose bytecode the session writes once, before any test (:func:`compile_project`).
+BYTECODE_DIRS = ("core", "ladar_addon", "operators", "panels", "scripts", "bench")
+
+
+def compile_project() -> None:
+    """Write the bytecode (``__pycache__``, git-ignored, never packaged) of the project's modules that is missing
+    or out of date.  Where ``PYTHONDONTWRITEBYTECODE`` is set (as on the shared development machine) Python reads
+    bytecode but never writes it, so each of the suite's fresh processes (``scripts/ladar_run.py`` runs, benchmark
+    and sweep processes: a few hundred) compiled every project source it imports again: 0.5 s of CPU a flash-demo
+    run, 12 % of it (measured 4.4 s -> 3.9 s).  py_compile writes whatever that setting says, each file through a
+    temporary file renamed into place (two sessions at once are safe); a file that does not compile is left to
+    the test that imports it."""
+    import compileall
+
+    for name in BYTECODE_DIRS:
+        compileall.compile_dir(REPO / name, quiet=2, workers=1)
+    compileall.compile_file(REPO / "__init__.py", quiet=2)
+
+
+def pytest_configure(config):
+    if not os.environ.get("PYTEST_XDIST_WORKER"):  # once a session: the controller, or the one process
+        compile_project()
+
 #: Test files that take longest: the sum of their tests' seconds in one run of the whole suite on two workers with an
 #: empty kernel cache (``--junitxml``; 3,424 s wall at load 7-13 on the shared 2-core machine, about 6 times the
 #: quiet 562 s, so each figure is that sum divided by 6; test_jit_cache.py scaled by its later change's CPU,
-#: 118.7 s -> 43.6 s).  A file not listed counts as quick; only the order in which the files are handed to the
-#: workers depends on these figures.
+#: 118.7 s -> 43.6 s; test_bench_quick.py likewise, 96 s -> 68 s of CPU warm with most benchmarks in process).  A
+#: file not listed counts as quick; only the order in which the files are handed to the workers depends on these
+#: figures.
 SLOW_FILES = {
     "tests/core/sweep/test_sweep.py": 170.5,
-    "tests/test_bench_quick.py": 121.6,
     "tests/addon/test_cli.py": 109.7,
     "tests/test_documented_commands.py": 108.1,
+    "tests/test_bench_quick.py": 86.0,
     "tests/addon/test_fault_injection.py": 67.7,
     "tests/addon/test_sweep_cluster.py": 32.2,
     "tests/test_validation_report.py": 32.0,

@@ -1,15 +1,22 @@
-"""Every benchmark script in bench/ runs in its ``--quick`` mode (small sizes, seconds), in a fresh process, into a
-temporary ``--out`` folder, and writes well-formed JSON holding the figures its docstring and the docs describe;
-and running them leaves every committed file as it was (they write to the folder named, never to bench/results/).
+"""Every benchmark script in bench/ runs in its ``--quick`` mode (small sizes, seconds) into a temporary ``--out``
+folder, and writes well-formed JSON holding the figures its docstring and the docs describe; and running them
+leaves every committed file as it was (they write to the folder named, never to bench/results/).
 
-Measured on the shared 2-core machine with warm kernel caches (s): flash 5, turbulence 3, radiometry 2, receiver 3,
-systems 5, helios_survey 3, phasescreen 7, scintillation_speed 4, scintillation_accuracy 4, export 8, sequence 30
-(the bpy path compiles the kernels again in each process), sweep 36 (a Dask cluster), pareto 20, scaling 34 (five
-child processes), weather 6: about 170 s in all.
+The benchmarks whose subject is a process of their own run as a fresh process, as a user runs them
+(:data:`FRESH_PROCESS`: whole commands cold and warm, Blender's module, a Dask cluster, child processes); the
+others, which import the core and time it, run their ``main(argv)`` in the test process with the same arguments:
+a fresh process cost each of them 1.5-2 s of CPU (Python, NumPy, numba and the core imported, its kernels loaded)
+for nothing the test checks.  The benchmarks' command line is tested in a fresh process by
+:func:`test_output_options_refuse_the_committed_folder_without_the_flag`.
+
+Measured on the shared 2-core machine with warm kernel caches, CPU s at load 7-8: commands 24 (its cold run
+compiles the flash demo's kernels into an empty cache, by design), scaling 13, sweep 8, pareto 8, the in-process
+ones 0.1-3 each; the file 68 s of CPU (96 s with every benchmark in a fresh process).
 """
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import math
 import subprocess
@@ -131,6 +138,7 @@ def git_before():
 def test_every_benchmark_script_is_listed():
     scripts = sorted(p.stem for p in (REPO / "bench").glob("bench_*.py"))
     assert scripts == sorted(BENCHMARKS), "a new benchmark needs a --quick entry in BENCHMARKS"
+    assert set(FRESH_PROCESS) <= set(BENCHMARKS)
 
 
 #: quick modes that stay slow: bench_sequence starts Blender's Python module, whose add-on path compiles the kernels
@@ -138,12 +146,37 @@ def test_every_benchmark_script_is_listed():
 SLOW = {"bench_sequence"}
 
 
+#: benchmarks run as a fresh process (their subject is one): the rest run ``main(argv)`` in the test process
+FRESH_PROCESS = {
+    "bench_commands": "times whole commands, each a fresh process, from an empty kernel cache and a filled one",
+    "bench_sequence": "imports Blender's bpy module (which must not be imported into a core test process)",
+    "bench_export": "imports Blender's bpy module",
+    "bench_sweep": "starts a Dask cluster of worker processes and times the client's process",
+    "bench_scaling": "starts child processes and times them",
+}
+
+
+def run_quick(name: str, out: Path, capsys) -> None:
+    """``bench/<name>.py --quick --out OUT``: in a fresh process for :data:`FRESH_PROCESS`, else its ``main``
+    here (bench/ is on sys.path, as for the script itself).  Fails on a non-zero exit."""
+    argv = ["--quick", "--out", str(out)]
+    if name in FRESH_PROCESS:
+        proc = subprocess.run([sys.executable, str(REPO / "bench" / f"{name}.py"), *argv], cwd=REPO,
+                              capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return
+    try:
+        code = importlib.import_module(name).main(argv)
+    except SystemExit as exc:  # argparse's errors, and a benchmark's own exit
+        code = exc.code
+    err = capsys.readouterr().err
+    assert not isinstance(code, (int, str)) or code == 0, f"{name}: exit {code!r}\n{err[-3000:]}"
+
+
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in sorted(BENCHMARKS)])
-def test_quick_mode(name, tmp_path, git_before):
+def test_quick_mode(name, tmp_path, git_before, capsys):
     json_name, positive, check = BENCHMARKS[name]
-    proc = subprocess.run([sys.executable, str(REPO / "bench" / f"{name}.py"), "--quick", "--out", str(tmp_path)],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    run_quick(name, tmp_path, capsys)
     doc = json.loads((tmp_path / json_name).read_text(encoding="utf-8"))
     assert doc.get("quick") is True
     for field in positive:
@@ -159,14 +192,24 @@ def test_quick_runs_left_the_committed_files_alone(git_before):
     assert committed_state() == git_before
 
 
-def test_output_options_refuse_the_committed_folder_without_the_flag(tmp_path):
-    """``--out bench/results`` (or a file name) is refused; ``--update-committed`` with ``--quick`` too."""
-    for argv, message in ((["--quick", "--out", "bench/results"], "--update-committed"),
-                          (["--quick", "--out", str(tmp_path / "x.json")], "takes a folder"),
-                          (["--quick", "--update-committed"], "never committed")):
-        proc = subprocess.run([sys.executable, str(REPO / "bench" / "bench_receiver.py"), *argv], cwd=REPO,
-                              capture_output=True, text=True, timeout=120)
-        assert proc.returncode == 2 and message in proc.stderr, (argv, proc.stderr)
+def test_output_options_refuse_the_committed_folder_without_the_flag(tmp_path, capsys, monkeypatch):
+    """``--out bench/results`` (or a file name) is refused; ``--update-committed`` with ``--quick`` too.  The
+    first through the script's command line in a fresh process (exit status 2, the message on stderr); the
+    others through the same ``main(argv)`` in this process (the same parser and checks, benchio.output_folder)."""
+    cases = ((["--quick", "--out", "bench/results"], "--update-committed"),
+             (["--quick", "--out", str(tmp_path / "x.json")], "takes a folder"),
+             (["--quick", "--update-committed"], "never committed"))
+    argv, message = cases[0]
+    proc = subprocess.run([sys.executable, str(REPO / "bench" / "bench_receiver.py"), *argv], cwd=REPO,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and message in proc.stderr, (argv, proc.stderr)
+    monkeypatch.chdir(REPO)  # (relative paths as from the repository, like the command above)
+    main = importlib.import_module("bench_receiver").main
+    for argv, message in cases:
+        with pytest.raises(SystemExit) as exit_:
+            main(argv)
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and message in err, (argv, err)
     assert benchio.DEFAULT_DIR == REPO / "runs" / "bench"
     ignored = subprocess.run(["git", "check-ignore", "-q", "runs/bench/flash.json"], cwd=REPO)
     assert ignored.returncode == 0, "runs/ must be git-ignored"

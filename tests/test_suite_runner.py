@@ -67,3 +67,18 @@ def test_the_suite_keeps_its_kernels_in_this_checkout():
         assert core.jit.CACHE_DIR.parent == REPO / "build" / "kernel-cache"
         ignored = subprocess.run(["git", "check-ignore", "-q", "build/kernel-cache/x"], cwd=REPO)
         assert ignored.returncode == 0, "build/ must be git-ignored"
+
+
+def test_the_session_wrote_the_projects_bytecode():
+    """tests/conftest.py compiles the project's modules once a session (fresh processes then read bytecode even
+    where PYTHONDONTWRITEBYTECODE is set); a stale or missing file is written again."""
+    import importlib.util
+
+    for name in suite.BYTECODE_DIRS:
+        source = next((REPO / name).rglob("*.py"))
+        cached = Path(importlib.util.cache_from_source(str(source)))
+        assert cached.is_file() and cached.stat().st_mtime >= source.stat().st_mtime - 1.0, cached
+    cached = Path(importlib.util.cache_from_source(str(REPO / "core" / "jit.py")))
+    cached.unlink()
+    suite.compile_project()
+    assert cached.is_file()

@@ -435,6 +435,7 @@ def test_the_shipped_core_unpacks_into_a_per_user_folder_once_and_imports(tmp_pa
     renamed into place) under the temporary folder, put on the path and importable under its versioned name; a
     second install (another worker process, a restarted one) finds it and writes nothing."""
     import importlib
+    import importlib.util
 
     import core.sweep.shipping as shipping
 
@@ -449,6 +450,8 @@ def test_the_shipped_core_unpacks_into_a_per_user_folder_once_and_imports(tmp_pa
     files = sorted(p.relative_to(folder / name) for p in (folder / name).rglob("*.py"))
     assert files == sorted(p.relative_to(outer / name) for p in (outer / name).rglob("*.py")) and len(files) > 50
     assert [p.name for p in folder.iterdir()] == [name]  # no staging folder left
+    # with its bytecode, whatever PYTHONDONTWRITEBYTECODE says (each worker process imports it)
+    assert all(Path(importlib.util.cache_from_source(str(folder / name / f))).is_file() for f in files)
     stamp = (folder / name / "__init__.py").stat().st_mtime_ns
     assert shipping.install_core(name, data) == folder and (folder / name / "__init__.py").stat().st_mtime_ns == stamp
     task = importlib.import_module(f"{name}.sweep.task")
