@@ -55,7 +55,7 @@ def test_settings_reference_is_generated_from_the_schema():
     # (noisy_threshold_mode existed; its new choice "calibrated" is its default); + 2 of session 27:
     # atmosphere.drop_cut_photoelectrons (issue 30) and scanner.cone_half_angle_y_rad (issue 29: the elliptic
     # Palmer cone)
-    assert len(names) == 120 + len(dataclasses.fields(BRDFSettings))
+    assert len(names) == 124 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 

@@ -1,0 +1,163 @@
+"""Sunlight reflected by the scene: a background photon rate per pixel (core/physics/solar.py, docs/theory.md §8)."""
+import math
+
+import numpy as np
+import pytest
+
+from core.config.settings import BRDFSettings, DetectorSettings
+from core.config.validate import validate_config
+from core.errors import ConfigError
+from core.geometry.scene import SceneGeometry
+from core.physics.receiver.chain import ChainSettings, apply_receiver_chain
+from core.physics.receiver.conversions import bin_moments
+from core.physics.solar import radiance_to_rate, subray_solar_rates, sun_direction
+from core.systems.flash import simulate_frame
+from scenes import config_for, plate
+
+H_PLANCK, C_LIGHT = 6.62607015e-34, 299_792_458.0
+
+
+def sunny_config(range_m, elevation_deg, irradiance=1.0, bandwidth_nm=10.0):
+    cfg = config_for(range_m)
+    cfg.detector.mode = "noisy"
+    cfg.detector.background_rate_photons_per_s = 0.0
+    cfg.atmosphere.solar_irradiance_w_m2_nm = irradiance
+    cfg.atmosphere.sun_elevation_rad = math.radians(elevation_deg)
+    cfg.receiver.filter_bandwidth_m = bandwidth_nm * 1e-9
+    return cfg
+
+
+def closed_form_rate(cfg, rho, cos_sun):
+    """ρ/π · E_λ Δλ · cos θ_s · A_r · Ω_pixel · τ / (hν), Ω_pixel = (fov/pixels)² on the axis."""
+    rx, atm = cfg.receiver, cfg.atmosphere
+    area = math.pi * (rx.aperture_diameter_m / 2) ** 2
+    omega = (rx.fov_x_rad / rx.width_px) * (rx.fov_y_rad / rx.height_px)
+    h_nu = H_PLANCK * C_LIGHT / cfg.laser.wavelength_m
+    return (rho / math.pi * atm.solar_irradiance_w_m2_nm * rx.filter_bandwidth_m * 1e9 * cos_sun * area * omega
+            * rx.system_efficiency / h_nu)
+
+
+def two_plates(target_m, occluder=None):
+    """The Lambertian target plate (ρ 0.3, facing the sensor at ``target_m``) and, optionally, a second plate
+    ``occluder`` = (distance, half size, (x, y, z) offset) of its own, parallel to it."""
+    parts = [plate(target_m, 5.0)] + ([plate(occluder[0], occluder[1], offset=occluder[2])] if occluder else [])
+    v = np.concatenate([p.vertices_m for p in parts])
+    t = np.concatenate([p.triangles + 4 * k for k, p in enumerate(parts)])
+    return SceneGeometry(v, t, np.zeros(len(t), np.int64), [BRDFSettings(reflectance=0.3)], ["plate"])
+
+
+def test_sun_direction_follows_elevation_and_azimuth():
+    cfg = sunny_config(100.0, 30.0)
+    cfg.atmosphere.sun_azimuth_rad = math.radians(90.0)
+    np.testing.assert_allclose(sun_direction(cfg.atmosphere), [0.0, math.cos(math.radians(30)), 0.5], atol=1e-15)
+
+
+@pytest.mark.parametrize("elevation_deg", [30.0, 75.0])
+def test_lit_lambertian_plate_gives_the_closed_form_rate(elevation_deg):
+    """A plate filling the 0.01 rad field of view, normal towards the sensor (+Z) and the sun at elevation e
+    (cos θ_s = sin e): every pixel gets ρ/π E Δλ sin e A_r Ω τ/(hν) (9.81e8 photons/s at 30°).  The closed form
+    takes Ω on the axis; a pixel's sub-rays each carry (p²/N)/(1 + x² + y²)^(3/2), which differs from it by at
+    most 1.5 × (0.005² + 0.005²) = 7.5e-5 at the corners: tolerance 1e-4 relative (the Lambertian BRDF and
+    sin e enter exactly)."""
+    cfg = sunny_config(100.0, elevation_deg)
+    res = simulate_frame(plate(100.0, 5.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4), cfg)
+    bg = res.stats["receiver"]["pixel_background"]
+    want = closed_form_rate(cfg, 0.3, math.sin(math.radians(elevation_deg)))
+    assert bg["pixels_with_background"] == 256
+    assert abs(bg["max_rate_photons_per_s"] / want - 1) < 1e-4, (bg, want)
+    assert abs(bg["mean_rate_photons_per_s"] / want - 1) < 1e-4, (bg, want)
+    assert res.stats["receiver"]["detector_model"]["signal_free_bins"] == "per_bin"
+    assert "fov_culling" in res.stats["stages_skipped"]  # shadow rays see the whole scene
+
+
+def test_extinction_takes_its_one_way_share():
+    """α = 2e-3 /m over 100 m: the rate × e^(−αR) = e^(−0.2) (within the 1e-4 of the solid-angle sampling)."""
+    cfg = sunny_config(100.0, 30.0)
+    cfg.atmosphere.extinction_per_m = 2e-3
+    res = simulate_frame(plate(100.0, 5.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4), cfg)
+    want = closed_form_rate(cfg, 0.3, 0.5) * math.exp(-0.2)
+    assert abs(res.stats["receiver"]["pixel_background"]["mean_rate_photons_per_s"] / want - 1) < 1e-4
+
+
+def test_shadowed_plate_and_sun_below_horizon_give_zero():
+    """Sun at 30° towards +X; a 30 m plate 20 m above the target (towards the sensor) and 34.6 m = 20/tan 30° off
+    towards +X (outside the 0.01 rad field of view) shades the whole target: zero rate.  Without it: the
+    closed form; with the sun below the horizon (−10°, and straight below: the plate's back face): zero."""
+    occluder = (80.0, 15.0, (20.0 / math.tan(math.radians(30.0)), 0.0, 0.0))
+    cfg = sunny_config(100.0, 30.0)
+    lit = simulate_frame(two_plates(100.0), np.eye(4), cfg).stats["receiver"]["pixel_background"]
+    assert abs(lit["mean_rate_photons_per_s"] / closed_form_rate(cfg, 0.3, 0.5) - 1) < 1e-4
+    shaded = simulate_frame(two_plates(100.0, occluder), np.eye(4), cfg).stats["receiver"]["pixel_background"]
+    assert shaded["max_rate_photons_per_s"] == 0.0 and shaded["pixels_with_background"] == 0
+    for el in (-10.0, -90.0):
+        cfg_low = sunny_config(100.0, el)
+        bg = simulate_frame(two_plates(100.0), np.eye(4), cfg_low).stats["receiver"]["pixel_background"]
+        assert bg["max_rate_photons_per_s"] == 0.0
+
+
+def test_only_the_face_the_sensor_sees_counts():
+    """The side of the triangle the sensor sees decides: a normal given either way round gives the same rate
+    (ρ/π · sin 30° · the common factors, unit solid angle share); the sensor looking at the face turned away
+    from the sun gets nothing."""
+    cfg = sunny_config(100.0, 30.0)
+    args = dict(materials=[BRDFSettings(reflectance=0.3)], material_ids=np.zeros(1, np.int64), range_m=[100.0],
+                lit=[True], x_tan=[0.0], y_tan=[0.0], pixel_pitch_tan=(1.0, 1.0), rays_in_pixel=[1])
+    want = radiance_to_rate(cfg) * 0.3 / math.pi * 0.5
+    for n in ([[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]]):
+        got = subray_solar_rates(cfg, 0.0, normal=n, to_surface=[[0.0, 0.0, -1.0]], **args)
+        assert got[0] == pytest.approx(want, rel=1e-14)
+        assert subray_solar_rates(cfg, 0.0, normal=n, to_surface=[[0.0, 0.0, 1.0]], **args)[0] == 0.0
+
+
+def test_chain_takes_each_pixels_background():
+    """Four pixels with 0, 1e9, 3e9 and 1e10 photons/s of reflected sunlight on top of the detector's 5e8: each
+    pixel's signal-free mean is that of a detector whose fixed rate is the sum (bin_moments), within 5 standard
+    errors σ/√B of its 40 000 bins; the chain reports the per-pixel mean and σ that bin_moments gives."""
+    det = DetectorSettings(mode="noisy", background_rate_photons_per_s=5e8, read_noise_e=300.0)
+    rates = np.array([[0.0, 1e9], [3e9, 1e10]])
+    cs = ChainSettings(det, wavelength_m=1.064e-6, bin_width_s=1e-9, pixel_background_rate=rates)
+    out = apply_receiver_chain(np.zeros((2, 2, 40_000), np.float32), cs, 7)
+    assert out.report["noise_sampling"] == "per-bin"
+    step = det.adc_full_scale_e / 2 ** det.adc_bits
+    for (i, j), r in np.ndenumerate(rates):
+        m, var, _ = bin_moments(DetectorSettings(mode="noisy", background_rate_photons_per_s=5e8 + r,
+                                                 read_noise_e=300.0), 0.0, 1e-9)
+        mean_counts, sigma_counts = m / step + det.adc_offset_counts, math.sqrt(var) / step
+        assert out.pixel_noise["noise_mean"][i, j] == pytest.approx(mean_counts, rel=1e-12)
+        assert out.pixel_noise["noise_sigma"][i, j] == pytest.approx(sigma_counts, rel=1e-12)
+        got = float(out.data[i, j].astype(np.float64).mean())
+        assert abs(got - mean_counts) < 5 * sigma_counts / math.sqrt(40_000), (i, j, got, mean_counts)
+    with pytest.raises(ValueError, match="pixel_background_rate"):
+        apply_receiver_chain(np.zeros((2, 2, 4), np.float32),
+                             ChainSettings(det, pixel_background_rate=np.zeros((2, 3))), 0)
+
+
+def test_geiger_false_alarms_rise_with_the_reflected_sunlight():
+    """Geiger mode, the plate beyond the gate (its echo outside), no dark current, no fixed background: every
+    detection is reflected sunlight.  With one detection per pulse (dead time ≥ the gate), a pixel-pulse detects
+    with probability 1 − exp(−η Φ T), Φ the closed-form rate and T the 256 ns gate: 15.4 % of 100 pulses × 256
+    pixels, within 4 binomial standard errors (0.23 %); with the sun off, none."""
+    cfg = sunny_config(100.0, 30.0, irradiance=0.01, bandwidth_nm=1.0)
+    cfg.gate.gate_start_s = 0.0  # 0–38 m: the plate's echo at 100 m is outside
+    d = cfg.detector
+    d.detector_type, d.dark_current_bulk_a, d.dark_current_surface_a = "geiger", 0.0, 0.0
+    d.geiger_pulses = 100
+    cfg.run.save_waveforms = True
+    scene = plate(100.0, 5.0, brdf=BRDFSettings(reflectance=0.3))
+    res = simulate_frame(scene, np.eye(4), cfg)
+    trials = d.geiger_pulses * 256
+    p = float(np.sum(res.digital_waveforms)) / trials
+    want = -math.expm1(-d.quantum_efficiency * closed_form_rate(cfg, 0.3, 0.5) * cfg.gate.n_bins * 1e-9)
+    assert abs(p - want) <= 4 * math.sqrt(want * (1 - want) / trials), (p, want)
+    cfg.atmosphere.solar_irradiance_w_m2_nm = 0.0
+    assert float(np.sum(simulate_frame(scene, np.eye(4), cfg).digital_waveforms)) == 0.0
+
+
+def test_bad_solar_settings_name_the_field():
+    cfg = sunny_config(100.0, 30.0)
+    cfg.receiver.filter_bandwidth_m = 0.0
+    with pytest.raises(ConfigError, match="filter_bandwidth_m"):
+        validate_config(cfg)
+    cfg = sunny_config(100.0, 30.0, irradiance=-1.0)
+    with pytest.raises(ConfigError, match="solar_irradiance_w_m2_nm"):
+        validate_config(cfg)
