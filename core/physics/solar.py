@@ -58,12 +58,26 @@ def radiance_to_rate(config) -> float:
     return float(e_band * area * rx.system_efficiency * photons_per_joule(config.laser.wavelength_m))
 
 
-def subray_solar_rates(config, extinction_per_m, materials, material_ids, normal, to_surface, range_m, lit,
-                       x_tan, y_tan, pixel_pitch_tan, rays_in_pixel):
+def tan_cell_solid_angles(x_tan, y_tan, pixel_pitch_tan, rays_in_pixel):
+    """ω (sr) of each sub-ray of a pixel sampled over its tan-space cell (flash, profiler):
+    p_x p_y / N / (1 + x² + y²)^(3/2), ``rays_in_pixel`` the number N of sub-rays of each ray's pixel."""
+    x, y = np.asarray(x_tan, np.float64), np.asarray(y_tan, np.float64)
+    return pixel_pitch_tan[0] * pixel_pitch_tan[1] / np.asarray(rays_in_pixel, np.float64) \
+        / (1.0 + x * x + y * y) ** 1.5
+
+
+def beam_solid_angle(laser) -> float:
+    """Ω (sr) a scanner's receiver sees for one pulse: the cone (elliptical: both axes) of the beam's full 1/e²
+    divergence, π θ_x θ_y / 4 (small angles), shared equally by the pulse's sub-rays."""
+    theta_x = laser.beam_divergence_rad
+    theta_y = laser.beam_divergence_y_rad or theta_x
+    return math.pi * theta_x * theta_y / 4.0
+
+
+def subray_solar_rates(config, extinction_per_m, materials, material_ids, normal, to_surface, range_m, lit, omega):
     """Φ (photons/s) per sub-ray hit (module docstring).  ``normal`` (n, 3) unit normals of the hit triangles
     (either side), ``to_surface`` (n, 3) unit directions sensor → hit, ``range_m`` (n,), ``lit`` (n,) bool (the
-    shadow ray found nothing), ``x_tan``/``y_tan`` (n,) the sub-rays' tan-space directions in the sensor frame,
-    ``pixel_pitch_tan`` (p_x, p_y), ``rays_in_pixel`` (n,) the number N of sub-rays of each ray's pixel."""
+    shadow ray found nothing), ``omega`` (n,) or one number: each sub-ray's solid angle (sr)."""
     normal = np.asarray(normal, np.float64)
     v = -np.asarray(to_surface, np.float64)  # towards the sensor
     s = sun_direction(config.atmosphere)
@@ -74,10 +88,7 @@ def subray_solar_rates(config, extinction_per_m, materials, material_ids, normal
     h /= np.maximum(np.linalg.norm(h, axis=1), 1e-300)[:, None]
     cos_h = np.clip(np.einsum("ij,ij->i", n_f, h), 0.0, 1.0)
     f_r = evaluate_materials(materials, np.asarray(material_ids), cos_h)
-    x, y = np.asarray(x_tan, np.float64), np.asarray(y_tan, np.float64)
-    omega = pixel_pitch_tan[0] * pixel_pitch_tan[1] / np.asarray(rays_in_pixel, np.float64) \
-        / (1.0 + x * x + y * y) ** 1.5
-    rate = radiance_to_rate(config) * f_r * np.maximum(cos_s, 0.0) * omega
+    rate = radiance_to_rate(config) * f_r * np.maximum(cos_s, 0.0) * np.asarray(omega, np.float64)
     rate *= np.exp(-float(extinction_per_m) * np.asarray(range_m, np.float64))
     return np.where(np.asarray(lit, bool) & (cos_s > 0.0), rate, 0.0)
 
@@ -96,21 +107,19 @@ def lit_by_sun(tracer, points, normal, to_surface, sun):
 
 
 def pixel_solar_rates(config, extinction_per_m, tracer, materials, material_ids, origin, directions, prim,
-                      range_m, index, pixel_local, x_tan, y_tan, pixel, n_pixels, pixel_pitch_tan):
-    """Solar background rate (photons/s, before η) per pixel of a block of ``n_pixels``: the sum of
-    :func:`subray_solar_rates` over each pixel's sub-rays.  ``directions`` (all rays, world), ``prim``/``range_m``
-    (all rays), ``index`` the hit rays, ``pixel_local`` their pixel in the block, ``x_tan``/``y_tan``/``pixel``
-    (all rays; ``pixel`` block-local) for the solid-angle shares."""
+                      range_m, index, pixel_local, omega, n_pixels):
+    """Solar background rate (photons/s, before η) per pixel (flash) or pulse (scanner) of a block of
+    ``n_pixels``: the sum of :func:`subray_solar_rates` over its sub-rays.  ``origin`` (3,) or one per ray (all
+    rays, world), ``directions``/``prim``/``range_m`` (all rays), ``index`` the hit rays, ``pixel_local`` their
+    pixel in the block, ``omega`` their solid angles (sr; one number: all the same)."""
     out = np.zeros(n_pixels)
     if not len(index) or config.atmosphere.sun_elevation_rad <= 0.0:
         return out
-    counts = np.bincount(pixel, minlength=n_pixels)
-    d = np.asarray(directions)[index]
+    origin = np.asarray(origin, np.float64)
+    d = np.asarray(directions, np.float64)[index]
     r = np.asarray(range_m)[index]
     nrm = tracer.unit_normal[np.asarray(prim)[index]]
     sun = sun_direction(config.atmosphere)
-    lit = lit_by_sun(tracer, np.asarray(origin, np.float64) + d * r[:, None], nrm, d, sun)
-    rate = subray_solar_rates(config, extinction_per_m, materials, material_ids, nrm, d, r, lit,
-                              np.asarray(x_tan)[index], np.asarray(y_tan)[index], pixel_pitch_tan,
-                              counts[pixel_local])
+    lit = lit_by_sun(tracer, (origin if origin.ndim == 1 else origin[index]) + d * r[:, None], nrm, d, sun)
+    rate = subray_solar_rates(config, extinction_per_m, materials, material_ids, nrm, d, r, lit, omega)
     return np.bincount(pixel_local, weights=rate, minlength=n_pixels)

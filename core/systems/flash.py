@@ -37,7 +37,7 @@ from ..physics.laser import beam_half_angle_tan, cell_energy_fractions
 from ..physics.propagation import effective_extinction_per_m
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
-from ..physics.solar import pixel_solar_rates, solar_enabled
+from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from ..physics.waveform import accumulate_waveform_windows, binning_method, round_trip_time_s
 
@@ -172,10 +172,11 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         t = stage_clock()
         index, pix_local, mat_hit, frac_hit = block_hits(prim, pixel, a, scene.material_ids, fraction)
         if sun_rate is not None:
+            omega = tan_cell_solid_angles(x_tan[index], y_tan[index], det.pixel_pitch_tan,
+                                          np.bincount(pixel - a, minlength=b - a)[pix_local])
             sun_rate[a:b] = pixel_solar_rates(config, atm.extinction_per_m, tracer, scene.materials, mat_hit, origin,
                                               rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T), prim,
-                                              range_m, index, pix_local, x_tan, y_tan, pixel - a, b - a,
-                                              det.pixel_pitch_tan)
+                                              range_m, index, pix_local, omega, b - a)
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
             spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta, prim, tracer.unit_normal, rot,
                                                       max_spread_s)

@@ -101,7 +101,7 @@ def test_only_the_face_the_sensor_sees_counts():
     from the sun gets nothing."""
     cfg = sunny_config(100.0, 30.0)
     args = dict(materials=[BRDFSettings(reflectance=0.3)], material_ids=np.zeros(1, np.int64), range_m=[100.0],
-                lit=[True], x_tan=[0.0], y_tan=[0.0], pixel_pitch_tan=(1.0, 1.0), rays_in_pixel=[1])
+                lit=[True], omega=1.0)
     want = radiance_to_rate(cfg) * 0.3 / math.pi * 0.5
     for n in ([[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]]):
         got = subray_solar_rates(cfg, 0.0, normal=n, to_surface=[[0.0, 0.0, -1.0]], **args)
@@ -161,3 +161,29 @@ def test_bad_solar_settings_name_the_field():
     cfg = sunny_config(100.0, 30.0, irradiance=-1.0)
     with pytest.raises(ConfigError, match="solar_irradiance_w_m2_nm"):
         validate_config(cfg)
+
+
+@pytest.mark.parametrize("divergence_y_rad", [0.0, 3e-3])
+def test_scanner_pulse_gets_the_closed_form_rate_over_its_beam_cone(divergence_y_rad):
+    """Scanner: the receiver sees the beam's 1/e² cone, Ω = π θ_x θ_y/4 (θ_x 1 mrad; circular, and elliptical
+    with θ_y 3 mrad), shared equally by the pulse's sub-rays.  A Lambertian wall filling it, sun at 30°: every
+    pulse gets ρ/π E Δλ sin 30° A_r Ω τ/(hν), the Lambertian radiance being the same on every sub-ray — to
+    rounding (1e-12 relative)."""
+    from core.config.settings import SimulationConfig
+    from core.run import simulate
+
+    cfg = SimulationConfig(system_type="scanner")
+    cfg.scanner.pattern, cfg.scanner.n_lines, cfg.scanner.pulse_rate_hz = "raster", 2, 4000.0
+    cfg.scanner.scan_width_rad = cfg.scanner.scan_height_rad = 0.05
+    cfg.laser.beam_divergence_rad, cfg.laser.beam_divergence_y_rad = 1e-3, divergence_y_rad
+    cfg.gate.n_bins, cfg.gate.gate_start_s, cfg.run.threads = 512, 2 * 30.0 / 299_792_458.0, 1
+    cfg.detector.mode, cfg.detector.background_rate_photons_per_s = "noisy", 0.0
+    cfg.atmosphere.solar_irradiance_w_m2_nm, cfg.atmosphere.sun_elevation_rad = 1.0, math.radians(30.0)
+    res = simulate(plate(40.0, 10.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4), cfg)
+    bg = res.stats["receiver"]["pixel_background"]
+    rx = cfg.receiver
+    omega = math.pi * 1e-3 * (divergence_y_rad or 1e-3) / 4
+    want = (0.3 / math.pi * 1.0 * rx.filter_bandwidth_m * 1e9 * 0.5 * math.pi * (rx.aperture_diameter_m / 2) ** 2
+            * omega * rx.system_efficiency * cfg.laser.wavelength_m / (H_PLANCK * C_LIGHT))
+    assert bg["max_rate_photons_per_s"] == pytest.approx(want, rel=1e-12)
+    assert bg["mean_rate_photons_per_s"] == pytest.approx(want, rel=1e-12)
