@@ -344,8 +344,8 @@ class AtmosphereSettings:
                                               doc="Solar spectral irradiance at the laser wavelength on a surface "
                                                   "facing the sun (direct beam): sunlight reflected by the scene "
                                                   "into each pixel adds to the detector's background rate "
-                                                  "(docs/theory.md §8; flash, profiler and scanner with the "
-                                                  "noisy receiver; gated viewing does not use it yet); "
+                                                  "(docs/theory.md §8; every system, with the noisy "
+                                                  "receiver); "
                                                   "0 = no sun (only detector.background_rate_photons_per_s)",
                                               label="Solar Spectral Irradiance")
     sun_elevation_rad: float = setting(0.7853981633974483, lo=-1.5707963267948966, hi=1.5707963267948966,
