@@ -41,7 +41,7 @@ from ..physics.laser import pulse_half_support_s
 from ..physics.propagation import (effective_extinction_per_m, footprint_variance_factor, return_scintillation_variance,
                                    turbulence_model_settings)
 from ..physics.radiometry import received_energy
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, background_summary
 from ..physics.solar import beam_solid_angle, pixel_solar_rates, solar_enabled
 from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
 from .returns import encode_intensity, intensity_unit, peak_per_joule, quantize_range, select_returns
@@ -375,6 +375,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     ch_scale = channel_energy_scale(config.scanner)  # None: every pulse at laser.pulse_energy_j
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
     solar = noisy and solar_enabled(config)
+    if solar:  # each pulse's background from the sunlit scene (photons/s before η), in pulses.npz
+        pulses["solar_background_photons_per_s"] = np.zeros(n_pulses)
 
     def process(block):
         a, b = block
@@ -400,6 +402,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             sun_rate = pixel_solar_rates(config, atm.extinction_per_m, tracer, scene.materials,
                                          scene.material_ids[prim[hit]], np.repeat(origin, m, axis=0), d_world, prim,
                                          range_m, hit, hit // m, beam_solid_angle(laser) / m, n)
+            pulses["solar_background_photons_per_s"][a:b] = sun_rate
         del d_world
         n_hit = int(np.count_nonzero(prim >= 0))
         p_hit, mat_hit = np.empty(n_hit, np.int64), np.empty(n_hit, scene.material_ids.dtype)
@@ -516,6 +519,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                                 if "atmosphere" in points else 0)
     if noisy:
         stats["receiver"] = dict(digitizer)
+        if solar:  # (the first tile's record replaced by the whole scan's)
+            stats["receiver"]["pixel_background"] = background_summary(pulses["solar_background_photons_per_s"])
         if "false_alarm" in points:
             n_fa = int(points["false_alarm"].sum())
             stats["receiver"]["false_alarms"] = {

@@ -193,9 +193,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     if pix_rate is not None:
         if det.enable_background:
             b_rows = background_photons(pix_rate.reshape(-1), tau) * det.quantum_efficiency
-        report["pixel_background"] = {"mean_rate_photons_per_s": float(pix_rate.mean()),
-                                      "max_rate_photons_per_s": float(pix_rate.max()),
-                                      "pixels_with_background": int(np.count_nonzero(pix_rate))}
+        report["pixel_background"] = background_summary(pix_rate)
     if det.enable_background and (det.background_rate_photons_per_s > 0 or b_rows is not None):
         b_mult += float(background_photons(det.background_rate_photons_per_s, tau)) * det.quantum_efficiency
         run.append("background")
@@ -349,6 +347,14 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     if table is not None:
         pmf = (table.code.astype(np.float64), np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS)
     return ChainOutput(out.reshape(H, W, B), report, pmf, pixel_noise)
+
+
+def background_summary(rate) -> dict:
+    """The report's record of a per-pixel (per-pulse) background: mean, largest, pixels with any."""
+    rate = np.asarray(rate, dtype=np.float64)
+    return {"mean_rate_photons_per_s": float(rate.mean()) if rate.size else 0.0,
+            "max_rate_photons_per_s": float(rate.max()) if rate.size else 0.0,
+            "pixels_with_background": int(np.count_nonzero(rate))}
 
 
 def _pixel_rate(settings: ChainSettings, H, W):

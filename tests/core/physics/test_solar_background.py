@@ -187,6 +187,9 @@ def test_scanner_pulse_gets_the_closed_form_rate_over_its_beam_cone(divergence_y
             * omega * rx.system_efficiency * cfg.laser.wavelength_m / (H_PLANCK * C_LIGHT))
     assert bg["max_rate_photons_per_s"] == pytest.approx(want, rel=1e-12)
     assert bg["mean_rate_photons_per_s"] == pytest.approx(want, rel=1e-12)
+    per_pulse = res.pulses["solar_background_photons_per_s"]
+    assert len(per_pulse) == res.stats["n_pulses"] == bg["pixels_with_background"]
+    np.testing.assert_allclose(per_pulse, want, rtol=1e-12)
 
 
 def test_gated_viewing_sees_the_sunlit_plate_per_pixel():
