@@ -59,7 +59,7 @@ def radiance_to_rate(config) -> float:
 
 
 def tan_cell_solid_angles(x_tan, y_tan, pixel_pitch_tan, rays_in_pixel):
-    """ω (sr) of each sub-ray of a pixel sampled over its tan-space cell (flash, profiler):
+    """ω (sr) of each sub-ray of a pixel sampled over its tan-space cell (flash, profiler, gated viewing):
     p_x p_y / N / (1 + x² + y²)^(3/2), ``rays_in_pixel`` the number N of sub-rays of each ray's pixel."""
     x, y = np.asarray(x_tan, np.float64), np.asarray(y_tan, np.float64)
     return pixel_pitch_tan[0] * pixel_pitch_tan[1] / np.asarray(rays_in_pixel, np.float64) \
