@@ -76,8 +76,7 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
         primaries_per_j = float(photons_per_joule(config.laser.wavelength_m)) * det.quantum_efficiency
         fa, summary = classify_false_alarms(
             found, np.asarray(truth).reshape(h * w, n_bins), config.laser.pulse_fwhm_s / g.bin_width_s,
-            noise_sigma=noise_sigma if det.detector_type != "geiger" and np.ndim(noise_sigma) == 0 else None,
-            pulse=pulse,
+            noise_sigma=noise_sigma if det.detector_type != "geiger" else None, pulse=pulse,
             abs_level=FALSE_ALARM_ABS_PRIMARIES / primaries_per_j, threads=threads, extents=extents)
         echoes.false_alarm = fa[pix, slot]
         summary["threshold_mode"] = mode

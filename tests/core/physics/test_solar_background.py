@@ -57,8 +57,8 @@ def test_lit_lambertian_plate_gives_the_closed_form_rate(elevation_deg):
     """A plate filling the 0.01 rad field of view, normal towards the sensor (+Z) and the sun at elevation e
     (cos θ_s = sin e): every pixel gets ρ/π E Δλ sin e A_r Ω τ/(hν) (9.81e8 photons/s at 30°).  The closed form
     takes Ω on the axis; a pixel's sub-rays each carry (p²/N)/(1 + x² + y²)^(3/2), which differs from it by at
-    most 1.5 × (0.005² + 0.005²) = 7.5e-5 at the corners: tolerance 1e-4 relative (the Lambertian BRDF and
-    sin e enter exactly)."""
+    most 1.5 × (0.005² + 0.005²) = 7.5e-5 at the corners, and its tan-space cell (2 tan(0.005)/16)² is larger
+    than (0.01/16)² by 1.7e-5: tolerance 1e-4 relative (the Lambertian BRDF and sin e enter exactly)."""
     cfg = sunny_config(100.0, elevation_deg)
     res = simulate_frame(plate(100.0, 5.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4), cfg)
     bg = res.stats["receiver"]["pixel_background"]
@@ -229,3 +229,44 @@ def test_gated_viewing_sees_the_sunlit_plate_per_pixel():
                         [BRDFSettings(reflectance=0.3)], ["plate"])
     bg2 = simulate_gated(two, np.eye(4), cfg).stats["receiver"]["pixel_background"]
     assert bg2["pixels_with_background"] == 128 and bg2["max_rate_photons_per_s"] == pytest.approx(want, rel=1e-4)
+
+
+def _sunlit_pin_frame(sun, mode, threshold_counts=0.0):
+    """A PIN camera (3 e⁻ read noise, Δ = 4 e⁻, no dark current) whose 512 × 1 ns gate ends at 77 m, before the
+    plate's echo at 100 m: every detection is a false alarm.  Aperture 0.5 m and 0.1 rad over 16 pixels: the
+    sunlit plate (ρ 0.3, 1 W m⁻² nm⁻¹, 10 nm, 30°) sends each pixel about 9.8e12 photons/s, η·rate·1 ns ≈ 3920
+    primaries a bin, σ ≈ √3920 / 4 = 15.65 counts (0.80 without the sun: read noise and A/D step).
+    Returns (config, the receiver report)."""
+    cfg = config_for(100.0, pixels=16, fov_rad=0.1, bins=512, bin_s=1e-9)
+    cfg.gate.gate_start_s = 0.0
+    cfg.receiver.aperture_diameter_m = 0.5
+    d = cfg.detector
+    d.mode, d.detector_type, d.read_noise_e, d.adc_full_scale_e = "noisy", "pin", 3.0, 4.0 * 4096
+    d.background_rate_photons_per_s = d.dark_current_bulk_a = d.dark_current_surface_a = 0.0
+    det = cfg.detection
+    det.noisy_threshold_mode, det.k_sigma, det.threshold_counts, det.max_echoes = mode, 3.0, threshold_counts, 32
+    cfg.atmosphere.solar_irradiance_w_m2_nm = 1.0 if sun else 0.0
+    cfg.atmosphere.sun_elevation_rad = math.radians(30.0)
+    return cfg, simulate_frame(plate(100.0, 20.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4),
+                               cfg).stats["receiver"]
+
+
+def test_false_alarms_follow_each_pixels_sunlit_noise():
+    """The detection sees each pixel's background.  Calibrated threshold (3 σ of the filtered noise, σ per
+    pixel): the false alarms of 256 pixels × 512 bins match the Gaussian expectation for each pixel's σ.
+    Fixed threshold (30 counts): none without the sun (expectation ~1e-295), with it the number the larger σ
+    gives.  Tolerance: 4 Poisson standard deviations √μ, plus 5 % for the Gaussian form of the expectation (the
+    Poisson(3920) primaries have skewness 0.016 per bin, less after the matched filter; at 3 σ the tail moves by
+    about skewness × (t³ − 3t)/6 ≈ 5e-3 relative)."""
+    cfg, r = _sunlit_pin_frame(True, "calibrated")
+    # each pixel's σ: the on-axis rate (Ω of the tan-space cell, (2 tan 0.05 / 16)²) times the off-axis factor
+    # (1 + x² + y²)^(−3/2) ≥ 1 − 1.5 × 2 × 0.05² = 0.9925 at the corners (σ: half that)
+    phi = closed_form_rate(cfg, 0.3, 0.5) * (2 * math.tan(0.05) / 0.1) ** 2
+    sigma_axis = math.sqrt(0.4 * phi * 1e-9 + 9.0 + 16.0 / 12.0) / 4.0
+    sig = r["false_alarms"]["noise_sigma"]
+    assert sigma_axis * (1 - 3.75e-3) <= sig["min"] < sig["max"] <= sigma_axis * (1 + 1e-12), (sig, sigma_axis)
+    for rec in (r, _sunlit_pin_frame(True, "fixed", 30.0)[1]):
+        n, mu = rec["false_alarms"]["n_false_alarms"], rec["false_alarms"]["expected_false_alarms_gaussian"]
+        assert mu > 1.0 and abs(n - mu) <= 4 * math.sqrt(mu) + 0.05 * mu, (n, mu)
+    dark = _sunlit_pin_frame(False, "fixed", 30.0)[1]["false_alarms"]
+    assert dark["n_false_alarms"] == 0 and dark["expected_false_alarms_gaussian"] < 1e-6
