@@ -78,11 +78,9 @@ def subray_solar_rates(config, extinction_per_m, materials, material_ids, normal
     """Φ (photons/s) per sub-ray hit (module docstring).  ``normal`` (n, 3) unit normals of the hit triangles
     (either side), ``to_surface`` (n, 3) unit directions sensor → hit, ``range_m`` (n,), ``lit`` (n,) bool (the
     shadow ray found nothing), ``omega`` (n,) or one number: each sub-ray's solid angle (sr)."""
-    normal = np.asarray(normal, np.float64)
     v = -np.asarray(to_surface, np.float64)  # towards the sensor
     s = sun_direction(config.atmosphere)
-    side = np.where(np.einsum("ij,ij->i", normal, v) >= 0.0, 1.0, -1.0)
-    n_f = normal * side[:, None]  # the normal on the side the sensor sees
+    n_f = seen_normal(normal, to_surface)
     cos_s = n_f @ s
     h = v + s
     h /= np.maximum(np.linalg.norm(h, axis=1), 1e-300)[:, None]
@@ -93,17 +91,29 @@ def subray_solar_rates(config, extinction_per_m, materials, material_ids, normal
     return np.where(np.asarray(lit, bool) & (cos_s > 0.0), rate, 0.0)
 
 
-def lit_by_sun(tracer, points, normal, to_surface, sun):
-    """(n,) bool: the hits ``points`` (world) see the sun — a shadow ray from just off the surface (on the side the
-    sensor sees, ``to_surface`` the sensor → hit directions) towards ``sun`` meets no triangle of ``tracer``."""
-    if len(points) == 0:
-        return np.zeros(0, bool)
+def seen_normal(normal, to_surface):
+    """(n, 3) the unit normals ``normal`` turned to the side the sensor sees (``to_surface``: sensor → hit)."""
     normal = np.asarray(normal, np.float64)
     side = np.where(np.einsum("ij,ij->i", normal, -np.asarray(to_surface, np.float64)) >= 0.0, 1.0, -1.0)
-    off = SHADOW_OFFSET_M + SHADOW_OFFSET_REL * np.linalg.norm(points - tracer.reference_m, axis=1)
-    start = points + normal * (side * off)[:, None]
-    prim, _, _ = tracer.intersect(start, np.broadcast_to(sun, start.shape))
-    return prim < 0
+    return normal * side[:, None]
+
+
+def lit_by_sun(tracer, points, normal, to_surface, sun):
+    """(n,) bool: the hits ``points`` (world) see the sun — they face it on the side the sensor sees
+    (``to_surface`` the sensor → hit directions) and a shadow ray from just off the surface towards ``sun`` meets
+    no triangle of ``tracer`` (traced for the facing hits only)."""
+    lit = np.zeros(len(points), bool)
+    if len(points) == 0:
+        return lit
+    n_f = seen_normal(normal, to_surface)
+    facing = np.flatnonzero(n_f @ sun > 0.0)
+    if len(facing):
+        p = np.asarray(points, np.float64)[facing]
+        off = SHADOW_OFFSET_M + SHADOW_OFFSET_REL * np.linalg.norm(p - tracer.reference_m, axis=1)
+        start = p + n_f[facing] * off[:, None]
+        prim, _, _ = tracer.intersect(start, np.broadcast_to(sun, start.shape))
+        lit[facing] = prim < 0
+    return lit
 
 
 def pixel_solar_rates(config, extinction_per_m, tracer, materials, material_ids, origin, directions, prim,
