@@ -54,8 +54,10 @@ def test_settings_reference_is_generated_from_the_schema():
     # tx_rx_offset_m, backscatter_min_range_m, drop_min_diameter_mm; + 1 of issue 28: detection.signal_free_bins
     # (noisy_threshold_mode existed; its new choice "calibrated" is its default); + 2 of session 27:
     # atmosphere.drop_cut_photoelectrons (issue 30) and scanner.cone_half_angle_y_rad (issue 29: the elliptic
-    # Palmer cone); + 2 of session 28 (issue 30): atmosphere.tx_rx_offset_angle_deg, aerosol_layers
-    assert len(names) == 122 + len(dataclasses.fields(BRDFSettings))
+    # Palmer cone); + 2 of session 28 (issue 30): atmosphere.tx_rx_offset_angle_deg, aerosol_layers; + 4 of issue 29
+    # (sunlight reflected by the scene): atmosphere.solar_irradiance_w_m2_nm, sun_elevation_rad, sun_azimuth_rad,
+    # receiver.filter_bandwidth_m
+    assert len(names) == 126 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 

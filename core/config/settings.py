@@ -162,6 +162,11 @@ class ReceiverSettings:
     system_efficiency: float = setting(0.5, lo=0.0, hi=1.0, lo_open=True, subtype="FACTOR",
                                        doc="Transmit × receive optical efficiency η_sys of eq. 3-1",
                                        label="Optical Efficiency")
+    filter_bandwidth_m: float = setting(1e-8, lo=1e-12, hi=1e-6, unit="m", subtype="WAVELENGTH",
+                                        doc="Full width of the receiver's optical band-pass filter: the band of "
+                                            "sunlight (atmosphere.solar_irradiance_w_m2_nm) that reaches the "
+                                            "detector",
+                                        label="Filter Bandwidth", panel_unit="nm")
 
 
 @dataclass
@@ -352,6 +357,23 @@ class AtmosphereSettings:
                "extinction α and the backscatter β (without the 4th column α/lidar_ratio_sr) add to the "
                "homogeneous ones; every ray's two-way transmission is exp(−2∫α dR) (surfaces, drops and the "
                "volume backscatter), the backscatter needs weather ≠ none (docs/theory.md §14); empty: homogeneous"})
+    solar_irradiance_w_m2_nm: float = setting(0.0, lo=0.0, hi=10.0, unit="W/(m^2 nm)",
+                                              doc="Solar spectral irradiance at the laser wavelength on a surface "
+                                                  "facing the sun (direct beam): sunlight reflected by the scene "
+                                                  "into each pixel adds to the detector's background rate "
+                                                  "(docs/theory.md §8; every system, with the noisy "
+                                                  "receiver); "
+                                                  "0 = no sun (only detector.background_rate_photons_per_s)",
+                                              label="Solar Spectral Irradiance")
+    sun_elevation_rad: float = setting(0.7853981633974483, lo=-1.5707963267948966, hi=1.5707963267948966,
+                                       unit="rad", subtype="ANGLE",
+                                       doc="Sun elevation above the world XY plane (world +Z up); ≤ 0: the sun is "
+                                           "down and lights nothing",
+                                       label="Sun Elevation")
+    sun_azimuth_rad: float = setting(0.0, lo=-6.283185307179586, hi=6.283185307179586, unit="rad",
+                                     subtype="ANGLE",
+                                     doc="Sun azimuth in the world XY plane, from +X towards +Y",
+                                     label="Sun Azimuth")
 
 
 @dataclass

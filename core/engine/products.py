@@ -27,13 +27,17 @@ from .result import FrameResult
 def threshold_model(config: SimulationConfig, noise_sigma=None, noise_mean=None):
     """(threshold mode that runs, the known noise values it is given): ``calibrated`` takes the chain report's
     exact signal-free σ and mean (per bin, white: the bins are independent) and needs both; without them (Geiger
-    histograms have no linear noise model) it falls back to ``adaptive``."""
+    histograms have no linear noise model) it falls back to ``adaptive``.  Per-pixel values (arrays: the chain's
+    ``pixel_noise`` with sunlight reflected by the scene) give each pixel its own threshold."""
     mode = config.detection.noisy_threshold_mode
     if mode != "calibrated":
         return mode, {}
-    if noise_sigma is None or noise_mean is None or not noise_sigma > 0 \
+    if noise_sigma is None or noise_mean is None or not np.all(np.asarray(noise_sigma) > 0) \
             or config.detector.detector_type == "geiger":
         return "adaptive", {}
+    if np.ndim(noise_sigma) or np.ndim(noise_mean):
+        return "calibrated", {"noise_sigma": np.asarray(noise_sigma, np.float64).reshape(-1),
+                              "baseline": np.asarray(noise_mean, np.float64).reshape(-1)}
     return "calibrated", {"noise_sigma": float(noise_sigma), "baseline": float(noise_mean)}
 
 

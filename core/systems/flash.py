@@ -37,6 +37,7 @@ from ..physics.laser import beam_half_angle_tan, cell_energy_fractions
 from ..physics.propagation import path_extinction
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from ..physics.waveform import accumulate_waveform_windows, binning_method, round_trip_time_s
 
@@ -97,7 +98,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     log = StageLog.of(STAGES, run_plan["stages_run"], run_plan["stages_skipped"])
     # the memory and work plan refuses, naming the setting to change, what would not fit or not end
     fr = open_frame(scene, world_from_sensor, config, log, tracer=tracer,
-                    frustum_tan=(det.half_width_tan, det.half_height_tan), fov_culling=fov_culling)
+                    frustum_tan=(det.half_width_tan, det.half_height_tan),
+                    fov_culling=fov_culling and not (solar_enabled(config) and config.detector.mode == "noisy"))
     scene, tracer, origin, rot, memory = fr.scene, fr.tracer, fr.origin, fr.rot, fr.memory
     needs_reference = any(s not in log.skipped
                           for s in ("beam_broadening", "scintillation", "beam_wander", "turbulence_blur"))
@@ -143,6 +145,9 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     refined = []  # (refined pixels, rays) per block, adaptive pattern
     window = gate_window_s(config)
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
+    # sunlight reflected by the scene into each pixel (core/physics/solar.py; shadow rays need the whole scene:
+    # no field-of-view culling), photons/s before η
+    sun_rate = np.zeros(det.n_pixels) if noisy and solar_enabled(config) else None
 
     def trace_tan(x_tan, y_tan):
         return tracer.intersect(origin, rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T))
@@ -166,6 +171,12 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         x_tan, y_tan, pixel, sub_x, sub_y, fraction = smp.x_tan, smp.y_tan, smp.pixel, smp.sub_x, smp.sub_y, smp.weight
         t = stage_clock()
         index, pix_local, mat_hit, frac_hit = block_hits(prim, pixel, a, scene.material_ids, fraction)
+        if sun_rate is not None:
+            omega = tan_cell_solid_angles(x_tan[index], y_tan[index], det.pixel_pitch_tan,
+                                          np.bincount(pixel - a, minlength=b - a)[pix_local])
+            sun_rate[a:b] = pixel_solar_rates(config, atm.extinction_per_m, tracer, scene.materials, mat_hit, origin,
+                                              rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T), prim,
+                                              range_m, index, pix_local, omega, b - a)
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
             spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta, prim, tracer.unit_normal, rot,
                                                       max_spread_s)
@@ -231,7 +242,10 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             cube = waveforms.reshape(det.height_px, det.width_px, gate.n_bins)
             energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
     statistical, t_model = None, 0.0
-    if noisy:  # detection.signal_free_bins = "statistical": chain and detection on the signal stretches only
+    if noisy and sun_rate is not None:  # one noise level per pixel: every bin simulated
+        model = {"threshold": config.detection.noisy_threshold_mode, "signal_free_bins": "per_bin",
+                 "reason": "sunlight reflected by the scene: a background rate per pixel (per-bin route)"}
+    elif noisy:  # detection.signal_free_bins = "statistical": chain and detection on the signal stretches only
         t_model = stage_clock()
         statistical, model = statistical_noisy_echoes(
             waveforms.reshape(det.height_px, det.width_px, gate.n_bins), config,
@@ -242,17 +256,20 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             log.times["receiver_chain"] = t_model
     if noisy and statistical is None:
         with log.timed("receiver_chain"):
-            chain = apply_receiver_chain(waveforms.reshape(det.height_px, det.width_px, gate.n_bins),
-                                         ChainSettings.from_config(config),
+            cs = ChainSettings.from_config(config)
+            if sun_rate is not None:
+                cs.pixel_background_rate = sun_rate.reshape(det.height_px, det.width_px)
+            chain = apply_receiver_chain(waveforms.reshape(det.height_px, det.width_px, gate.n_bins), cs,
                                          stage_seed(config.run.seed, frame, "receiver"))
             digital, receiver_report = chain.data, chain.report
+            noise = chain.pixel_noise or receiver_report
         log.times["receiver_chain"] += t_model
         with log.timed("echoes"):
             fa_info = {}
             echo_parts = [noisy_echoes(digital, config, truth=waveforms, info=fa_info,
-                                       noise_sigma=receiver_report.get("noise_sigma"),
+                                       noise_sigma=noise.get("noise_sigma"),
                                        noise_floor=receiver_report.get("noise_sigma_floor", 0.0),
-                                       noise_mean=receiver_report.get("noise_mean"))]
+                                       noise_mean=noise.get("noise_mean"))]
             receiver_report["false_alarms"] = fa_info  # noise detections counted against the noise-free cube
             model["threshold"] = fa_info.get("threshold_mode", model["threshold"])
             receiver_report["detector_model"] = model  # which threshold and signal-free route ran, and why

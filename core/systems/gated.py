@@ -58,6 +58,7 @@ from ..physics.laser import FWHM_TO_SIGMA, beam_half_angle_tan, cell_energy_frac
 from ..physics.radiometry import received_energy
 from ..physics.sampling import SubraySampler, cell_returns
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.waveform import round_trip_time_s
 
 
@@ -100,21 +101,33 @@ def pulse_cdf_inverse(laser, q):
     return (q - 0.5) * laser.pulse_fwhm_s
 
 
-def detection_threshold(peak, config: SimulationConfig, noise_sigma: float | None = None):
+def detection_threshold(peak, config: SimulationConfig, noise_sigma=None):
     """The level a pixel's strongest slice must reach to give a range (the gated detection rule, docs/systems.md):
 
         max(gated.min_peak_fraction × the frame's strongest slice, gated.min_signal_j (ideal receiver),
             gated.k_sigma × σ (noisy receiver: σ the noise of a slice without signal, in its output units))
 
-    ``peak``: every pixel's strongest slice (the frame's maximum is taken over them)."""
+    ``peak``: every pixel's strongest slice (the frame's maximum is taken over them).  ``noise_sigma``: one σ, or
+    one per pixel (an array like ``peak``: sunlight reflected by the scene), which gives one level per pixel."""
     g = config.gated
     frame_peak = float(np.max(peak)) if np.size(peak) else 0.0
     level = g.min_peak_fraction * frame_peak
     if noise_sigma is None:
         level = max(level, g.min_signal_j)
+    elif np.ndim(noise_sigma):
+        level = np.maximum(level, g.k_sigma * np.asarray(noise_sigma, np.float64).reshape(-1))
     else:
         level = max(level, g.k_sigma * float(noise_sigma))
     return level
+
+
+def _level_record(threshold, noise_sigma) -> dict:
+    """The metadata's threshold and noise σ: the numbers, or (one per pixel) their smallest and largest."""
+    if not np.ndim(threshold) and not np.ndim(noise_sigma):
+        return {"threshold": threshold, "noise_sigma": noise_sigma}
+    t, s = np.asarray(threshold, np.float64), np.asarray(noise_sigma, np.float64)
+    return {"threshold": {"min": float(t.min()), "max": float(t.max())},
+            "noise_sigma": {"min": float(s.min()), "max": float(s.max())}}
 
 
 def range_from_slices(slices, delays_s, config: SimulationConfig, noise_sigma: float | None = None):
@@ -347,6 +360,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     support = pulse_half_support_s(laser) + 0.5 * g.shutter_edge_s
     window = gate_window_s(config)
     tally = OrderedTally(window)  # the hits against the slice sweep (engine/coverage.py), in block order
+    # sunlight reflected by the scene into each pixel (core/physics/solar.py), photons/s before η
+    sun_rate = np.zeros(det.n_pixels) if config.detector.mode == "noisy" and solar_enabled(config) else None
 
     def process(block):
         a, b = block
@@ -366,6 +381,13 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
         local["trace"] = stage_clock() - t
         t = stage_clock()
         hit = prim >= 0
+        if sun_rate is not None:
+            idx = np.flatnonzero(hit)
+            omega = tan_cell_solid_angles(x_tan[idx], y_tan[idx], det.pixel_pitch_tan,
+                                          np.bincount(pixel - a, minlength=b - a)[pixel[idx] - a])
+            sun_rate[a:b] = pixel_solar_rates(config, atm.extinction_per_m, tracer, scene.materials,
+                                              scene.material_ids[prim[idx]], origin, d_world, prim, range_m, idx,
+                                              pixel[idx] - a, omega, b - a)
         if samplers is not None and config.receiver.cell_range_spread:
             # a jittered ray stands for its cell: range and cos θ where the cell centre's ray meets the plane the
             # ray hit (as the flash system: a plane gives the grid's slices; only edges inside a cell differ)
@@ -465,20 +487,27 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     if atm.blur_r0_m is not None:
         with log.timed("turbulence_blur"):
             energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
-    receiver_report = None
+    receiver_report = pixel_noise = None
     data = cube
     if config.detector.mode == "noisy":
         with log.timed("receiver_chain"):
             chain = dataclasses.replace(ChainSettings.from_config(config), bin_width_s=g.gate_width_s)
+            if sun_rate is not None:
+                chain.pixel_background_rate = sun_rate.reshape(h, w)
             out = apply_receiver_chain(cube.astype(np.float32), chain,
                                        stage_seed(config.run.seed, frame, "receiver"))
             data, receiver_report = out.data, out.report
+            pixel_noise = out.pixel_noise
     else:
         log.skip("receiver_chain", "detector.mode = ideal: noise-free slice energies")
     t0 = stage_clock()
     stack = np.moveaxis(np.asarray(data, dtype=np.float32), 2, 0)  # (slices, H, W)
     noise_sigma = None
-    if receiver_report is not None and receiver_report.get("noise_sigma") is not None:
+    if receiver_report is not None and pixel_noise is not None and "noise_sigma" in pixel_noise:
+        # each pixel's own noise (sunlight reflected by the scene): its mean and σ
+        profile = stack - pixel_noise["noise_mean"].astype(np.float32)[None]
+        noise_sigma = pixel_noise["noise_sigma"]
+    elif receiver_report is not None and receiver_report.get("noise_sigma") is not None:
         # ranges from the signal above the mean output of a slice without signal (A/D pedestal, dark, background)
         profile = stack - np.float32(receiver_report["noise_mean"])
         noise_sigma = float(receiver_report["noise_sigma"])
@@ -506,8 +535,8 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "n_slices": n_sl,
              "slice_delays_s": delays, "ray_traces": 1, "threads": max(1, min(threads, len(blocks))),
              "range_method": g.range_method, "stage_times_s": log.times,
-             "detection": {"threshold": detection_threshold(peak_image, config, noise_sigma),
-                           "noise_sigma": noise_sigma, "pixels_detected": int(len(pix)),
+             "detection": {**_level_record(detection_threshold(peak_image, config, noise_sigma), noise_sigma),
+                           "pixels_detected": int(len(pix)),
                            "rule": "strongest slice ≥ max(min_peak_fraction × the frame's strongest slice, "
                                    + ("k_sigma × noise σ" if noise_sigma is not None else "min_signal_j") + ")"},
              "wall_time_s": time.perf_counter() - fr.t_wall, "received_energy_j": float(energy_image.sum()),

@@ -41,7 +41,8 @@ from ..physics.laser import pulse_half_support_s
 from ..physics.propagation import (footprint_variance_factor, path_extinction, return_scintillation_variance,
                                    turbulence_model_settings)
 from ..physics.radiometry import received_energy
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, background_summary
+from ..physics.solar import beam_solid_angle, pixel_solar_rates, solar_enabled
 from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
 from .returns import encode_intensity, intensity_unit, peak_per_joule, quantize_range, select_returns
 from ..config.tables import channel_energy_scale
@@ -373,6 +374,9 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     peak = peak_per_joule(config) if config.scanner.intensity_encoding != "amplitude" else None
     ch_scale = channel_energy_scale(config.scanner)  # None: every pulse at laser.pulse_energy_j
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
+    solar = noisy and solar_enabled(config)
+    if solar:  # each pulse's background from the sunlit scene (photons/s before η), in pulses.npz
+        pulses["solar_background_photons_per_s"] = np.zeros(n_pulses)
 
     def process(block):
         a, b = block
@@ -390,9 +394,16 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         local["rays"] = stage_clock() - t
         t = stage_clock()
         prim, range_m, cos_theta = tracer.intersect(origin, d_world)
-        del d_world
         local["trace"] = stage_clock() - t
         t = stage_clock()
+        sun_rate = None
+        if solar:  # sunlight the scene reflects into each pulse's receiver field of view (core/physics/solar.py)
+            hit = np.flatnonzero(prim >= 0)
+            sun_rate = pixel_solar_rates(config, atm.extinction_per_m, tracer, scene.materials,
+                                         scene.material_ids[prim[hit]], np.repeat(origin, m, axis=0), d_world, prim,
+                                         range_m, hit, hit // m, beam_solid_angle(laser) / m, n)
+            pulses["solar_background_photons_per_s"][a:b] = sun_rate
+        del d_world
         n_hit = int(np.count_nonzero(prim >= 0))
         p_hit, mat_hit = np.empty(n_hit, np.int64), np.empty(n_hit, scene.material_ids.dtype)
         cos_hit, range_hit, frac_hit = np.empty(n_hit), np.empty(n_hit), np.empty(n_hit)
@@ -442,12 +453,15 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                 parts = []
                 for ta in range(0, n, tile):
                     tb = min(ta + tile, n)
-                    chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], chain_settings,
+                    cs = chain_settings if sun_rate is None else \
+                        dataclasses.replace(chain_settings, pixel_background_rate=sun_rate[ta:tb][None])
+                    chain = apply_receiver_chain(wf[ta:tb].astype(np.float32)[None], cs,
                                                  stage_seed(config.run.seed, frame, "receiver", (a + ta) // tile))
+                    noise = chain.pixel_noise or chain.report
                     ech = noisy_echoes(chain.data, config, truth=wf[ta:tb], info={},
-                                        noise_sigma=chain.report.get("noise_sigma"),
+                                        noise_sigma=noise.get("noise_sigma"),
                                         noise_floor=chain.report.get("noise_sigma_floor", 0.0),
-                                        noise_mean=chain.report.get("noise_mean"))
+                                        noise_mean=noise.get("noise_mean"))
                     ech.pixel = ech.pixel + ta
                     parts.append(ech)
                     if dig is None:
@@ -505,6 +519,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                                 if "atmosphere" in points else 0)
     if noisy:
         stats["receiver"] = dict(digitizer)
+        if solar:  # (the first tile's record replaced by the whole scan's)
+            stats["receiver"]["pixel_background"] = background_summary(pulses["solar_background_photons_per_s"])
         if "false_alarm" in points:
             n_fa = int(points["false_alarm"].sum())
             stats["receiver"]["false_alarms"] = {

@@ -428,17 +428,20 @@ def _eligible_summary(el, pulse, threads=1):
 
 def _expected_from_counts(threshold, sigma_raw, summary, pulse=None, threads=1):
     """:func:`expected_false_alarms` from the per-pixel counts of :func:`_eligible_summary`: each position's
-    rate at each pixel's threshold, interpolated on the lattice of :class:`_RateLattice` (kept between calls)."""
+    rate at each pixel's threshold, interpolated on the lattice of :class:`_RateLattice` (kept between calls).
+    ``sigma_raw``: one σ, or one per pixel (an array)."""
     thr = np.asarray(threshold, dtype=np.float64).reshape(-1)
     B = summary["n_bins"]
     P = summary["n_eligible"].size
     out = np.zeros(P)
-    if B < 3 or not sigma_raw > 0:
+    sig = np.asarray(sigma_raw, dtype=np.float64)
+    if B < 3 or not np.all(sig > 0):
         return out
     finite = np.isfinite(thr) & (thr > 0)
     if not finite.any():
         return out
-    t = np.where(finite, thr / float(sigma_raw), 0.0)  # thresholds in units of the raw noise σ
+    sig = sig.reshape(-1) if sig.ndim else float(sig)
+    t = np.where(finite, thr / sig, 0.0)  # thresholds in units of the raw noise σ
     lattice = _rate_lattice(B, None if pulse is None else np.asarray(pulse, np.float64).tobytes())
     node = np.floor(t[finite] * _LATTICE_DIVISIONS).astype(np.int64)
     lo, g = lattice.values(np.unique(node), threads)
@@ -566,7 +569,8 @@ def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_
                           abs_level=0.0, rel_level=FALSE_ALARM_REL_LEVEL, guard_fwhm=FALSE_ALARM_GUARD_FWHM,
                           threads=1, extents=None):
     """False alarms of a detection run against the noise-free waveforms ``truth`` (P, B), and their expected
-    number for Gaussian noise of σ ``noise_sigma`` (raw-waveform units; None: no expectation).
+    number for Gaussian noise of σ ``noise_sigma`` (raw-waveform units, one number or one per pixel; None: no
+    expectation).
 
     A detection is a false alarm when no bin within ``guard_fwhm`` pulse widths of it holds signal above
     max(rel_level × the pixel's peak, abs_level) (:func:`false_alarm_mask`).  Expectation: Σ over pixels and
@@ -611,7 +615,7 @@ def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_
 
     run_row_chunks(run, P, threads)
     counts = {"n_bins": B, "n_interior": n_int, "n_eligible": n_all, "at_edges": at_cols}
-    if noise_sigma is not None and noise_sigma > 0:
+    if noise_sigma is not None and np.all(np.asarray(noise_sigma) > 0):
         expected = _expected_from_counts(np.asarray(echoes.threshold).reshape(P), noise_sigma, counts, pulse,
                                          threads=threads)
     else:
@@ -620,7 +624,8 @@ def classify_false_alarms(echoes: NoisyEchoes, truth, pulse_fwhm_bins, *, noise_
     summary = gaussian_false_alarm_summary(int(fa.sum()), expected, int(n_el.sum()), n_el == B,
                                            fa.sum(axis=1))
     summary.update({"guard_bins": guard, "signal_level_relative": rel_level, "signal_level_absolute": abs_level,
-                    "noise_sigma": noise_sigma,
+                    "noise_sigma": noise_sigma if noise_sigma is None or not np.ndim(noise_sigma) else
+                    {"min": float(np.min(noise_sigma)), "max": float(np.max(noise_sigma))},
                     "expectation_model": "white Gaussian noise of the signal-free bins' sigma; local maxima of the "
                                          "detection waveform above each pixel's threshold (Rice, per bin); "
                                          "minimum separation and max_echoes ignored"})

@@ -68,6 +68,9 @@ class ChainSettings:
     ifov_y_rad: float = 0.02 / 64
     #: the run's threads (``run.threads``), used when ``detector.threads`` is 0; 0 here too: one per CPU
     run_threads: int = 0
+    #: (H, W) photons/s before η added to ``detector.background_rate_photons_per_s`` pixel by pixel (the sunlight
+    #: the scene reflects into each pixel, core/physics/solar.py); None: the detector's rate alone, as before.
+    pixel_background_rate: np.ndarray | None = None
 
     @classmethod
     def from_config(cls, cfg, detector: DetectorSettings | None = None) -> "ChainSettings":
@@ -91,6 +94,9 @@ class ChainOutput:
     #: (codes, probabilities) of a signal-free bin on the table route (the sampled law; None otherwise): the
     #: statistical detector model's noise law (core/physics/detection/stretches.py).  Not part of the report.
     noise_pmf: tuple | None = None
+    #: With ``ChainSettings.pixel_background_rate``: the per-pixel noise model, (H, W) arrays under the report's
+    #: names ``noise_mean``, ``noise_sigma`` (linear mode) and ``noise_sigma_floor``; None otherwise.
+    pixel_noise: dict | None = None
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -184,7 +190,13 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
 
     tau = settings.bin_width_s
     b_mult = 0.0
-    if det.enable_background and det.background_rate_photons_per_s > 0:
+    pix_rate = _pixel_rate(settings, H, W)
+    b_rows = None  # per-pixel background primaries per bin, added to b_mult
+    if pix_rate is not None:
+        if det.enable_background:
+            b_rows = background_photons(pix_rate.reshape(-1), tau) * det.quantum_efficiency
+        report["pixel_background"] = background_summary(pix_rate)
+    if det.enable_background and (det.background_rate_photons_per_s > 0 or b_rows is not None):
         b_mult += float(background_photons(det.background_rate_photons_per_s, tau)) * det.quantum_efficiency
         run.append("background")
     else:
@@ -203,10 +215,13 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     if geiger:
         for s in ("gain", "excess_noise", "read_noise", "adc"):
             skip.append(s)
-        hist = _geiger_chain(src, k_sig, spk, b_mult + ds, det, ss, report)
+        hist = _geiger_chain(src, k_sig, spk, b_mult + ds if b_rows is None else b_mult + ds + b_rows, det, ss,
+                             report)
         report["units"] = "detections"
         report["noise_sigma_floor"] = noise_sigma_floor(det, tau)
-        return ChainOutput(hist, report)
+        pixel_noise = None if pix_rate is None else \
+            {"noise_sigma_floor": noise_sigma_floor(det, tau, pix_rate)}
+        return ChainOutput(hist, report, pixel_noise=pixel_noise)
 
     gain = 1.0 if det.detector_type == "pin" else det.apd_gain
     F = 1.0
@@ -229,7 +244,9 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     # (noise_code_pmf, CodeTable) and draw those bins with one 32-bit uniform each.  Needs the A/D (discrete
     # output) and a Gaussian read noise of at least 0.002 Δ; otherwise the per-bin route below.
     table = None
-    if noise_table and use_adc and sigma_r >= TABLE_MIN_SIGMA_STEPS * step:
+    if b_rows is not None:  # one code distribution per background level: the per-bin route
+        report["noise_table_refused"] = "per-pixel background (sunlight reflected by the scene)"
+    elif noise_table and use_adc and sigma_r >= TABLE_MIN_SIGMA_STEPS * step:
         table, refused = noise_tables(step, b_mult, gain, F, shot, ds, sigma_r, det.adc_offset_counts,
                                        int(det.adc_bits), np.dtype(out_dtype).str)
         if refused:  # too many codes: per-bin route
@@ -278,6 +295,14 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         report["noise_cumulants"] = _noise_cumulants(report["noise_mean"], b_mult, ds, shot, gain, F, sigma_r,
                                                      step if use_adc else 0.0)
     report["noise_sigma_floor"] = noise_sigma_floor(det, tau)
+    pixel_noise = None
+    if pix_rate is not None:  # the same moments pixel by pixel
+        m_p, var_p, _ = bin_moments(det, 0.0, tau, pix_rate)
+        m_p, sd_p = np.broadcast_to(m_p, (H, W)), np.broadcast_to(np.sqrt(var_p), (H, W))
+        if use_adc:
+            m_p, sd_p = m_p / step + det.adc_offset_counts, sd_p / step
+        pixel_noise = {"noise_mean": np.array(m_p, dtype=np.float64), "noise_sigma": np.array(sd_p, np.float64),
+                       "noise_sigma_floor": np.broadcast_to(noise_sigma_floor(det, tau, pix_rate), (H, W)).copy()}
 
     src2 = np.ascontiguousarray(src, dtype=np.float32).reshape(H * W, B)
     rows = max(1, (_BLOCK_SAMPLES if table is None else TABLE_BLOCK_SAMPLES) // max(B, 1))
@@ -297,7 +322,7 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         ws = _scratch_of_thread()
         if table is None:
             return _process_block(src2[r0:r1], out[r0:r1], _child(ss, 0, i), None if spk is None else spk[r0:r1],
-                                  params, ws)
+                                  params, ws, None if b_rows is None else b_rows[r0:r1])
         st = process_block_table(src2[r0:r1], out[r0:r1], lambda: _child(ss, 0, i), keys[i], pkeys[i],
                                   None if spk is None else spk[r0:r1], params, ws, table)
         if "tail" in st:  # (bin indices in the block → in the cube)
@@ -323,7 +348,28 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
     pmf = None
     if table is not None:
         pmf = (table.code.astype(np.float64), np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS)
-    return ChainOutput(out.reshape(H, W, B), report, pmf)
+    return ChainOutput(out.reshape(H, W, B), report, pmf, pixel_noise)
+
+
+def background_summary(rate) -> dict:
+    """The report's record of a per-pixel (per-pulse) background: mean, largest, pixels with any."""
+    rate = np.asarray(rate, dtype=np.float64)
+    return {"mean_rate_photons_per_s": float(rate.mean()) if rate.size else 0.0,
+            "max_rate_photons_per_s": float(rate.max()) if rate.size else 0.0,
+            "pixels_with_background": int(np.count_nonzero(rate))}
+
+
+def _pixel_rate(settings: ChainSettings, H, W):
+    """``settings.pixel_background_rate`` checked ((H, W), finite, ≥ 0) as float64, or None."""
+    rate = settings.pixel_background_rate
+    if rate is None:
+        return None
+    rate = np.asarray(rate, dtype=np.float64)
+    if rate.shape != (H, W):
+        raise ValueError(f"pixel_background_rate must be (H, W) = ({H}, {W}), got shape {rate.shape}")
+    if not np.all(np.isfinite(rate)) or (rate.size and rate.min() < 0):
+        raise ValueError("pixel_background_rate must be finite and ≥ 0 photons/s")
+    return rate
 
 
 def _noise_cumulants(mean, b_mult, ds, shot, gain, F, sigma_r, step):
@@ -397,9 +443,10 @@ def _tail_stats(stats, deferred, p, ss, out, threads):
     return map_list(part, range(_TAIL_PARTS), threads)
 
 
-def _process_block(E, out, rng, spk, p, ws) -> dict:
+def _process_block(E, out, rng, spk, p, ws, b_rows=None) -> dict:
     """One block of pixels (P, B): exact sampling of the §8 statistics, written into ``out``.
-    ``ws``: per-thread scratch buffers (reused across blocks: fresh large allocations are slow)."""
+    ``ws``: per-thread scratch buffers (reused across blocks: fresh large allocations are slow).
+    ``b_rows``: (P,) background primaries per bin of each pixel, added to ``p["b_mult"]`` (None: none)."""
     P, B = E.shape
     N = P * B
     stats = {"n_mean_clipped": 0, "n_adc_low": 0, "n_adc_high": 0, "normal_bins": 0}
@@ -434,11 +481,15 @@ def _process_block(E, out, rng, spk, p, ws) -> dict:
                 nf[nz] += poisson_sparse_counts(sf[nz], rng)
             elif nnz:
                 np.add(nf, poisson_sparse_counts(sf, rng), out=nf, casting="unsafe")
-        if p["b_mult"] > 0:
+        if b_rows is not None:
+            poisson_uniform_rows(p["b_mult"] + b_rows, P, B, rng, out=n)
+        elif p["b_mult"] > 0:
             poisson_uniform_rows(p["b_mult"], P, B, rng, out=n)
     else:
         n = s
-        if p["b_mult"] > 0:
+        if b_rows is not None:
+            n += (p["b_mult"] + b_rows).astype(np.float32)[:, None]
+        elif p["b_mult"] > 0:
             n += np.float32(p["b_mult"])
     y = gamma_gain(n, p["gain"], p["F"], rng, out=n)  # in place
     mu = 0.0

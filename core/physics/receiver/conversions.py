@@ -71,7 +71,16 @@ def snr_linear(energy_j, wavelength_m, quantum_efficiency, gain, k_eff, dark_cur
     return gain * n_s / np.sqrt(var)
 
 
-def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s):
+def background_rate(det: DetectorSettings, pixel_rate=None):
+    """Background photon rate per pixel at the detector, before η (photons/s): the detector's fixed
+    ``background_rate_photons_per_s`` plus ``pixel_rate`` (an array, one value per pixel: the sunlight the scene
+    reflects into each pixel, core/physics/solar.py) when given; a number without it."""
+    if pixel_rate is None:
+        return det.background_rate_photons_per_s
+    return det.background_rate_photons_per_s + np.asarray(pixel_rate, dtype=np.float64)
+
+
+def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s, pixel_rate=None):
     """Mean and variance [electrons] of one bin at the A/D output for ``n_signal_e`` mean signal photo-electrons
     (after η) with the switches exactly as :func:`apply_receiver_chain` uses them (PIN/APD, linear mode):
 
@@ -81,14 +90,17 @@ def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s):
     G = 1 for PIN; F = McIntyre F for an APD with excess noise on, else 1; N_b = η · background rate · Δt and
     N_db, N_ds = I Δt/q only when switched on; M the speckle degrees of freedom (term absent when 0); σ the read
     noise when on; Δ the A/D step when the A/D is on (docs/theory.md §7, §8).  The A/D offset is not included.
+    ``pixel_rate``: the per-pixel background added to the detector's (:func:`background_rate`): N_b, the mean
+    and the variance are then arrays, one value per pixel.
     Returns ``(mean, var, parts)`` with ``parts`` the terms used (gain, F, N_b, N_db, N_ds, σ, Δ, M)."""
     if det.detector_type == "geiger":
         raise ValueError("bin_moments: Geiger mode counts detections, not electrons")
     gain = det.apd_gain if det.detector_type == "apd" else 1.0
     F = float(mcintyre_excess_noise(gain, det.apd_k_eff)) if (det.detector_type == "apd"
                                                                and det.enable_excess_noise) else 1.0
-    n_b = (float(background_photons(det.background_rate_photons_per_s, bin_width_s)) * det.quantum_efficiency
+    n_b = (background_photons(background_rate(det, pixel_rate), bin_width_s) * det.quantum_efficiency
            if det.enable_background else 0.0)
+    n_b = float(n_b) if np.ndim(n_b) == 0 else n_b
     n_db = float(current_to_electrons(det.dark_current_bulk_a, bin_width_s)) if det.enable_dark_current else 0.0
     n_ds = float(current_to_electrons(det.dark_current_surface_a, bin_width_s)) if det.enable_dark_current else 0.0
     sigma_r = det.read_noise_e if det.enable_read_noise else 0.0
@@ -107,7 +119,7 @@ def bin_moments(det: DetectorSettings, n_signal_e, bin_width_s):
 
 
 
-def noise_sigma_floor(det: DetectorSettings, bin_width_s) -> float:
+def noise_sigma_floor(det: DetectorSettings, bin_width_s, pixel_rate=None):
     """The smallest noise σ echo detection may assume for a bin without signal, in output units (A/D counts,
     electrons without the A/D, detections in Geiger mode); never 0.
 
@@ -116,19 +128,22 @@ def noise_sigma_floor(det: DetectorSettings, bin_width_s) -> float:
     whose electronic noise is below one count has no usable MAD, and a zero σ would put the threshold at 0
     and every SNR at infinity).  Without the A/D and with every noise term off, the σ of one primary
     electron (G√F electrons), the signal's own granularity.  Geiger mode: integer detection counts over
-    ``geiger_pulses`` pulses, √(λ + 1/12) with λ the expected noise detections per bin."""
+    ``geiger_pulses`` pulses, √(λ + 1/12) with λ the expected noise detections per bin.
+    ``pixel_rate``: per-pixel background (:func:`bin_moments`): one floor per pixel (an array)."""
     if det.detector_type == "geiger":
         noise = 0.0
         if det.enable_background:
-            noise += float(background_photons(det.background_rate_photons_per_s, bin_width_s)) * \
+            noise = noise + background_photons(background_rate(det, pixel_rate), bin_width_s) * \
                 det.quantum_efficiency
         if det.enable_dark_current:
-            noise += float(current_to_electrons(det.dark_current_bulk_a + det.dark_current_surface_a,
-                                                bin_width_s))
-        lam = det.geiger_pulses * -math.expm1(-noise)
-        return math.sqrt(lam + 1.0 / 12.0)
-    _, var0, parts = bin_moments(det, 0.0, bin_width_s)
+            noise = noise + float(current_to_electrons(det.dark_current_bulk_a + det.dark_current_surface_a,
+                                                       bin_width_s))
+        lam = det.geiger_pulses * -np.expm1(-np.asarray(noise, dtype=np.float64))
+        floor = np.sqrt(lam + 1.0 / 12.0)
+        return float(floor) if floor.ndim == 0 else floor
+    _, var0, parts = bin_moments(det, 0.0, bin_width_s, pixel_rate)
     step = parts["adc_step_e"]
-    if var0 > 0:
-        return math.sqrt(float(var0)) / (step if step > 0 else 1.0)
-    return parts["gain"] * math.sqrt(parts["excess_noise"])
+    var0 = np.asarray(var0, dtype=np.float64)
+    floor = np.where(var0 > 0, np.sqrt(var0) / (step if step > 0 else 1.0),
+                     parts["gain"] * math.sqrt(parts["excess_noise"]))
+    return float(floor) if floor.ndim == 0 else floor
