@@ -10,7 +10,7 @@ and a sub-ray of a pixel that sees it over the solid angle ω brings the detecto
     Φ = L · A_r · ω · τ · exp(−α R) / (h ν)       photons per second
 
 (A_r = π D²/4 the receiver aperture, τ the optical efficiency η_sys, α the one-way extinction at the laser
-wavelength over the sensor–surface range R, hν = hc/λ).  The sun's own path through the atmosphere is part of
+wavelength over the sensor–surface range R — with aerosol layers exp(−τ(R)), their optical depth —, hν = hc/λ).  The sun's own path through the atmosphere is part of
 E_λ (the irradiance *at the scene*).  ω is the sub-ray's share of the pixel's solid angle: the pixel's
 tan-space cell p_x p_y over its N sub-rays at the sub-ray's own direction, p_x p_y / N / (1 + x² + y²)^(3/2).
 Rays that miss the scene (sky) add nothing: the sky's own radiance is not modelled.
@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from ..atmosphere.extinction import log_two_way_transmission
 from .brdf import evaluate_materials
 from .receiver.conversions import photons_per_joule
 
@@ -87,7 +88,8 @@ def subray_solar_rates(config, extinction_per_m, materials, material_ids, normal
     cos_h = np.clip(np.einsum("ij,ij->i", n_f, h), 0.0, 1.0)
     f_r = evaluate_materials(materials, np.asarray(material_ids), cos_h)
     rate = radiance_to_rate(config) * f_r * np.maximum(cos_s, 0.0) * np.asarray(omega, np.float64)
-    rate *= np.exp(-float(extinction_per_m) * np.asarray(range_m, np.float64))
+    # one way: exp(−τ(R)), τ = αR or, with aerosol layers, their optical depth (half the two-way log: exact)
+    rate *= np.exp(0.5 * log_two_way_transmission(extinction_per_m, np.asarray(range_m, np.float64)))
     return np.where(np.asarray(lit, bool) & (cos_s > 0.0), rate, 0.0)
 
 

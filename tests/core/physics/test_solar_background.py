@@ -79,6 +79,22 @@ def test_extinction_takes_its_one_way_share():
     assert abs(res.stats["receiver"]["pixel_background"]["mean_rate_photons_per_s"] / want - 1) < 1e-4
 
 
+def test_aerosol_layers_take_their_one_way_share():
+    """A layer of 0.01 /m from 40 to 60 m (atmosphere.aerosol_layers) before the plate at 100 m, on top of
+    α = 1e-3 /m: the rate × exp(−τ) = exp(−(0.1 + 0.2)) (within the 1e-4 of the solid-angle sampling); a layer
+    behind the plate changes nothing."""
+    cfg = sunny_config(100.0, 30.0)
+    cfg.atmosphere.extinction_per_m = 1e-3
+    cfg.atmosphere.aerosol_layers = [[40.0, 60.0, 0.01]]
+    res = simulate_frame(plate(100.0, 5.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4), cfg)
+    want = closed_form_rate(cfg, 0.3, 0.5) * math.exp(-0.3)
+    assert abs(res.stats["receiver"]["pixel_background"]["mean_rate_photons_per_s"] / want - 1) < 1e-4
+    cfg.atmosphere.aerosol_layers = [[150.0, 200.0, 0.01]]
+    res = simulate_frame(plate(100.0, 5.0, brdf=BRDFSettings(reflectance=0.3)), np.eye(4), cfg)
+    want = closed_form_rate(cfg, 0.3, 0.5) * math.exp(-0.1)
+    assert abs(res.stats["receiver"]["pixel_background"]["mean_rate_photons_per_s"] / want - 1) < 1e-4
+
+
 def test_shadowed_plate_and_sun_below_horizon_give_zero():
     """Sun at 30° towards +X; a 30 m plate 20 m above the target (towards the sensor) and 34.6 m = 20/tan 30° off
     towards +X (outside the 0.01 rad field of view) shades the whole target: zero rate.  Without it: the
