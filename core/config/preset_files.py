@@ -14,6 +14,9 @@ from pathlib import Path
 
 from ..errors import ConfigError, cut
 
+#: Settings groups that describe the scene, not the sensor: refused in a preset's settings (the conditions its
+#: figures are stated under go in ``[published.conditions.<group>]``, core.presets).
+ENVIRONMENT_GROUPS = ("atmosphere",)
 #: Folder of the shipped presets.
 SENSORS_DIR = Path(__file__).resolve().parents[1] / "presets" / "sensors"
 _NAME = re.compile(r"^[a-z0-9][a-z0-9_]*$")
@@ -54,6 +57,12 @@ def read_preset(name_or_path) -> tuple[Path, dict, dict]:
         raise ConfigError("preset file", str(path), f"valid TOML ({cut(str(exc), 200)})") from None
     if "preset" in data:
         raise ConfigError(f"preset {path.stem}: preset", data["preset"], "no preset key inside a preset file")
+    for group in ENVIRONMENT_GROUPS:
+        if group in data:
+            raise ConfigError(f"preset {path.stem}: {group}", data[group],
+                              f"no [{group}] in a sensor preset (it describes the scene: set it in the config or on "
+                              f"the scene; the conditions of the published figures go in "
+                              f"[published.conditions.{group}])")
     published = data.pop("published", {})
     return path, data, published
 

@@ -365,10 +365,10 @@ class AtmosphereSettings:
                                                   "receiver); "
                                                   "0 = no sun (only detector.background_rate_photons_per_s)",
                                               label="Solar Spectral Irradiance")
-    sun_elevation_rad: float = setting(0.7853981633974483, lo=-1.5707963267948966, hi=1.5707963267948966,
+    sun_elevation_rad: float = setting(0.7853982, lo=-1.5707963267948966, hi=1.5707963267948966,
                                        unit="rad", subtype="ANGLE",
                                        doc="Sun elevation above the world XY plane (world +Z up); ≤ 0: the sun is "
-                                           "down and lights nothing",
+                                           "down and lights nothing (default 45° to the 7 digits a panel keeps)",
                                        label="Sun Elevation")
     sun_azimuth_rad: float = setting(0.0, lo=-6.283185307179586, hi=6.283185307179586, unit="rad",
                                      subtype="ANGLE",

@@ -7,7 +7,11 @@ A preset file holds
   preset sets, validated like every other setting (:func:`core.config.files.config_from_dict`);
 * a ``[published]`` table: the maker's figures the preset is checked against (tests/core/test_sensor_presets.py,
   docs/sensors.md).  It is metadata, never a setting.  Keys (:data:`PUBLISHED_KEYS`): omit those that do not
-  apply.
+  apply.  ``[published.conditions.atmosphere]`` holds the scene the figures are stated under (e.g. "at 100 klx":
+  the sun): the checks apply it (:func:`preset_config`), applying the preset never does.
+
+A preset describes a sensor: the scene's groups (:data:`ENVIRONMENT_GROUPS`, the atmosphere) are refused in its
+settings, naming the file (the Blender add-on keeps them on the scene, not on the sensor camera).
 
 A config file selects a preset with a top-level ``preset = "velodyne_vlp16"`` (a name of :func:`list_presets`, or
 the path of the user's own preset file ending in ``.toml``): the preset's settings are applied first, then the
@@ -20,7 +24,8 @@ import math
 from pathlib import Path
 
 from ..config.files import config_from_dict
-from ..config.preset_files import SENSORS_DIR, list_presets, preset_path, read_preset, resolve_preset
+from ..config.preset_files import (ENVIRONMENT_GROUPS, SENSORS_DIR, list_presets, preset_path, read_preset,
+                                   resolve_preset)
 from ..errors import ConfigError
 
 #: Keys of a preset's ``[published]`` table: key → (types, meaning).  Angles in degrees, ranges in metres,
@@ -62,7 +67,11 @@ PUBLISHED_KEYS = {
                                        "states (the figure the detection threshold is derived from)"),
     "not_reproduced": (dict, "figures this model does not reproduce: key = the reason (that figure's check is "
                              "expected to fail, and the test asserts it does)"),
+    "conditions": (dict, "the scene the figures are stated under, as settings groups of the environment "
+                         "([published.conditions.atmosphere], e.g. the sun of a figure stated at 100 klx): applied "
+                         "by the checks, never when the preset is applied"),
 }
+
 
 #: Keys of ``[published]`` whose check can be declared not reproduced.
 CHECKED_KEYS = ("fov_h_deg", "fov_v_deg", "channels", "channel_elevations_deg", "points_per_s", "width_px",
@@ -110,6 +119,11 @@ def _check_published(published, where: str) -> dict:
                                or v <= 0 for v in pair)):
                     raise ConfigError(f"{where}published.precision_at_snr[{i}]", pair,
                                       "a row [snr, sigma_m] of two finite numbers > 0")
+        elif key == "conditions":
+            for group, values in value.items():
+                if group not in ENVIRONMENT_GROUPS or not isinstance(values, dict):
+                    raise ConfigError(f"{where}published.conditions.{group}", values,
+                                      "a table of settings of the scene's groups: " + ", ".join(ENVIRONMENT_GROUPS))
         elif key == "not_reproduced":
             for k, why in value.items():
                 if k not in CHECKED_KEYS or k not in published:
@@ -145,10 +159,15 @@ def load_preset(name_or_path) -> Preset:
     where = f"preset {path.stem}: "
     published = _check_published(published, where)
     try:
-        config_from_dict(data)
+        config_from_dict(_with_conditions(data, published))
     except ConfigError as exc:
         raise ConfigError(f"{where}{exc.field}", exc.value, exc.allowed) from None
     return Preset(path.stem, path, data, published)
+
+
+def _with_conditions(settings: dict, published: dict) -> dict:
+    """The preset's settings with the groups of ``[published.conditions]`` added."""
+    return {**settings, **{g: dict(v) for g, v in (published.get("conditions") or {}).items()}}
 
 
 def preset_settings(name_or_path) -> dict:
@@ -157,9 +176,12 @@ def preset_settings(name_or_path) -> dict:
 
 
 def preset_config(name_or_path, base=None):
-    """A validated SimulationConfig: ``base`` (default settings if None) with the preset's settings applied."""
-    return config_from_dict(preset_settings(name_or_path), base)
+    """The SimulationConfig a preset's figures are checked under, validated: ``base`` (default settings if None)
+    with the preset's settings and its ``[published.conditions]`` (the scene of the figures) applied.  Applying the
+    preset itself (:func:`preset_settings`, a config file's ``preset`` key, the Blender menu) sets no conditions."""
+    preset = load_preset(name_or_path)
+    return config_from_dict(_with_conditions(preset.settings, preset.published), base)
 
 
-__all__ = ["CHECKED_KEYS", "PUBLISHED_KEYS", "Preset", "SENSORS_DIR", "list_presets", "load_preset", "preset_config",
-           "preset_path", "preset_settings", "resolve_preset"]
+__all__ = ["CHECKED_KEYS", "ENVIRONMENT_GROUPS", "PUBLISHED_KEYS", "Preset", "SENSORS_DIR", "list_presets",
+           "load_preset", "preset_config", "preset_path", "preset_settings", "resolve_preset"]

@@ -17,6 +17,7 @@ SCALED = {
     "laser.beam_waist_radius_m": 0.02,
     "laser.beam_focus_range_m": 150.0,
     "receiver.aperture_diameter_m": 0.08,
+    "receiver.filter_bandwidth_m": 2e-8,
     "detector.dark_current_bulk_a": 3e-12,
     "detector.dark_current_surface_a": 2e-9,
     "run.max_memory_bytes": 512 * 2**20,

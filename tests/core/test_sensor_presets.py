@@ -208,6 +208,16 @@ def test_config_file_preset_is_applied_before_the_files_keys(tmp_path):
     assert "preset" not in dump_config_toml(cfg)
 
 
+def test_the_conditions_of_the_figures_are_the_checks_not_the_presets():
+    """Livox states its ranges at 100 klx: the checks run under that sun ([published.conditions.atmosphere]);
+    the preset applied by a user (a config file's preset key, the Blender menu: preset_settings) sets no sun."""
+    from core.presets import preset_settings
+
+    assert preset_config("livox_avia").atmosphere.solar_irradiance_w_m2_nm == 0.783
+    assert "atmosphere" not in preset_settings("livox_avia")
+    assert config_from_dict({"preset": "livox_avia"}).atmosphere.solar_irradiance_w_m2_nm == 0.0
+
+
 def test_user_preset_file_and_bad_values(tmp_path):
     good = tmp_path / "mine.toml"
     good.write_text('system_type = "scanner"\n[laser]\npulse_energy_j = 2e-6\n'
@@ -236,6 +246,10 @@ def test_user_preset_file_and_bad_values(tmp_path):
         ('[published]\nsecond_range_m = 100.0\nsecond_reflectivity = 0.2\nsecond_range_channel = 0.5\n',
          r"published.second_range_channel = 0.5"),
         ('[published]\nsecond_range_derives = "x"\n', r"published.second_range_m = None.*second_range_derives"),
+        # the scene is not the sensor: the conditions of the figures go in [published.conditions]
+        ('[atmosphere]\nsolar_irradiance_w_m2_nm = 0.8\n', r"preset bad: atmosphere = .*published\.conditions"),
+        ('[published.conditions.laser]\npulse_energy_j = 1e-6\n', r"published.conditions.laser = .*atmosphere"),
+        ('[published.conditions.atmosphere]\nsun_elevation_rad = 7.0\n', r"preset bad: atmosphere.sun_elevation_rad = 7"),
     ]:
         bad.write_text(text, encoding="utf-8")
         with pytest.raises(ConfigError, match=message):
