@@ -288,8 +288,12 @@ def test_too_many_drops_are_refused_naming_the_diameter_that_fits():
 
 def test_gated_slices_of_a_pixel_seeing_only_fog_match_the_equation():
     """Gated viewing in fog (V = 200 m, O = 1): a pixel with no surface collects in slice k
-    F_p E η π r_a² β ∫ e^(−2αR)/R² g(2R/c − d_k) dR (g the slice response); against adaptive quadrature within
-    1e-3 relative in every slice that holds more than 1 % of the largest."""
+    F_p E η π r_a² β ∫ e^(−2αR)/R² g(2R/c − d_k) dR (g the slice response); against adaptive quadrature: relative
+    L2 over the gate within the 1 % the issue asks (1.9e-3 measured), and within 1e-3 in every slice that holds
+    more than 1 % of the largest and sees no range nearer than 5 m.  Nearer, lumping each slab (Δ = FWHM/4 =
+    0.375 m) at its centroid errs by about Δ²/(4R²) (1.4e-3 at 5 m, 2.4e-3 measured in the slice at 1.5 m).
+    (Until session 28 this compared with np.allclose's default atol of 1e-8 against slices of 1e-13 J, which
+    could not fail.)"""
     from core.systems.gated import gate_response, simulate_gated
     from core.physics.laser import cell_energy_fractions
     from core.geometry.rays import Detector
@@ -317,8 +321,10 @@ def test_gated_slices_of_a_pixel_seeing_only_fog_match_the_equation():
                                    2.0, C2 * (d + g.gate_width_s + 1e-7), limit=400, epsrel=1e-10)[0]
                     for d in delays]) * scale * beta * f00
     sim = r.slices[:, 0, 0].astype(np.float64)
-    big = ref > 0.01 * ref.max()
-    assert np.allclose(sim[big], ref[big], rtol=1e-3)
+    assert np.linalg.norm(sim - ref) <= 1e-2 * np.linalg.norm(ref)
+    far = (ref > 0.01 * ref.max()) & (C2 * (delays - cfg.laser.pulse_fwhm_s) >= 5.0)
+    assert far.sum() >= 10
+    assert np.allclose(sim[far], ref[far], rtol=1e-3, atol=0.0), np.max(np.abs(sim[far] / ref[far] - 1))
 
 
 # ------------------------------------------------------------------------------------------------------------
