@@ -42,3 +42,35 @@ def sec8_chain(cube, rng, noise_table=True, **det):
     return apply_receiver_chain(cube, ChainSettings(DetectorSettings(**{"mode": "noisy", **SEC8, **det}),
                                                     wavelength_m=1.064e-6, bin_width_s=1e-9), rng,
                                 noise_table=noise_table)
+
+
+def gated_fog_pixel(**atmosphere):
+    """Gated viewing of a pixel that sees only the atmosphere (8×8 px over 0.01 rad, a 10 ns pulse, 30 slices of
+    20 ns every 10 ns from 0, O = 1, nothing returned below 2 m; a 5 cm plate at 40 m off that pixel), with the
+    fog ``atmosphere`` settings on top.  Returns (the run's result, the config, the slices' delays (s), the energy
+    scale F_p E η π r_a² of the corner pixel (the beam's share F_p of it times energy_scale), the homogeneous
+    extinction α₀ (1/m))."""
+    import dataclasses
+
+    from core.geometry.rays import Detector
+    from core.physics.laser import cell_energy_fractions
+    from core.physics.propagation import aerosol_extinction_per_m
+    from core.physics.radiometry import energy_scale
+    from core.systems.gated import simulate_gated
+
+    cfg = SimulationConfig(system_type="gated")
+    cfg.receiver.width_px = cfg.receiver.height_px = 8
+    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.01
+    cfg.laser.pulse_fwhm_s = 10e-9
+    g = cfg.gated
+    g.gate_width_s, g.delay_step_s, g.n_slices, g.first_delay_s = 20e-9, 10e-9, 30, 0.0
+    cfg.atmosphere = dataclasses.replace(cfg.atmosphere, weather="fog", overlap_model="none",
+                                         backscatter_min_range_m=2.0, **atmosphere)
+    cfg.run.threads = 1
+    r = simulate_gated(plate(40.0, 0.05), np.eye(4), cfg)
+    det = Detector.from_settings(cfg.receiver)
+    fx, fy = cell_energy_fractions(cfg.laser, det)
+    s = det.subsamples
+    scale = fx[:s].sum() * fy[:s].sum() * energy_scale(cfg.laser, cfg.receiver)
+    delays = g.first_delay_s + g.delay_step_s * np.arange(g.n_slices)
+    return r, cfg, delays, scale, aerosol_extinction_per_m(cfg)

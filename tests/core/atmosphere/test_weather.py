@@ -17,7 +17,7 @@ from core.errors import ConfigError
 from core.physics.laser import pulse_cdf
 from core.physics.weather_waveform import backscatter_template, slab_edges_m
 from core.systems.flash import plan, simulate_frame
-from scenes import C, config_for, plate
+from scenes import C, config_for, gated_fog_pixel, plate
 
 C2 = 0.5 * C
 
@@ -295,32 +295,14 @@ def test_gated_slices_of_a_pixel_seeing_only_fog_match_the_equation():
     0.375 m) at its centroid errs by about Δ²/(4R²) (1.4e-3 at 5 m, 2.4e-3 measured in the slice at 1.5 m).
     (Until session 28 this compared with np.allclose's default atol of 1e-8 against slices of 1e-13 J, which
     could not fail.)"""
-    from core.systems.gated import gate_response, simulate_gated
-    from core.physics.laser import cell_energy_fractions
-    from core.geometry.rays import Detector
-    from core.physics.propagation import aerosol_extinction_per_m
-    from core.physics.radiometry import energy_scale
-    cfg = SimulationConfig(system_type="gated")
-    cfg.receiver.width_px = cfg.receiver.height_px = 8
-    cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = 0.01
-    cfg.laser.pulse_fwhm_s = 10e-9
-    g = cfg.gated
-    g.gate_width_s, g.delay_step_s, g.n_slices, g.first_delay_s = 20e-9, 10e-9, 30, 0.0
-    cfg.atmosphere = dataclasses.replace(cfg.atmosphere, weather="fog", visibility_m=200.0, overlap_model="none",
-                                         backscatter_min_range_m=2.0)
-    cfg.run.threads = 1
-    r = simulate_gated(plate(40.0, 0.05), np.eye(4), cfg)
-    det = Detector.from_settings(cfg.receiver)
-    fx, fy = cell_energy_fractions(cfg.laser, det)
-    s = det.subsamples
-    f00 = fx[:s].sum() * fy[:s].sum()
-    alpha = aerosol_extinction_per_m(cfg)
-    beta, scale = alpha / 18.0, energy_scale(cfg.laser, cfg.receiver)
-    delays = g.first_delay_s + g.delay_step_s * np.arange(g.n_slices)
+    from core.systems.gated import gate_response
+
+    r, cfg, delays, scale, alpha = gated_fog_pixel(visibility_m=200.0)
+    g, beta = cfg.gated, alpha / 18.0
     ref = np.array([integrate.quad(lambda x: math.exp(-2 * alpha * x) / x ** 2
                                    * gate_response(cfg.laser, g.gate_width_s, g.shutter_edge_s, x / C2 - d),
                                    2.0, C2 * (d + g.gate_width_s + 1e-7), limit=400, epsrel=1e-10)[0]
-                    for d in delays]) * scale * beta * f00
+                    for d in delays]) * scale * beta
     sim = r.slices[:, 0, 0].astype(np.float64)
     assert np.linalg.norm(sim - ref) <= 1e-2 * np.linalg.norm(ref)
     far = (ref > 0.01 * ref.max()) & (C2 * (delays - cfg.laser.pulse_fwhm_s) >= 5.0)
