@@ -55,7 +55,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import exp1
 
-from ..constants import SPEED_OF_LIGHT_M_S
 from .extinction import two_way_transmission
 
 DB_PER_KM_TO_PER_M = math.log(10.0) / 10.0 / 1000.0
