@@ -219,13 +219,11 @@ def test_the_documented_layer_example_loads():
     assert table.tolist() == [[40.0, 60.0, 0.02, 0.02 / cfg.atmosphere.lidar_ratio_sr]]
 
 
-def test_gated_slices_of_a_pixel_seeing_only_a_fog_layer_match_the_equation():
-    """Gated viewing in haze with a fog layer 15–25 m (α_l = 0.02 /m, β_l = α_l/18 sr⁻¹, O = 1): a pixel with no
-    surface collects in slice k F_p E η π r_a² ∫ β(R) e^(−2τ(R))/R² g(2R/c − d_k) dR, β(R) = (α₀ + α_l 1[layer])/18
-    and τ(R) = α₀R + α_l clip(R − 15, 0, 10) (g the slice response); against adaptive quadrature split at the
-    layer's edges: relative L2 over the gate within the 1 % the issue asks (1.6e-3 measured; with a layer β 5 % off in
-    the reference: 2.9e-2).  The slice just past the layer's far edge is 1 % off on its own (1.5 % of the largest slice):
-    not investigated."""
+def _gated_fog_layer_slices():
+    """(simulated slices, reference slices) of a gated pixel seeing only haze with a fog layer 15–25 m (α_l = 0.02 /m,
+    β_l = α_l/18 sr⁻¹, O = 1): the reference is F_p E η π r_a² ∫ β(R) e^(−2τ(R))/R² g(2R/c − d_k) dR with
+    β(R) = (α₀ + α_l 1[layer])/18 and τ(R) = α₀R + α_l clip(R − 15, 0, 10) (g the slice response), by adaptive
+    quadrature split at the layer's edges."""
     from core.systems.gated import gate_response
 
     r, cfg, delays, scale, alpha = gated_fog_pixel(visibility_m=2000.0, aerosol_layers=[[15.0, 25.0, 0.02]])
@@ -240,5 +238,33 @@ def test_gated_slices_of_a_pixel_seeing_only_a_fog_layer_match_the_equation():
 
     ref = np.array([integrate.quad(integrand, 2.0, c2 * (d + g.gate_width_s + 1e-7), args=(d,), points=[15.0, 25.0],
                                    limit=400, epsrel=1e-10)[0] for d in delays]) * scale
-    sim = r.slices[:, 0, 0].astype(np.float64)
+    return r.slices[:, 0, 0].astype(np.float64), ref
+
+
+def test_gated_slices_of_a_pixel_seeing_only_a_fog_layer_match_the_equation():
+    """Gated viewing in haze with a fog layer (:func:`_gated_fog_layer_slices`): relative L2 over the gate within
+    the 1 % the issue asks (1.6e-3 measured; with a layer β 5 % off in the reference: 2.9e-2).  The slice just past
+    the layer's far edge is 1 % off on its own: the slab lumping's second-order error, next test."""
+    sim, ref = _gated_fog_layer_slices()
     assert np.linalg.norm(sim - ref) <= 1e-2 * np.linalg.norm(ref), np.linalg.norm(sim - ref) / np.linalg.norm(ref)
+
+
+def test_gated_slice_past_a_fog_layers_far_edge_converges_as_the_slab_width_squared(monkeypatch):
+    """The slice that sees the layer's far edge (25 m) only through its gate's rising edge (delay 170 ns, 1.5 % of the
+    largest slice) is 1.0 % off with the default 4 slabs per width: each slab is lumped at its energy centroid, an
+    error of order (Δ/w)² per slab (w the pulse-smoothed gate edge), which inside a homogeneous medium its
+    neighbours' errors largely cancel but which nothing cancels where β drops 19× at the layer's end.  Being the
+    lumping, it falls as Δ²: with 16 slabs per width (Δ/4) it must fall by at least 10× (16 in theory; measured
+    −1.02e-2 → −7.3e-4, 14×; docs/theory.md §14)."""
+    import functools
+
+    import core.systems.gated as gated
+    from core.physics.weather_waveform import gated_slab_table
+
+    err = {}
+    for spw in (4, 16):
+        monkeypatch.setattr(gated, "gated_slab_table", functools.partial(gated_slab_table, slabs_per_width=spw))
+        sim, ref = _gated_fog_layer_slices()
+        err[spw] = (sim[17] - ref[17]) / ref[17]
+    assert 0.5e-2 <= abs(err[4]) <= 2e-2, err  # the error the docs state (1 %)
+    assert abs(err[16]) <= abs(err[4]) / 10.0, err
