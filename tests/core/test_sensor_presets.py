@@ -168,11 +168,13 @@ def test_range_precision_at_the_stated_snr(name):
 
 
 CAMERAS = ["asc_flash_128", "pli_geiger_32", "iosb_gated_swir"]
+#: The simulated 50 % range at 10 % of each camera preset (its assumed laser and optics), as its TOML quotes it.
+CAMERA_R50_M = {"asc_flash_128": 316.0, "pli_geiger_32": 4280.0, "iosb_gated_swir": 8140.0}
 
 
 def test_camera_probe_runs_enough_frames_for_its_trials():
-    """A camera's probe runs ⌈n / pixels⌉ independent frames of its central ≤ 32×32 pixels: 2000 trials are 2 frames
-    of 1024 (the binomial standard error of a scanner's 2000 pulses), each frame another seed."""
+    """A camera's probe runs ⌈n / pixels⌉ independent frames of its central ≤ 32×32 pixels: 2000 trials are 2
+    frames of 1024 (the binomial standard error of a scanner's 2000 pulses), each frame another seed."""
     import numpy as np
 
     cfg = preset_config("asc_flash_128")
@@ -216,6 +218,8 @@ def test_a_camera_range_check_fails_with_a_wrong_pulse_energy(name, tmp_path):
         assert [r["key"] for r in rows] == ["second_range_m"], rows
         verdict[factor] = rows[0]["ok"]
     assert verdict == {1.0: True, 2.0: False, 0.5: False}, (r50, verdict)
+    # the presets' comments quote these 50 % ranges as what their assumed values imply (not data-sheet figures)
+    assert r50 == pytest.approx(CAMERA_R50_M[name], rel=0.02), r50
 
 
 def test_derived_energy_reproduces_its_figure():
