@@ -222,6 +222,26 @@ def test_a_camera_range_check_fails_with_a_wrong_pulse_energy(name, tmp_path):
     assert r50 == pytest.approx(CAMERA_R50_M[name], rel=0.02), r50
 
 
+def test_a_camera_precision_check_uses_its_echoes_and_can_fail():
+    """A camera's precision row (core.presets.checks.data_sheet_rows) is the 1σ of the panel's ranges over its
+    2 probe frames (2048 pixel-frames, seed 24 as the table), held to the published figure + 3 standard errors of
+    the n echoes measured: a figure equal to the simulated σ passes, one 10 % below it fails (3/√(2(n − 1)) < 0.1
+    for n > 451 echoes, asserted)."""
+    import dataclasses
+
+    preset = load_preset("asc_flash_128")
+    r, rho = 250.0, 0.1
+    st = checks.precision_stats(preset_config("asc_flash_128"), r, rho, N_PULSES, seed=24)
+    assert st["trials"] == 2048 and st["n_echoes"] > 451 and 0.0 < st["sigma_m"] < 1.0, st
+    verdict = {}
+    for scale in (1.0, 0.9):
+        pub = {"precision_m": st["sigma_m"] * scale, "precision_range_m": r, "precision_reflectivity": rho}
+        rows = checks.data_sheet_rows(dataclasses.replace(preset, published=pub))
+        assert [x["key"] for x in rows] == ["precision_m"] and f"({st['n_echoes']} echoes)" in rows[0]["simulated"]
+        verdict[scale] = rows[0]["ok"]
+    assert verdict == {1.0: True, 0.9: False}, (st, verdict)
+
+
 def test_derived_energy_reproduces_its_figure():
     """The derivation (bisection on the simulated detection probability) gives back the VLP-16's energy within
     the bisection's resolution and the shipped energy detects its 100 m / 80 % panel with probability ≈ 0.5."""
