@@ -2,9 +2,10 @@
 (core/presets/checks.py), and the preset mechanism (registry, config files, bad preset files).
 
 A check is skipped only when its ``[published]`` key is absent.  Statistics: a detection probability is measured
-over ``N_PULSES`` pulses (a scanner) or a camera's central 32×32 = 1024 pixels; its binomial standard error is
-at most 0.5/√1024 = 1.6 %.  A precision is the standard deviation of ``N_PULSES`` ranges; its relative standard
-error is 1/√(2(n−1)) (1.6 % for 2000), and the check allows 3 of them above the stated figure.
+over ``N_PULSES`` pulses (a scanner) or a camera's central 32×32 = 1024 pixels over ⌈2000/1024⌉ = 2 independent
+frames (2048 pixel-frames); its binomial standard error is at most 0.5/√2000 = 1.1 %.  A precision is the standard
+deviation of the n ranges measured (at most ``N_PULSES``; a camera's pixels that miss the panel give none); its
+relative standard error is 1/√(2(n−1)) (1.6 % for 2000), and the check allows 3 of them above the stated figure.
 """
 import math
 
@@ -146,9 +147,11 @@ def test_range_precision(name):
     pub, cfg = load_preset(name).published, preset_config(name)
     if "precision_m" not in pub:
         pytest.skip("no precision published")
-    sigma = checks.range_precision(cfg, pub["precision_range_m"], pub.get("precision_reflectivity", 0.5),
-                                   N_PULSES, seed=24)
-    assert sigma <= pub["precision_m"] * (1 + 3 / math.sqrt(2 * (N_PULSES - 1)))
+    st = checks.precision_stats(cfg, pub["precision_range_m"], pub.get("precision_reflectivity", 0.5),
+                                N_PULSES, seed=24)
+    assert st["n_echoes"] >= 10, st
+    assert st["sigma_m"] <= checks.precision_limit(pub["precision_m"], st["n_echoes"]), st
+    assert checks.precision_limit(0.02, 2000) == pytest.approx(0.02 * (1 + 3 / math.sqrt(2 * 1999)), rel=1e-12)
 
 
 @pytest.mark.parametrize("name", [n for n in PRESETS if "precision_at_snr" in load_preset(n).published])
@@ -162,6 +165,81 @@ def test_range_precision_at_the_stated_snr(name):
         assert st["snr"] == pytest.approx(snr, rel=0.05), st
         assert st["n_echoes"] >= 0.9 * N_PULSES, st
         assert st["sigma_m"] <= sigma * (1 + 3 / math.sqrt(2 * (st["n_echoes"] - 1))), (snr, st)
+
+
+CAMERAS = ["asc_flash_128", "pli_geiger_32", "iosb_gated_swir"]
+#: The simulated 50 % range at 10 % of each camera preset (its assumed laser and optics), as its TOML quotes it.
+CAMERA_R50_M = {"asc_flash_128": 316.0, "pli_geiger_32": 4280.0, "iosb_gated_swir": 8140.0}
+
+
+def test_camera_probe_runs_enough_frames_for_its_trials():
+    """A camera's probe runs ⌈n / pixels⌉ independent frames of its central ≤ 32×32 pixels: 2000 trials are 2
+    frames of 1024 (the binomial standard error of a scanner's 2000 pulses), each frame another seed."""
+    import numpy as np
+
+    cfg = preset_config("asc_flash_128")
+    assert checks.camera_frames(cfg, N_PULSES) == 2 and checks.camera_frames(cfg, 1) == 1
+    assert checks.camera_frames(cfg, 1025) == 2 and checks.camera_frames(cfg, 3000) == 3
+    r = 316.0  # near the preset's 50 % range at 10 % (about 316 m): detections and misses both frequent
+    st = checks.detection_stats(cfg, r, 0.1, N_PULSES, seed=21)
+    assert st["trials"] == 2048 and st["frames"] == 2
+    one = checks.detection_stats(cfg, r, 0.1, 1024, seed=21)
+    other = checks.detection_stats(cfg, r, 0.1, 1024, seed=21 + checks.CAMERA_SEED_STRIDE)
+    assert one["trials"] == other["trials"] == 1024 and 0.1 < one["p"] < 0.9
+    # the 2-frame probe is those two frames
+    assert round(one["p"] * 1024) + round(other["p"] * 1024) == round(st["p"] * 2048)
+    a, _ = checks._probe(cfg, r, 0.1, 1024, 21)
+    b, _ = checks._probe(cfg, r, 0.1, 1024, 21 + checks.CAMERA_SEED_STRIDE)
+    assert not (len(a) == len(b) and np.array_equal(a, b))  # independent draws, not one frame twice
+
+
+@pytest.mark.parametrize("name", CAMERAS)
+def test_a_camera_range_check_fails_with_a_wrong_pulse_energy(name, tmp_path):
+    """The cameras' sources state no range at a reflectivity (their presets say so), so no camera is checked
+    against one; this shows the check would catch a wrong energy if one were.  A figure put at R = R50 / 1.1 at
+    10 % (R50: the range at which the simulator detects the panel with P = 0.5, bisected) passes the data-sheet
+    criterion (P ≥ 0.5 at R, < 0.5 at 1.2 R: core.presets.checks.data_sheet_rows) with the preset's pulse
+    energy, and fails with 2× it (extended-target range equation, received energy ∝ E ρ / R²: R50 moves out by
+    √2 = 1.41, beyond 1.2 R = 1.09 R50) and with 0.5× it (R50 moves in by 1/√2 = 0.71, inside R = 0.91 R50)."""
+    import dataclasses
+    import re
+
+    preset = load_preset(name)
+    r50 = checks.range_at_probability(preset_config(name), 0.1, n=N_PULSES, lo_m=10.0, hi_m=1.0e5, steps=12)
+    pub = {"second_range_m": round(r50 / 1.1, 1), "second_reflectivity": 0.1}
+    text = preset.path.read_text(encoding="utf-8")
+    energy = float(re.search(r"^pulse_energy_j = ([0-9.eE+-]+)", text, re.M).group(1))
+    verdict = {}
+    for factor in (1.0, 2.0, 0.5):
+        f = tmp_path / f"{name}_{factor:g}.toml"
+        f.write_text(re.sub(r"^pulse_energy_j = [0-9.eE+-]+", f"pulse_energy_j = {energy * factor!r}", text,
+                            count=1, flags=re.M), encoding="utf-8")
+        rows = checks.data_sheet_rows(dataclasses.replace(load_preset(f), published=pub))
+        assert [r["key"] for r in rows] == ["second_range_m"], rows
+        verdict[factor] = rows[0]["ok"]
+    assert verdict == {1.0: True, 2.0: False, 0.5: False}, (r50, verdict)
+    # the presets' comments quote these 50 % ranges as what their assumed values imply (not data-sheet figures)
+    assert r50 == pytest.approx(CAMERA_R50_M[name], rel=0.02), r50
+
+
+def test_a_camera_precision_check_uses_its_echoes_and_can_fail():
+    """A camera's precision row (core.presets.checks.data_sheet_rows) is the 1σ of the panel's ranges over its
+    2 probe frames (2048 pixel-frames, seed 24 as the table), held to the published figure + 3 standard errors of
+    the n echoes measured: a figure equal to the simulated σ passes, one 10 % below it fails (3/√(2(n − 1)) < 0.1
+    for n > 451 echoes, asserted)."""
+    import dataclasses
+
+    preset = load_preset("asc_flash_128")
+    r, rho = 250.0, 0.1
+    st = checks.precision_stats(preset_config("asc_flash_128"), r, rho, N_PULSES, seed=24)
+    assert st["trials"] == 2048 and st["n_echoes"] > 451 and 0.0 < st["sigma_m"] < 1.0, st
+    verdict = {}
+    for scale in (1.0, 0.9):
+        pub = {"precision_m": st["sigma_m"] * scale, "precision_range_m": r, "precision_reflectivity": rho}
+        rows = checks.data_sheet_rows(dataclasses.replace(preset, published=pub))
+        assert [x["key"] for x in rows] == ["precision_m"] and f"({st['n_echoes']} echoes)" in rows[0]["simulated"]
+        verdict[scale] = rows[0]["ok"]
+    assert verdict == {1.0: True, 0.9: False}, (st, verdict)
 
 
 def test_derived_energy_reproduces_its_figure():
