@@ -588,3 +588,30 @@ def test_scan_products_are_streamed_and_the_same_for_any_threads_and_blocks():
     assert 500 <= len(ech.pixel) <= 500 * cfg.detection.max_echoes
     for name in ("pixel", "position_bins", "amplitude", "echo_index", "n_echoes"):
         assert getattr(ech, name).base is None, name
+
+
+def test_point_sink_appends_blocks_as_their_concatenation():
+    """The scan's points are appended block by block into whole-scan arrays (scanner._PointSink): the same arrays
+    as the blocks' concatenation, bit for bit, in the products' types; grown when the blocks bring more points
+    than the planned capacity; a field some block lacks is left out (as the concatenation of the fields every
+    block has); the result owns exactly its data."""
+    from core.systems.scanner import _PointSink
+
+    rng = np.random.default_rng(7)
+    parts = []
+    for k in (5, 0, 17, 3, 11):
+        parts.append({"range_m": rng.uniform(0, 100, k), "position_world": rng.normal(size=(k, 3)),
+                      "echo_index": rng.integers(1, 4, k).astype(np.int16),
+                      "intensity": rng.uniform(0, 1, k).astype(np.float32), "snr": rng.uniform(0, 9, k)})
+    del parts[3]["snr"]
+    expect = {name: np.concatenate([p[name] for p in parts]) for name in parts[0] if name != "snr"}
+    sink = _PointSink(8)  # fewer than the 36 points: grows twice
+    for p in parts:
+        sink.append(dict(p))
+    out = sink.arrays()
+    assert list(out) == list(expect)
+    for name, arr in out.items():
+        assert arr.dtype == expect[name].dtype and arr.shape == expect[name].shape, name
+        assert np.array_equal(arr, expect[name]), name
+        assert arr.base is None and arr.nbytes == expect[name].nbytes, name
+    assert _PointSink(4).arrays() == {}
