@@ -289,12 +289,13 @@ def _pulse_energy(p_hit, scint, energy, pulse_energy):
 
 class _PointSink:
     """The scan's points, each block's appended in block order (``run_blocks``' ``each``) into whole-scan arrays
-    of the products' types: each field allocated once, at a capacity of ``capacity`` points (the scan's most:
-    pulses × detection.max_echoes; grown should a block need more), of which only the pages written become
-    resident, and shrunk in place (``ndarray.resize``: ``realloc``) to the points found at the end.  The blocks'
-    own copies are dropped as they are appended: the points exist once, never as blocks plus their
-    concatenation (which, the blocks' arrays left in the allocator's arenas, held them twice: the survey's
-    peak)."""
+    of the products' types: each field allocated at a capacity of ``capacity`` points (one a pulse), of which
+    only the pages written become resident, grown by half (``ndarray.resize``: ``realloc``, which moves the pages
+    without copying them where the system can) when the points outgrow it, and shrunk in place to the points
+    found at the end.  The blocks' own copies are dropped as they are appended: the points exist once, never as
+    blocks plus their concatenation (which, the blocks' arrays left in the allocator's arenas, held them twice:
+    the survey's peak).  (A capacity of pulses × detection.max_echoes would be reserved, and on some systems
+    committed, up front: gigabytes for a long multi-echo scan.)"""
 
     def __init__(self, capacity: int):
         self.capacity, self.n, self.fields = max(1, int(capacity)), 0, None
@@ -516,7 +517,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         return pts, n_hit, local, dig
 
     threads = worker_threads(config.run.threads)
-    sink = _PointSink(n_pulses * config.detection.max_echoes)
+    sink = _PointSink(n_pulses)
 
     def append(result):  # (main thread, block order) the block's points into the scan's arrays
         t = stage_clock()
