@@ -223,6 +223,7 @@ def main(argv=None) -> int:
                 best, stats = s, res.stats
             del res  # one survey's products in memory at a time (the peak is one run's)
         runs[threads] = (best, stats)
+        memory[f"after_surveys_on_{threads}_thread{'s' if threads > 1 else ''}"] = (rss_bytes(), peak_rss_bytes())
     peak = peak_rss_bytes()
     memory["after_surveys"] = (rss_bytes(), peak)
     weather_runs = {}

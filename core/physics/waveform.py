@@ -452,6 +452,9 @@ class PulseTable:
         edges = (m[None, :] - f[:, None]) * bin_width_s
         self.rows = np.diff(pulse_cdf(laser, np.concatenate([edges, edges[:, -1:] + bin_width_s], axis=1)), axis=1)
         self.offsets = m
+        # the rows padded with zero columns to a multiple of 8 (:func:`_table_echoes`' whole-support path)
+        self.wide = np.zeros((self.N + 1, -(-(2 * self.k + 1) // 8) * 8))
+        self.wide[:, :2 * self.k + 1] = self.rows
 
     def waveforms(self, pulse_local, u, energy_j, n_pulses, n_bins):
         """(n_pulses, n_bins) float64 J per bin; u in bins of the (window) gate; pulse_local sorted ascending."""
@@ -469,7 +472,7 @@ class PulseTable:
         pix, pos, amp = np.empty(cap, np.int64), np.empty(cap), np.empty(cap)
         idx, cnt = np.empty(cap, np.int16), np.empty(cap, np.int16)
         k = _table_echoes(np.asarray(pulse_local, np.int64), np.asarray(u, np.float64),
-                          np.asarray(energy_j, np.float64), self.rows, self.k, self.half, n_bins,
+                          np.asarray(energy_j, np.float64), self.rows, self.wide, self.k, self.half, n_bins,
                           float(detection.threshold_j), float(detection.relative_threshold),
                           float(detection.min_dip), int(detection.max_echoes), INTERPOLATION[detection.interpolation],
                           pix, pos, amp, idx, cnt)
@@ -503,9 +506,20 @@ def _table_waveforms(pulse, u, energy, rows, k, out):
 
 
 @kernel
-def _table_echoes(pulse, u, energy, rows, k, half, n_bins, threshold_j, relative_threshold, min_dip, max_echoes,
+def _table_echoes(pulse, u, energy, rows, wide, k, half, n_bins, threshold_j, relative_threshold, min_dip, max_echoes,
                   mode, out_pix, out_pos, out_amp, out_idx, out_n):
-    buf = np.zeros(n_bins)
+    """Each pulse's waveform over the bins its returns touch, then its echoes (:func:`detect_row`).  A return
+    whose whole support lies inside the pulse's window (the usual case: a pulse's sub-rays land within a few bins
+    of each other) is added from ``wide`` — the rows padded with zero columns to a multiple of 8 — over the
+    padded width, a loop of a fixed multiple of the vector width with no clipping.  Its zero columns add terms of
+    +0.0 (finite energy, interpolation weights ≥ +0) to the bins after its support, up to 7 bins past the window
+    (``buf`` has room; those bins are never read), and x + (+0.0) = x for every x but −0.0, which the buffer
+    never holds (it starts at +0.0; a rounded sum is −0.0 only when both terms are): bit for bit
+    :func:`table_add_return`'s sums, in the same order.  An infinite energy (whose padded terms would be NaN)
+    takes the clipped path."""
+    n_tab = rows.shape[0] - 1
+    ncol, wcol = rows.shape[1], wide.shape[1]
+    buf = np.zeros(n_bins + wcol)
     cand = np.empty(n_bins, np.int64)
     n_out = 0
     a = 0
@@ -522,10 +536,22 @@ def _table_echoes(pulse, u, energy, rows, k, half, n_bins, threshold_j, relative
                 hi = max(hi, min(j + k, n_bins - 1))
         if hi >= lo:
             length = hi - lo + 1
-            buf[:length] = 0.0
+            buf[:length + wcol - ncol] = 0.0
             for r in range(a, b):
-                if energy[r] > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
-                    table_add_return(buf, lo, length, u[r], energy[r], rows, k)
+                e = energy[r]
+                if e > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
+                    j = math.floor(u[r])
+                    first = int(j) - k - lo
+                    if first >= 0 and first + ncol <= length and e < math.inf:
+                        x = (u[r] - j) * n_tab  # (table_add_return's interpolation)
+                        i = min(int(x), n_tab - 1)
+                        w = x - i
+                        v = 1.0 - w
+                        out, r0, r1 = buf[first:first + wcol], wide[i], wide[i + 1]
+                        for q in range(wcol):
+                            out[q] += (r0[q] * v + r1[q] * w) * e
+                    else:
+                        table_add_return(buf, lo, length, u[r], e, rows, k)
             n_out = detect_row(buf, 0, length, lo, threshold_j, relative_threshold, min_dip, max_echoes, mode,
                                cand, out_pix, pulse[a], out_pos, out_amp, out_idx, out_n, n_out)
         a = b

@@ -287,15 +287,42 @@ def _pulse_energy(p_hit, scint, energy, pulse_energy):
         pulse_energy[p_hit[k]] += energy[k]
 
 
-def _concatenate_points(parts: list) -> dict:
-    """The blocks' points joined field by field in block order (pulse order), each block's copy of a field
-    released once joined: the scan's points plus one field at a time, never two copies of them all."""
-    out = {}
-    for name in [f for f in parts[0] if all(f in part for part in parts)] if parts else []:
-        out[name] = np.concatenate([part[name] for part in parts])
-        for part in parts:
-            del part[name]
-    return out
+class _PointSink:
+    """The scan's points, each block's appended in block order (``run_blocks``' ``each``) into whole-scan arrays
+    of the products' types: each field allocated at a capacity of ``capacity`` points (one a pulse), of which
+    only the pages written become resident, grown by half (``ndarray.resize``: ``realloc``, which moves the pages
+    without copying them where the system can) when the points outgrow it, and shrunk in place to the points
+    found at the end.  The blocks' own copies are dropped as they are appended: the points exist once, never as
+    blocks plus their concatenation (which, the blocks' arrays left in the allocator's arenas, held them twice:
+    the survey's peak).  (A capacity of pulses × detection.max_echoes would be reserved, and on some systems
+    committed, up front: gigabytes for a long multi-echo scan.)"""
+
+    def __init__(self, capacity: int):
+        self.capacity, self.n, self.fields = max(1, int(capacity)), 0, None
+
+    def append(self, part: dict) -> None:
+        k = len(part["range_m"])
+        if self.fields is None:
+            self.fields = {name: np.empty((max(self.capacity, k),) + v.shape[1:], v.dtype)
+                           for name, v in part.items()}
+        elif self.n + k > len(self.fields["range_m"]):  # more points than planned: grow every field
+            cap = max(self.n + k, int(1.5 * len(self.fields["range_m"])))
+            for v in self.fields.values():
+                v.resize((cap,) + v.shape[1:], refcheck=False)
+        for name in [f for f in self.fields if f not in part]:  # (the fields every block has: as a concatenation)
+            del self.fields[name]
+        for name, v in self.fields.items():
+            v[self.n:self.n + k] = part[name]
+        self.n += k
+        part.clear()
+
+    def arrays(self) -> dict:
+        """The points (the fields shrunk to their length); the sink is empty afterwards."""
+        out = self.fields or {}
+        for v in out.values():
+            v.resize((self.n,) + v.shape[1:], refcheck=False)
+        self.fields = None
+        return out
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -490,13 +517,20 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         return pts, n_hit, local, dig
 
     threads = worker_threads(config.run.threads)
-    results = run_blocks(process, blocks, threads, progress, label="pulse block", cancel=cancel)
+    sink = _PointSink(n_pulses)
+
+    def append(result):  # (main thread, block order) the block's points into the scan's arrays
+        t = stage_clock()
+        sink.append(result[0])
+        return (None, result[1], dict(result[2], products=result[2]["products"] + stage_clock() - t), result[3])
+
+    results = run_blocks(process, blocks, threads, progress, label="pulse block", cancel=cancel, each=append)
     n_hits = sum(r[1] for r in results)
     for r in results:
         log.add_times(r[2])
     digitizer = results[0][3] if results else None
     t0 = stage_clock()
-    points = _concatenate_points([r[0] for r in results])
+    points = sink.arrays()
     del results
     n_echo_per_pulse = pulses["n_echoes"]
     times["products"] += stage_clock() - t0

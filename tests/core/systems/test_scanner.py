@@ -588,3 +588,89 @@ def test_scan_products_are_streamed_and_the_same_for_any_threads_and_blocks():
     assert 500 <= len(ech.pixel) <= 500 * cfg.detection.max_echoes
     for name in ("pixel", "position_bins", "amplitude", "echo_index", "n_echoes"):
         assert getattr(ech, name).base is None, name
+
+
+def test_point_sink_appends_blocks_as_their_concatenation():
+    """The scan's points are appended block by block into whole-scan arrays (scanner._PointSink): the same arrays
+    as the blocks' concatenation, bit for bit, in the products' types; grown when the blocks bring more points
+    than the planned capacity; a field some block lacks is left out (as the concatenation of the fields every
+    block has); the result owns exactly its data."""
+    from core.systems.scanner import _PointSink
+
+    rng = np.random.default_rng(7)
+    parts = []
+    for k in (5, 0, 17, 3, 11):
+        parts.append({"range_m": rng.uniform(0, 100, k), "position_world": rng.normal(size=(k, 3)),
+                      "echo_index": rng.integers(1, 4, k).astype(np.int16),
+                      "intensity": rng.uniform(0, 1, k).astype(np.float32), "snr": rng.uniform(0, 9, k)})
+    del parts[3]["snr"]
+    expect = {name: np.concatenate([p[name] for p in parts]) for name in parts[0] if name != "snr"}
+    sink = _PointSink(8)  # fewer than the 36 points: grows twice
+    for p in parts:
+        sink.append(dict(p))
+    out = sink.arrays()
+    assert list(out) == list(expect)
+    for name, arr in out.items():
+        assert arr.dtype == expect[name].dtype and arr.shape == expect[name].shape, name
+        assert np.array_equal(arr, expect[name]), name
+        assert arr.base is None and arr.nbytes == expect[name].nbytes, name
+    assert _PointSink(4).arrays() == {}
+
+
+def _table_echoes_reference(table, pulse, u, energy, n_bins, det):
+    """The tabulated echoes as every return added by ``table_add_return`` (clipped to the window) and detected by
+    ``detect_row``: the definition the compiled pass must match bit for bit."""
+    from core.physics.detection.peaks import INTERPOLATION, detect_row
+    from core.physics.waveform import table_add_return
+
+    cap = len(u) * det.max_echoes
+    out = [np.empty(cap, np.int64), np.empty(cap), np.empty(cap), np.empty(cap, np.int16), np.empty(cap, np.int16)]
+    cand, k_out = np.empty(n_bins, np.int64), 0
+    for p in np.unique(pulse):
+        rows = [r for r in np.flatnonzero(pulse == p)
+                if energy[r] > 0 and u[r] + table.half >= 0 and u[r] - table.half < n_bins]
+        if not rows:
+            continue
+        lo = min(max(int(np.floor(u[r])) - table.k, 0) for r in rows)
+        hi = max(min(int(np.floor(u[r])) + table.k, n_bins - 1) for r in rows)
+        buf = np.zeros(hi - lo + 1)
+        for r in rows:
+            table_add_return(buf, lo, len(buf), u[r], energy[r], table.rows, table.k)
+        k_out = detect_row(buf, 0, len(buf), lo, float(det.threshold_j), float(det.relative_threshold),
+                           float(det.min_dip), int(det.max_echoes), INTERPOLATION[det.interpolation], cand, out[0],
+                           int(p), out[1], out[2], out[3], out[4], k_out)
+    return [a[:k_out] for a in out]
+
+
+def test_tabulated_echoes_are_the_per_return_sums_bit_for_bit():
+    """PulseTable.echoes adds a return whose support lies inside its pulse's window over the zero-padded table
+    (a fixed-width loop): the same waveform sums, hence echoes, bit for bit as every return added clipped
+    (``table_add_return``) — for pulses whose sub-rays land close together (the whole-support path), spread
+    over many bins (partly clipped), cut by either end of the gate, with zero, NaN and infinite energies."""
+    from core.config.settings import DetectionSettings, LaserSettings
+    from core.physics.waveform import PulseTable
+
+    rng = np.random.default_rng(11)
+    table = PulseTable(LaserSettings(pulse_fwhm_s=4e-9), 0.25e-9)
+    assert table.wide.shape[1] % 8 == 0 and table.wide.shape[1] >= table.rows.shape[1]
+    n_bins, n_pulses = 300, 400
+    centre = rng.uniform(-30, 330, n_pulses)  # some pulses cut by the gate's start or end
+    spread = np.where(rng.uniform(size=n_pulses) < 0.7, 1.5, 60.0)  # close together, or several echoes
+    pulse = np.sort(rng.integers(0, n_pulses, 19 * n_pulses))
+    u = centre[pulse] + rng.uniform(-1, 1, len(pulse)) * spread[pulse]
+    energy = rng.uniform(0.1, 2.0, len(pulse)) * 1e-12
+    energy[rng.choice(len(pulse), 40, replace=False)] = 0.0
+    energy[rng.choice(len(pulse), 3, replace=False)] = np.nan
+    for det in (DetectionSettings(), DetectionSettings(interpolation="parabolic", max_echoes=5, min_dip=0.0)):
+        got = table.echoes(pulse, u, energy, n_pulses, n_bins, det)
+        ref = _table_echoes_reference(table, pulse, u, energy, n_bins, det)
+        assert len(ref[0]) > n_pulses  # several echoes in the spread pulses
+        for name, r in zip(("pixel", "position_bins", "amplitude", "echo_index", "n_echoes"), ref):
+            g = getattr(got, name)
+            assert g.dtype == r.dtype and np.array_equal(g.view(np.uint8), r.view(np.uint8)), name
+    # an infinite energy: its pulse's peak is infinite, not NaN (the padded columns are not added)
+    inf_e = energy.copy()
+    inf_e[np.flatnonzero(np.abs(u - 150) < 100)[0]] = np.inf
+    got = table.echoes(pulse, u, inf_e, n_pulses, n_bins, DetectionSettings())
+    ref = _table_echoes_reference(table, pulse, u, inf_e, n_bins, DetectionSettings())
+    assert np.array_equal(got.amplitude, ref[2]) and np.array_equal(got.position_bins, ref[1], equal_nan=True)
