@@ -609,6 +609,11 @@ class RunSettings:
                            label="Ray-tracing Threads")
     save_waveforms: bool = setting(True, doc="Write the per-pixel waveform cube to the run folder",
                                    label="Save Waveforms")
+    save_counts: bool = setting(False, doc="Noisy receiver: keep the receiver output of every pixel and bin "
+                                           "(counts.npy).  It needs every bin simulated, so the per-bin reference "
+                                           "route runs (detection.signal_free_bins); without it the statistical "
+                                           "route may serve the echoes and no counts are kept",
+                                label="Save Counts")
     max_memory_bytes: int = setting(4 * 2**30, lo=2**20, hi=2**44, unit="B",
                                     doc="Largest waveform cube (bytes) a run may allocate",
                                     label="Memory Limit", panel_unit="MiB")

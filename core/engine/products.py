@@ -102,7 +102,7 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
         if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
     mode, _ = threshold_model(config, probe.get("noise_sigma"), probe.get("noise_mean"))
-    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_waveforms, law is not None)
+    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_counts, law is not None)
     model.update(threshold=mode, reason=reason, gaussian_tail_error=err)
     if route != "statistical":
         return None, model

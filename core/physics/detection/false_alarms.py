@@ -507,29 +507,35 @@ def _lattice_expectation(t, finite, divisions, lo, g, inv_2v0, n_interior, at_ed
     """out[p] = n_interior[p] × rate of the interior + Σ_k at_edges[p, k] × rate of edge position k, each rate at
     the threshold t[p] (raw-σ units; nothing where not ``finite``) from the lattice values g (rows: the edge
     positions, then the interior; :meth:`_RateLattice.values`) by 4-point Lagrange interpolation of
-    log-rate + t²/(2 v₀)."""
-    n_edges = at_edges.shape[1]
+    log-rate + t²/(2 v₀).  Each position's rate is computed once per run of pixels with the same threshold (a
+    calibrated or fixed threshold: one for the frame) and added in the same order: the same numbers."""
+    n_edges, n_pos = at_edges.shape[1], g.shape[0]
+    rate = np.empty(n_pos)
+    t_prev = np.nan
     for p in range(t.size):
         if not finite[p]:
             continue
-        x = t[p] * divisions
-        n = math.floor(x)
-        f = x - n
-        c = int(n) - lo  # column of node n − 1
-        w0 = -f * (f - 1.0) * (f - 2.0) / 6.0
-        w1 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
-        w2 = -(f + 1.0) * f * (f - 2.0) / 2.0
-        w3 = (f + 1.0) * f * (f - 1.0) / 6.0
-        tt = t[p] * t[p]
-        acc = out[p]
-        for s in range(n_edges, g.shape[0]):  # the interior (none for short rows)
-            if n_interior[p]:
+        if not t[p] == t_prev:  # (the rates of this threshold)
+            t_prev = t[p]
+            x = t[p] * divisions
+            n = math.floor(x)
+            f = x - n
+            c = int(n) - lo  # column of node n − 1
+            w0 = -f * (f - 1.0) * (f - 2.0) / 6.0
+            w1 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
+            w2 = -(f + 1.0) * f * (f - 2.0) / 2.0
+            w3 = (f + 1.0) * f * (f - 1.0) / 6.0
+            tt = t[p] * t[p]
+            for s in range(n_pos):
                 v = w0 * g[s, c] + w1 * g[s, c + 1] + w2 * g[s, c + 2] + w3 * g[s, c + 3]
-                acc += n_interior[p] * math.exp(v - tt * inv_2v0[s])
+                rate[s] = math.exp(v - tt * inv_2v0[s])
+        acc = out[p]
+        for s in range(n_edges, n_pos):  # the interior (none for short rows)
+            if n_interior[p]:
+                acc += n_interior[p] * rate[s]
         for s in range(n_edges):
             if at_edges[p, s]:
-                v = w0 * g[s, c] + w1 * g[s, c + 1] + w2 * g[s, c + 2] + w3 * g[s, c + 3]
-                acc += math.exp(v - tt * inv_2v0[s])
+                acc += rate[s]
         out[p] = acc
 
 

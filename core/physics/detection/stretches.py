@@ -79,7 +79,7 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
     chain's exact code law of a signal-free bin is known (table route): any white noise law is then handled exactly
     (:class:`LatticeRates`); without it (A/D off) the Gaussian model must hold within GAUSSIAN_TAIL_TOLERANCE."""
     if saves_counts:
-        return "per_bin", "a per-bin product (counts.npy / the waveform cube) is saved", None
+        return "per_bin", "run.save_counts: the counts of every bin are kept (counts.npy)", None
     if det.detector_type == "geiger":
         return "per_bin", ("Geiger histograms: counts of detections with dead time, no linear noise model (the "
                            "calibrated threshold falls back to adaptive)"), None
