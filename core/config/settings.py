@@ -224,9 +224,10 @@ class DetectionSettings:
     signal_free_bins: str = setting("statistical", choices=("per_bin", "statistical"),
                                     doc="Noisy receiver: simulate every bin (per_bin, the reference) or only the "
                                         "stretches with signal, the false alarms of the signal-free stretches "
-                                        "drawn from the filtered noise's statistics (statistical; used when no "
-                                        "per-bin product is saved, the threshold is calibrated or fixed and the "
-                                        "filtered noise is Gaussian within 2 % at the threshold, else per_bin: "
+                                        "drawn from the filtered noise's statistics (statistical; used when the "
+                                        "counts are not kept (run.save_counts), the threshold is calibrated and the "
+                                        "noise law is known exactly (A/D on) or Gaussian within 2 % at the "
+                                        "threshold, else per_bin: "
                                         "the metadata says which ran)",
                                     label="Signal-Free Bins",
                                     choice_labels={'per_bin': 'Per bin (reference)',
