@@ -186,14 +186,22 @@ def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, a
 
 
 @kernel
-def _row_extents(truth, level, first, last, peak, bad):
+def _row_extents(truth, level, first, last, peak, bad, span_lo, span_hi):
     """Per row: the first and last bin above ``level`` (−1 when none), the row's largest value when it has such a
     bin (else −inf) and whether it holds a NaN.  One pass over each bin: 64-bin blocks tested with one vectorised
     count from the front up to the first signal bin and from the back down to the last, the bins between them
-    (the signal stretch) in one vectorised max."""
-    n_rows, n = truth.shape
+    (the signal stretch) in one vectorised max.  ``span_lo``/``span_hi`` (non-empty: one per row): every bin of
+    row r outside [span_lo[r], span_hi[r]) is known to be exactly 0 (and ``level`` ≥ 0), so only the span is
+    read — the same results."""
+    n_rows = truth.shape[0]
     for r in range(n_rows):
-        t = truth[r]
+        if span_lo.size:
+            o = span_lo[r]
+            t = truth[r, o:max(o, span_hi[r])]
+        else:
+            o = 0
+            t = truth[r]
+        n = t.shape[0]
         nan = 0
         f = -1
         j = 0
@@ -244,18 +252,26 @@ def _row_extents(truth, level, first, last, peak, bad):
                 pk = v if v > pk else pk
                 nan += v != v
             peak[r] = pk
+        if first[r] >= 0:  # (bins of the span → of the row)
+            first[r] += o
+            last[r] += o
         bad[r] = nan > 0
 
 
-def row_extents(truth, level, threads=1):
+def row_extents(truth, level, threads=1, spans=None):
     """(first, last, peak, has_nan) per row of ``truth`` for the signal level ``level`` in the rows' float type
-    (:func:`_row_extents`), in row chunks on ``threads`` threads."""
+    (:func:`_row_extents`), in row chunks on ``threads`` threads.  ``spans``: (lo, hi) int64 per row when every bin
+    of row r outside [lo[r], hi[r]) is exactly 0 (the flash frame's waveform windows): only the spans are read,
+    for the same results; ignored when the level is not above 0 (zeros would then count)."""
     n_rows = len(truth)
     first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
     peak, bad = np.empty(n_rows, truth.dtype), np.empty(n_rows, np.bool_)
     lv = truth.dtype.type(level)
-    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b]),
-                   n_rows, threads)
+    lo = hi = np.zeros(0, np.int64)
+    if spans is not None and lv > 0:
+        lo, hi = (np.ascontiguousarray(np.clip(x, 0, truth.shape[1]), dtype=np.int64) for x in spans)
+    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b],
+                                             lo[a:b], hi[a:b]), n_rows, threads)
     return first, last, peak, bad
 
 
