@@ -207,8 +207,9 @@ def terrain_pose() -> np.ndarray:
 
 def terrain_configs(quick: bool = False) -> dict:
     """Issue 28's second flash case: 128² px × 4×4 sub-rays, 1024 bins of 0.5 ns from 40 m, FOV 0.6 rad (quick:
-    32² px × 2×2, 256 bins): ideal points only, ideal with the cube, full physics (cube saved), and full physics
-    points only (the default detector model may then skip the signal-free bins)."""
+    32² px × 2×2, 256 bins): ideal points only, ideal with the cube, full physics (cube saved: the default detector
+    model may skip the signal-free bins), full physics points only, and full physics with the counts saved
+    (``run.save_counts``: the per-bin reference route)."""
     def base():
         cfg = SimulationConfig()
         cfg.receiver.width_px = cfg.receiver.height_px = 32 if quick else 128
@@ -217,14 +218,15 @@ def terrain_configs(quick: bool = False) -> dict:
         cfg.gate.n_bins, cfg.gate.bin_width_s = (256 if quick else 1024), 0.5e-9
         cfg.gate.gate_start_s = 2 * 40.0 / 299_792_458.0
         return cfg
-    ideal, cube, full, full_points = base(), base(), base(), base()
+    ideal, cube, full, full_points, full_counts = base(), base(), base(), base(), base()
     ideal.run.save_waveforms = False
-    for c in (full, full_points):
+    for c in (full, full_points, full_counts):
         c.atmosphere.cn2_m_23, c.atmosphere.visibility_m = 1e-14, 10e3
         c.detector.mode, c.detector.detector_type = "noisy", "apd"
     full_points.run.save_waveforms = False
+    full_counts.run.save_counts = True  # counts.npy kept: the per-bin reference route
     return {"ideal_points_only": ideal, "ideal_cube": cube, "full_physics": full,
-            "full_physics_points_only": full_points}
+            "full_physics_points_only": full_points, "full_physics_counts_saved": full_counts}
 
 
 def one_thread(cfg: SimulationConfig) -> SimulationConfig:

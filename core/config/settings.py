@@ -224,9 +224,10 @@ class DetectionSettings:
     signal_free_bins: str = setting("statistical", choices=("per_bin", "statistical"),
                                     doc="Noisy receiver: simulate every bin (per_bin, the reference) or only the "
                                         "stretches with signal, the false alarms of the signal-free stretches "
-                                        "drawn from the filtered noise's statistics (statistical; used when no "
-                                        "per-bin product is saved, the threshold is calibrated or fixed and the "
-                                        "filtered noise is Gaussian within 2 % at the threshold, else per_bin: "
+                                        "drawn from the filtered noise's statistics (statistical; used when the "
+                                        "counts are not kept (run.save_counts), the threshold is calibrated and the "
+                                        "noise law is known exactly (A/D on) or Gaussian within 2 % at the "
+                                        "threshold, else per_bin: "
                                         "the metadata says which ran)",
                                     label="Signal-Free Bins",
                                     choice_labels={'per_bin': 'Per bin (reference)',
@@ -609,6 +610,11 @@ class RunSettings:
                            label="Ray-tracing Threads")
     save_waveforms: bool = setting(True, doc="Write the per-pixel waveform cube to the run folder",
                                    label="Save Waveforms")
+    save_counts: bool = setting(False, doc="Noisy receiver: keep the receiver output of every pixel and bin "
+                                           "(counts.npy).  It needs every bin simulated, so the per-bin reference "
+                                           "route runs (detection.signal_free_bins); without it the statistical "
+                                           "route may serve the echoes and no counts are kept",
+                                label="Save Counts")
     max_memory_bytes: int = setting(4 * 2**30, lo=2**20, hi=2**44, unit="B",
                                     doc="Largest waveform cube (bytes) a run may allocate",
                                     label="Memory Limit", panel_unit="MiB")

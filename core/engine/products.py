@@ -87,10 +87,12 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     return echoes
 
 
-def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
+def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, spans=None):
     """The noisy receiver's echoes with detection.signal_free_bins = "statistical" when it applies
     (core.physics.detection.stretches.validity), else None.  Returns (Echoes, chain report with
-    ``detector_model``) or (None, the decision as a dict for the per-bin route's report)."""
+    ``detector_model``) or (None, the decision as a dict for the per-bin route's report).  ``spans``: (lo, hi)
+    per pixel when ``truth`` is exactly 0 outside [lo, hi) (the binning's windows): only those bins are searched
+    for each pixel's signal (the same results)."""
     d, g, det = config.detection, config.gate, config.detector
     model = {"threshold": d.noisy_threshold_mode, "signal_free_bins": "per_bin"}
     if d.signal_free_bins != "statistical":
@@ -102,7 +104,7 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
         if d.matched_filter and config.laser.pulse_shape == "gaussian" else None
     mode, _ = threshold_model(config, probe.get("noise_sigma"), probe.get("noise_mean"))
-    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_waveforms, law is not None)
+    route, reason, err = validity(probe, det, pulse, d.k_sigma, mode, config.run.save_counts, law is not None)
     model.update(threshold=mode, reason=reason, gaussian_tail_error=err)
     if route != "statistical":
         return None, model
@@ -123,7 +125,8 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None):
                                       bin_width_s=g.bin_width_s, gate_start_s=g.gate_start_s,
                                       codes_per_joule=codes_per_j, seed=seed,
                                       min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law,
-                                      threads=worker_threads(config.run.threads), extents_out=extents)
+                                      threads=worker_threads(config.run.threads), extents_out=extents,
+                                      spans=spans)
     report = dict(reports[0] if reports else probe)
     for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
         report[key] = int(sum(r.get(key, 0) for r in reports))

@@ -132,6 +132,10 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     keep_cube = config.run.save_waveforms or whole_cube or wx is not None
     # every block writes its pixels' whole rows (WaveformWindows.write_rows)
     waveforms = np.empty((det.n_pixels, gate.n_bins), np.float32) if keep_cube else None
+    # each pixel's window of bins in the cube (zeros outside it) while no whole-cube stage adds to the rows: the
+    # statistical detector model then searches the windows alone for each pixel's signal
+    spans = (np.zeros(det.n_pixels, np.int64), np.zeros(det.n_pixels, np.int64)) \
+        if noisy and not blur and wx is None else None
     energy = np.zeros(det.n_pixels)
     max_spread_s = 1000.0 * gate.n_bins * gate.bin_width_s
     rx = config.receiver
@@ -206,6 +210,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         wf = accumulate_waveform_windows(w_pix, w_t, w_e, b - a, config.laser, gate, method, spread_s=w_spread)
         if waveforms is not None:
             wf.write_rows(waveforms, np.arange(a, b))
+            if spans is not None:
+                spans[0][a:b], spans[1][a:b] = wf.start, wf.start + wf.length
         local["waveform"] = stage_clock() - t
         if wx is not None:
             t = stage_clock()
@@ -249,7 +255,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         t_model = stage_clock()
         statistical, model = statistical_noisy_echoes(
             waveforms.reshape(det.height_px, det.width_px, gate.n_bins), config,
-            stage_seed(config.run.seed, frame, "receiver"))
+            stage_seed(config.run.seed, frame, "receiver"), spans=spans)
         t_model = stage_clock() - t_model  # (the route's decision; when it ran, the chain and the detection)
         if statistical is not None:
             echo_parts, receiver_report = [statistical], model

@@ -25,6 +25,7 @@ def test_operator_runs_the_noisy_receiver(lad, scene, tmp_path):
     det.mode = "noisy"
     det.detector_type = "apd"
     det.background_rate_photons_per_s = 5e8  # 0.2 primaries per 1 ns bin at η 0.4
+    cam.ladar.run.save_counts = True  # counts kept: the per-bin reference route (run.save_counts)
     add_plate(scene, size=2.0, location=(0, 0, -100.0))
     scene.ladar.output_dir = str(tmp_path / "runs")
     assert bpy.ops.ladar.simulate() == {"FINISHED"}

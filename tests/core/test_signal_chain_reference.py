@@ -140,6 +140,7 @@ def products():
     out["scan/received_energy_j"] = r.pulses["received_energy_j"]
     cfg = flash_config("gaussian")
     cfg.detector.mode = "noisy"
+    cfg.run.save_counts = True  # counts kept: the per-bin reference route (run.save_counts)
     cfg.receiver.width_px = cfg.receiver.height_px = 16
     cfg.receiver.fov_x_rad = cfg.receiver.fov_y_rad = np.radians(3.0)
     r = simulate_frame(sc, pose(), cfg)

@@ -186,14 +186,22 @@ def _classify_rows(t, rel, absl, guard, lo, hi, cols, det_bin, n_range, n_all, a
 
 
 @kernel
-def _row_extents(truth, level, first, last, peak, bad):
+def _row_extents(truth, level, first, last, peak, bad, span_lo, span_hi):
     """Per row: the first and last bin above ``level`` (−1 when none), the row's largest value when it has such a
     bin (else −inf) and whether it holds a NaN.  One pass over each bin: 64-bin blocks tested with one vectorised
     count from the front up to the first signal bin and from the back down to the last, the bins between them
-    (the signal stretch) in one vectorised max."""
-    n_rows, n = truth.shape
+    (the signal stretch) in one vectorised max.  ``span_lo``/``span_hi`` (non-empty: one per row): every bin of
+    row r outside [span_lo[r], span_hi[r]) is known to be exactly 0 (and ``level`` ≥ 0), so only the span is
+    read — the same results."""
+    n_rows = truth.shape[0]
     for r in range(n_rows):
-        t = truth[r]
+        if span_lo.size:
+            o = span_lo[r]
+            t = truth[r, o:max(o, span_hi[r])]
+        else:
+            o = 0
+            t = truth[r]
+        n = t.shape[0]
         nan = 0
         f = -1
         j = 0
@@ -244,18 +252,26 @@ def _row_extents(truth, level, first, last, peak, bad):
                 pk = v if v > pk else pk
                 nan += v != v
             peak[r] = pk
+        if first[r] >= 0:  # (bins of the span → of the row)
+            first[r] += o
+            last[r] += o
         bad[r] = nan > 0
 
 
-def row_extents(truth, level, threads=1):
+def row_extents(truth, level, threads=1, spans=None):
     """(first, last, peak, has_nan) per row of ``truth`` for the signal level ``level`` in the rows' float type
-    (:func:`_row_extents`), in row chunks on ``threads`` threads."""
+    (:func:`_row_extents`), in row chunks on ``threads`` threads.  ``spans``: (lo, hi) int64 per row when every bin
+    of row r outside [lo[r], hi[r]) is exactly 0 (the flash frame's waveform windows): only the spans are read,
+    for the same results; ignored when the level is not above 0 (zeros would then count)."""
     n_rows = len(truth)
     first, last = np.empty(n_rows, np.int64), np.empty(n_rows, np.int64)
     peak, bad = np.empty(n_rows, truth.dtype), np.empty(n_rows, np.bool_)
     lv = truth.dtype.type(level)
-    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b]),
-                   n_rows, threads)
+    lo = hi = np.zeros(0, np.int64)
+    if spans is not None and lv > 0:
+        lo, hi = (np.ascontiguousarray(np.clip(x, 0, truth.shape[1]), dtype=np.int64) for x in spans)
+    run_row_chunks(lambda a, b: _row_extents(truth[a:b], lv, first[a:b], last[a:b], peak[a:b], bad[a:b],
+                                             lo[a:b], hi[a:b]), n_rows, threads)
     return first, last, peak, bad
 
 
@@ -507,29 +523,35 @@ def _lattice_expectation(t, finite, divisions, lo, g, inv_2v0, n_interior, at_ed
     """out[p] = n_interior[p] × rate of the interior + Σ_k at_edges[p, k] × rate of edge position k, each rate at
     the threshold t[p] (raw-σ units; nothing where not ``finite``) from the lattice values g (rows: the edge
     positions, then the interior; :meth:`_RateLattice.values`) by 4-point Lagrange interpolation of
-    log-rate + t²/(2 v₀)."""
-    n_edges = at_edges.shape[1]
+    log-rate + t²/(2 v₀).  Each position's rate is computed once per run of pixels with the same threshold (a
+    calibrated or fixed threshold: one for the frame) and added in the same order: the same numbers."""
+    n_edges, n_pos = at_edges.shape[1], g.shape[0]
+    rate = np.empty(n_pos)
+    t_prev = np.nan
     for p in range(t.size):
         if not finite[p]:
             continue
-        x = t[p] * divisions
-        n = math.floor(x)
-        f = x - n
-        c = int(n) - lo  # column of node n − 1
-        w0 = -f * (f - 1.0) * (f - 2.0) / 6.0
-        w1 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
-        w2 = -(f + 1.0) * f * (f - 2.0) / 2.0
-        w3 = (f + 1.0) * f * (f - 1.0) / 6.0
-        tt = t[p] * t[p]
-        acc = out[p]
-        for s in range(n_edges, g.shape[0]):  # the interior (none for short rows)
-            if n_interior[p]:
+        if not t[p] == t_prev:  # (the rates of this threshold)
+            t_prev = t[p]
+            x = t[p] * divisions
+            n = math.floor(x)
+            f = x - n
+            c = int(n) - lo  # column of node n − 1
+            w0 = -f * (f - 1.0) * (f - 2.0) / 6.0
+            w1 = (f + 1.0) * (f - 1.0) * (f - 2.0) / 2.0
+            w2 = -(f + 1.0) * f * (f - 2.0) / 2.0
+            w3 = (f + 1.0) * f * (f - 1.0) / 6.0
+            tt = t[p] * t[p]
+            for s in range(n_pos):
                 v = w0 * g[s, c] + w1 * g[s, c + 1] + w2 * g[s, c + 2] + w3 * g[s, c + 3]
-                acc += n_interior[p] * math.exp(v - tt * inv_2v0[s])
+                rate[s] = math.exp(v - tt * inv_2v0[s])
+        acc = out[p]
+        for s in range(n_edges, n_pos):  # the interior (none for short rows)
+            if n_interior[p]:
+                acc += n_interior[p] * rate[s]
         for s in range(n_edges):
             if at_edges[p, s]:
-                v = w0 * g[s, c] + w1 * g[s, c + 1] + w2 * g[s, c + 2] + w3 * g[s, c + 3]
-                acc += math.exp(v - tt * inv_2v0[s])
+                acc += rate[s]
         out[p] = acc
 
 

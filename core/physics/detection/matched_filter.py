@@ -72,6 +72,81 @@ def correlate_row(y, b32, w, ypad, acc, out, exact_pairs):
 
 
 @kernel
+def pad_row(y, b32, h, ypad):
+    """ypad = y − b32 (float32) with h samples of 'nearest' edge on either side, as :func:`correlate_row` makes
+    it."""
+    n = y.shape[0]
+    for i in range(h):
+        ypad[i] = y[0] - b32
+        ypad[n + h + i] = y[n - 1] - b32
+    body = ypad[h:h + n]
+    for i in range(n):
+        body[i] = y[i] - b32
+
+
+@kernel
+def exact_output(ypad, w, i):
+    """Output i of :func:`correlate_row` on the padded row ``ypad`` (made by :func:`pad_row`): the float64 sum in
+    SciPy's order (centre tap, then the folded pairs from the outermost in), rounded to float32 — the same number
+    as correlate_row's (its fused multiply-adds, used only when every pair product is exact, give the same
+    values as these separate ones)."""
+    h = w.shape[0] // 2
+    c = i + h
+    acc = np.float64(ypad[c]) * w[h]
+    for jj in range(-h, 0):
+        acc += (np.float64(ypad[c + jj]) + np.float64(ypad[c - jj])) * w[h + jj]
+    return np.float32(acc)
+
+
+@kernel
+def approx_row(ypad, w32, n, acc, out):
+    """out[:n] ≈ correlate_row's outputs, summed in float32 (eight lanes where correlate_row has four): for
+    screening only; :func:`screen_margin` bounds the difference."""
+    h = w32.shape[0] // 2
+    wc = w32[h]
+    for s in range(0, n, FILTER_BLOCK):
+        m = min(FILTER_BLOCK, n - s)
+        c = s + h
+        centre, dst = ypad[c:c + m], out[s:s + m]
+        for i in range(m):
+            acc[i] = centre[i] * wc
+        jj = -h
+        while jj + 4 <= 0:
+            w1, w2, w3, w4 = w32[h + jj], w32[h + jj + 1], w32[h + jj + 2], w32[h + jj + 3]
+            l1, r1 = ypad[c + jj:c + jj + m], ypad[c - jj:c - jj + m]
+            l2, r2 = ypad[c + jj + 1:c + jj + 1 + m], ypad[c - jj - 1:c - jj - 1 + m]
+            l3, r3 = ypad[c + jj + 2:c + jj + 2 + m], ypad[c - jj - 2:c - jj - 2 + m]
+            l4, r4 = ypad[c + jj + 3:c + jj + 3 + m], ypad[c - jj - 3:c - jj - 3 + m]
+            for i in range(m):
+                acc[i] = acc[i] + (l1[i] + r1[i]) * w1 + (l2[i] + r2[i]) * w2 + (l3[i] + r3[i]) * w3 + \
+                    (l4[i] + r4[i]) * w4
+            jj += 4
+        while jj < 0:
+            wj = w32[h + jj]
+            left, right = ypad[c + jj:c + jj + m], ypad[c - jj:c - jj + m]
+            for i in range(m):
+                acc[i] += (left[i] + right[i]) * wj
+            jj += 1
+        for i in range(m):
+            dst[i] = acc[i]
+
+
+@kernel
+def screen_margin(w, max_abs):
+    """A bound on |approx_row − correlate_row| at any output of a row whose |ypad| ≤ ``max_abs``: every output is
+    a sum of at most h + 1 terms (the centre tap and h pair sums times their taps) of total magnitude at most
+    A = (|w_c| + 2 Σ|w_pairs|)·max_abs.  In float32 (unit roundoff u = 2⁻²⁴) each pair sum, each product and each
+    of the h + 1 additions rounds once: |approx − exact sum| ≤ (h + 3)·u·A/(1 − (h + 3)u); correlate_row's float64
+    sum is within 2⁻⁵²·(h + 3)·A of the exact sum and its float32 rounding within u·A.  The margin returned,
+    (h + 8)·2⁻²³·A, is more than twice their total."""
+    h = w.shape[0] // 2
+    a = abs(w[h])
+    for k in range(h):
+        a += 2.0 * abs(w[k])
+    return (h + 8) * 2.0 ** -23 * a * max_abs
+
+
+@kernel
 def _correlate_rows(y, w, out):
     ypad, acc = np.empty(y.shape[1] + w.shape[0] - 1, np.float32), np.empty(FILTER_BLOCK)
     for r in range(y.shape[0]):

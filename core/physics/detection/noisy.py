@@ -17,7 +17,8 @@ import numpy as np
 from ...constants import SPEED_OF_LIGHT_M_S
 from ...jit import kernel
 from ...threads import map_list
-from .matched_filter import EXACT_PAIR_VALUE, FILTER_BLOCK, correlate_row
+from .matched_filter import (EXACT_PAIR_VALUE, FILTER_BLOCK, approx_row, correlate_row, exact_output, pad_row,
+                             screen_margin)
 from .row_statistics import baseline_noise_row, row_scratch
 
 
@@ -82,6 +83,11 @@ def gaussian_pulse_kernel(fwhm_s, bin_width_s, half_width_sigmas=4.0):
 # ----------------------------------------------------------------------------------------------------------
 # Detection
 # ----------------------------------------------------------------------------------------------------------
+#: A row with a known threshold is screened (filtered in float32, exact outputs near the threshold only) when at
+#: most 1/SCREEN_FRACTION of its outputs are near the threshold; otherwise it is filtered in full.
+SCREEN_FRACTION = 16
+
+
 @kernel
 def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig, filtered, w, norm, adaptive,
                 k_sigma, threshold, min_sep, min_sig, base, sig, thr, pos, samples):
@@ -96,8 +102,9 @@ def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig,
     keys, s1, s2, cast, dev, d1, d2, counts = row_scratch(n)
     ypad, acc = np.empty(n + w.shape[0] - 1, np.float32), np.empty(FILTER_BLOCK)
     yr, yd = np.empty(n, np.float32), np.empty(n, np.float32)
+    w32, acc32, ya = w.astype(np.float32), np.empty(FILTER_BLOCK, np.float32), np.empty(n, np.float32)
+    h = w.shape[0] // 2
     cj, alive = np.empty(n, np.int64), np.empty(n, np.bool_)
-    n_slots = pos.shape[1]
     for r in range(n_rows):
         row = y[r]
         lo, hi = np.float32(0.0), np.float32(0.0)
@@ -119,6 +126,40 @@ def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig,
         s_raw = s_est if estimate_sig else given_sig[r]
         sig[r] = min_sig if s_raw < min_sig else s_raw  # NaN stays NaN, as np.maximum
         b32 = np.float32(base[r])
+        screened = False
+        if filtered and integral and not estimate_sig:  # a threshold known before the row is filtered: screen it
+            pad_row(yr, b32, h, ypad)  # (|y − b32| ≤ max(hi − b32, b32 − lo): the row's extremes, rounded alike)
+            margin = screen_margin(w, max(abs(np.float64(hi - b32)), abs(np.float64(b32 - lo))))
+            thr[r] = k_sigma * (sig[r] / norm) if adaptive else threshold
+            screened = margin < np.inf  # (an infinite baseline: filtered in full below)
+        near = 0
+        if screened:
+            # the row filtered in float32 (twice the lanes); the exact outputs (correlate_row's, bit for bit) only
+            # where the float32 one is within the margin of the threshold, and at their neighbours: every output
+            # above the threshold is among them, so the maxima, their order and their samples are the same.  A
+            # row with many such outputs (a long signal stretch) is filtered in full instead (vectorised).
+            approx_row(ypad, w32, n, acc32, ya)
+            t32 = np.float32(thr[r])
+            t_lo = np.float64(t32) - margin
+            for j in range(1, n - 1):  # (vectorised: most rows have no output near the threshold)
+                near += ya[j] >= t_lo
+            screened = near * SCREEN_FRACTION <= n
+        if screened:
+            nc = 0
+            if near:
+                done = -2  # the last output computed exactly (and the one before it)
+                for j in range(1, n - 1):
+                    if ya[j] >= t_lo:
+                        for i in range(max(j - 1, done + 1), j + 2):
+                            yd[i] = exact_output(ypad, w, i)
+                        done = j + 1
+                        c = yd[j]
+                        if c > t32 and c > yd[j - 1] and c >= yd[j + 1]:
+                            cj[nc] = j
+                            alive[nc] = True
+                            nc += 1
+            _greedy_maxima(yd, cj, alive, nc, min_sep, pos, samples, r)
+            continue
         if filtered:
             exact_pairs = integral and 2 * b32 == np.floor(2 * b32) and max(hi - b32, b32 - lo) < EXACT_PAIR_VALUE
             correlate_row(yr, b32, w, ypad, acc, yd, exact_pairs)
@@ -147,30 +188,38 @@ def _noisy_rows(y, integral, given_base, given_sig, estimate_base, estimate_sig,
                     cj[nc] = j
                     alive[nc] = True
                     nc += 1
-        n_found = 0
-        for k in range(n_slots):
-            best = -1
-            for q in range(nc):
-                if alive[q] and (best < 0 or yd[cj[q]] > yd[cj[best]]):
-                    best = q
-            if best < 0:
-                break
-            j = cj[best]
-            pos[r, k] = j
-            n_found += 1
-            for q in range(nc):
-                if alive[q] and abs(cj[q] - j) < min_sep:
-                    alive[q] = False
-        for k in range(1, n_found):  # time order
-            v = pos[r, k]
-            q = k - 1
-            while q >= 0 and pos[r, q] > v:
-                pos[r, q + 1] = pos[r, q]
-                q -= 1
-            pos[r, q + 1] = v
-        for k in range(n_found):
-            j = pos[r, k]
-            samples[r, k, 0], samples[r, k, 1], samples[r, k, 2] = yd[j - 1], yd[j], yd[j + 1]
+        _greedy_maxima(yd, cj, alive, nc, min_sep, pos, samples, r)
+
+
+@kernel
+def _greedy_maxima(yd, cj, alive, nc, min_sep, pos, samples, r):
+    """Row r's echoes from its nc candidate maxima cj (alive: all True): the strongest (ties: the earliest), then
+    the next outside ``min_sep`` bins of those taken, …; positions in time order, and their three samples."""
+    n_slots = pos.shape[1]
+    n_found = 0
+    for k in range(n_slots):
+        best = -1
+        for q in range(nc):
+            if alive[q] and (best < 0 or yd[cj[q]] > yd[cj[best]]):
+                best = q
+        if best < 0:
+            break
+        j = cj[best]
+        pos[r, k] = j
+        n_found += 1
+        for q in range(nc):
+            if alive[q] and abs(cj[q] - j) < min_sep:
+                alive[q] = False
+    for k in range(1, n_found):  # time order
+        v = pos[r, k]
+        q = k - 1
+        while q >= 0 and pos[r, q] > v:
+            pos[r, q + 1] = pos[r, q]
+            q -= 1
+        pos[r, q + 1] = v
+    for k in range(n_found):
+        j = pos[r, k]
+        samples[r, k, 0], samples[r, k, 1], samples[r, k, 2] = yd[j - 1], yd[j], yd[j + 1]
 
 
 def run_row_chunks(run, n_rows: int, threads: int) -> None:

@@ -79,7 +79,7 @@ def validity(report: dict, det, pulse, k_sigma: float, threshold_mode: str, save
     chain's exact code law of a signal-free bin is known (table route): any white noise law is then handled exactly
     (:class:`LatticeRates`); without it (A/D off) the Gaussian model must hold within GAUSSIAN_TAIL_TOLERANCE."""
     if saves_counts:
-        return "per_bin", "a per-bin product (counts.npy / the waveform cube) is saved", None
+        return "per_bin", "run.save_counts: the counts of every bin are kept (counts.npy)", None
     if det.detector_type == "geiger":
         return "per_bin", ("Geiger histograms: counts of detections with dead time, no linear noise model (the "
                            "calibrated threshold falls back to adaptive)"), None
@@ -467,7 +467,7 @@ def draw_false_alarms(c_lo, c_hi, n_bins, rates, rng):
 
 def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
                        interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
-                       min_noise_sigma=0.0, noise_law=None, threads=1, extents_out=None):
+                       min_noise_sigma=0.0, noise_law=None, threads=1, extents_out=None, spans=None):
     """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
 
     truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
@@ -479,6 +479,7 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     ``extents_out``: a dict that receives the rows' signal extents at the signal level (``first``, ``last``,
     ``peak``, ``has_nan``: :func:`row_extents`; ``level``), from which the false-alarm classification needs only
     the signal stretches (core.physics.detection.false_alarms.classify_false_alarms ``extents``).
+    ``spans``: (lo, hi) per row when truth is exactly 0 outside [lo, hi) (:func:`row_extents`; the same results).
     Returns (NoisyEchoes (P rows), info dict)."""
     truth = np.asarray(truth)
     P, B = truth.shape
@@ -492,7 +493,7 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     if min_separation_bins is None:
         min_separation_bins = max(3, len(pulse) // 2) if pulse is not None else 3
     level = SIGNAL_LEVEL_SIGMA * sigma / codes_per_joule
-    extents = row_extents(truth, level, threads)
+    extents = row_extents(truth, level, threads, spans)
     if extents_out is not None:
         extents_out.update(first=extents[0], last=extents[1], peak=extents[2], has_nan=extents[3],
                            level=truth.dtype.type(level))

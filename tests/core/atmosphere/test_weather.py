@@ -203,6 +203,7 @@ def test_noisy_receiver_sees_the_fog():
     def run(weather, **kw):
         cfg = _flash(weather, **kw)
         cfg.detector.mode = "noisy"
+        cfg.run.save_counts = True  # counts kept: the per-bin reference route (run.save_counts)
         return simulate_frame(plate(30.0, 0.1), np.eye(4), cfg)
     clear = run("none")
     fog = run("fog", visibility_m=200.0, overlap_model="none", backscatter_min_range_m=3.0)

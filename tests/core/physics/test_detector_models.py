@@ -194,7 +194,7 @@ def test_gaussian_rates_refused_for_skewed_noise_and_disagree_when_forced():
     assert validity(report, _detector(detector_type="geiger"), PULSE, K_SIGMA, "calibrated", False, True)[0] \
         == "per_bin"
     assert validity(report, det, PULSE, K_SIGMA, "adaptive", False, True)[0] == "per_bin"  # needs the noise model
-    assert validity(report, det, PULSE, K_SIGMA, "calibrated", True, True)[0] == "per_bin"  # counts.npy saved
+    assert validity(report, det, PULSE, K_SIGMA, "calibrated", True, True)[0] == "per_bin"  # run.save_counts
 
 
 def test_fast_route_disagrees_on_correlated_noise():
@@ -208,9 +208,9 @@ def test_fast_route_disagrees_on_correlated_noise():
 
 
 def test_flash_frame_statistical_route_and_metadata():
-    """The pipeline: detection.signal_free_bins = statistical with the calibrated threshold and no saved cube runs
-    the fast route (no counts.npy: digital_waveforms None), the metadata says which model ran and why; with the
-    cube saved, the same settings run the per-bin reference and keep the counts."""
+    """The pipeline: detection.signal_free_bins = statistical with the calibrated threshold runs the fast route
+    whether or not the noise-free cube is saved (no counts kept: digital_waveforms None), the metadata says which
+    model ran and why; with run.save_counts the same settings run the per-bin reference and keep the counts."""
     import dataclasses
     import sys
     from pathlib import Path
@@ -231,10 +231,18 @@ def test_flash_frame_statistical_route_and_metadata():
     assert fast.digital_waveforms is None and 0 < model["fraction_simulated"] < 0.5
     assert model["false_alarm_rate_model"].startswith("exact code law")
     assert "n_false_alarms" in fast.stats["receiver"]["false_alarms"]
-    saved = simulate_frame(scene, pose, dataclasses.replace(cfg, run=dataclasses.replace(cfg.run,
-                                                                                        save_waveforms=True)))
+    # the noise-free cube saved: still the statistical route, the same echoes and false-alarm flags (the cube is
+    # the same numbers; only whether it is kept differs)
+    cube = simulate_frame(scene, pose, dataclasses.replace(cfg, run=dataclasses.replace(cfg.run,
+                                                                                       save_waveforms=True)))
+    assert cube.stats["receiver"]["detector_model"]["signal_free_bins"] == "statistical"
+    assert cube.digital_waveforms is None and cube.waveforms is not None
+    for key in ("range_m", "intensity", "false_alarm", "snr"):
+        assert np.array_equal(cube.points[key], fast.points[key]), key
+    saved = simulate_frame(scene, pose, dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, save_waveforms=True,
+                                                                                        save_counts=True)))
     model = saved.stats["receiver"]["detector_model"]
-    assert model["signal_free_bins"] == "per_bin" and "saved" in model["reason"]
+    assert model["signal_free_bins"] == "per_bin" and "save_counts" in model["reason"]
     assert saved.digital_waveforms is not None and model["threshold"] == "calibrated"
     # the same echoes on both routes where the signal is strong (the target pixels): detection counts agree
     n_fast, n_ref = len(fast.points["range_m"]), len(saved.points["range_m"])

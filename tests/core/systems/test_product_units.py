@@ -17,6 +17,7 @@ def _flash(mode="ideal", adc=True):
     cfg = config_for(200.0, pixels=6, subsamples=2, bins=128)
     cfg.detector.mode = mode
     cfg.detector.enable_adc = adc
+    cfg.run.save_counts = True  # counts kept: the per-bin reference route (run.save_counts)
     cfg.laser.pulse_energy_j = 1e-3
     return cfg
 

@@ -271,6 +271,7 @@ def test_full_physics_frame_is_the_same_on_any_thread_count_and_block_size():
         cfg.detector.mode, cfg.detector.detector_type = "noisy", "apd"
         cfg.run.threads = cfg.detector.threads = threads
         cfg.run.chunk_rays, cfg.run.seed = chunk, seed
+        cfg.run.save_counts = True  # counts kept: the per-bin reference route (run.save_counts)
         runs.append(simulate_frame(scene, np.eye(4), cfg))
     a, b, other = runs
     assert b.stats["n_blocks"] > 1

@@ -15,6 +15,7 @@ R = 500.0
 def noisy_config(pixels=16, **det):
     cfg = config_for(R, pixels=pixels, subsamples=2, fov_rad=5e-3, bins=128, bin_s=1e-9, margin_bins=50)
     cfg.detector = DetectorSettings(mode="noisy", **det)
+    cfg.run.save_counts = True  # counts kept: the per-bin reference route (run.save_counts)
     return cfg
 
 
