@@ -39,7 +39,7 @@ from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
-from ..physics.waveform import accumulate_waveform_windows, binning_method, round_trip_time_s
+from ..physics.waveform import accumulate_waveform_windows, flash_binning_method, round_trip_time_s
 
 STAGES = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")
 
@@ -123,7 +123,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     blur = atm.blur_r0_m is not None
     noisy = config.detector.mode == "noisy"
     whole_cube = blur or noisy  # echoes are detected after a whole-cube stage
-    method = binning_method(config.laser, gate)
+    method = flash_binning_method(config.laser, gate)  # metadata: waveform_binning
     s2 = det.rays_per_pixel
     per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
     # several threads: at least 8 blocks each when the frame allows (≥ 8192 rays a block)
