@@ -124,3 +124,27 @@ def test_narrow_pulse_and_rectangular_pulse_stay_exact():
     assert W.flash_binning_method(LaserSettings(pulse_fwhm_s=5e-9),
                                   dataclasses.replace(gate, binning="exact")) == "exact"
     assert W.flash_binning_method(LaserSettings(pulse_fwhm_s=30e-9), gate) == "splat"
+
+
+def test_trace_writes_each_hits_normal_bit_for_bit():
+    """``SceneTracer.intersect(normals_out=…)``: the refinement's own read of each hit triangle's unit normal, the
+    values the flash cell model looked up before (``unit_normal[prim]``), bit for bit."""
+    from core.geometry.trace import SceneTracer
+
+    from scenes import plate
+
+    scene = plate(20.0, 2.0, tilt_rad=0.7)
+    tracer = SceneTracer(scene)
+    rng = np.random.default_rng(3)
+    d = np.column_stack([rng.uniform(-0.15, 0.15, 500), rng.uniform(-0.15, 0.15, 500), -np.ones(500)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    normals = np.full((500, 3), np.nan)
+    prim, range_m, cos_theta = tracer.intersect(np.zeros(3), d, normals_out=normals)
+    prim0, range0, cos0 = tracer.intersect(np.zeros(3), d)
+    hit = prim >= 0
+    assert 50 < hit.sum() < 500
+    assert np.array_equal(prim, prim0) and np.array_equal(range_m, range0, equal_nan=True)
+    assert np.array_equal(cos_theta, cos0)
+    assert np.array_equal(normals[hit], tracer.unit_normal[prim[hit]]) and np.isnan(normals[~hit]).all()
+    with pytest.raises(ValueError, match="normals_out"):
+        tracer.intersect(np.zeros(3), d, normals_out=np.empty((3, 3)))
