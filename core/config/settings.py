@@ -185,7 +185,7 @@ class RangeGateSettings:
     binning: str = setting("table", choices=("table", "exact"),
                            doc="Flash frames with a Gaussian pulse of σ ≥ 1 bin (and ≤ 8 bins; wider pulses are "
                                "binned by the splat method): the pulse ⊛ cell boxes integrated over each bin from "
-                               "a precomputed table (table: within 2e-8 of the peak bin of the exact values, "
+                               "a precomputed table (table: within 6e-8 of the peak bin of the exact values, "
                                "docs/flash-model.md) or from the pulse's CDF at every bin edge (exact, the "
                                "reference)",
                            label="Waveform Binning",

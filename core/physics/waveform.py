@@ -51,8 +51,8 @@ def binning_method(laser: LaserSettings, gate: RangeGateSettings) -> str:
     return "exact"
 
 
-#: The table binning needs the pulse's σ to span this many bins at least (its rows are 1/64 of a bin apart: for
-#: σ ≥ 1 bin its interpolation error is < 1e-9 of the peak bin; narrower pulses are binned exactly).
+#: The table binning needs the pulse's σ to span this many bins at least (narrower pulses are binned exactly: the
+#: table would need more than 64 rows a bin, :func:`box_table_rows`).
 TABLE_MIN_SIGMA_BINS = 1.0
 
 
@@ -311,8 +311,15 @@ def _bin_return(values, base, b0, b1, c, e, s, a, b, k, dt, rect_width, buf):
 # ----------------------------------------------------------------------------------------------------------
 # The tabulated pulse ⊛ box ("table" binning of flash frames, Gaussian pulse)
 # ----------------------------------------------------------------------------------------------------------
-#: Rows per bin of the tabulated pulse ⊛ box (:class:`BoxTable`): its step h = 1/N bin in the return's position.
-BOX_TABLE_ROWS = 64
+#: Rows per pulse σ of the tabulated pulse ⊛ box (:class:`BoxTable`): its step h = 1/N bin in the return's
+#: position, N the power of two ≥ 64/σ (σ in bins) and ≥ 16: 16 rows a bin for σ ≥ 4 bins, 64 at σ = 1 bin
+#: (a table of ≈ 0.1 MB: small enough to stay in the cache beside a block's windows).
+BOX_TABLE_ROWS_PER_SIGMA = 64
+
+
+def box_table_rows(sigma_bins: float) -> int:
+    """The rows per bin of the :class:`BoxTable` of a pulse σ (bins): h/σ ≤ 1/64."""
+    return max(16, 1 << int(math.ceil(math.log2(BOX_TABLE_ROWS_PER_SIGMA / sigma_bins))))
 #: Half-width of the tabulated range in pulse σ: beyond it each function takes its limit (the pulse's energy
 #: beyond 7.5σ, 3e-14, is not carried; the bins a return touches are the exact method's, within 6.1σ_eff).
 BOX_TABLE_HALF_SIGMAS = 7.5
@@ -348,15 +355,15 @@ class BoxTable:
 
     Rows: u = u_min + q + i/N (column q, row i = 0 … N).  Between rows, cubic Hermite interpolation with the exact
     derivatives for the main term and the δ term (A₀ with A₀', A₁ with −A₀, A₂ with −A₁, A₀'' with A₀''', −A₀' with
-    −A₀''), linear interpolation for the δ² and δ³ terms.  A table is ≈ 0.3 MB (11 functions × 65 rows × ≈ 70
+    −A₀''), linear interpolation for the δ² and δ³ terms.  A table is ≈ 0.1 MB (11 functions × 17 rows × ≈ 70
     columns), every return at the same fraction of a bin reads the same rows, contiguous across its bins: no
     special function and no table search per bin edge."""
 
-    def __init__(self, sigma_bins: float, rows: int = BOX_TABLE_ROWS):
+    def __init__(self, sigma_bins: float, rows: int | None = None):
         from scipy.special import ndtr
 
         s = float(sigma_bins)
-        self.sigma_bins, self.rows = s, int(rows)
+        self.sigma_bins, self.rows = s, int(rows or box_table_rows(s))
         k = int(math.ceil(BOX_TABLE_HALF_SIGMAS * s))
         self.u_min = -k - 2
         self.n_col = 2 * k + 4
@@ -411,9 +418,10 @@ class BoxTable:
 _BOX_TABLES: dict = {}
 
 
-def box_table(sigma_bins: float, rows: int = BOX_TABLE_ROWS) -> BoxTable:
-    """The :class:`BoxTable` of a pulse σ (bins), kept for later frames (a few; built in a few ms)."""
-    key = (float(sigma_bins), int(rows))
+def box_table(sigma_bins: float, rows: int | None = None) -> BoxTable:
+    """The :class:`BoxTable` of a pulse σ (bins) (``rows``: default :func:`box_table_rows`), kept for later frames
+    (a few; built in a few ms)."""
+    key = (float(sigma_bins), int(rows or box_table_rows(sigma_bins)))
     t = _BOX_TABLES.get(key)
     if t is None:
         if len(_BOX_TABLES) > 8:
@@ -422,7 +430,7 @@ def box_table(sigma_bins: float, rows: int = BOX_TABLE_ROWS) -> BoxTable:
     return t
 
 
-def _table_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, spread_s, rows=BOX_TABLE_ROWS):
+def _table_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, spread_s, rows=None):
     """The table method (:class:`BoxTable`) in one compiled pass, as :func:`_exact_windows` for the exact one."""
     dt = gate.bin_width_s
     sigma = pulse_sigma_s(laser)

@@ -55,7 +55,7 @@ def table_errors(sigma_bins, rows):
 
 @pytest.mark.parametrize("sigma_bins", [4.25, 1.0])
 def test_table_is_within_its_bound_of_the_exact_binning(sigma_bins):
-    err, bound, peak, kind = table_errors(sigma_bins, W.BOX_TABLE_ROWS)
+    err, bound, peak, kind = table_errors(sigma_bins, None)
     assert set(np.unique(kind)) == {0, 1, 2}
     assert np.all(err <= bound), (err / bound).max()
     # the documented figure: within 2e-8 of the return's largest bin
@@ -63,15 +63,17 @@ def test_table_is_within_its_bound_of_the_exact_binning(sigma_bins):
 
 
 def test_a_coarse_table_is_outside_the_fine_tables_bound():
-    """The comparison resolves the table's own error: with 8 rows a bin (h = 1/8) the impulses and trapezoids
-    miss the 64-row bound, and the error falls as h⁴ (8 → 16 rows: ÷ 8 … 32, Hermite's 16)."""
-    err8, _, _, kind = table_errors(4.25, 8)
-    err16, _, _, _ = table_errors(4.25, 16)
-    _, bound64, _, _ = table_errors(4.25, 64)
+    """The comparison resolves the table's own error: with 4 rows a bin (h = 1/4) the impulses and trapezoids
+    miss the default table's bound (16 rows a bin at σ = 4.25 bins), and the error falls as h⁴ (4 → 8 rows:
+    ÷ 8 … 32, Hermite's 16)."""
+    err4, _, _, kind = table_errors(4.25, 4)
+    err8, _, _, _ = table_errors(4.25, 8)
+    _, bound, _, _ = table_errors(4.25, None)
+    assert W.box_table_rows(4.25) == 16
     for k in (0, 2):
-        assert np.max(err8[kind == k] - bound64[kind == k]) > 0, k
+        assert np.max(err4[kind == k] - bound[kind == k]) > 0, k
     trapezoid = kind == 2
-    assert 8 <= err8[trapezoid].max() / err16[trapezoid].max() <= 32
+    assert 8 <= err4[trapezoid].max() / err8[trapezoid].max() <= 32
 
 
 def test_table_keeps_the_energy():
