@@ -6,9 +6,11 @@ integrated over the bin (no point sampling, so pulses narrower than a bin are ex
 
     w_j = Σ_i E_i [P(t_{j+1} − t_i) − P(t_j − t_i)],   t_j = t_gate + jΔ,   P the pulse CDF.
 
-Two exact-in-energy methods:
+Three methods (exact in energy):
 
 * ``exact``: the sum above, evaluated over the bins within the pulse's support (Gaussian ±6.1σ);
+* ``table`` (flash frames' default, ``gate.binning``): the exact method's sum from a table of the bin-integrated
+  pulse and its integrals over the position (:class:`BoxTable`), within its stated bound of ``exact``;
 * ``splat``: when the pulse spans many bins (σ > 8Δ), each impulse is split linearly between the two nearest
   bin centres (energy and centroid preserved) and the per-pixel impulse histogram is convolved with the
   bin-integrated pulse by FFT.  Its relative error is O(Δ²/8σ²) < 0.2 %.
