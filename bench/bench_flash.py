@@ -288,7 +288,8 @@ def terrain_case(repeat: int, quick: bool = False) -> dict:
                            "one_thread": {"time_s": min(times1[k]), "ratio_to_floor": min(times1[k]) / fl1["wall_s"],
                                           "stage_ratio_to_floor": floor.stage_ratios(last1[k].stats["stage_times_s"],
                                                                                      fl1)},
-                           "detector_model": last[k].stats.get("receiver", {}).get("detector_model")}
+                           "detector_model": last[k].stats.get("receiver", {}).get("detector_model"),
+                           "waveform_binning": last[k].stats["waveform_binning"]}
                        for k, v in times.items()}}
 
 

@@ -56,8 +56,9 @@ def test_settings_reference_is_generated_from_the_schema():
     # atmosphere.drop_cut_photoelectrons (issue 30) and scanner.cone_half_angle_y_rad (issue 29: the elliptic
     # Palmer cone); + 2 of session 28 (issue 30): atmosphere.tx_rx_offset_angle_deg, aerosol_layers; + 4 of issue 29
     # (sunlight reflected by the scene): atmosphere.solar_irradiance_w_m2_nm, sun_elevation_rad, sun_azimuth_rad,
-    # receiver.filter_bandwidth_m; + 1 of session 29 (issue 28): run.save_counts
-    assert len(names) == 127 + len(dataclasses.fields(BRDFSettings))
+    # receiver.filter_bandwidth_m; + 2 of session 29 (issue 28): run.save_counts, gate.binning (the tabulated
+    # pulse ⊛ box or the exact binning)
+    assert len(names) == 128 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 

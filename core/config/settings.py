@@ -182,6 +182,14 @@ class RangeGateSettings:
     n_bins: int = setting(2048, lo=1, hi=1_000_000, doc="Number of time bins in the range gate (the default "
                                                       "2048 bins of 1 ns from 0 s cover 0–307 m)",
                           label="Number of Bins")
+    binning: str = setting("table", choices=("table", "exact"),
+                           doc="Flash frames with a Gaussian pulse of σ ≥ 1 bin (and ≤ 8 bins; wider pulses are "
+                               "binned by the splat method): the pulse ⊛ cell boxes integrated over each bin from "
+                               "a precomputed table (table: within 6e-8 of the peak bin of the exact values, "
+                               "docs/flash-model.md) or from the pulse's CDF at every bin edge (exact, the "
+                               "reference)",
+                           label="Waveform Binning",
+                           choice_labels={"table": "Tabulated pulse ⊛ box", "exact": "Exact (reference)"})
 
 
 @dataclass

@@ -84,14 +84,16 @@ class SceneTracer:
         return np.asarray(self._embree.run(np.ascontiguousarray(o), np.ascontiguousarray(directions, np.float32),
                                            query="INTERSECT"), dtype=np.int32)
 
-    def intersect(self, origin_m, directions, max_range_m=None):
+    def intersect(self, origin_m, directions, max_range_m=None, normals_out=None):
         """Trace rays along unit directions (n, 3) float64 from one origin (3,), one origin per ray (n, 3), or one
         origin per group of consecutive rays (n/k, 3) — the k sub-rays of a beam — (world, float64).
         ``max_range_m`` (n,), optional: Embree looks for each ray's nearest hit up to that distance only (its
         float32 distance; a caller that needs every hit up to a range adds a margin for the float32 rounding).
 
         Returns (prim (n,) int32, −1 on a miss; range_m (n,) float64, NaN on a miss; cos_theta (n,) float64,
-        the cosine of the incidence angle, |d·n|, 0 on a miss).
+        the cosine of the incidence angle, |d·n|, 0 on a miss).  ``normals_out`` (n, 3) float64, optional: filled
+        with each hit's world-frame unit normal (``unit_normal[prim]``, read once by the refinement; rows of
+        misses are left as they were), so a later stage need not look the hit triangles up again.
         """
         directions = np.ascontiguousarray(directions, dtype=np.float64)
         origins = np.ascontiguousarray(np.asarray(origin_m, dtype=np.float64).reshape(-1, 3))
@@ -110,8 +112,11 @@ class SceneTracer:
         del o32, d32
         range_m, cos_theta = np.empty(n), np.empty(n)
         ids = self.triangle_ids if self.triangle_ids is not None else np.zeros(0, np.int64)
+        normals = np.zeros((0, 3)) if normals_out is None else normals_out
+        if normals.shape[0] not in (0, n) or normals.dtype != np.float64:
+            raise ValueError("normals_out needs (n, 3) float64, one row per ray")
         _refine_hits(prim, ids, self.degenerate, self.unit_normal, self.scene.vertices_m, self.scene.triangles,
-                     origins, k, directions, range_m, cos_theta)
+                     origins, k, directions, range_m, cos_theta, normals)
         return prim, range_m, cos_theta
 
 
@@ -149,23 +154,24 @@ def _triangle_planes(vertices, triangles, ids, unit_normal, degenerate):
 
 @kernel
 def _refine_hits(prim, triangle_ids, degenerate, unit_normal, vertices, triangles, origins, k, directions, range_m,
-                 cos_theta):
+                 cos_theta, normal_out):
     """The float64 refinement of Embree's hits, in place (``prim``: Embree's primitive ids, turned into the
     scene's triangle indices through ``triangle_ids`` when the BVH holds a subset): a hit on a degenerate
     triangle, or whose plane lies behind the origin, becomes a miss (prim −1); otherwise range
     t = ((v₀ − o)·n)/(d·n) along the ray and cos θ = |d·n| on the hit triangle's plane (unit normal n, first
     vertex v₀), o the origin of the ray's group of k.  Each dot product is summed as (x₀y₀ + x₂y₂) + x₁y₁, the
-    order of NumPy's einsum over three components."""
+    order of NumPy's einsum over three components.  ``normal_out`` (n, 3), or (0, 3) for none: each hit's n."""
     mapped = triangle_ids.shape[0] > 0
+    normals = normal_out.shape[0] > 0
     for g in range(origins.shape[0]):
         for i in range(g * k, (g + 1) * k):
             _refine_hit(prim, i, g, mapped, triangle_ids, degenerate, unit_normal, vertices, triangles, origins,
-                        directions, range_m, cos_theta)
+                        directions, range_m, cos_theta, normals, normal_out)
 
 
 @kernel
 def _refine_hit(prim, i, r, mapped, triangle_ids, degenerate, unit_normal, vertices, triangles, origins,
-                directions, range_m, cos_theta):
+                directions, range_m, cos_theta, normals, normal_out):
     range_m[i], cos_theta[i] = np.nan, 0.0
     p = prim[i]
     if p < 0:
@@ -185,5 +191,7 @@ def _refine_hit(prim, i, r, mapped, triangle_ids, degenerate, unit_normal, verti
     if t > 0:
         range_m[i] = t
         cos_theta[i] = abs(dn)
+        if normals:
+            normal_out[i, 0], normal_out[i, 1], normal_out[i, 2] = n0, n1, n2
     else:
         prim[i] = -1

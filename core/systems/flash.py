@@ -39,7 +39,7 @@ from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
-from ..physics.waveform import accumulate_waveform_windows, binning_method, round_trip_time_s
+from ..physics.waveform import accumulate_waveform_windows, flash_binning_method, round_trip_time_s
 
 STAGES = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")
 
@@ -123,7 +123,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     blur = atm.blur_r0_m is not None
     noisy = config.detector.mode == "noisy"
     whole_cube = blur or noisy  # echoes are detected after a whole-cube stage
-    method = binning_method(config.laser, gate)
+    method = flash_binning_method(config.laser, gate)  # metadata: waveform_binning
     s2 = det.rays_per_pixel
     per_block = max(1, min(config.run.chunk_rays // s2, BLOCK_WAVEFORM_BYTES // (8 * gate.n_bins)))
     # several threads: at least 8 blocks each when the frame allows (≥ 8192 rays a block)
@@ -153,8 +153,9 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     # no field-of-view culling), photons/s before η
     sun_rate = np.zeros(det.n_pixels) if noisy and solar_enabled(config) else None
 
-    def trace_tan(x_tan, y_tan):
-        return tracer.intersect(origin, rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T))
+    def trace_tan(x_tan, y_tan, normals_out=None):
+        return tracer.intersect(origin, rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T),
+                                normals_out=normals_out)
 
     def process(block):
         a, b = block
@@ -163,7 +164,11 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         smp = sampler.block(a, b)  # receiver.subray_pattern (core/physics/sampling.py)
         local["rays"] = stage_clock() - t
         t = stage_clock()
-        prim, range_m, cos_theta = trace_tan(smp.x_tan, smp.y_tan)
+        # the cell model's normals written by the refinement, which reads them anyway (a 2M-triangle scene: a
+        # second random look-up per hit cost ≈ 50 ns); the adaptive pattern's second pass merges hits: looked up
+        normals = (np.empty((len(smp.x_tan), 3)) if config.receiver.cell_range_spread and not sampler.adaptive
+                   else None)
+        prim, range_m, cos_theta = trace_tan(smp.x_tan, smp.y_tan, normals)
         local["trace"] = stage_clock() - t
         if sampler.adaptive:  # second pass over the pixels whose rays disagree
             t = stage_clock()
@@ -182,8 +187,13 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
                                               rows_matmul(tan_to_unit_direction(x_tan, y_tan), rot.T), prim,
                                               range_m, index, pix_local, omega, b - a)
         if config.receiver.cell_range_spread:  # each cell's surface spans a range interval (core/physics/sampling.py)
-            spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta, prim, tracer.unit_normal, rot,
-                                                      max_spread_s)
+            if normals is None:
+                spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta, prim, tracer.unit_normal,
+                                                          rot, max_spread_s)
+            else:  # (each ray its own row of normals)
+                spread, range_hit, cos_hit = cell_returns(smp, index, range_m, cos_theta,
+                                                          np.arange(len(prim), dtype=prim.dtype), normals, rot,
+                                                          max_spread_s)
         else:
             spread, range_hit, cos_hit = None, range_m[index], cos_theta[index]
         e = received_energy(config.laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
