@@ -1,8 +1,8 @@
 """Whole-suite settings.  ``scripts/test.sh`` runs the suite on two pytest-xdist workers, each test file whole on
 one worker (``--dist loadfile``: module fixtures and a file's own order, e.g. a "the runs left the committed files
 alone" check after the runs, stay as in a serial run).  Files are handed out in the order collected here: under
-xdist the files that take longest go first, after :data:`FIRST_FILES` (longest-first keeps the two workers busy until the end instead of one
-waiting on a late slow file); a serial run keeps pytest's own order.
+xdist the files that take longest go first, after :data:`FIRST_FILES` (longest-first keeps the two workers busy until
+the end instead of one waiting on a late slow file); a serial run keeps pytest's own order.
 
 The suite's compiled kernels go to ``build/kernel-cache/`` of this checkout (git-ignored, not part of the
 extension: ``scripts/blender_env.PACKAGE_PATHS``), unless ``LADAR_KERNEL_CACHE`` is set already; every test process
