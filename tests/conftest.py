@@ -1,8 +1,8 @@
 """Whole-suite settings.  ``scripts/test.sh`` runs the suite on two pytest-xdist workers, each test file whole on
 one worker (``--dist loadfile``: module fixtures and a file's own order, e.g. a "the runs left the committed files
 alone" check after the runs, stay as in a serial run).  Files are handed out in the order collected here: under
-xdist the files that take longest go first (longest-first keeps the two workers busy until the end instead of one
-waiting on a late slow file); a serial run keeps pytest's own order.
+xdist the files that take longest go first, after :data:`FIRST_FILES` (longest-first keeps the two workers busy until
+the end instead of one waiting on a late slow file); a serial run keeps pytest's own order.
 
 The suite's compiled kernels go to ``build/kernel-cache/`` of this checkout (git-ignored, not part of the
 extension: ``scripts/blender_env.PACKAGE_PATHS``), unless ``LADAR_KERNEL_CACHE`` is set already; every test process
@@ -22,6 +22,7 @@ session that ran every test of the suite with fewer attempts in all fails.
 """
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -53,45 +54,58 @@ def pytest_configure(config):
     if not os.environ.get("PYTEST_XDIST_WORKER"):  # once a session: the controller, or the one process
         compile_project()
 
-#: Test files that take longest: the sum of their tests' seconds in one run of the whole suite on two workers with an
-#: empty kernel cache (``--junitxml``; 3,424 s wall at load 7-13 on the shared 2-core machine, about 6 times the
-#: quiet 562 s, so each figure is that sum divided by 6; test_jit_cache.py scaled by its later change's CPU,
-#: 118.7 s -> 43.6 s; test_bench_quick.py likewise, 96 s -> 68 s of CPU warm with most benchmarks in process).  A
-#: file not listed counts as quick; only the order in which the files are handed to the workers depends on these
-#: figures.
+#: Test files that take longest: the CPU seconds of their tests (the test process's and the child processes' it
+#: waited for: ``scripts/ladar_run.py`` runs, benchmarks, Dask workers) in one run of the whole suite on two workers
+#: (session 29: 1,901 tests, 774 s of CPU in the tests, 1,216 s wall at load 4-12 on the shared 2-core machine;
+#: tests/test_documented_commands.py and tests/addon/test_sweep_example.py as after that session's merge of their
+#: two runs of the README's sweep).  CPU rather than wall: under load the wall figures mostly measure the other
+#: jobs.  A file not listed counts as quick; only the order in which the files are handed to the workers depends on
+#: these figures.
 SLOW_FILES = {
-    "tests/core/sweep/test_sweep.py": 170.5,
-    "tests/addon/test_cli.py": 109.7,
-    "tests/test_documented_commands.py": 108.1,
-    "tests/test_bench_quick.py": 86.0,
-    "tests/addon/test_fault_injection.py": 67.7,
-    "tests/addon/test_sweep_cluster.py": 32.2,
-    "tests/test_validation_report.py": 32.0,
-    "tests/core/test_jit_cache.py": 31.5,
-    "tests/core/physics/detection/test_noisy_kernels.py": 26.7,
-    "tests/addon/test_sequence.py": 24.1,
-    "tests/addon/test_cli_hostile_input.py": 23.3,
-    "tests/addon/test_sweep_blender.py": 21.6,
-    "tests/addon/test_sweep_example.py": 20.7,
-    "tests/addon/test_progress_heartbeat.py": 18.0,
-    "tests/core/test_jit_signals.py": 12.4,
-    "tests/addon/test_readme_examples.py": 11.5,
-    "tests/addon/test_results.py": 10.9,
-    "tests/addon/test_systems.py": 9.6,
-    "tests/core/physics/test_detector_models.py": 9.4,
-    "tests/core/atmosphere/test_scintillation.py": 9.2,
-    "tests/core/atmosphere/test_wave_optics_scintillation.py": 8.9,
-    "tests/core/test_fuzz_inputs.py": 8.2,
-    "tests/core/atmosphere/test_atmosphere.py": 8.2,
-    "tests/addon/test_modal.py": 8.0,
-    "tests/addon/test_simulate.py": 7.58,
-    "tests/core/test_input_boundary.py": 7.57,
+    "tests/test_bench_quick.py": 60.9,
+    "tests/addon/test_fault_injection.py": 54.7,
+    "tests/addon/test_sweep_example.py": 50.3,
+    "tests/core/sweep/test_sweep.py": 45.7,
+    "tests/addon/test_cli.py": 45.7,
+    "tests/addon/test_sweep_cluster.py": 44.8,
+    "tests/test_validation_report.py": 43.9,
+    "tests/core/test_jit_cache.py": 37.5,
+    "tests/test_documented_commands.py": 29.9,
+    "tests/addon/test_sweep_blender.py": 24.9,
+    "tests/core/atmosphere/test_weather.py": 20.5,
+    "tests/addon/test_sequence.py": 19.8,
+    "tests/addon/test_cli_hostile_input.py": 16.7,
+    "tests/core/test_fuzz_inputs.py": 14.0,
+    "tests/core/physics/test_detector_models.py": 11.7,
+    "tests/test_sensor_table.py": 10.6,
+    "tests/addon/test_modal.py": 10.1,
+    "tests/core/test_sensor_presets.py": 10.1,
+    "tests/core/test_jit_signals.py": 10.1,
+    "tests/addon/test_progress_heartbeat.py": 10.1,
+    "tests/core/atmosphere/test_aerosol_layers.py": 9.8,
+    "tests/addon/test_sample_views.py": 9.1,
+    "tests/addon/test_results.py": 8.8,
+    "tests/addon/test_readme_examples.py": 8.2,
+    "tests/core/fileio/test_full_disk.py": 6.7,
+    "tests/core/physics/test_solar_background.py": 6.6,
+    "tests/core/fileio/test_ply_clients.py": 5.8,
+    "tests/core/atmosphere/test_scintillation.py": 5.8,
+    "tests/core/test_input_boundary.py": 5.7,
+    "tests/core/atmosphere/test_wave_optics_scintillation.py": 5.6,
+    "tests/addon/test_simulate.py": 5.5,
+    "tests/addon/test_systems.py": 5.5,
+    "tests/core/atmosphere/test_atmosphere.py": 5.1,
 }
+
+#: Handed out before every other file whatever its figure: tests/addon/test_cli.py's first test is the warm-up
+#: (``scripts/ladar_run.py warm-up``), which with an empty ``build/kernel-cache/`` compiles every system's kernels
+#: once, early, for the ``scripts/ladar_run.py`` runs of the other files that share that cache.
+FIRST_FILES = ("tests/addon/test_cli.py",)
 
 
 def _weight(item) -> float:
     path = item.nodeid.split("::", 1)[0]
-    return SLOW_FILES.get(path, 0.0)
+    return math.inf if path in FIRST_FILES else SLOW_FILES.get(path, 0.0)
 
 
 def pytest_collection_modifyitems(session, config, items):

@@ -19,8 +19,6 @@ whose command left the docs fails it too.  The ``run`` variants leave every comm
 """
 from __future__ import annotations
 
-import csv
-import json
 import re
 import shlex
 import subprocess
@@ -29,8 +27,6 @@ import tomllib
 from pathlib import Path
 
 import pytest
-
-from tests.silence import timed_run
 
 REPO = Path(__file__).resolve().parents[1]
 MAPPING = REPO / "docs" / "commands.toml"
@@ -177,64 +173,6 @@ def test_documented_command_runs(entry, tmp_path, git_before):
     assert proc.returncode == 0, f"{entry['run']}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
     for rel in entry.get("creates", []):
         assert (tmp_path / rel).exists(), f"{entry['run']}: no {rel} in the output folder"
-
-
-def _toml_value(v):
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{json.dumps(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    return json.dumps(v)
-
-
-def quick_sweep_file(source: Path, dest: Path) -> dict:
-    """The sweep file ``source`` with one seed and each axis cut to its first and last value (2 × … tasks)."""
-    spec = tomllib.loads(source.read_text(encoding="utf-8"))
-    spec["seeds"] = 1
-    axes = {}
-    for name, axis in spec["axes"].items():
-        if isinstance(axis, dict):
-            axis = dict(axis, num=2) if "num" in axis else axis
-        else:
-            axis = [axis[0], axis[-1]] if len(axis) > 1 else axis
-        axes[name] = axis
-    first = next(iter(axes))
-    spec["axes"] = {name: (a if name == first else ([a[-1]] if isinstance(a, list) else dict(a, num=1)))
-                    for name, a in axes.items()}
-    lines = []
-    tables = {k: v for k, v in spec.items() if isinstance(v, dict)}
-    lines += [f"{k} = {_toml_value(v)}" for k, v in spec.items() if k not in tables]
-    for k, v in tables.items():
-        lines.append(f"[{k}]")
-        lines += [f"{json.dumps(kk)} = {_toml_value(vv)}" for kk, vv in v.items()]
-    dest.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return spec
-
-
-def test_readme_sweep_example_runs_quick(tmp_path, git_before):
-    """``scripts/ladar_run.py sample_blends/flash_demo.blend sweep docs/examples/range_visibility.toml --out …``
-    with one seed and two points (the first axis's ends, the last value of the others), on one worker; then
-    ``scripts/sweep_plots.py DIR`` draws the plots again from its table.  Never silent for more than 2 s."""
-    quick = tmp_path / "range_visibility_quick.toml"
-    spec = quick_sweep_file(REPO / "docs" / "examples" / "range_visibility.toml", quick)
-    assert spec["seeds"] == 1
-    out_dir = tmp_path / "rv"
-    proc = timed_run([sys.executable, str(REPO / "scripts" / "ladar_run.py"), "sample_blends/flash_demo.blend",
-                      "sweep", str(quick), "--out", str(out_dir), "--workers", "1"], cwd=REPO, timeout=600)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
-    assert not proc.silences(), proc.silences()  # from the process's start to its exit (issue 27)
-    progress = [t for _, t in proc.lines if t.startswith("ladar: sweep ") and "%" in t]
-    assert all(t.count("ETA") <= 1 for t in progress), progress  # one ETA a line: the sweep's, from its tasks
-    assert any(re.search(r"2/2 tasks; plots \d+/\d+ \(", t) for t in progress), progress  # the plots count
-    with open(out_dir / "results.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert len(rows) == 2 and all(r["status"] == "done" for r in rows), rows
-    proc = subprocess.run([sys.executable, str(REPO / "scripts" / "sweep_plots.py"), str(out_dir)], cwd=REPO,
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    assert list((out_dir / "plots").glob("*.png"))
 
 
 def test_the_runs_left_the_committed_files_alone(git_before):

@@ -82,3 +82,16 @@ def test_the_session_wrote_the_projects_bytecode():
     cached.unlink()
     suite.compile_project()
     assert cached.is_file()
+
+
+def test_the_first_files_go_before_the_slowest(monkeypatch):
+    """tests/addon/test_cli.py (its warm-up fills an empty kernel cache for the session's ladar_run.py runs) is
+    handed out first, ahead of files with larger figures; the others keep the longest-first order."""
+    first = suite.FIRST_FILES[0]
+    assert (REPO / first).is_file()
+    heaviest = max((f for f in suite.SLOW_FILES if f not in suite.FIRST_FILES), key=suite.SLOW_FILES.get)
+    assert suite.SLOW_FILES[heaviest] > suite.SLOW_FILES.get(first, 0.0)  # (else the test shows nothing)
+    items = [_item("tests/a_quick.py::t"), _item(f"{heaviest}::x"), _item(f"{first}::w"), _item(f"{first}::v")]
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw0")
+    suite.pytest_collection_modifyitems(None, None, items)
+    assert [i.nodeid for i in items] == [f"{first}::w", f"{first}::v", f"{heaviest}::x", "tests/a_quick.py::t"]

@@ -587,10 +587,13 @@ def _run_tasks(client, run_task, out, plan, pending, results, failed_dir, n_tota
         if progress is not None:
             report()  # at once: the sweep has started
         while futures:
+            # asked before every batch, not only while none is ready: tasks that keep finishing (small ones, two
+            # workers) left no idle moment, and a cancelled sweep went on for thousands of tasks (4,000 seen at load
+            # 12 before the cancel was noticed)
+            if cancel is not None and cancel():
+                raise Cancelled()
             batch = ac.next_batch(block=False)
             if not batch:
-                if cancel is not None and cancel():
-                    raise Cancelled()
                 time.sleep(0.05)
                 continue
             for fut in batch:

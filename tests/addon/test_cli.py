@@ -139,7 +139,9 @@ def test_export_and_validate_config_errors(lad, plate_scene, tmp_path, capsys):
 
 
 def test_ladar_run_script_in_a_fresh_process(lad, plate_scene, tmp_path):
-    """scripts/ladar_run.py installs the extension in its own isolated Blender and runs the same handler."""
+    """scripts/ladar_run.py installs the extension in its own isolated Blender and runs the same handler.  (A
+    single run of this plate, ``simulate --out r1 --seed 3``, and its products: the two runs of
+    :func:`test_a_second_run_in_a_new_blender_user_folder_loads_every_kernel`, the same command.)"""
     blend = tmp_path / "plate.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
 
@@ -147,10 +149,6 @@ def test_ladar_run_script_in_a_fresh_process(lad, plate_scene, tmp_path):
         return subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"), str(blend), *args],
                               capture_output=True, text=True, timeout=300, cwd=tmp_path)
 
-    ok = run("simulate", "--out", str(tmp_path / "r1"), "--seed", "3")
-    assert ok.returncode == 0, ok.stderr
-    assert (tmp_path / "r1" / "range.exr").is_file()
-    assert json.loads((tmp_path / "r1" / "metadata.json").read_text())["seed"] == 3
     usage = run("simulate", "--frames")
     assert usage.returncode == 2 and "--frames: expected one argument" in usage.stderr
     helped = run("simulate", "--help")
@@ -181,7 +179,10 @@ def test_a_second_run_in_a_new_blender_user_folder_loads_every_kernel(lad, plate
                                "--out", str(tmp_path / name), "--seed", "3"], capture_output=True, text=True,
                               timeout=600, cwd=tmp_path, env=env)
         assert done.returncode == 0, done.stderr
-        kernels.append(json.loads((tmp_path / name / "metadata.json").read_text())["kernels"])
+        assert (tmp_path / name / "range.exr").is_file()
+        meta = json.loads((tmp_path / name / "metadata.json").read_text())
+        assert meta["seed"] == 3
+        kernels.append(meta["kernels"])
         assert "kernels  " in done.stdout
     assert kernels[0]["compiled"] > 0 and kernels[0]["loaded"] == 0
     assert kernels[1]["compiled"] == 0 and kernels[1]["loaded"] > 0, kernels

@@ -1,8 +1,8 @@
 """The README's per-system examples, in quick form, through the same ``ladar`` command handler that
 ``blender -b SCENE -c ladar …`` and ``scripts/ladar_run.py SCENE …`` run (docs/commands.toml maps the documented
-commands here; tests/test_documented_commands.py checks the mapping and runs the sweep example).  Outputs go to a temporary
-folder; each sample scene is the committed .blend, with a config file cutting only its size where the full run is
-long (the forest scan: 1000 pulses instead of 100 000)."""
+commands here; tests/test_documented_commands.py checks the mapping, tests/addon/test_sweep_example.py runs the sweep
+example).  Outputs go to a temporary folder; each sample scene is the committed .blend, with a config file cutting
+only its size where the full run is long (the forest scan: 1000 pulses instead of 100 000)."""
 import json
 from pathlib import Path
 

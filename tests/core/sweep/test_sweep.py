@@ -724,3 +724,58 @@ def test_a_local_cluster_of_too_many_or_no_workers_is_refused(tmp_path, n):
     assert err.value.field == "workers" and err.value.value == n
     assert f"a whole number in [1, {max_local_workers()}]" in str(err.value)
     assert not (tmp_path / "sw").exists()
+
+
+def test_a_cancel_is_noticed_while_results_keep_coming(tmp_path, monkeypatch):
+    """The client's loop asks ``cancel()`` before every batch of finished tasks, not only when none is ready: with
+    results always ready (small tasks on busy workers) a cancelled sweep used to go on for thousands of tasks
+    (4,000 of the largest sweep's at load 12).  A stand-in client whose every poll returns the tasks in flight as
+    finished: the cancel asked for at the second progress line ends the loop right after the first batch
+    (FIRST_BATCH tasks done), and the tasks still in flight are cancelled."""
+    import types
+
+    import distributed as dist
+
+    from core.errors import Cancelled
+    from core.sweep.runner import FIRST_BATCH, _run_tasks
+
+    class Future:
+        def __init__(self, key):
+            self.key = key
+
+        def result(self):
+            return {"task": self.key.rsplit("-", 1)[-1], "status": "done", "run_time_s": 0.0}
+
+        def release(self):
+            pass
+
+    class Client:
+        cancelled = []
+
+        def map(self, func, payloads, key, pure):
+            return [Future(k) for k in key]
+
+        def cancel(self, futures):
+            self.cancelled += futures
+
+    class AlwaysReady:  # distributed.as_completed where every future has finished by the next poll
+        def __init__(self):
+            self.waiting = []
+
+        def add(self, fut):
+            self.waiting.append(fut)
+
+        def next_batch(self, block=False):
+            batch, self.waiting = self.waiting, []
+            return batch
+
+    monkeypatch.setattr(dist, "as_completed", AlwaysReady)
+    n_total = 5000
+    tasks = [{"name": f"t{i:05d}"} for i in range(n_total)]
+    plan = types.SimpleNamespace(manifest={"scene_digest": "0"}, fingerprint="f" * 16)
+    seen, results, client = [], {}, Client()
+    with pytest.raises(Cancelled):
+        _run_tasks(client, repr, tmp_path, plan, tasks, results, tmp_path / "failed", n_total, 0,
+                   lambda fraction, text: seen.append(text), lambda: len(seen) >= 2)
+    assert len(results) == FIRST_BATCH and len(seen) == 2 and seen[1].startswith(f"{FIRST_BATCH}/{n_total} tasks")
+    assert len(client.cancelled) > 0  # the next submission, still in flight, was cancelled
