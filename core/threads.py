@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -67,40 +68,49 @@ def imap(fn, items, threads: int):
     results = [None] * n
     done = [False] * n
     errors: dict[int, BaseException] = {}
-    cond = threading.Condition()
+    lock = threading.Lock()
     stop = threading.Event()
     order = itertools.count()
+    # The caller waits on SimpleQueues, never on a threading.Condition: a signal's exception (core.process raises
+    # Interrupted in the main thread) raised inside Condition.wait between its release of the lock and its
+    # try-block leaves the lock released, and the `with` block's exit then fails ("RuntimeError: cannot release
+    # un-acquired lock", exit 1 instead of the signal's); SimpleQueue.get is one C call that the handler's
+    # exception leaves cleanly.  ``ready``: an item's index once its result is in, -1 once a runner stopped on an
+    # error; ``ended``: one token per runner that has returned.
+    ready: queue.SimpleQueue = queue.SimpleQueue()
+    ended: queue.SimpleQueue = queue.SimpleQueue()
 
     def runner():
-        while not stop.is_set():
-            with cond:
-                i = next(order)
-            if i >= n:
-                return
-            try:
-                value = fn(items[i])
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller
-                with cond:
-                    errors[i] = exc
+        try:
+            while not stop.is_set():
+                with lock:
+                    i = next(order)
+                if i >= n:
+                    return
+                try:
+                    value = fn(items[i])
+                except BaseException as exc:  # noqa: BLE001 - handed to the caller
+                    with lock:
+                        errors[i] = exc
                     stop.set()
-                    cond.notify_all()
-                return
-            with cond:
+                    ready.put(-1)
+                    return
                 results[i] = value
                 done[i] = True
-                cond.notify_all()
+                ready.put(i)
+        finally:
+            ended.put(None)
 
     pool = _executor(k)
     futures = [pool.submit(runner) for _ in range(k)]
     finished = interrupted = False
     try:
         for i in range(n):
-            with cond:
-                while not done[i] and not errors:
-                    cond.wait()
-                if not done[i]:
-                    break
-                value, results[i] = results[i], None
+            while not done[i] and not errors:
+                ready.get()
+            if not done[i]:
+                break
+            value, results[i] = results[i], None
             yield value
         else:
             finished = True
@@ -110,8 +120,8 @@ def imap(fn, items, threads: int):
     finally:
         stop.set()
         if not interrupted:
-            for f in futures:  # the running items finish before the caller goes on (or unwinds)
-                f.result()
+            for _ in futures:  # the running items finish before the caller goes on (or unwinds)
+                ended.get()
     if not finished and errors:
         raise _first(errors)
 
@@ -157,8 +167,16 @@ def map_list(fn, items, threads: int) -> list:
                     errors[i] = exc
                 return
 
+    ended: queue.SimpleQueue = queue.SimpleQueue()  # one token per worker that has returned (imap: why not a Future)
+
+    def worker(t):
+        try:
+            run(t)
+        finally:
+            ended.put(None)
+
     pool = _executor(k - 1)
-    futures = [pool.submit(run, t) for t in range(1, k)]
+    futures = [pool.submit(worker, t) for t in range(1, k)]
     interrupted = False
     try:
         run(0)
@@ -167,8 +185,8 @@ def map_list(fn, items, threads: int) -> list:
         raise
     finally:
         if not interrupted and not any(isinstance(e, KeyboardInterrupt) for e in list(errors.values())):
-            for f in futures:  # (a worker that has not started takes nothing: every item is done or stopped)
-                f.result()
+            for _ in futures:  # (a worker that has not started takes nothing: every item is done or stopped)
+                ended.get()
     if errors:
         raise _first(errors)
     return results

@@ -208,3 +208,30 @@ def _run_callers(caller, n):
     for t in threads:
         t.join()
     return errors
+
+
+@pytest.mark.parametrize("run", [th.map_list, lambda f, x, t: list(th.imap(f, x, t))], ids=["map_list", "imap"])
+def test_the_caller_never_waits_in_a_condition_a_signal_could_break(run, monkeypatch):
+    """A signal's exception (core.process raises Interrupted in the main thread) raised inside CPython's
+    Condition.wait after it released the lock and before its try-block left the lock released: the caller's
+    ``with cond`` then failed with "RuntimeError: cannot release un-acquired lock" (exit 1 with a traceback instead
+    of the signal's exit; seen once in test_fault_injection's SIGHUP during a cold compile).  Here every
+    Condition.wait of the calling thread does exactly that (releases, then raises): the old imap (its
+    ``cond.wait``) and map_list (``Future.result``) fail with a RuntimeError releasing the unheld lock; the caller
+    now waits only on
+    SimpleQueue.get, which a signal leaves cleanly, so the items' results come back as without the patch."""
+    caller = threading.current_thread()
+    real_wait = threading.Condition.wait
+
+    def wait_then_signal(self, timeout=None):
+        if threading.current_thread() is caller:
+            self._release_save()  # the window: the lock released, the try-block not yet entered
+            raise KeyboardInterrupt("a signal inside Condition.wait")
+        return real_wait(self, timeout)
+
+    def slow(x):
+        time.sleep(0.01 * (x % 3))  # the caller must wait for its workers
+        return 2 * x
+
+    monkeypatch.setattr(threading.Condition, "wait", wait_then_signal)
+    assert run(slow, range(12), 2) == [2 * x for x in range(12)]
