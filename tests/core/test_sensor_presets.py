@@ -11,6 +11,7 @@ import math
 
 import pytest
 
+from core.constants import SPEED_OF_LIGHT_M_S
 from core.config.files import config_from_dict, config_to_dict, dump_config_toml, load_config
 from core.errors import ConfigError
 from core.presets import PUBLISHED_KEYS, list_presets, load_preset, preset_config
@@ -108,6 +109,20 @@ def test_maximum_range_at_the_second_reflectivity(name):
         _expect(pub, "second_range_m", abs(p1 - p_def) <= 3 * se and p2 < p_def)
     else:
         _expect(pub, "second_range_m", p1 >= p_def > p2)
+
+
+@pytest.mark.parametrize("name", [n for n in PRESETS if preset_config(n).system_type == "scanner"])
+def test_a_scanners_range_gate_reaches_its_published_ranges(name):
+    """A user's run of the preset records echoes out to every range its data sheet states: the checks set their
+    own gate (core/presets/checks.py _gate_on), so a preset gate that stops short (the VUX-1UAV's 0–600 m against
+    its 920 m figure, before) would pass them and still lose a user's far echoes."""
+    pub, cfg = load_preset(name).published, preset_config(name)
+    g = cfg.gate
+    start_m = g.gate_start_s * SPEED_OF_LIGHT_M_S / 2
+    end_m = (g.gate_start_s + g.n_bins * g.bin_width_s) * SPEED_OF_LIGHT_M_S / 2
+    for key in ("max_range_m", "second_range_m", "detected_range_m"):
+        if key in pub:
+            assert start_m <= pub[key] <= end_m, (key, pub[key], start_m, end_m)
 
 
 @pytest.mark.parametrize("name", PRESETS)
