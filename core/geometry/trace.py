@@ -60,18 +60,14 @@ class SceneTracer:
             # time counted) when the tracer is
             self._embree.run(np.zeros((1, 3), np.float32), np.array([[0.0, 0.0, 1.0]], np.float32),
                              query="INTERSECT")
-        # plane of each traced triangle in float64 world coordinates (scene-indexed), one record of six values a
-        # triangle: its unit normal and its first vertex v₀, read together by the refinement (a copy of v₀ beside
-        # the normal: the hit's triangle and then its vertex looked up in turn cost the 2M-triangle terrain's
-        # refinement twice the time, for 24 bytes a triangle); and whether it is degenerate (untraced triangles
-        # count as degenerate, their records 0)
+        # plane of each traced triangle in float64 world coordinates (scene-indexed): its unit normal, and
+        # whether it is degenerate (untraced triangles count as degenerate); its vertex v₀ is read from the scene
         m = scene.n_triangles
-        self.planes = np.zeros((m, 6))
-        self.unit_normal = self.planes[:, :3]  # (a view: the normals' rows 48 bytes apart)
+        self.unit_normal = np.zeros((m, 3))
         self.degenerate = np.ones(m, bool)
         if len(tris):
             _triangle_planes(v, scene.triangles, np.zeros(0, np.int64) if self.triangle_ids is None
-                             else self.triangle_ids, self.planes, self.degenerate)
+                             else self.triangle_ids, self.unit_normal, self.degenerate)
 
     def serves(self, scene: SceneGeometry) -> bool:
         """True if this BVH was built on ``scene``'s geometry (the same vertex and triangle arrays): material
@@ -119,7 +115,8 @@ class SceneTracer:
         normals = np.zeros((0, 3)) if normals_out is None else normals_out
         if normals.shape[0] not in (0, n) or normals.dtype != np.float64:
             raise ValueError("normals_out needs (n, 3) float64, one row per ray")
-        _refine_hits(prim, ids, self.degenerate, self.planes, origins, k, directions, range_m, cos_theta, normals)
+        _refine_hits(prim, ids, self.degenerate, self.unit_normal, self.scene.vertices_m, self.scene.triangles,
+                     origins, k, directions, range_m, cos_theta, normals)
         return prim, range_m, cos_theta
 
 
@@ -135,11 +132,10 @@ def _rays_float32(origins, k, reference, directions, o32, d32):
 
 
 @kernel
-def _triangle_planes(vertices, triangles, ids, planes, degenerate):
-    """Unit normal n = (v₁ − v₀) × (v₂ − v₀) / |…| (``planes[:, :3]``) and first vertex v₀ (``planes[:, 3:]``) of
-    the triangles ``ids`` (all when empty) and whether each is degenerate (|…| = 0; its cross product is then left
-    unscaled), each term rounded as NumPy's ``cross``, ``linalg.norm`` ((x² + y²) + z²) and division round it (no
-    whole-scene temporaries)."""
+def _triangle_planes(vertices, triangles, ids, unit_normal, degenerate):
+    """Unit normal n = (v₁ − v₀) × (v₂ − v₀) / |…| of the triangles ``ids`` (all when empty) and
+    whether each is degenerate (|…| = 0; its cross product is then left unscaled), each term rounded as NumPy's
+    ``cross``, ``linalg.norm`` ((x² + y²) + z²) and division round it (no whole-scene temporaries)."""
     every = ids.shape[0] == 0
     for i in range(triangles.shape[0] if every else ids.shape[0]):
         p = i if every else ids[i]
@@ -153,41 +149,49 @@ def _triangle_planes(vertices, triangles, ids, planes, degenerate):
         norm = math.sqrt((nx * nx + ny * ny) + nz * nz)
         degenerate[p] = norm == 0.0
         d = norm if norm != 0.0 else 1.0
-        planes[p, 0], planes[p, 1], planes[p, 2] = nx / d, ny / d, nz / d
-        planes[p, 3], planes[p, 4], planes[p, 5] = x0, y0, z0
+        unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2] = nx / d, ny / d, nz / d
 
 
 @kernel
-def _refine_hits(prim, triangle_ids, degenerate, planes, origins, k, directions, range_m, cos_theta, normal_out):
+def _refine_hits(prim, triangle_ids, degenerate, unit_normal, vertices, triangles, origins, k, directions, range_m,
+                 cos_theta, normal_out):
     """The float64 refinement of Embree's hits, in place (``prim``: Embree's primitive ids, turned into the
     scene's triangle indices through ``triangle_ids`` when the BVH holds a subset): a hit on a degenerate
     triangle, or whose plane lies behind the origin, becomes a miss (prim −1); otherwise range
-    t = ((v₀ − o)·n)/(d·n) along the ray and cos θ = |d·n| on the hit triangle's plane (``planes``: unit normal n,
-    first vertex v₀), o the origin of the ray's group of k.  Each dot product is summed as (x₀y₀ + x₂y₂) + x₁y₁,
-    the order of NumPy's einsum over three components.  ``normal_out`` (n, 3), or (0, 3) for none: each hit's n."""
+    t = ((v₀ − o)·n)/(d·n) along the ray and cos θ = |d·n| on the hit triangle's plane (unit normal n, first
+    vertex v₀), o the origin of the ray's group of k.  Each dot product is summed as (x₀y₀ + x₂y₂) + x₁y₁, the
+    order of NumPy's einsum over three components.  ``normal_out`` (n, 3), or (0, 3) for none: each hit's n."""
     mapped = triangle_ids.shape[0] > 0
     normals = normal_out.shape[0] > 0
     for g in range(origins.shape[0]):
-        o0, o1, o2 = origins[g, 0], origins[g, 1], origins[g, 2]
         for i in range(g * k, (g + 1) * k):
-            range_m[i], cos_theta[i] = np.nan, 0.0
-            p = prim[i]
-            if p < 0:
-                continue
-            if mapped:
-                p = triangle_ids[p]
-                prim[i] = p
-            if degenerate[p]:
-                prim[i] = -1
-                continue
-            n0, n1, n2 = planes[p, 0], planes[p, 1], planes[p, 2]
-            dn = (directions[i, 0] * n0 + directions[i, 2] * n2) + directions[i, 1] * n1
-            wn = ((planes[p, 3] - o0) * n0 + (planes[p, 5] - o2) * n2) + (planes[p, 4] - o1) * n1
-            t = wn / (dn if dn != 0.0 else np.inf)
-            if t > 0:
-                range_m[i] = t
-                cos_theta[i] = abs(dn)
-                if normals:
-                    normal_out[i, 0], normal_out[i, 1], normal_out[i, 2] = n0, n1, n2
-            else:
-                prim[i] = -1
+            _refine_hit(prim, i, g, mapped, triangle_ids, degenerate, unit_normal, vertices, triangles, origins,
+                        directions, range_m, cos_theta, normals, normal_out)
+
+
+@kernel
+def _refine_hit(prim, i, r, mapped, triangle_ids, degenerate, unit_normal, vertices, triangles, origins,
+                directions, range_m, cos_theta, normals, normal_out):
+    range_m[i], cos_theta[i] = np.nan, 0.0
+    p = prim[i]
+    if p < 0:
+        return
+    if mapped:
+        p = triangle_ids[p]
+        prim[i] = p
+    if degenerate[p]:
+        prim[i] = -1
+        return
+    n0, n1, n2 = unit_normal[p, 0], unit_normal[p, 1], unit_normal[p, 2]
+    v = triangles[p, 0]
+    dn = (directions[i, 0] * n0 + directions[i, 2] * n2) + directions[i, 1] * n1
+    wn = (((vertices[v, 0] - origins[r, 0]) * n0 + (vertices[v, 2] - origins[r, 2]) * n2)
+          + (vertices[v, 1] - origins[r, 1]) * n1)
+    t = wn / (dn if dn != 0.0 else np.inf)
+    if t > 0:
+        range_m[i] = t
+        cos_theta[i] = abs(dn)
+        if normals:
+            normal_out[i, 0], normal_out[i, 1], normal_out[i, 2] = n0, n1, n2
+    else:
+        prim[i] = -1
