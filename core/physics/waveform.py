@@ -202,14 +202,16 @@ def _exact_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, spread_
     return win
 
 
-@kernel
-def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold,
-                  half_s, drop, rect_width):
-    """The exact method's windows and values: per return (energy > 0; rays sorted by pixel) its position u in
-    bins, its boxes (:func:`core.physics.laser.sorted_spread_pair`, :func:`~core.physics.laser.gaussian_box_params`)
-    and its bins [lo, hi] within the pulse's support; per pixel the window covering its returns; then each
-    return's CDF differences added in ray order (:func:`_bin_return`).  Impulses with a rectangular pulse of
-    full width ``rect_width`` are binned here; its boxed returns are flagged (``rect_boxed``) and left."""
+@kernel(inline=True)
+def _plan_returns(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, half_s,
+                  imp_half, drop, rect_width):
+    """The planning pass the exact and the table methods share: per return (energy > 0; rays sorted by pixel) its
+    position u in bins, its boxes (:func:`core.physics.laser.sorted_spread_pair`,
+    :func:`~core.physics.laser.gaussian_box_params`: σ_eff ``sig``, ``box_a``, ``box_b`` and the ``kind``) and its
+    bins [lo, hi] within the pulse's support (impulses: ``imp_half`` bins either side), ``binned_hi`` the last bin
+    it adds to (lo − 1 for none: an impulse outside the gate, a boxed return of the rectangular pulse of full width
+    ``rect_width`` > 0, flagged ``rect_boxed``, whose half-support is ``half_s``); per pixel the window covering its
+    returns' bins (start, length) and the windows' offsets."""
     n = time_s.shape[0]
     u = np.empty(n)
     lo = np.zeros(n, np.int64)
@@ -222,7 +224,6 @@ def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
     rect_boxed = np.zeros(n, np.bool_)
     start = np.zeros(n_pixels, np.int64)
     stop = np.zeros(n_pixels, np.int64)
-    imp_half = half_s / dt
     imp_k = int(math.ceil(2 * imp_half)) + 2  # bins touched by one impulse
     has_spread = spread.shape[0] > 0
     for i in range(n):
@@ -264,6 +265,20 @@ def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
     offset = np.zeros(n_pixels + 1, np.int64)
     for p in range(n_pixels):
         offset[p + 1] = offset[p] + length[p]
+    return u, lo, hi, binned_hi, sig, box_a, box_b, kind, rect_boxed, start, length, offset
+
+
+@kernel
+def _exact_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold,
+                  half_s, drop, rect_width):
+    """The exact method's windows and values: per return its plan (:func:`_plan_returns`: position u in bins, boxes,
+    σ_eff and bins [lo, hi] within the pulse's support; per pixel the window covering its returns), then each
+    return's CDF differences added in ray order (:func:`_bin_return`).  Impulses with a rectangular pulse of
+    full width ``rect_width`` are binned here; its boxed returns are flagged (``rect_boxed``) and left."""
+    u, lo, hi, binned_hi, sig, box_a, box_b, kind, rect_boxed, start, length, offset = _plan_returns(
+        pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, half_s,
+        half_s / dt, drop, rect_width)
+    n = time_s.shape[0]
     values = np.zeros(offset[n_pixels])
     buf = np.empty(64)
     for i in range(n):
@@ -450,58 +465,13 @@ def _table_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, spread_
 @kernel
 def _table_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, drop,
                   flat, u_min, n_col, rows):
-    """Windows and values of the table method: the exact method's returns, kinds, σ_eff and bins (the first pass
-    of :func:`_exact_kernel`, Gaussian pulse), each return's value from the :class:`BoxTable` ``flat``."""
+    """Windows and values of the table method: the exact method's returns, kinds, σ_eff and bins
+    (:func:`_plan_returns`, Gaussian pulse; its impulses' half-support ``half_ratio``·σ), each return's value
+    from the :class:`BoxTable` ``flat``."""
+    u, lo, _, hi, sig, box_a, box_b, kind, _, start, length, offset = _plan_returns(
+        pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, 0.0,
+        half_ratio * sigma / dt, drop, 0.0)
     n = time_s.shape[0]
-    u = np.empty(n)
-    lo = np.zeros(n, np.int64)
-    hi = np.full(n, -1, np.int64)
-    sig = np.empty(n)
-    box_a = np.zeros(n)
-    box_b = np.zeros(n)
-    kind = np.zeros(n, np.int64)
-    start = np.zeros(n_pixels, np.int64)
-    stop = np.zeros(n_pixels, np.int64)
-    imp_half = half_ratio * sigma / dt
-    imp_k = int(math.ceil(2 * imp_half)) + 2  # bins touched by one impulse
-    has_spread = spread.shape[0] > 0
-    for i in range(n):
-        if not energy[i] > 0:
-            continue
-        c = (time_s[i] - gate_start_s) / dt
-        u[i] = c
-        a, b = 0.0, 0.0
-        if has_spread:
-            a, b = sorted_spread_pair(spread[i, 0], spread[i, 1], drop)
-        if a > 0:
-            sig[i], a, b, kind[i] = gaussian_box_params(a, b, sigma, fold)
-            half = (half_ratio * sig[i] + 0.5 * (a + b)) / dt
-            box_a[i], box_b[i] = a, b
-            lo[i] = int(max(math.floor(c - half), 0.0))
-            hi[i] = int(min(math.floor(c + half), n_bins - 1.0))
-            if hi[i] >= lo[i]:
-                p = pixel[i]
-                if stop[p] == 0:
-                    start[p], stop[p] = lo[i], hi[i] + 1
-                else:
-                    start[p], stop[p] = min(start[p], lo[i]), max(stop[p], hi[i] + 1)
-        else:
-            sig[i] = sigma
-            first = int(math.floor(c - imp_half))
-            lo[i] = max(first, 0)
-            hi[i] = min(first + imp_k - 1, n_bins - 1)
-            if hi[i] >= lo[i]:  # the window as the exact method's (an impulse outside the gate bins nothing)
-                p = pixel[i]
-                if stop[p] == 0:
-                    start[p], stop[p] = lo[i], hi[i] + 1
-                else:
-                    start[p], stop[p] = min(start[p], lo[i]), max(stop[p], hi[i] + 1)
-            if not (c + imp_half >= 0 and c - imp_half < n_bins):
-                hi[i] = lo[i] - 1
-    length = stop - start
-    offset = np.zeros(n_pixels + 1, np.int64)
-    for p in range(n_pixels):
-        offset[p + 1] = offset[p] + length[p]
     values = np.zeros(offset[n_pixels])
     buf = np.empty(64)
     inv_dt = 1.0 / dt
