@@ -8,8 +8,8 @@ pulse centred at u, in gate bins, that falls in bin b; :class:`.waveform.PulseTa
     w_b = Σ_i e_i F(b; u_i).
 
 With E = Σ e_i, the centroid ū = Σ e_i u_i / E, d_i = u_i − ū, V = Σ e_i d_i² / E and M₃ = Σ e_i |d_i|³ / E,
-Taylor's theorem with the Lagrange remainder at third order, summed with Σ e_i d_i = 0, gives (docs/theory.md
-§4, "the centroid pulse"):
+Taylor's theorem with the Lagrange remainder at third order, summed with Σ e_i d_i = 0, gives (docs/systems.md,
+"The centroid pulse"):
 
     w_b = E [F(b; ū) + ½ V ∂²F/∂u²(b; ū)] − (1/6) Σ_i e_i d_i³ ∂³F/∂u³(b; ξ_i),
 
@@ -25,9 +25,9 @@ pulse in a canopy or over an edge, whose returns spread over the pulse width: ε
 sub-ray by sub-ray exactly as the reference does, bit for bit.
 
 What the bound means for the echoes (3-point interpolation around the peak bin, Gaussian or parabolic): each of
-the three samples moves by at most ε of the peak, so the echo position moves by at most ≈ 3 ε σ'² bins
-(σ'² = σ² + 1/12, the bin-integrated pulse's variance; the derivation is in docs/theory.md §4), the amplitude by
-≈ ε of itself, and the echo count changes only where the exact waveform lies within ε of a threshold (the
+the three samples moves by at most ε of the peak, so the echo position moves by at most 3 ε σ'² bins
+(σ'² = σ² + 1/12, the bin-integrated pulse's variance; the derivation is in docs/systems.md), the amplitude by
+≈ 3 ε of itself (but for the detector's own flat tops: docs/systems.md), and the echo count changes only where the exact waveform lies within ε of a threshold (the
 centroid pulse is unimodal for V < 2σ²/3, so a pulse on this route has one echo).
 
 Echo detection on the centroid route reads only the bins around the peak (:data:`PEAK_HALF_WINDOW` each side of
