@@ -125,22 +125,16 @@ def _centroid_echoes(pulse, u, energy, rows, wide, d2rows, k, half, n_bins, b3_6
         b = a
         while b < n and pulse[b] == pulse[a]:
             b += 1
-        lo, hi = n_bins, -1
-        e_sum, eu_sum, finite = 0.0, 0.0, True
-        u0 = 0.0
-        first_valid = True
+        e_sum, eu_sum, finite, n_valid = 0.0, 0.0, True, 0
+        u0 = u[a]  # (a reference near the returns: the sums of small differences)
         for r in range(a, b):
             if energy[r] > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
-                j = int(math.floor(u[r]))
-                lo = min(lo, max(j - k, 0))
-                hi = max(hi, min(j + k, n_bins - 1))
-                if first_valid:
-                    u0, first_valid = u[r], False
+                n_valid += 1
                 e_sum += energy[r]
                 eu_sum += energy[r] * (u[r] - u0)
                 if not energy[r] < math.inf:
                     finite = False
-        if hi < lo:
+        if n_valid == 0:
             a = b
             continue
         done = False
@@ -186,6 +180,12 @@ def _centroid_echoes(pulse, u, energy, rows, wide, d2rows, k, half, n_bins, b3_6
                     stats[1] = max(stats[1], eps)
                     done = True
         if not done:  # the reference: every sub-ray's return added (waveform._table_echoes' sums)
+            lo, hi = n_bins, -1
+            for r in range(a, b):
+                if energy[r] > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
+                    j = int(math.floor(u[r]))
+                    lo = min(lo, max(j - k, 0))
+                    hi = max(hi, min(j + k, n_bins - 1))
             length = hi - lo + 1
             buf[:length + wcol - ncol] = 0.0
             for r in range(a, b):
