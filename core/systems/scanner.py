@@ -355,11 +355,6 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     m = len(weight)
     method = binning_method(laser, gate)
     table = PulseTable(laser, gate.bin_width_s) if laser.pulse_shape == "gaussian" and method == "exact" else None
-    centroid = (table is not None and config.scanner.pulse_model == "centroid" and not (save or noisy)
-                and config.atmosphere.weather == "none")
-    if centroid:  # one tabulated pulse at the sub-rays' energy centroid where it is within its bound (pulse_table.py)
-        table = CentroidPulseTable(laser, gate.bin_width_s)
-    centroid_route = {}  # block start → (pulses on the centroid route, their largest bound ε)
 
     t0 = stage_clock()
     needs_ref = any(s not in turbulence_switches(config)
@@ -379,6 +374,13 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         times["weather"] = stage_clock() - t0
         for stage, reason in weather_switches(config).items():
             log.skip(stage, reason)
+    # the windowed route (no full-gate waveforms): one tabulated pulse at the sub-rays' energy centroid where it is
+    # within its bound (scanner.pulse_model = centroid, core/physics/pulse_table.py)
+    centroid = (table is not None and config.scanner.pulse_model == "centroid" and not (save or noisy)
+                and wx is None)
+    if centroid:
+        table = CentroidPulseTable(laser, gate.bin_width_s)
+    centroid_route = {}  # block start → (pulses on the centroid route, their largest bound ε)
     if not noisy:
         log.skip("receiver_chain", "detector.mode = ideal: echoes from the noise-free waveforms")
     if not save:
@@ -550,7 +552,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
              "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
              "pulse_model": _pulse_model_record(config, table if centroid else None, centroid_route, n_pulses,
-                                                save, noisy),
+                                                save, noisy, wx is not None),
              "scan_duration_s": scan_duration_s(config), "stage_times_s": log.times,
              "wall_time_s": time.perf_counter() - fr.t_wall,
              "received_energy_j": float(pulses["received_energy_j"].sum()),
@@ -579,14 +581,14 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                        tracer=tracer)
 
 
-def _pulse_model_record(config, table, route: dict, n_pulses: int, save: bool, noisy: bool) -> dict:
+def _pulse_model_record(config, table, route: dict, n_pulses: int, save: bool, noisy: bool, weather: bool) -> dict:
     """Which pulse model ran (``scanner.pulse_model``) and, for the centroid model, on how many pulses."""
     if table is None:
         why = ("" if config.scanner.pulse_model == "subrays" else
                " (scanner.pulse_model = centroid applies to the ideal receiver's windowed waveforms of a Gaussian "
-               "pulse in clear air with run.save_waveforms = false; this run "
+               "pulse binned exactly, in clear air, with run.save_waveforms = false; this run "
                + ("saves the waveforms" if save else "has the noisy receiver" if noisy else
-                  "has weather" if config.atmosphere.weather != "none" else "bins its pulse otherwise") + ")")
+                  "has weather" if weather else "bins its pulse otherwise") + ")")
         return {"model": "subrays", "requested": config.scanner.pulse_model, "note": "every sub-ray's return summed"
                                                                                      + why}
     n_c = int(sum(v[0] for v in route.values()))
