@@ -69,8 +69,8 @@ def _gauss_derivatives(s, sigma):
 class CentroidPulseTable:
     """:class:`.waveform.PulseTable` (the reference's rows, shared) with the second derivative of its rows in the
     position, tabulated the same way: ∂²F/∂u²(j + m; j + f) = g'(m + 1 − f) − g'(m − f), g the pulse's pdf in bins;
-    and B₃ = max |∂³F/∂u³| / max F (sampled on a grid 1/64 bin fine: the sampling misses the maximum of a
-    smooth curve by a relative O(1/(64 σ))², below 1e-4 for σ ≥ 1 bin)."""
+    and B₃ = max |∂³F/∂u³| / max F (sampled on a grid of min(1, σ)/64 bin: the sampling misses the maximum of a
+    smooth curve by a relative O(1/64)², 2.4e-4)."""
 
     def __init__(self, laser, bin_width_s, tolerance: float = CENTROID_BIN_TOLERANCE):
         if laser.pulse_shape != "gaussian":
@@ -84,7 +84,9 @@ class CentroidPulseTable:
         s0 = m[None, :] - f[:, None]
         self.d2rows = (_gauss_derivatives(s0 + 1.0, self.sigma_bins)[1]
                        - _gauss_derivatives(s0, self.sigma_bins)[1])
-        s = np.arange(-int(8 * self.sigma_bins + 2) * 64, int(8 * self.sigma_bins + 2) * 64 + 1) / 64.0
+        step = min(1.0, self.sigma_bins) / 64.0
+        reach = int((8 * self.sigma_bins + 2) / step)
+        s = np.arange(-reach, reach + 1) * step
         third = _gauss_derivatives(s + 1.0, self.sigma_bins)[2] - _gauss_derivatives(s, self.sigma_bins)[2]
         self.b3 = float(np.abs(third).max() / self.base.rows.max())
 
@@ -115,8 +117,9 @@ def _centroid_echoes(pulse, u, energy, rows, wide, d2rows, k, half, n_bins, b3_6
     terms in the same order).  ``stats``: [pulses on the centroid route, the largest ε among them]."""
     n_tab = rows.shape[0] - 1
     ncol, wcol = rows.shape[1], wide.shape[1]
+    hw = min(hw, k)  # (a pulse narrower than the window: its whole row)
     buf = np.zeros(n_bins + wcol)
-    cand = np.empty(n_bins, np.int64)
+    cand = np.empty(max(n_bins, 2 * hw + 1), np.int64)
     win = np.empty(2 * hw + 1)
     n_out = 0
     a = 0

@@ -165,3 +165,26 @@ def test_the_edges_of_the_gate_and_infinite_energy_take_the_sum():
     assert n_c == 0
     for f in ("pixel", "position_bins", "amplitude", "n_echoes"):
         np.testing.assert_array_equal(getattr(got, f), getattr(ref, f))
+
+
+@pytest.mark.parametrize("fwhm_s, k", [(1e-9, 4), (0.5e-9, 3)])
+def test_a_pulse_narrower_than_the_detection_window(fwhm_s, k):
+    """A 1 ns or 0.5 ns pulse in 1 ns bins (σ = 0.42 or 0.21 bins: its table spans 2k + 1 = 9 or 7 bins, the
+    ±4-bin window or less: then the whole row):
+    returns of a plate at normal incidence (all at one range: ε = 0) take the centroid route and give the sum's
+    echoes within the bounds; B₃ is still the Gaussian's (1.3801/σ³ less the bin integral's lowering)."""
+    las = laser(fwhm_s)
+    tab, ref_tab = CentroidPulseTable(las, 1e-9), PulseTable(las, 1e-9)
+    assert tab.base.k == k and tab.b3 * tab.sigma_bins ** 3 < 1.3801 * 1.0001
+    rng = np.random.default_rng(2)
+    p = np.repeat(np.arange(300), 7)
+    u = np.repeat(rng.uniform(20, 200, 300), 7)
+    e = np.full(len(u), 1e-15)
+    det = DetectionSettings()
+    got, n_c, eps = tab.echoes(p, u, e, 300, 256, det)
+    ref = ref_tab.echoes(p, u, e, 300, 256, det)
+    assert n_c == 300 and eps < 1e-12
+    np.testing.assert_array_equal(got.n_echoes, ref.n_echoes)
+    s2 = tab.sigma_bins ** 2 + 1 / 12
+    assert np.abs(got.position_bins - ref.position_bins).max() <= 3 * CENTROID_BIN_TOLERANCE * s2 + 1e-9
+    np.testing.assert_allclose(got.amplitude, ref.amplitude, rtol=3 * CENTROID_BIN_TOLERANCE)
