@@ -43,6 +43,7 @@ import numpy as np
 
 from ..jit import kernel
 from .detection.peaks import INTERPOLATION, Echoes, detect_row
+from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_sigma_s
 from .waveform import PulseTable, table_add_return
 
@@ -93,12 +94,27 @@ class CentroidPulseTable:
     def echoes(self, pulse_local, u, energy_j, n_pulses, n_bins, detection):
         """(Echoes, the number of pulses on the centroid route, the largest ε among them): the echoes of each
         pulse's waveform over the gate's ``n_bins`` bins, as :meth:`.waveform.PulseTable.echoes` (same inputs)."""
-        cap = min(len(u), n_pulses) * detection.max_echoes
+        return self._echoes(pulse_local, np.asarray(u, np.float64), 0.0, 1.0, energy_j, n_pulses, n_bins,
+                            detection)
+
+    def echoes_from_ranges(self, pulse_local, range_m, gate, energy_j, n_pulses, detection):
+        """:meth:`echoes` of returns at ranges ``range_m``: u = (2R/c − t_gate)/Δ, evaluated in the kernel in the
+        order of ``(round_trip_time_s(range_m) − gate_start_s) / bin_width_s`` (the same u to the bit, without
+        the two whole-block arrays)."""
+        return self._echoes(pulse_local, np.asarray(range_m, np.float64), float(gate.gate_start_s),
+                            float(gate.bin_width_s), energy_j, n_pulses, gate.n_bins, detection, from_range=True)
+
+    def _echoes(self, pulse_local, x, t0, dt, energy_j, n_pulses, n_bins, detection, from_range=False):
+        u = x if not from_range else None
+        cap = min(len(x), n_pulses) * detection.max_echoes
         pix, pos, amp = np.empty(cap, np.int64), np.empty(cap), np.empty(cap)
         idx, cnt = np.empty(cap, np.int16), np.empty(cap, np.int16)
         stats = np.zeros(2)
         t = self.base
-        k = _centroid_echoes(np.asarray(pulse_local, np.int64), np.asarray(u, np.float64),
+        if u is None:
+            u = np.empty(len(x))
+            _positions(x, t0, dt, SPEED_OF_LIGHT_M_S, u)
+        k = _centroid_echoes(np.asarray(pulse_local, np.int64), u,
                              np.asarray(energy_j, np.float64), t.rows, t.wide, self.d2rows, t.k, t.half, n_bins,
                              self.b3 / 6.0, self.tolerance, PEAK_HALF_WINDOW,
                              float(detection.threshold_j), float(detection.relative_threshold),
@@ -210,3 +226,12 @@ def _centroid_echoes(pulse, u, energy, rows, wide, d2rows, k, half, n_bins, b3_6
                                cand, out_pix, pulse[a], out_pos, out_amp, out_idx, out_n, n_out)
         a = b
     return n_out
+
+
+@kernel
+def _positions(range_m, gate_start_s, bin_width_s, c, out):
+    """Each return's position in gate bins, ``(2 R / c − gate_start_s) / bin_width_s``, rounded as NumPy rounds
+    ``(round_trip_time_s(R) − gate_start_s) / bin_width_s`` (the same operations in the same order, no fused
+    multiply-add: the kernels are compiled without fastmath)."""
+    for i in range(range_m.shape[0]):
+        out[i] = (2.0 * range_m[i] / c - gate_start_s) / bin_width_s

@@ -469,7 +469,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         tallies[a] = gate_tally(range_hit, e, window)
         local["radiometry"] = stage_clock() - t - local.get("weather", 0.0)
         t = stage_clock()
-        t_rt = round_trip_time_s(range_hit)
+        t_rt = None if centroid else round_trip_time_s(range_hit)  # (the centroid kernel takes the ranges)
         dig = None
         if save or noisy or wx is not None:
             w_p, w_t, w_e, _ = merge_returns(p_hit, t_rt, e, None, drops_ret)
@@ -508,8 +508,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                 echoes = detect_echoes(wf, config.detection)
                 local["echoes"] = stage_clock() - t
         elif centroid:
-            u = (t_rt - gate.gate_start_s) / gate.bin_width_s
-            echoes, n_c, eps = table.echoes(p_hit, u, e, n, gate.n_bins, config.detection)
+            echoes, n_c, eps = table.echoes_from_ranges(p_hit, range_hit, gate, e, n, config.detection)
             centroid_route[a] = (n_c, eps)
             local["waveform"] = stage_clock() - t
         else:

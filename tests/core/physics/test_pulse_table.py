@@ -188,3 +188,29 @@ def test_a_pulse_narrower_than_the_detection_window(fwhm_s, k):
     s2 = tab.sigma_bins ** 2 + 1 / 12
     assert np.abs(got.position_bins - ref.position_bins).max() <= 3 * CENTROID_BIN_TOLERANCE * s2 + 1e-9
     np.testing.assert_allclose(got.amplitude, ref.amplitude, rtol=3 * CENTROID_BIN_TOLERANCE)
+
+
+def test_positions_from_ranges_are_numpys_to_the_bit():
+    """echoes_from_ranges computes u = (2R/c − t_gate)/Δ in a kernel: the same u as the scanner's NumPy
+    expression (round_trip_time_s, then the gate), hence the same echoes, bit for bit."""
+    from types import SimpleNamespace
+
+    from core.physics.pulse_table import _positions
+    from core.physics.waveform import round_trip_time_s
+
+    rng = np.random.default_rng(5)
+    r = rng.uniform(95.0, 119.0, 200_000)
+    gate = SimpleNamespace(gate_start_s=2 * 95.0 / C, bin_width_s=0.25e-9, n_bins=640)
+    ref_u = (round_trip_time_s(r) - gate.gate_start_s) / gate.bin_width_s
+    u = np.empty(len(r))
+    _positions(r, gate.gate_start_s, gate.bin_width_s, C, u)
+    np.testing.assert_array_equal(u, ref_u)
+    tab = CentroidPulseTable(laser(), 0.25e-9)
+    p = np.repeat(np.arange(len(r) // 19 + 1), 19)[:len(r)]
+    e = rng.uniform(0.2, 1.0, len(r)) * 1e-15
+    det = DetectionSettings()
+    a = tab.echoes_from_ranges(p, r, gate, e, p[-1] + 1, det)
+    b = tab.echoes(p, ref_u, e, p[-1] + 1, 640, det)
+    assert a[1:] == b[1:]
+    for f in ("pixel", "position_bins", "amplitude", "echo_index", "n_echoes"):
+        np.testing.assert_array_equal(getattr(a[0], f), getattr(b[0], f))
