@@ -21,9 +21,11 @@ processes, on a 4096-pulse scan: with an empty kernel cache and with the cache f
 101 × 101-vertex terrain, no first-call latency runs (seconds; the comparison with HELIOS++ is meaningless there).
 The survey again in fog (visibility 200 m) and in rain (25 mm/h) on 2 threads (issue 30; ``--no-weather`` skips):
 its time over the bare cast's and over the clear survey's, and the weather stage's thread-seconds over the floor's.
+``--pulse-model`` sets ``scanner.pulse_model`` of the surveys (the JSON's ``survey.pulse_model`` records which ran:
+the weather surveys build full-gate waveforms from the sub-rays whatever it says).
 
     .venv/bin/python bench/bench_helios_survey.py [--duration 3.0] [--grid 1000] [--repeat 1] [--no-first-call]
-        [--no-weather] [--out DIR | --update-committed] [--quick]
+        [--no-weather] [--pulse-model centroid|subrays] [--out DIR | --update-committed] [--quick]
 """
 from __future__ import annotations
 
@@ -107,12 +109,18 @@ WEATHER = {"fog_200m": {"weather": "fog", "visibility_m": 200.0},
            "rain_25mm_h": {"weather": "rain", "rain_rate_mm_h": 25.0}}
 
 
+#: scanner.pulse_model of the surveys (``--pulse-model``; None: the setting's default)
+PULSE_MODEL = None
+
+
 def run_survey(scene, tracer, duration_s, threads, weather=None):
     import dataclasses
 
     from core.systems.scanner import simulate_scan
 
     cfg, traj = survey(duration_s, threads)
+    if PULSE_MODEL is not None:
+        cfg.scanner.pulse_model = PULSE_MODEL
     if weather:
         cfg.atmosphere = dataclasses.replace(cfg.atmosphere, **weather)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -188,6 +196,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="survey runs per thread count (best taken)")
     ap.add_argument("--no-first-call", action="store_true", help="skip the fresh-process first-call latency")
     ap.add_argument("--no-weather", action="store_true", help="skip the survey in fog and in rain (2 threads)")
+    ap.add_argument("--pulse-model", choices=("centroid", "subrays"), default=None,
+                    help="scanner.pulse_model of the clear surveys (default: the setting's default)")
     sys.path.insert(0, str(ROOT / "bench"))
     import floor
     from benchio import add_output_arguments, output_path, write_json
@@ -195,6 +205,8 @@ def main(argv=None) -> int:
     add_output_arguments(ap)
     args = ap.parse_args(argv)
     out_path = output_path(ap, args, "helios_survey.json")
+    global PULSE_MODEL
+    PULSE_MODEL = args.pulse_model
     if args.quick:
         args.duration, args.grid, args.repeat, args.no_first_call = 0.02, 101, 1, True
 
@@ -251,7 +263,8 @@ def main(argv=None) -> int:
         "survey": {"n_pulses": n_pulses, "subrays_per_pulse": res1["subrays_per_pulse"], "n_rays": n_rays,
                    "bin_width_s": 0.25e-9, "n_bins": 640, "pulses_per_block": res1["pulses_per_block"],
                    "n_hits": res1["n_hits"], "n_hits_bare": bare_hits, "n_points": res1["n_points"],
-                   "pulses_without_echo": res1["pulses_without_echo"]},
+                   "pulses_without_echo": res1["pulses_without_echo"],
+                   "pulse_model": res1.get("pulse_model")},
         "pipeline_s": {str(t): runs[t][0] for t in (1, 2)},
         "pulses_per_s": {str(t): pps[t] for t in (1, 2)},
         "thread_scaling_1_to_2": runs[1][0] / runs[2][0],

@@ -87,6 +87,10 @@ def cases() -> list[tuple[str, SimulationConfig]]:
         lean = deepcopy(cfg)
         lean.run.save_waveforms = False
         out.append((f"{system}, ideal receiver, waveforms not saved", lean))
+        if system == "scanner":  # (the default centroid pulse above; the reference's sub-ray sums here)
+            ref = deepcopy(lean)
+            ref.scanner.pulse_model = "subrays"
+            out.append(("scanner, ideal receiver, waveforms not saved, sub-ray sum pulse model", ref))
         out.append((f"{system}, noisy APD, turbulence, fog, speckle", _noisy(cfg, "apd", True)))
         if system in ("flash", "scanner"):
             out.append((f"{system}, noisy PIN", _noisy(cfg, "pin", False)))

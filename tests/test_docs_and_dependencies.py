@@ -58,7 +58,8 @@ def test_settings_reference_is_generated_from_the_schema():
     # (sunlight reflected by the scene): atmosphere.solar_irradiance_w_m2_nm, sun_elevation_rad, sun_azimuth_rad,
     # receiver.filter_bandwidth_m; + 2 of session 29 (issue 28): run.save_counts, gate.binning (the tabulated
     # pulse ⊛ box or the exact binning)
-    assert len(names) == 128 + len(dataclasses.fields(BRDFSettings))
+    # + 1 of session 30 (issue 28): scanner.pulse_model (the centroid pulse or the sub-ray sum)
+    assert len(names) == 129 + len(dataclasses.fields(BRDFSettings))
     assert "settings.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 

@@ -534,6 +534,16 @@ class ScannerSettings:
                                       choice_labels={'amplitude': 'Amplitude (J per Bin)',
                                                      'reflectivity': 'Calibrated Reflectivity (0–255)',
                                                      'intensity8': '8-bit Intensity'})
+    pulse_model: str = setting("centroid", choices=("subrays", "centroid"),
+                               doc="Ideal receiver, waveforms not saved, clear air, Gaussian pulse: each pulse's "
+                                   "waveform as the sum of its sub-rays' tabulated returns (subrays, the "
+                                   "reference), or as one tabulated pulse at their energy centroid with its "
+                                   "second-moment correction where that is within 1e-4 of the pulse's peak bin "
+                                   "of the sum in every bin, the sum elsewhere (centroid: ranges within 1/1000 "
+                                   "of the pulse's range resolution; docs/systems.md)",
+                               label="Pulse Model",
+                               choice_labels={"subrays": "Sub-ray Sum (reference)",
+                                              "centroid": "Centroid Pulse"})
     #: Per-channel table of the rotating head (no Blender property: config files and presets; the add-on keeps it
     #: as JSON on the sensor camera, ladar_addon/blend_config.py): one row
     #: [elevation_deg, azimuth_offset_deg, fire_offset_s] per channel (core/config/tables.py).

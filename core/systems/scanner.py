@@ -43,6 +43,7 @@ from ..physics.propagation import (footprint_variance_factor, path_extinction, r
 from ..physics.radiometry import received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, background_summary
 from ..physics.solar import beam_solid_angle, pixel_solar_rates, solar_enabled
+from ..physics.pulse_table import CentroidPulseTable
 from ..physics.waveform import PulseTable, accumulate_waveforms, binning_method, round_trip_time_s
 from .returns import encode_intensity, intensity_unit, peak_per_joule, quantize_range, select_returns
 from ..config.tables import channel_energy_scale
@@ -373,6 +374,13 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         times["weather"] = stage_clock() - t0
         for stage, reason in weather_switches(config).items():
             log.skip(stage, reason)
+    # the windowed route (no full-gate waveforms): one tabulated pulse at the sub-rays' energy centroid where it is
+    # within its bound (scanner.pulse_model = centroid, core/physics/pulse_table.py)
+    centroid = (table is not None and config.scanner.pulse_model == "centroid" and not (save or noisy)
+                and wx is None)
+    if centroid:
+        table = CentroidPulseTable(laser, gate.bin_width_s)
+    centroid_route = {}  # block start → (pulses on the centroid route, their largest bound ε)
     if not noisy:
         log.skip("receiver_chain", "detector.mode = ideal: echoes from the noise-free waveforms")
     if not save:
@@ -461,7 +469,7 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         tallies[a] = gate_tally(range_hit, e, window)
         local["radiometry"] = stage_clock() - t - local.get("weather", 0.0)
         t = stage_clock()
-        t_rt = round_trip_time_s(range_hit)
+        t_rt = None if centroid else round_trip_time_s(range_hit)  # (the centroid kernel takes the ranges)
         dig = None
         if save or noisy or wx is not None:
             w_p, w_t, w_e, _ = merge_returns(p_hit, t_rt, e, None, drops_ret)
@@ -499,6 +507,10 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                 t = stage_clock()
                 echoes = detect_echoes(wf, config.detection)
                 local["echoes"] = stage_clock() - t
+        elif centroid:
+            echoes, n_c, eps = table.echoes_from_ranges(p_hit, range_hit, gate, e, n, config.detection)
+            centroid_route[a] = (n_c, eps)
+            local["waveform"] = stage_clock() - t
         else:
             echoes = windowed_echoes(p_hit, t_rt, e, n, config, method, table)
             local["waveform"] = stage_clock() - t  # waveform windows and echo detection together
@@ -538,6 +550,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
              "n_points": int(len(points["range_m"])), "pulses_without_echo": int((n_echo_per_pulse == 0).sum()),
              "n_triangles": scene.n_triangles, "n_blocks": len(blocks), "pulses_per_block": per_block,
              "threads": max(1, min(threads, len(blocks))), "waveform_binning": method,
+             "pulse_model": _pulse_model_record(config, table if centroid else None, centroid_route, n_pulses,
+                                                save, noisy, wx is not None),
              "scan_duration_s": scan_duration_s(config), "stage_times_s": log.times,
              "wall_time_s": time.perf_counter() - fr.t_wall,
              "received_energy_j": float(pulses["received_energy_j"].sum()),
@@ -564,6 +578,27 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
                        intensity_echoes=None, points=points, waveforms=waveforms, stats=stats, pulses=pulses,
                        units=_scanner_units(config, noisy, stats),
                        tracer=tracer)
+
+
+def _pulse_model_record(config, table, route: dict, n_pulses: int, save: bool, noisy: bool, weather: bool) -> dict:
+    """Which pulse model ran (``scanner.pulse_model``) and, for the centroid model, on how many pulses."""
+    if table is None:
+        why = ("" if config.scanner.pulse_model == "subrays" else
+               " (scanner.pulse_model = centroid applies to the ideal receiver's windowed waveforms of a Gaussian "
+               "pulse binned exactly, in clear air, with run.save_waveforms = false; this run "
+               + ("saves the waveforms" if save else "has the noisy receiver" if noisy else
+                  "has weather" if weather else "bins its pulse otherwise") + ")")
+        return {"model": "subrays", "requested": config.scanner.pulse_model, "note": "every sub-ray's return summed"
+                                                                                     + why}
+    n_c = int(sum(v[0] for v in route.values()))
+    return {"model": "centroid", "requested": "centroid", "pulses_centroid": n_c,
+            "pulses_subray_sum": n_pulses - n_c,
+            "bound_relative_to_peak_bin": table.tolerance,
+            "largest_bound": max((v[1] for v in route.values()), default=0.0),
+            "note": "one tabulated pulse at the sub-rays' energy centroid with the second-moment correction "
+                    "where its bound on every bin is within the tolerance of the pulse's peak bin, every "
+                    "sub-ray summed elsewhere (core/physics/pulse_table.py; pulses without a return counted "
+                    "with the sum)"}
 
 
 def _scanner_units(config, noisy: bool, stats: dict) -> dict:
