@@ -273,3 +273,20 @@ def test_run_previews_slices_are_the_pngs_of_new_figures(tmp_path):
                                           cmap="inferno", vmin=vmin, vmax=vmax, log=True,
                                           settings=meta["settings"], no_data="no signal")
         assert png.read_bytes() == preview.figure_png(fig), png.name
+
+
+def test_a_replay_that_fails_its_check_falls_back_to_full_draws(tmp_path, monkeypatch):
+    """Right after recording, the replay of the first slice is compared pixel for pixel with its full draw; a
+    replay that differs (here: one that draws nothing) is never used: later slices are full draws, the same
+    bytes as new figures."""
+    stack = _slice_stack_with_varied_ranges()
+    vmin, vmax = preview.slice_scale(stack)
+    kw = dict(unit="J", cmap="inferno", vmin=vmin, vmax=vmax, log=True, no_data="no signal")
+    monkeypatch.setattr(preview.FigureReplay, "_replay", lambda self: self.fig.canvas.get_renderer().clear())
+    reuse = {}
+    for k in range(3):
+        preview.false_colour_png(tmp_path / f"reused_{k}.png", stack[k], title=f"slice {k + 1}", reuse=reuse, **kw)
+    assert reuse["replay"].calls and not reuse["replay"].active
+    for k in range(3):
+        fresh = preview.figure_png(preview.false_colour_figure(stack[k], title=f"slice {k + 1}", **kw))
+        assert (tmp_path / f"reused_{k}.png").read_bytes() == fresh
