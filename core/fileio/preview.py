@@ -9,8 +9,8 @@ has a title, axes with units and a colour bar (or a legend) wherever it is made.
 field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at the top).
 
 A gated sweep's slices share one figure: the first is drawn in full, its drawing recorded, and the others
-replay it with their own pixels and title (:class:`FigureReplay`), byte for byte the PNGs new figures give, at a
-quarter of the cost.
+replay it with their own pixels and title (:class:`FigureReplay`), byte for byte the PNGs new figures give, at
+35–45 % of the cost (docs/performance.md).
 
 Every PNG is written atomically (``staging.write_file_atomically``: a hidden temporary file, then
 ``os.replace``) and an existing file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks
@@ -95,7 +95,7 @@ class FigureReplay:
     """A figure drawn once in full, then again and again with only some of its artists changed (a gated sweep's
     slices: the image's pixels and the title), byte for byte the PNG a full draw gives, at a fraction of its cost.
 
-    A full draw of a false-colour figure spends ≈ 90 % of its time in matplotlib's Python layer laying out
+    A full draw of a false-colour figure spends ≈ 80 % of its time in matplotlib's Python layer laying out
     what never changes from slice to slice: the axes' and colour bar's ticks (locators, formatters, one Tick
     object per tick), their labels' text layout, the title's position.  The rasterizer (Agg) only sees the
     result, a sequence of calls (``draw_path``, ``draw_markers``, ``draw_text_image`` with a glyph bitmap,
@@ -445,8 +445,8 @@ def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str 
     ``reuse``: a dict kept by the caller across images (a gated sweep's slices): the first call lays the figure
     out, draws it in full and keeps it there; a later call with the same shape, unit, colour map and colour
     scale (the given ``vmin``/``vmax``, else the one its own data give) only swaps the pixels and the title and
-    replays the rest of the drawing (:class:`FigureReplay`: the same PNG bytes as a new figure's, ≈ 4× faster
-    with the PNG encoding, ≈ 10× without); any other call lays out a new figure."""
+    replays the rest of the drawing (:class:`FigureReplay`: the same PNG bytes as a new figure's, ≈ 2.5×
+    faster with the PNG encoding, ≈ 5× without); any other call lays out a new figure."""
     if reuse is None:
         return save_figure(false_colour_figure(image, title=title, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
                                                zero_based=zero_based, log=log, settings=settings,
