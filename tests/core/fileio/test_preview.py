@@ -202,13 +202,14 @@ def _slice_stack_with_varied_ranges():
     return stack
 
 
-def test_reused_slice_figure_gives_the_bytes_of_a_new_figure(tmp_path):
+@pytest.mark.parametrize("settings", [{"receiver": {"fov_x_rad": 8e-3, "fov_y_rad": 4e-3}}, None],
+                         ids=["angle axes", "pixel axes"])
+def test_reused_slice_figure_gives_the_bytes_of_a_new_figure(tmp_path, settings):
     """The slices share one figure, laid out and drawn in full once and replayed for the others (issue 25): every
     later slice's PNG is byte for byte the PNG of a new figure drawn for it alone (titles of different lengths,
     data over different ranges, empty slices), and the replay was used, not a full draw of the kept figure."""
     stack = _slice_stack_with_varied_ranges()
     vmin, vmax = preview.slice_scale(stack)
-    settings = {"receiver": {"fov_x_rad": 8e-3, "fov_y_rad": 4e-3}}
     titles = ["Gated slice 1/5, gate delay 1990.1 ns: 298.3 – 299.8 m", "Gated slice 2/5",
               "Gated slice 3/5, gate delay 1998.1 ns: 299.5 – 301.0 m (g, y, j)", "W" * 40, ""]
     kw = dict(unit="J", cmap="inferno", vmin=vmin, vmax=vmax, log=True, settings=settings, no_data="no signal")
