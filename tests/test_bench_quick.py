@@ -96,9 +96,13 @@ BENCHMARKS = {
                      lambda d: all(_positive(r["time_s"]) and math.isfinite(r["errors"]["waveform_l2"])
                                    for r in d["scenes"][0]["rows"]) and len(d["scintillation"]["rows"]) == 4),
     "bench_commands": ("commands.json", ["examples/flash_demo/cold/command_wall_s",
-                                         "examples/flash_demo/warm_median/command_wall_s"],
+                                         "examples/flash_demo/warm_median/command_wall_s",
+                                         "examples/flash_demo/warm_median/command_cpu_s",
+                                         "examples/flash_demo/previews/wall_s", "examples/flash_demo/previews/cpu_s"],
                        lambda d: d["examples"]["flash_demo"]["cold"]["kernels"]["compiled"] > 0
-                       and d["examples"]["flash_demo"]["warm_median"]["kernels"]["compiled"] == 0),
+                       and d["examples"]["flash_demo"]["warm_median"]["kernels"]["compiled"] == 0
+                       and d["examples"]["flash_demo"]["previews"]["n_png"] == 3
+                       and len(d["load_average_1_5_15_min"]["end"]) == 3),
     "bench_weather": ("weather.json", ["bare_embreex_cast_s", "cases/fog_200m/ratio_frame_to_bare_cast",
                                        "cases/fog_200m/weather_stage_thread_s",
                                        "cases/rain_25mm_h/weather_stage_thread_s", "ratio_fog_frame_to_clear_frame",

@@ -183,3 +183,111 @@ def test_run_previews_leave_existing_files_and_stop_when_cancelled(tmp_path):
     assert preview.write_run_previews(run) == [run / "range.png"]
     assert (run / "intensity.png").read_bytes() == b"mine"
     assert png_text(run / "range.png")["Title"] == "Range"
+
+
+def _slice_stack_with_varied_ranges():
+    """Five 12×20 slices whose values span very different ranges under one shared log scale: a bright slice, a
+    faint one four decades down, one of zeros and NaNs only (all grey), one below the scale's floor, and one
+    reaching the sweep's maximum in a corner — so slice k's pixels, title or clipped colours left over in slice
+    k + 1 would change its bytes."""
+    rng = np.random.default_rng(7)
+    stack = np.empty((5, 12, 20))
+    stack[0] = rng.uniform(1e-3, 1.0, (12, 20))
+    stack[1] = rng.uniform(1e-7, 1e-4, (12, 20))
+    stack[2] = 0.0
+    stack[2, ::3] = np.nan
+    stack[3] = 1e-9
+    stack[4] = rng.uniform(0.1, 0.5, (12, 20))
+    stack[4, 0, 0] = 2.0
+    return stack
+
+
+@pytest.mark.parametrize("settings", [{"receiver": {"fov_x_rad": 8e-3, "fov_y_rad": 4e-3}}, None],
+                         ids=["angle axes", "pixel axes"])
+def test_reused_slice_figure_gives_the_bytes_of_a_new_figure(tmp_path, settings):
+    """The slices share one figure, laid out and drawn in full once and replayed for the others (issue 25): every
+    later slice's PNG is byte for byte the PNG of a new figure drawn for it alone (titles of different lengths,
+    data over different ranges, empty slices), and the replay was used, not a full draw of the kept figure."""
+    stack = _slice_stack_with_varied_ranges()
+    vmin, vmax = preview.slice_scale(stack)
+    titles = ["Gated slice 1/5, gate delay 1990.1 ns: 298.3 – 299.8 m", "Gated slice 2/5",
+              "Gated slice 3/5, gate delay 1998.1 ns: 299.5 – 301.0 m (g, y, j)", "W" * 40, ""]
+    kw = dict(unit="J", cmap="inferno", vmin=vmin, vmax=vmax, log=True, settings=settings, no_data="no signal")
+    reuse = {}
+    for k, title in enumerate(titles):
+        preview.false_colour_png(tmp_path / f"reused_{k}.png", stack[k], title=title, reuse=reuse, **kw)
+        preview.false_colour_png(tmp_path / f"new_{k}.png", stack[k], title=title, **kw)
+    assert reuse["replay"].active and reuse["replay"].calls  # the later slices were replayed
+    data = [(tmp_path / f"reused_{k}.png").read_bytes() for k in range(5)]
+    for k in range(1, 5):
+        assert data[k] == (tmp_path / f"new_{k}.png").read_bytes(), f"slice {k + 1}"
+    assert len(set(data)) == 5  # the five slices are five different pictures
+    assert png_text(tmp_path / "reused_2.png")["Title"] == titles[2]
+
+
+def test_replay_that_kept_the_title_would_be_caught(tmp_path):
+    """The comparison above can fail: a replay that does not redraw the title (the first slice's title left in
+    every later PNG) gives other bytes than a new figure."""
+    stack = _slice_stack_with_varied_ranges()
+    vmin, vmax = preview.slice_scale(stack)
+    kw = dict(unit="J", cmap="inferno", vmin=vmin, vmax=vmax, log=True)
+    fig = preview.false_colour_figure(stack[0], title="slice 1", **kw)
+    replay = preview.FigureReplay(fig, (fig.axes[0].images[0],))  # the title not redrawn
+    replay.png(preview.png_metadata(fig))
+    assert replay.active
+    fig.axes[0].images[0].set_data(np.ma.masked_invalid(np.ma.masked_where(~(stack[1] > 0), stack[1])))
+    fig.axes[0].set_title("slice 2", fontsize=10)
+    fresh = preview.figure_png(preview.false_colour_figure(stack[1], title="slice 2", **kw))
+    assert replay.png(preview.png_metadata(fig)) != fresh
+
+
+def test_reuse_lays_out_a_new_figure_for_another_scale_or_shape(tmp_path):
+    """A reuse dict never carries one image's colour scale, unit or shape over to the next: a call whose scale
+    (given, or from its own data) or shape differs gets a new figure, so each PNG is the one drawn alone."""
+    rng = np.random.default_rng(3)
+    images = [rng.uniform(100.0, 110.0, (6, 8)), rng.uniform(200.0, 260.0, (6, 8)), rng.uniform(1.0, 2.0, (8, 6))]
+    reuse = {}
+    for k, image in enumerate(images):
+        preview.false_colour_png(tmp_path / f"reused_{k}.png", image, title=f"Range {k}", unit="m", reuse=reuse)
+        preview.false_colour_png(tmp_path / f"new_{k}.png", image, title=f"Range {k}", unit="m")
+        assert (tmp_path / f"reused_{k}.png").read_bytes() == (tmp_path / f"new_{k}.png").read_bytes(), k
+    first = reuse["figure"]
+    preview.false_colour_png(tmp_path / "log.png", images[2], title="Range", unit="m", log=True, reuse=reuse)
+    preview.false_colour_png(tmp_path / "log_fixed.png", images[2], title="Range", unit="m", log=True,
+                             vmin=1.0, vmax=1e3, reuse=reuse)
+    assert reuse["figure"] is not first
+    assert (tmp_path / "log_fixed.png").read_bytes() == preview.figure_png(preview.false_colour_figure(
+        images[2], title="Range", unit="m", log=True, vmin=1.0, vmax=1e3))
+
+
+def test_run_previews_slices_are_the_pngs_of_new_figures(tmp_path):
+    """write_run_previews on a gated run: every slice PNG after the first, drawn by replay, is the PNG a new
+    figure for that slice alone gives (its title with the gate, the sweep's shared log scale)."""
+    path, res, cfg = _gated_run(tmp_path)
+    preview.write_run_previews(path)
+    meta = preview.run_metadata(path)
+    stack = res.slices.astype(np.float64)
+    vmin, vmax = preview.slice_scale(stack)
+    for k in range(2, 6):
+        png = path / "slices" / f"slice_{k:04d}.png"
+        fig = preview.false_colour_figure(stack[k - 1], title=png_text(png)["Title"], unit=meta["units"]["slices"],
+                                          cmap="inferno", vmin=vmin, vmax=vmax, log=True,
+                                          settings=meta["settings"], no_data="no signal")
+        assert png.read_bytes() == preview.figure_png(fig), png.name
+
+
+def test_a_replay_that_fails_its_check_falls_back_to_full_draws(tmp_path, monkeypatch):
+    """Right after recording, the replay of the first slice is compared pixel for pixel with its full draw; a
+    replay that differs (here: one that draws nothing) is never used: later slices are full draws, the same
+    bytes as new figures."""
+    stack = _slice_stack_with_varied_ranges()
+    vmin, vmax = preview.slice_scale(stack)
+    kw = dict(unit="J", cmap="inferno", vmin=vmin, vmax=vmax, log=True, no_data="no signal")
+    monkeypatch.setattr(preview.FigureReplay, "_replay", lambda self: self.fig.canvas.get_renderer().clear())
+    reuse = {}
+    for k in range(3):
+        preview.false_colour_png(tmp_path / f"reused_{k}.png", stack[k], title=f"slice {k + 1}", reuse=reuse, **kw)
+    assert reuse["replay"].calls and not reuse["replay"].active
+    for k in range(3):
+        fresh = preview.figure_png(preview.false_colour_figure(stack[k], title=f"slice {k + 1}", **kw))
+        assert (tmp_path / f"reused_{k}.png").read_bytes() == fresh

@@ -146,3 +146,27 @@ def test_log_colour_bar_in_joules_ticks_in_si_prefixed_units(lo, hi, expect):
     counts = preview.false_colour_figure(img * 1e15, title="t", unit="counts", log=True)
     counts.canvas.draw()
     assert any("10^{" in t.get_text() for t in counts.axes[1].yaxis.get_majorticklabels())
+
+
+@pytest.mark.parametrize("lo, hi, unit", [(1.0, 2.0, "counts"),              # within one decade
+                                          (1e-3, 1.0, "counts"),             # view ends on decades
+                                          (3.7e-15, 2.2e-12, "J per bin"),   # SI-prefixed labels, 2.8 decades
+                                          (1e-13 * 10 ** -5.999, 1e-13, "J"),  # the image scale's 6 decades
+                                          (2.5e-7, 4e-1, "W")])
+def test_log_colour_bar_drawn_from_the_ticks_in_view_gives_the_same_png(lo, hi, unit, monkeypatch):
+    """ticks_in_view_only (a log axis is given only the tick locations near its view: fewer Tick objects made)
+    changes no pixel and no byte of the PNG: the same figure drawn with matplotlib's own locators is compared."""
+    img = np.geomspace(lo, hi, 96).reshape(8, 12)
+    img[0, :3] = 0.0  # no-echo pixels
+    fig = preview.false_colour_figure(img, title="t", unit=unit, log=True)
+    bar = fig.axes[1].yaxis
+    assert type(bar.get_major_locator()).__name__ == "InViewLocator"
+    fast = preview.figure_png(fig)
+    monkeypatch.setattr(preview, "ticks_in_view_only", lambda axis: None)
+    plain = preview.false_colour_figure(img, title="t", unit=unit, log=True)
+    assert type(plain.axes[1].yaxis.get_major_locator()).__name__ == "LogLocator"
+    assert fast == preview.figure_png(plain)
+    # fewer Tick objects were made (matplotlib's locators give ticks a decade beyond the view), not fewer drawn
+    made = len(bar.majorTicks) + len(bar.minorTicks)
+    plain_made = len(plain.axes[1].yaxis.majorTicks) + len(plain.axes[1].yaxis.minorTicks)
+    assert made < plain_made
