@@ -41,7 +41,8 @@ from .code_tables import P_BITS, TABLE_MIN_SIGMA_STEPS
 from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
                           noise_sigma_floor, photons_per_joule)
 from .geiger import geiger_histogram
-from .samplers import DENSE_MEAN, NORMAL_MEAN, POISSON_SAMPLER, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
+from .samplers import (DENSE_MEAN, NORMAL_MEAN, POISSON_SAMPLER, gamma_gain, poisson_dense, poisson_sparse_counts,
+                       poisson_uniform_rows)
 from .speckle import apply_mtf, optics_mtf_2d, speckle_gain_field
 from .table_route import (MEAN_CAP, TABLE_BLOCK_SAMPLES, noise_tables, per_bin_tail, process_block_table,
                           scratch)

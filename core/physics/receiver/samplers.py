@@ -19,17 +19,19 @@ NORMAL_MEAN = 1e7
 #: ``rng.poisson``.  Pure speed trade-off (the inversion walks ≈ mean + 1 terms), no approximation.
 POISSON_INVERSION_MAX = 8.0
 #: Poisson means from POISSON_INVERSION_MAX up to (not including) this are drawn by :func:`poisson_grid` (compiled,
-#: two uniforms each: one from the tabulated law of the grid mean 8j below the mean, one by inversion of the rest);
+#: two uniforms each: one from the tabulated law of the grid mean Λ = POISSON_GRID_STEP·j at or below the mean, one by
+#: inversion of the rest);
 #: larger ones by ``rng.poisson``.  Pure speed trade-off, no approximation (exact to float64 round-off).
 POISSON_GRID_MAX = 1024.0
-#: The table route's Poisson sampler (the chain report's ``poisson_sampler``, docs/receiver.md): exact in law, its
-#: realisation differs from NumPy's ``rng.poisson`` (session 30 of issue 28; before it, means ≥ 8 and the per-bin
-#: tail's background and surface dark came from ``rng.poisson``).
-POISSON_SAMPLER = ("counter-based streams: inversion below a mean of 8, grid table of Poisson(8j) + inversion of "
-                   "the rest below 1024, rng.poisson above")
 #: Spacing of the grid means of :func:`poisson_grid_tables` (a power of two; the rest λ − Λ_j below it costs
 #: ≈ rest + 1 inversion steps, the tables' size grows as 1/step).
 POISSON_GRID_STEP = 2.0
+#: The table route's Poisson sampler (the chain report's ``poisson_sampler``, docs/receiver.md): exact in law, its
+#: realisation differs from NumPy's ``rng.poisson`` (session 30 of issue 28; before it, means ≥ 8 and the per-bin
+#: tail's background and surface dark came from ``rng.poisson``).
+POISSON_SAMPLER = (f"counter-based streams: inversion below a mean of {POISSON_INVERSION_MAX:g}, table of "
+                   f"Poisson({POISSON_GRID_STEP:g}j) + inversion of the rest below {POISSON_GRID_MAX:g}, "
+                   f"rng.poisson above")
 #: :func:`poisson_inversion` stops at this count: P(N ≥ 64) < 1e-34 for means below POISSON_INVERSION_MAX.
 _INVERSION_KMAX = 64
 
@@ -77,11 +79,11 @@ def poisson_inversion(lam, p0, u):
 
 
 def poisson_law_table(lam):
-    """The cumulative law of Poisson(``lam``) as :func:`poisson_grid_tables` keeps it: ``(F, k_lo, guide)``, F[i] =
-    P(N ≤ k_lo + i) (float64 cumulative sum from k = 0 of p_k ∝ λ^k/k!, by the recurrences from the mode, normalised), from
-    the first k with F(k) ≥ 2⁻⁶⁴ to the first with 1 − F(k) < 2⁻⁶⁴ (the law outside, < 2⁻⁶⁴ on each side, lies
-    below the 2⁻⁵³ grain of the uniforms), and the guide (Chen & Asau's indexed search): guide[g] = the first i
-    with F[i] > g/L, L = len(F), so that the inverse of u starts at guide[⌊uL⌋] (≈ 1–2 comparisons)."""
+    """The cumulative law of Poisson(``lam``) as :func:`poisson_grid_tables` keeps it: ``(F, k_lo, guide)``,
+    F[i] = P(N ≤ k_lo + i) (float64 cumulative sum from k = 0 of p_k ∝ λ^k/k!, by the recurrences from the mode,
+    normalised), from the first k with F(k) ≥ 2⁻⁶⁴ to the first with P(N > k) < 2⁻⁶⁴ (the law outside, < 2⁻⁶⁴ on
+    each side, lies below the 2⁻⁵³ grain of the uniforms), and the guide (Chen & Asau's indexed search): guide[g] =
+    the first i with F[i] > g/L, L = len(F), so that the inverse of u starts at guide[⌊uL⌋] (≈ 1–2 comparisons)."""
     return _law_arrays(float(lam))
 
 
@@ -143,9 +145,9 @@ def table_inverse(u, cdf, c0, n, guide, g0):
 def poisson_grid_tables(step=POISSON_GRID_STEP, top=POISSON_GRID_MAX):
     """The cumulative laws of Poisson(Λ_j), Λ_j = j·``step`` (j = 1 … top/step − 1), for :func:`poisson_grid`:
     ``(cdf, off, kmin, guide, goff, step)``.  Table j holds F(k) = P(N ≤ k) for k = kmin[j] … kmin[j] + L − 1 in
-    cdf[off[j]:off[j + 1]] (L entries), and its guide in guide[goff[j]:goff[j + 1]]: :func:`poisson_law_table`.  ``step``: a power
-    of two (the rest λ − Λ_j is then exact).  Built once per process (step 2: ≈ 0.2 M entries, 2.4 MB, a few
-    ms)."""
+    cdf[off[j]:off[j + 1]] (L entries), and its guide in guide[goff[j]:goff[j + 1]]: :func:`poisson_law_table`.
+    ``step``: a power of two (the rest λ − Λ_j is then exact).  Built once per process (step 2: ≈ 0.2 M entries,
+    2.4 MB, 9 ms of CPU)."""
     n_tab = int(top / step)
     return _grid_arrays(float(step), n_tab) + (float(step),)
 
