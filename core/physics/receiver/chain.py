@@ -41,7 +41,8 @@ from .code_tables import P_BITS, TABLE_MIN_SIGMA_STEPS
 from .conversions import (adc_step_e, background_photons, bin_moments, current_to_electrons, mcintyre_excess_noise,
                           noise_sigma_floor, photons_per_joule)
 from .geiger import geiger_histogram
-from .samplers import DENSE_MEAN, NORMAL_MEAN, gamma_gain, poisson_dense, poisson_sparse_counts, poisson_uniform_rows
+from .samplers import (DENSE_MEAN, NORMAL_MEAN, POISSON_SAMPLER, gamma_gain, poisson_dense, poisson_sparse_counts,
+                       poisson_uniform_rows)
 from .speckle import apply_mtf, optics_mtf_2d, speckle_gain_field
 from .table_route import (MEAN_CAP, TABLE_BLOCK_SAMPLES, noise_tables, per_bin_tail, process_block_table,
                           scratch)
@@ -252,6 +253,8 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         if refused:  # too many codes: per-bin route
             report["noise_table_refused"] = refused
     report["noise_sampling"] = "table" if table is not None else "per-bin"
+    if table is not None and shot:  # which exact Poisson sampler drew the signal bins' and the per-bin tail's counts
+        report["poisson_sampler"] = POISSON_SAMPLER
     if deferred and table is None:
         _check_energies(cube)
     if table is not None:

@@ -14,7 +14,8 @@ from ...jit import kernel
 from .adc import adc_convert
 from .code_tables import (CAUGHT_TABLES, SPLITMIX_GAMMA, CaughtCodeTables, CodeTable, noise_code_pmf, splitmix64_mix,
                           uniform_uint32)
-from .samplers import POISSON_INVERSION_MAX, gamma_gain, poisson_dense, poisson_inversion
+from .samplers import (POISSON_GRID_MAX, POISSON_INVERSION_MAX, gamma_gain, poisson_dense, poisson_grid,
+                       poisson_grid_tables, poisson_inversion, poisson_stream, stream_uniform53)
 
 #: Largest mean number of primaries per bin carried (float32 safe); larger means are clipped and reported.
 MEAN_CAP = 1e30
@@ -103,9 +104,9 @@ def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
         p0 = p0[:n_todo]
         np.negative(lam[todo], out=p0)
         np.exp(p0, out=p0)  # e^(−λ) of the undecided signal bins: NumPy's vectorised exp
-        n_sig, n_big = _signal_counts(nz, todo, lam, p0, u, sig, cnt, big)
+        n_sig, n_big = _signal_counts(nz, todo, lam, p0, u, sig, cnt, big, pkey, *poisson_grid_tables())
         sig, cnt = sig[:n_sig], cnt[:n_sig]
-        if n_big:  # bright bins: one exact rng.poisson each
+        if n_big:  # means ≥ POISSON_GRID_MAX: one exact rng.poisson each
             rng = new_rng()
             nb, stats["normal_bins"] = poisson_dense(lam[big[:n_big]], rng)
             hit = nb > 0
@@ -149,17 +150,24 @@ def per_bin_tail(idx, n, p, rng, of):
     calls instead of a few per block).  With shot noise ``n`` holds the signal primaries (> 16): n_b ~ Poisson
     is added; without, the continuous mean of all primaries.  Then gain Gamma(n/(F − 1), G(F − 1)), surface dark
     (Poisson with shot noise), read noise, A/D; codes written into ``of``.  Returns (n_low, n_high)."""
+    # the Poisson numbers (background + bulk dark primaries, surface dark electrons) from a counter-based stream
+    # keyed by the part's generator (:func:`.samplers.poisson_stream`), the gains, read noise from the generator
+    key = rng.integers(0, 2 ** 64, dtype=np.uint64) if p["shot"] and (p["b_mult"] > 0 or p["ds"] > 0) else None
     if p["shot"] and p["b_mult"] > 0:
-        n = n + rng.poisson(p["b_mult"], n.size)
+        n = n + poisson_stream(p["b_mult"], n.size, key, 0, rng)
     y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
     if p["ds"] > 0:
-        y += rng.poisson(p["ds"], n.size) if p["shot"] else p["ds"]
+        y += poisson_stream(p["ds"], n.size, key, n.size, rng) if p["shot"] else p["ds"]
     if p["sigma_r"] > 0:
         y += p["sigma_r"] * rng.standard_normal(n.size)
     codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
     of[idx] = codes
     return lo, hi
 
+
+#: Word offset of the second uniform of a signal bin whose mean is drawn by :func:`.samplers.poisson_grid`: word
+#: i + 2⁴⁰ of the stream of the signal counts (word i: the first; i < 2⁴⁰ is a bin's index in its block).
+SECOND_WORD = 1 << 40
 
 #: The count of a signal bin is 0 without computing e^(−λ) when its uniform u < (1 − λ) − this: e^(−λ) ≥ 1 − λ
 #: for every λ, and the float64 roundings of 1 − λ and of NumPy's exp (a few ulp of numbers ≤ 1: < 2⁻⁵⁰) are
@@ -196,19 +204,28 @@ def _signal_draws(ev, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo):
 
 
 @kernel
-def _signal_counts(idx, todo, lam, p0, u, sig, cnt, big):
+def _signal_counts(idx, todo, lam, p0, u, sig, cnt, big, pkey, cdf, off, kmin, guide, goff, step):
     """Poisson counts of the signal bins at the positions ``todo`` (in order; the others have count 0), with
     means lam[q], uniforms u[q] and p0[t] = e^(−lam[todo[t]]): below POISSON_INVERSION_MAX by
-    :func:`poisson_inversion`; the bins with a count > 0 listed in ``sig`` (bin index idx[q]) and ``cnt`` (float64
-    count); larger means listed in ``big`` (position q) for ``rng.poisson``.  Returns (n_sig, n_big)."""
+    :func:`poisson_inversion`, below POISSON_GRID_MAX by :func:`poisson_grid` (u[q] and the 53-bit uniform of word
+    idx[q] + SECOND_WORD of the stream ``pkey``; the grid tables: :func:`poisson_grid_tables`); the bins with a
+    count > 0 listed in ``sig`` (bin index idx[q]) and ``cnt`` (float64 count); larger means listed in ``big``
+    (position q) for ``rng.poisson``.  Returns (n_sig, n_big)."""
     n_sig = 0
     n_big = 0
     for t in range(todo.size):
         q = todo[t]
         s = lam[q]
-        if s >= POISSON_INVERSION_MAX:
+        if s >= POISSON_GRID_MAX:
             big[n_big] = q
             n_big += 1
+        elif s >= POISSON_INVERSION_MAX:
+            k = poisson_grid(s, u[q], stream_uniform53(pkey, idx[q] + SECOND_WORD), cdf, off, kmin, guide, goff,
+                             step)
+            if k > 0:
+                sig[n_sig] = idx[q]
+                cnt[n_sig] = k
+                n_sig += 1
         elif u[q] >= p0[t]:  # (count 0 otherwise: decided without a call)
             sig[n_sig] = idx[q]
             cnt[n_sig] = poisson_inversion(s, p0[t], u[q])
