@@ -19,8 +19,10 @@ an interrupted run leaves nothing behind.  Output never costs a run: if the read
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
+import sys
 from pathlib import Path
 
 import bpy
@@ -184,15 +186,37 @@ def _check_frames(frames, field: str) -> None:
             raise ConfigError(field, f, f"a frame in [{prop.hard_min}, {prop.hard_max}] (Blender's frame range)")
 
 
+#: The module whose import loads the simulator (numba, SciPy and the kernels' modules): enabling the add-on does not
+#: import it (docs/performance.md, issue 25), the commands that run the simulator do (:func:`_loading_the_simulator`).
+_SIMULATOR = __name__.rpartition(".")[0].rpartition(".")[0] + ".core.run"
+
+
+@contextlib.contextmanager
+def _loading_the_simulator():
+    """Around the imports of the simulator in a command: the first time in the process (enabling the add-on
+    leaves it out) a line says so before it starts and the heartbeat repeats it while it lasts (0.7 s of CPU, more
+    than 2 s on a loaded machine: issue 27, start-up is never silent for more than 2 s); afterwards nothing."""
+    if _SIMULATOR in sys.modules:
+        yield
+        return
+    from .run_inputs import progress_printer
+
+    emit("ladar: loading the simulator \u2026")
+    with progress_printer() as heartbeat:
+        heartbeat.set(0.0, "loading the simulator")
+        yield
+
+
 def _cmd_simulate(scene, args) -> int:
     from ..core.fileio.run_folder import combine_figures, figure_lines, run_summary
     from .frames import parse_frames
-    from .job import SimulationJob
     from .run_inputs import progress_printer
 
     sensor = _sensor(scene, args.sensor)
     frames = parse_frames(args.frames) if args.frames is not None else None
     _check_frames(frames or ([args.frame] if args.frame is not None else []), "frames" if frames else "frame")
+    with _loading_the_simulator():
+        from .job import SimulationJob
     if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
     with progress_printer() as progress:  # (its heartbeat stops with the run)
         job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
@@ -217,9 +241,11 @@ def _cmd_simulate(scene, args) -> int:
 
 
 def _cmd_sweep(scene, args) -> int:
-    from ..core.sweep.runner import check_workers
     from .run_inputs import progress_printer
-    from .sweep import sweep_scene
+
+    with _loading_the_simulator():
+        from ..core.sweep.runner import check_workers
+        from .sweep import sweep_scene
 
     check_workers(args.workers)  # (before the scene is exported)
     # the sweep's lines carry its own ETA, from its tasks' times (a second one from the printer's clock, which
@@ -241,7 +267,6 @@ def _cmd_export_config(scene, args) -> int:
 def _cmd_validate_config(scene, args) -> int:
     """What ``simulate`` would refuse before running: the settings, the material names the file overrides (the
     scene's exported materials) and the run's memory and work (core.engine.memory, without the memory free now)."""
-    from ..core.engine.memory import check_memory
     from .export import scene_geometry_from_depsgraph
     from .run_inputs import build_config
 
@@ -255,6 +280,8 @@ def _cmd_validate_config(scene, args) -> int:
     if changed and scene is not None:  # simulate matches these by name against the exported scene
         scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(),
                                       exclude={sensor.name} if sensor is not None else ()).with_overrides(changed)
+    with _loading_the_simulator():  # (after the settings are checked: a refused file never loads it)
+        from ..core.engine.memory import check_memory
     check_memory(cfg, available=None)
     emit(f"ladar: {args.file} is valid")
     return 0
@@ -264,9 +291,10 @@ def _cmd_warm_up(scene, args) -> int:
     """Compile (or load) every system's kernels on a tiny built-in scene (core/warmup.py); writes nothing.  A
     line per case when it is done, and while one compiles (10-40 s the first time) the heartbeat's line every
     second: the case, the time so far and the ETA (issue 27: never silent for more than 2 s)."""
-    from ..core.warmup import cases, warm_up
     from .run_inputs import progress_printer
 
+    with _loading_the_simulator():
+        from ..core.warmup import cases, warm_up
     names = [name for name, _ in cases()]
     n = len(names)
 
