@@ -10,7 +10,9 @@ fresh process each time:
 * **warm**: the same cache again, from a new temporary Blender user folder (as every ``ladar_run.py`` run is):
   every kernel loaded from the cache (the run's ``kernels`` record must say 0 compiled, else the benchmark fails).
 
-Next to each wall time it reports what the run itself records: the frame's wall time, the seconds loading or
+Next to each wall time it reports the command's CPU time (user + system of the process and its threads, from
+``getrusage`` of the finished child: on a shared machine the wall time mostly measures the other jobs) and the load
+average when it started, and what the run itself records: the frame's wall time, the seconds loading or
 compiling kernels, and the stage times without them.  Writes ``commands.json`` into ``--out`` (default
 ``runs/bench``; ``--update-committed``: ``bench/results``, bench/benchio.py).  ``--quick``: the flash demo only,
 one warm repeat.
@@ -21,6 +23,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -38,16 +41,21 @@ EXAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile")
 def run_once(scene: str, cache: Path, work: Path) -> dict:
     out = work / f"{scene}-{time.monotonic_ns()}"
     env = dict(os.environ, LADAR_KERNEL_CACHE=str(cache))
+    load = os.getloadavg()[0]
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"),
                            str(REPO / "sample_blends" / f"{scene}.blend"), "simulate", "--out", str(out)],
                           capture_output=True, text=True, env=env, cwd=work)
     wall = time.perf_counter() - t0
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
     if done.returncode != 0:
         raise SystemExit(f"bench_commands: {scene} failed:\n{done.stderr[-2000:]}")
     meta = json.loads((out / "metadata.json").read_text())
     shutil.rmtree(out, ignore_errors=True)
-    return {"command_wall_s": wall, "frame_wall_s": meta["wall_time_s"], "kernels": meta["kernels"],
+    return {"command_wall_s": wall, "command_cpu_s": cpu, "load_average_1min": load,
+            "frame_wall_s": meta["wall_time_s"], "kernels": meta["kernels"],
             "stage_times_sum_s": sum(meta["stage_times_s"].values())}
 
 
@@ -71,9 +79,11 @@ def main(argv=None) -> int:
             warm.sort(key=lambda w: w["command_wall_s"])
             median = warm[len(warm) // 2]
             results[scene] = {"cold": cold, "warm_median": median,
-                              "warm_command_wall_s": [w["command_wall_s"] for w in warm]}
+                              "warm_command_wall_s": [w["command_wall_s"] for w in warm],
+                              "warm_command_cpu_s": [w["command_cpu_s"] for w in warm]}
             print(f"{scene:18s} cold {cold['command_wall_s']:6.1f} s (kernels {cold['kernels']['compiled']} "
-                  f"compiled, {cold['kernels']['load_and_compile_s']:.1f} s)   warm {median['command_wall_s']:5.1f} s "
+                  f"compiled, {cold['kernels']['load_and_compile_s']:.1f} s)   warm {median['command_wall_s']:5.1f} s, "
+                  f"CPU {median['command_cpu_s']:.2f} s, load {median['load_average_1min']:.1f} "
                   f"(frame {median['frame_wall_s']:.2f} s, kernels loaded in "
                   f"{median['kernels']['load_and_compile_s']:.2f} s)", flush=True)
     record = {"benchmark": "commands", "machine": {"cpu": platform.processor() or platform.machine(),

@@ -96,7 +96,8 @@ BENCHMARKS = {
                      lambda d: all(_positive(r["time_s"]) and math.isfinite(r["errors"]["waveform_l2"])
                                    for r in d["scenes"][0]["rows"]) and len(d["scintillation"]["rows"]) == 4),
     "bench_commands": ("commands.json", ["examples/flash_demo/cold/command_wall_s",
-                                         "examples/flash_demo/warm_median/command_wall_s"],
+                                         "examples/flash_demo/warm_median/command_wall_s",
+                                         "examples/flash_demo/warm_median/command_cpu_s"],
                        lambda d: d["examples"]["flash_demo"]["cold"]["kernels"]["compiled"] > 0
                        and d["examples"]["flash_demo"]["warm_median"]["kernels"]["compiled"] == 0),
     "bench_weather": ("weather.json", ["bare_embreex_cast_s", "cases/fog_200m/ratio_frame_to_bare_cast",
