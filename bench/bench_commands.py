@@ -10,9 +10,10 @@ fresh process each time:
 * **warm**: the same cache again, from a new temporary Blender user folder (as every ``ladar_run.py`` run is):
   every kernel loaded from the cache (the run's ``kernels`` record must say 0 compiled, else the benchmark fails).
 
-Next to each wall time it reports the command's CPU time (user + system of the process and its threads, from
-``getrusage`` of the finished child: on a shared machine the wall time mostly measures the other jobs) and the load
-average when it started, and what the run itself records: the frame's wall time, the seconds loading or
+The project's bytecode is written first (:func:`write_bytecode`).  Next to each wall time it reports the
+command's CPU time (user + system of the process and its threads, from ``getrusage`` of the finished child: on a
+shared machine the wall time mostly measures the other jobs) and the load average when it started, and what the run
+itself records: the frame's wall time, the seconds loading or
 compiling kernels, and the stage times without them.  Writes ``commands.json`` into ``--out`` (default
 ``runs/bench``; ``--update-committed``: ``bench/results``, bench/benchio.py).  ``--quick``: the flash demo only,
 one warm repeat.
@@ -36,6 +37,20 @@ sys.path.insert(0, str(REPO / "bench"))
 from benchio import add_output_arguments, output_path, write_json  # noqa: E402
 
 EXAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile")
+#: The project's Python folders whose bytecode is written before the clocks (:func:`write_bytecode`).
+BYTECODE_DIRS = ("core", "ladar_addon", "operators", "panels", "scripts")
+
+
+def write_bytecode() -> None:
+    """Write the project's missing or stale bytecode (``__pycache__``, git-ignored) before anything is timed, as a
+    user's Python does at its first run: where ``PYTHONDONTWRITEBYTECODE`` is set (the shared development machine)
+    Python never writes it, and every timed command compiled the ~130 project modules it imports again (0.5-0.7 s
+    of CPU a command, issue 25) unless the test suite had written them (tests/conftest.py does the same)."""
+    import compileall
+
+    for name in BYTECODE_DIRS:
+        compileall.compile_dir(REPO / name, quiet=2, workers=1)
+    compileall.compile_file(REPO / "__init__.py", quiet=2)
 
 
 def run_once(scene: str, cache: Path, work: Path) -> dict:
@@ -67,6 +82,7 @@ def main(argv=None) -> int:
     path = output_path(ap, args, "commands.json")
     scenes = EXAMPLES[:1] if args.quick else EXAMPLES
     repeat = 1 if args.quick else args.repeat
+    write_bytecode()
     results = {}
     with tempfile.TemporaryDirectory(prefix="bench_commands_") as tmp:
         work = Path(tmp)
