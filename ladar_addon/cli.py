@@ -31,7 +31,7 @@ from ..core.errors import ConfigError
 from ..core.config.settings import SimulationConfig
 from ..core.config.files import dump_config_json, dump_config_toml, load_config
 from ..core.fileio.staging import release_live_claims, write_file_atomically
-from ..core.process import Interrupted, emit, exit_code, interrupts_as_exceptions
+from ..core.process import Interrupted, deferred, emit, exit_code, interrupts_as_exceptions
 from .errors import LadarError
 
 COMMAND_ID = "ladar"
@@ -194,15 +194,18 @@ _SIMULATOR = __name__.rpartition(".")[0].rpartition(".")[0] + ".core.run"
 @contextlib.contextmanager
 def _loading_the_simulator():
     """Around the imports of the simulator in a command: the first time in the process (enabling the add-on
-    leaves it out) a line says so before it starts and the heartbeat repeats it while it lasts (0.7 s of CPU, more
-    than 2 s on a loaded machine: issue 27, start-up is never silent for more than 2 s); afterwards nothing."""
+    leaves it out) a line says so before it starts and the heartbeat repeats it while it lasts (0.5 s of CPU, more
+    than 2 s on a loaded machine: issue 27, start-up is never silent for more than 2 s); afterwards nothing.  Like
+    Blender's start, the import is not cut in two by a signal (core.process.deferred: SIGINT, SIGTERM or SIGHUP
+    meanwhile ends the command right after it; raised inside numba's or llvmlite's start-up, which calls Python
+    back from C, the exception could be printed and dropped and the signal lost, issue 31)."""
     if _SIMULATOR in sys.modules:
         yield
         return
     from .run_inputs import progress_printer
 
     emit("ladar: loading the simulator \u2026")
-    with progress_printer() as heartbeat:
+    with progress_printer() as heartbeat, deferred():
         heartbeat.set(0.0, "loading the simulator")
         yield
 
