@@ -10,6 +10,7 @@ check (so the check sees an import when there is one), and prints the ``ladar: l
 """
 from __future__ import annotations
 
+import ast
 import json
 import subprocess
 import sys
@@ -72,3 +73,27 @@ def test_enabling_the_add_on_and_commands_without_a_run_do_not_load_the_simulato
     assert "ladar: loading the simulator" not in before
     assert after.index("ladar: loading the simulator \u2026") < after.index("is valid")
     assert "ladar: error: laser.pulse_energy_j" in done.stderr
+
+
+def test_a_usage_error_or_help_is_answered_before_blender_starts(tmp_path):
+    """scripts/ladar_run.py parses the command line with the command's own parser (ladar_addon/cli_args.py, the
+    standard library only) before it starts Blender: argparse's usage error (2) and ``--help`` (0) come without
+    the 1.5 s of CPU of Blender's start and the extension's install (no ``loading Blender`` line)."""
+    names = {n.module if isinstance(n, ast.ImportFrom) else a.name
+             for n in ast.walk(ast.parse((REPO / "ladar_addon" / "cli_args.py").read_text(encoding="utf-8")))
+             if isinstance(n, (ast.Import, ast.ImportFrom)) for a in n.names}
+    assert names <= {"__future__", "argparse"}, names
+    blend = REPO / "sample_blends" / "flash_demo.blend"
+
+    def run(*args):
+        return subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"), str(blend), *args],
+                              capture_output=True, text=True, timeout=120, cwd=tmp_path)
+
+    usage = run("simulate", "--frames")
+    assert usage.returncode == 2 and "--frames: expected one argument" in usage.stderr, usage.stderr
+    helped = run("simulate", "--help")
+    assert helped.returncode == 0 and "--frames RANGE" in helped.stdout and "exit codes:" in helped.stdout
+    unknown = run("bogus")
+    assert unknown.returncode == 2 and "invalid choice: 'bogus'" in unknown.stderr, unknown.stderr
+    for done in (usage, helped, unknown):
+        assert "loading Blender" not in done.stdout + done.stderr and "Traceback" not in done.stderr
