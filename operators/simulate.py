@@ -104,9 +104,9 @@ cloud and images.  ESC cancels"""
         return context.scene is not None
 
     def _job(self, context, progress=None):
-        # imported here, not when the add-on is enabled: the simulator (numba, SciPy, its kernels' modules) is
-        # about half of the add-on's start-up (docs/performance.md, issue 25), and commands other than a
-        # simulation (export-config, validate-config, every refused command line) never need it
+        # imported here, not when the add-on is enabled: the simulator (numba, SciPy, its kernels' modules) was
+        # nearly all of enabling it (0.5-0.75 s of CPU: docs/performance.md, issue 25), and what runs no
+        # simulation (export-config, a refused config, the panels) never needs it
         from ..ladar_addon.frames import parse_frames
         from ..ladar_addon.job import SimulationJob
 
