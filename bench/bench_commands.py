@@ -10,14 +10,16 @@ fresh process each time:
 * **warm**: the same cache again, from a new temporary Blender user folder (as every ``ladar_run.py`` run is):
   every kernel loaded from the cache (the run's ``kernels`` record must say 0 compiled, else the benchmark fails).
 
-Next to each wall time it reports the command's CPU time (user + system of the child process and its own
-children) and what the run itself records: the frame's wall time, the seconds loading or compiling kernels, and
-the stage times without them.  Then, on the last warm run's folder, it times the PNG previews alone
+The project's bytecode is written first (:func:`write_bytecode`).  Next to each wall time it reports the
+command's CPU time (user + system of the process and its threads, from ``getrusage`` of the finished child: on a
+shared machine the wall time mostly measures the other jobs) and the load average when it started, and what the
+run itself records: the frame's wall time, the seconds loading or compiling kernels, and the stage times without
+them.  Then, on the last warm run's folder, it times the PNG previews alone
 (``core.fileio.preview.write_run_previews`` after deleting the run's PNGs, in a fresh process each time, the
-matplotlib import it makes on first use included; median of the warm repeats): how many, wall and CPU seconds.  The load average
-(1, 5, 15 min) at the start and the end is recorded beside the figures.  Writes ``commands.json`` into
-``--out`` (default ``runs/bench``; ``--update-committed``: ``bench/results``, bench/benchio.py).  ``--quick``:
-the flash demo only, one warm repeat.
+matplotlib import included; median of the warm repeats): how many, wall and CPU seconds.  The load average (1, 5,
+15 min) at the start and the end is recorded beside the figures.  Writes ``commands.json`` into ``--out``
+(default ``runs/bench``; ``--update-committed``: ``bench/results``, bench/benchio.py).  ``--quick``: the flash
+demo only, one warm repeat.
 """
 from __future__ import annotations
 
@@ -38,6 +40,20 @@ sys.path.insert(0, str(REPO / "bench"))
 from benchio import add_output_arguments, output_path, write_json  # noqa: E402
 
 EXAMPLES = ("flash_demo", "gated_board", "forest_scan", "aircraft_profile")
+#: The project's Python folders whose bytecode is written before the clocks (:func:`write_bytecode`).
+BYTECODE_DIRS = ("core", "ladar_addon", "operators", "panels", "scripts")
+
+
+def write_bytecode() -> None:
+    """Write the project's missing or stale bytecode (``__pycache__``, git-ignored) before anything is timed, as a
+    user's Python does at its first run: where ``PYTHONDONTWRITEBYTECODE`` is set (the shared development machine)
+    Python never writes it, and every timed command compiled the ~130 project modules it imports again (0.5-0.7 s
+    of CPU a command, issue 25) unless the test suite had written them (tests/conftest.py does the same)."""
+    import compileall
+
+    for name in BYTECODE_DIRS:
+        compileall.compile_dir(REPO / name, quiet=2, workers=1)
+    compileall.compile_file(REPO / "__init__.py", quiet=2)
 
 
 def _children_cpu_s() -> float:
@@ -49,6 +65,7 @@ def run_once(scene: str, cache: Path, work: Path, keep: bool = False) -> dict:
     """One command in a fresh process; ``keep``: leave its run folder (``run_folder`` in the result)."""
     out = work / f"{scene}-{time.monotonic_ns()}"
     env = dict(os.environ, LADAR_KERNEL_CACHE=str(cache))
+    load = os.getloadavg()[0]
     c0, t0 = _children_cpu_s(), time.perf_counter()
     done = subprocess.run([sys.executable, str(REPO / "scripts" / "ladar_run.py"),
                            str(REPO / "sample_blends" / f"{scene}.blend"), "simulate", "--out", str(out)],
@@ -59,7 +76,8 @@ def run_once(scene: str, cache: Path, work: Path, keep: bool = False) -> dict:
     meta = json.loads((out / "metadata.json").read_text())
     if not keep:
         shutil.rmtree(out, ignore_errors=True)
-    return {"command_wall_s": wall, "command_cpu_s": cpu, "frame_wall_s": meta["wall_time_s"],
+    return {"command_wall_s": wall, "command_cpu_s": cpu, "load_average_1min": load,
+            "frame_wall_s": meta["wall_time_s"],
             "kernels": meta["kernels"], "stage_times_sum_s": sum(meta["stage_times_s"].values()),
             **({"run_folder": str(out)} if keep else {})}
 
@@ -99,6 +117,7 @@ def main(argv=None) -> int:
     path = output_path(ap, args, "commands.json")
     scenes = EXAMPLES[:1] if args.quick else EXAMPLES
     repeat = 1 if args.quick else args.repeat
+    write_bytecode()
     results = {}
     load_start = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="bench_commands_") as tmp:

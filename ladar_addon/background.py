@@ -1,5 +1,8 @@
-"""What the add-on's background jobs (a simulation, a sweep) share: their end states, waiting for the end, and
-turning the end state into the caller's exception."""
+"""What the add-on's background jobs (a simulation, a sweep, the kernel warm-up) share: their end states, waiting
+for the end, turning the end state into the caller's exception, and the interface's one running job with the modal
+operator's event handling.  Light on purpose (no simulator import beyond its errors): the operators' ``poll`` and
+the status bar ask :func:`current_job` from the moment the add-on is enabled, and enabling it must not import the
+simulator (numba, SciPy: docs/performance.md, issue 25)."""
 from __future__ import annotations
 
 import time
@@ -41,3 +44,31 @@ class BackgroundJob:
         if self.state == "cancelled":
             raise Cancelled()
         return self
+
+
+# The interface's running job (one at a time) and the modal operator's event handling
+# ------------------------------------------------------------------------------------------------------------
+_current = {"job": None}
+
+
+def current_job():
+    """The job the modal operator is running, or None."""
+    job = _current["job"]
+    return job if job is not None and not job.finished else None
+
+
+def set_current_job(job) -> None:
+    _current["job"] = job
+
+
+def handle_modal_event(job: BackgroundJob, event_type: str, event_value: str = "NOTHING") -> str:
+    """What the modal operator does with an event: ESC asks the job to cancel (and is consumed), a TIMER event
+    advances it; returns the operator status: "RUNNING_MODAL", "PASS_THROUGH" (every other event: the
+    interface stays usable), "FINISHED" (results imported) or "CANCELLED" (cancelled or failed: see
+    ``job.state``)."""
+    if event_type == "ESC" and event_value == "PRESS":
+        job.cancel()
+        return "RUNNING_MODAL"
+    if event_type == "TIMER" and job.step():
+        return "FINISHED" if job.state == "done" else "CANCELLED"
+    return "PASS_THROUGH"

@@ -18,9 +18,10 @@ an interrupted run leaves nothing behind.  Output never costs a run: if the read
 """
 from __future__ import annotations
 
-import argparse
+import contextlib
 import json
 import signal
+import sys
 from pathlib import Path
 
 import bpy
@@ -29,105 +30,14 @@ from ..core.errors import ConfigError
 from ..core.config.settings import SimulationConfig
 from ..core.config.files import dump_config_json, dump_config_toml, load_config
 from ..core.fileio.staging import release_live_claims, write_file_atomically
-from ..core.process import Interrupted, emit, exit_code, interrupts_as_exceptions
+from ..core.process import Interrupted, deferred, emit, exit_code, interrupts_as_exceptions
+from .cli_args import build_parser  # (standard library only: scripts/ladar_run.py parses with it before Blender)
 from .errors import LadarError
 
 COMMAND_ID = "ladar"
 
 
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
-
-_EPILOG = """exit codes: 0 success, 1 user error (one line on stderr naming the bad setting), 2 usage error,
-130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP): nothing of the run is left behind"""
-
-_SIMULATE_EPILOG = """examples:
-  blender -b scene.blend -c ladar simulate --out runs/r1 --seed 7
-  blender -b scene.blend -c ladar simulate --frames 1-100 --out runs/seq --config sweep.toml
-  blender -b scene.blend -c ladar simulate --frames 1-100:10 --if-exists new
-
-One frame writes a run folder (range/intensity/energy EXR + PNG previews, points.ply/.npz, metadata.json, ...);
---frames writes a sequence folder: frame_NNNN/ run folders, points_merged.ply/.npz (world coordinates),
-images/<product>_NNNN.exr image sequences and metadata.json.  Static geometry is exported once and its BVH
-reused for every frame.  A run is assembled in a hidden folder and renamed into place when complete.
---overwrite replaces only a previous run of this simulator (a folder with its metadata.json); any other existing
-folder is refused.  Two runs never write the same folder at once: the second one refuses, or with --if-exists
-new takes the next free name.
-
-""" + _EPILOG
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="blender -b scene.blend -c ladar", epilog=_EPILOG,
-                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                     description="Ladar simulator: simulate the scene's ladar sensor (one frame or a frame range), "
-                                 "export or check configs.")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    sim = sub.add_parser("simulate", help="simulate the ladar sensor (a frame or a frame range) into a run folder",
-                         description="Simulate the scene's ladar sensor and write a run folder.",
-                         epilog=_SIMULATE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sim.add_argument("--out", default=None, metavar="DIR",
-                     help="the run folder to write (default: <Scene > Ladar > Output Folder>/<sensor>_f<frame>, "
-                          "or _f<first>-<last> for --frames)")
-    which = sim.add_mutually_exclusive_group()
-    which.add_argument("--frame", type=int, default=None, metavar="N",
-                       help="scene frame (default: the current frame)")
-    which.add_argument("--frames", default=None, metavar="RANGE",
-                       help='a frame range into one sequence folder: "1-100", "1-100:5" (every 5th) or "1,4,10-12"')
-    sim.add_argument("--seed", type=int, default=None, metavar="N",
-                     help="run seed (default: the scene's or the config's)")
-    sim.add_argument("--config", default=None, metavar="FILE",
-                     help="JSON or TOML settings that override the .blend's (versioned schema; for sweeps)")
-    exists = sim.add_mutually_exclusive_group()
-    exists.add_argument("--overwrite", action="store_true",
-                        help="replace an existing run folder, if it is a previous run of this simulator (same as "
-                             "--if-exists replace)")
-    exists.add_argument("--if-exists", choices=("stop", "replace", "new"), default=None,
-                        help="when the run folder exists: stop with an error (default), replace it, or use the "
-                             "next free name (<name>_2, ...)")
-    sim.add_argument("--sensor", default=None, metavar="NAME",
-                     help="camera object to simulate (default: Scene > Ladar > Sensor, else the scene camera)")
-    sim.add_argument("--clouds", choices=("run", "frame"), default=None,
-                     help="--frames: one merged point cloud (run) or one per frame (frame) in the scene "
-                          "(default: the scene's setting)")
-    sim.add_argument("--no-import", action="store_true",
-                     help="do not add the point cloud and images to the (unsaved) scene")
-    sim.add_argument("--no-previews", action="store_true", help="do not write false-colour PNG previews")
-
-    swp = sub.add_parser("sweep", help="run a parameter sweep (a TOML sweep file) on Dask into a sweep folder",
-                         description="Export the scene once, run every point × seed × frame of the sweep file on "
-                                     "Dask and write a results table and plots (docs/sweeps.md).", epilog=_EPILOG)
-    swp.add_argument("file", metavar="SWEEP.toml", help="the sweep file (sweep_version = 1; axes, seeds, frames)")
-    swp.add_argument("--out", required=True, metavar="DIR",
-                     help="the sweep folder (re-running the same sweep into it resumes it)")
-    swp.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                     help="a running Dask scheduler, e.g. tcp://host:8786 (default: a local cluster, one worker "
-                          "process per core)")
-    swp.add_argument("--workers", type=int, default=None, metavar="N",
-                     help="worker processes of the local cluster (default: one per core)")
-    swp.add_argument("--restart", action="store_true",
-                     help="discard the sweep folder's runs, table and plots and start again (needed when the "
-                          "sweep file, the base settings or the scene changed)")
-    swp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
-
-    exp = sub.add_parser("export-config", help="write the sensor's settings as a JSON or TOML config file",
-                         epilog=_EPILOG)
-    exp.add_argument("--out", required=True, metavar="FILE", help="output file ending in .json or .toml")
-    exp.add_argument("--sensor", default=None, metavar="NAME", help="camera object (default: active sensor)")
-    exp.add_argument("--preset", default=None, metavar="NAME",
-                     help="apply a real-sensor preset (docs/sensors.md: e.g. velodyne_vlp16, or a preset .toml "
-                          "file) over the sensor's settings before writing them")
-    exp.add_argument("--overwrite", action="store_true", help="replace FILE if it exists (default: refuse)")
-
-    val = sub.add_parser("validate-config", help="check a JSON or TOML config file against the settings schema",
-                         epilog=_EPILOG)
-    val.add_argument("file", metavar="FILE")
-    val.add_argument("--sensor", default=None, metavar="NAME",
-                     help="camera whose settings the file overrides (default: the active sensor, if any)")
-
-    sub.add_parser("warm-up", help="compile the simulator's kernels ahead (once per install and CPU), with progress",
-                   epilog=_EPILOG)
-    return parser
 
 
 def _sensor(scene, name):
@@ -184,15 +94,40 @@ def _check_frames(frames, field: str) -> None:
             raise ConfigError(field, f, f"a frame in [{prop.hard_min}, {prop.hard_max}] (Blender's frame range)")
 
 
+#: The module whose import loads the simulator (numba, SciPy and the kernels' modules): enabling the add-on does not
+#: import it (docs/performance.md, issue 25), the commands that run the simulator do (:func:`_loading_the_simulator`).
+_SIMULATOR = __name__.rpartition(".")[0].rpartition(".")[0] + ".core.run"
+
+
+@contextlib.contextmanager
+def _loading_the_simulator():
+    """Around the imports of the simulator in a command: the first time in the process (enabling the add-on
+    leaves it out) a line says so before it starts and the heartbeat repeats it while it lasts (0.5 s of CPU, more
+    than 2 s on a loaded machine: issue 27, start-up is never silent for more than 2 s); afterwards nothing.  Like
+    Blender's start, the import is not cut in two by a signal (core.process.deferred: SIGINT, SIGTERM or SIGHUP
+    meanwhile ends the command right after it; raised inside numba's or llvmlite's start-up, which calls Python
+    back from C, the exception could be printed and dropped and the signal lost, issue 31)."""
+    if _SIMULATOR in sys.modules:
+        yield
+        return
+    from .run_inputs import progress_printer
+
+    emit("ladar: loading the simulator \u2026")
+    with progress_printer() as heartbeat, deferred():
+        heartbeat.set(0.0, "loading the simulator")
+        yield
+
+
 def _cmd_simulate(scene, args) -> int:
     from ..core.fileio.run_folder import combine_figures, figure_lines, run_summary
     from .frames import parse_frames
-    from .job import SimulationJob
     from .run_inputs import progress_printer
 
     sensor = _sensor(scene, args.sensor)
     frames = parse_frames(args.frames) if args.frames is not None else None
     _check_frames(frames or ([args.frame] if args.frame is not None else []), "frames" if frames else "frame")
+    with _loading_the_simulator():
+        from .job import SimulationJob
     if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
     with progress_printer() as progress:  # (its heartbeat stops with the run)
         job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
@@ -217,9 +152,11 @@ def _cmd_simulate(scene, args) -> int:
 
 
 def _cmd_sweep(scene, args) -> int:
-    from ..core.sweep.runner import check_workers
     from .run_inputs import progress_printer
-    from .sweep import sweep_scene
+
+    with _loading_the_simulator():
+        from ..core.sweep.runner import check_workers
+        from .sweep import sweep_scene
 
     check_workers(args.workers)  # (before the scene is exported)
     # the sweep's lines carry its own ETA, from its tasks' times (a second one from the printer's clock, which
@@ -241,7 +178,6 @@ def _cmd_export_config(scene, args) -> int:
 def _cmd_validate_config(scene, args) -> int:
     """What ``simulate`` would refuse before running: the settings, the material names the file overrides (the
     scene's exported materials) and the run's memory and work (core.engine.memory, without the memory free now)."""
-    from ..core.engine.memory import check_memory
     from .export import scene_geometry_from_depsgraph
     from .run_inputs import build_config
 
@@ -255,6 +191,8 @@ def _cmd_validate_config(scene, args) -> int:
     if changed and scene is not None:  # simulate matches these by name against the exported scene
         scene_geometry_from_depsgraph(bpy.context.evaluated_depsgraph_get(),
                                       exclude={sensor.name} if sensor is not None else ()).with_overrides(changed)
+    with _loading_the_simulator():  # (after the settings are checked: a refused file never loads it)
+        from ..core.engine.memory import check_memory
     check_memory(cfg, available=None)
     emit(f"ladar: {args.file} is valid")
     return 0
@@ -264,9 +202,10 @@ def _cmd_warm_up(scene, args) -> int:
     """Compile (or load) every system's kernels on a tiny built-in scene (core/warmup.py); writes nothing.  A
     line per case when it is done, and while one compiles (10-40 s the first time) the heartbeat's line every
     second: the case, the time so far and the ETA (issue 27: never silent for more than 2 s)."""
-    from ..core.warmup import cases, warm_up
     from .run_inputs import progress_printer
 
+    with _loading_the_simulator():
+        from ..core.warmup import cases, warm_up
     names = [name for name, _ in cases()]
     n = len(names)
 

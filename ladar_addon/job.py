@@ -19,7 +19,7 @@ from ..core.config.files import config_to_dict
 from ..core.errors import Cancelled
 from ..core.run import run_simulation
 from ..core.fileio.staging import check_run_dir, claim_run_dir, free_run_path
-from .background import BackgroundJob
+from .background import BackgroundJob, current_job, handle_modal_event, set_current_job  # noqa: F401
 from .errors import LadarError
 from .blend_config import check_sensor, unit_scale
 from .results import check_result_names, existing_results, import_run
@@ -372,32 +372,10 @@ class SimulationJob(BackgroundJob):
 
 
 # ------------------------------------------------------------------------------------------------------------
-# The interface's running job (one at a time) and the modal operator's event handling
+# The interface's running job and the modal operator's event handling live in .background (imported above, the
+# same objects under this module's names as before): the operators and the status bar use them without importing
+# the simulator.
 # ------------------------------------------------------------------------------------------------------------
-_current = {"job": None}
-
-
-def current_job():
-    """The job the modal operator is running, or None."""
-    job = _current["job"]
-    return job if job is not None and not job.finished else None
-
-
-def set_current_job(job) -> None:
-    _current["job"] = job
-
-
-def handle_modal_event(job: SimulationJob, event_type: str, event_value: str = "NOTHING") -> str:
-    """What the modal operator does with an event: ESC asks the job to cancel (and is consumed), a TIMER event
-    advances it; returns the operator status: "RUNNING_MODAL", "PASS_THROUGH" (every other event: the
-    interface stays usable), "FINISHED" (results imported) or "CANCELLED" (cancelled or failed: see
-    ``job.state``)."""
-    if event_type == "ESC" and event_value == "PRESS":
-        job.cancel()
-        return "RUNNING_MODAL"
-    if event_type == "TIMER" and job.step():
-        return "FINISHED" if job.state == "done" else "CANCELLED"
-    return "PASS_THROUGH"
 
 
 def link_image_sequences(seq_dir: Path, frames) -> list[Path]:

@@ -10,8 +10,7 @@ import bpy
 from ..core.errors import ConfigError
 from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.frames import parse_frames
-from ..ladar_addon.job import SimulationJob, current_job, handle_modal_event, set_current_job
+from ..ladar_addon.background import current_job, handle_modal_event, set_current_job
 from ..ladar_addon.run_inputs import progress_printer
 
 _USER_ERRORS = (ConfigError, LadarError, Cancelled, OSError)
@@ -105,6 +104,12 @@ cloud and images.  ESC cancels"""
         return context.scene is not None
 
     def _job(self, context, progress=None):
+        # imported here, not when the add-on is enabled: the simulator (numba, SciPy, its kernels' modules) was
+        # nearly all of enabling it (0.5-0.75 s of CPU: docs/performance.md, issue 25), and what runs no
+        # simulation (export-config, a refused config, the panels) never needs it
+        from ..ladar_addon.frames import parse_frames
+        from ..ladar_addon.job import SimulationJob
+
         scene = context.scene
         sensor = None
         if self.sensor:

@@ -12,9 +12,8 @@ from bpy_extras.io_utils import ImportHelper
 from ..core.errors import ConfigError
 from ..core.errors import Cancelled
 from ..ladar_addon.errors import LadarError
-from ..ladar_addon.job import current_job
+from ..ladar_addon.background import current_job
 from ..ladar_addon.run_inputs import progress_printer
-from ..ladar_addon.sweep import SweepJob
 from .simulate import JobModal
 
 _USER_ERRORS = (ConfigError, LadarError, Cancelled, OSError, RuntimeError)
@@ -49,6 +48,8 @@ and plots.  ESC cancels (finished points are kept; the same sweep resumes)"""
         return context.scene is not None
 
     def _job(self, context, progress=None):
+        from ..ladar_addon.sweep import SweepJob  # (here: the simulator and Dask are not needed to enable the add-on)
+
         return SweepJob(context.scene, self.filepath, self.out_dir, scheduler=self.scheduler or None,
                         n_workers=self.workers or None, restart=self.restart, progress=progress)
 

@@ -10,7 +10,7 @@ def draw_fields(layout, props, fields, skip=()):
 
 def simulate_button(layout, sensor_name=""):
     """The Simulate button, or while a run is going its progress bar and a cancel button."""
-    from ..ladar_addon.job import current_job
+    from ..ladar_addon.background import current_job
 
     row = layout.row(align=True)
     row.scale_y = 1.4

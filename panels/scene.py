@@ -1,7 +1,6 @@
 """Scene tab: the ladar sensor choice, output and atmosphere; a 3D-viewport sidebar tab with Simulate."""
 import bpy
 
-from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_atmosphere_presets, draw_preset_header
 from ..ladar_addon.fields import ATMOSPHERE_FIELDS
 from .common import (active_sensor, atmosphere_settings, draw_fields, draw_lines, reference_range_m,
@@ -10,6 +9,8 @@ from .common import (active_sensor, atmosphere_settings, draw_fields, draw_lines
 
 def draw_atmosphere_figures(layout, scene):
     """Read-only extinction, transmission and turbulence figures at the reference range (never raises)."""
+    from ..ladar_addon import derived  # (at the first draw: it imports the simulator's physics, numba included)
+
     try:
         obj = active_sensor(scene)
         cfg = sensor_config(scene, obj) if obj is not None else None
@@ -30,6 +31,8 @@ def draw_aerosol_layers(layout, scene):
     row.label(text="Aerosol Layers")
     row.operator("ladar.aerosol_layers_clear", text="", icon="X")
     try:
+        from ..ladar_addon import derived
+
         lines = derived.aerosol_layer_lines(atmosphere_settings(scene))
     except Exception as exc:  # noqa: BLE001 - draw must never fail
         lines = [f"Aerosol layers unavailable: {exc}"]

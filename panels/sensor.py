@@ -9,7 +9,6 @@ import math
 import bpy
 
 from ..core.constants import SPEED_OF_LIGHT_M_S
-from ..ladar_addon import derived
 from ..ladar_addon.presets import LADAR_MT_detector_presets, LADAR_MT_sensor_presets, draw_preset_header
 from ..ladar_addon.channel_tables import channel_table_lines
 from ..ladar_addon.fields import SENSOR_FIELDS, TOP_FIELDS, read_value
@@ -249,6 +248,8 @@ class LADAR_PT_sensor_detector(_SensorGroupPanel, bpy.types.Panel):
             if cfg is None:
                 lines = ["Derived figures unavailable: invalid sensor settings"]
             else:
+                from ..ladar_addon import derived  # (at the first draw: it imports the simulator's physics)
+
                 rng = reference_range_m(scene)
                 fig = derived.atmosphere_figures(atmosphere_settings(scene), cfg.laser.wavelength_m, rng)
                 lines = derived.detector_lines(cfg, rng, fig["two_way_transmission"])

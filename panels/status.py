@@ -4,7 +4,7 @@ import bpy
 
 def draw_status(self, context):
     """Appended to ``STATUSBAR_HT_header``: draws nothing unless a ladar simulation runs."""
-    from ..ladar_addon.job import current_job
+    from ..ladar_addon.background import current_job
 
     job = current_job()
     if job is None:

@@ -14,7 +14,8 @@
 It does what ``blender -b scene.blend -c ladar ...`` does: with ``BLENDER_USER_RESOURCES`` pointing at a fresh
 temporary folder (set before ``import bpy``), it installs this repository as an extension in a local extension
 repository, enables it as ``bl_ext.ladar_dev.ladar_simulator``, opens the .blend file and calls the command
-handler the extension registers.  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
+handler the extension registers (a usage error or ``--help`` is answered before Blender starts, with the same
+parser).  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: batch schedulers, ``timeout``), 129 hung up (SIGHUP).  An
 interrupted run leaves nothing behind: its staging folder and the temporary Blender user folder are removed
 (after a SIGKILL, which cannot be caught, the next run removes them).
@@ -110,6 +111,20 @@ def open_blend(bpy, path: Path) -> None:
             pass
 
 
+def check_command_line(command) -> int | None:
+    """Parse the command line with the command's own parser (ladar_addon/cli_args.py: the standard library only)
+    before Blender starts: a usage error (argparse's message, exit 2) or ``--help`` (exit 0) is answered here, in
+    0.1 s instead of the 1.5 s of CPU of starting Blender and enabling the extension first; None when the command
+    line parses (the command handler parses it again: the settings, files and scene are checked there)."""
+    from ladar_addon.cli_args import build_parser  # (REPO_ROOT is on sys.path: blender_env)
+
+    try:
+        build_parser().parse_args(list(command))
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    return None
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -121,6 +136,9 @@ def main(argv=None) -> int:
     elif blend.suffix.lower() != ".blend" or not blend.is_file():
         process.emit(f"ladar: error: {blend} is not an existing .blend file", err=True)
         return 1
+    usage = check_command_line(command)
+    if usage is not None:  # a usage error (2) or --help (0): answered without starting Blender
+        return usage
 
     with process.interrupts_as_exceptions():
         try:
