@@ -21,6 +21,7 @@ bench/results/sequence.json).  ``--quick``: 20 000 triangles, 4 frames (seconds)
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import shutil
@@ -55,7 +56,9 @@ def main(argv=None) -> int:
     import bpy
 
     addon = blender_env.install_extension()
-    sim = addon.ladar_addon.job  # SimulationJob (ladar_addon.simulate holds the blocking wrappers only)
+    # SimulationJob (ladar_addon.simulate holds the blocking wrappers only); imported when used, as the operators do:
+    # enabling the add-on no longer imports the simulator
+    sim = importlib.import_module(f"{addon.ladar_addon.__name__}.job")
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
     side = int(math.ceil(math.sqrt(args.triangles / 2)))
