@@ -86,16 +86,24 @@ def _add_hits(r, e, window_s, tally) -> tuple[float, float]:
     return _tally_kernel(r, e, float(window_s[0]), float(window_s[1]), SPEED_OF_LIGHT_M_S, tally)
 
 
+@kernel(inline=True)
+def tally_hit(x, e, start, end, c, tally):
+    """Add one hit at range ``x`` (m) with energy ``e`` (J) to the counts and energies of ``tally`` (the gate
+    [start, end) in round-trip time, ``c`` the speed of light): the step :func:`gate_tally` takes for each hit,
+    for a compiled pass that tallies its hits as it makes them (core/systems/scanner.py)."""
+    t = 2.0 * x / c
+    k = 0 if t < start else (2 if t >= end else 1)
+    tally[k] += 1.0
+    tally[3 + k] += e
+
+
 @kernel
 def _tally_kernel(r, e, start, end, c, tally):
     one = e.shape[0] == 1 and r.shape[0] != 1
     r_min, r_max, nan = r[0], r[0], False
     for i in range(r.shape[0]):
         x = r[i]
-        t = 2.0 * x / c
-        k = 0 if t < start else (2 if t >= end else 1)
-        tally[k] += 1.0
-        tally[3 + k] += e[0] if one else e[i]
+        tally_hit(x, e[0] if one else e[i], start, end, c, tally)
         if x != x:
             nan = True
         elif x < r_min:

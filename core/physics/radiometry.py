@@ -86,6 +86,12 @@ def aperture_r2(receiver) -> float:
     return float((0.5 * receiver.aperture_diameter_m) ** 2)
 
 
+def energy_terms(laser, receiver, extinction_per_m: float) -> tuple[float, float, float]:
+    """The arguments of :func:`energy_at` common to every ray: (E_T η_sys π r_a², 2σ, r_a²), for σ a number (the
+    uniform part of a layered extinction; its layers are applied after the kernel)."""
+    return float(energy_scale(laser, receiver)), 2.0 * float(extinction_per_m), aperture_r2(receiver)
+
+
 def received_energy(laser, receiver, extinction_per_m, materials, material_ids, cos_theta, range_m,
                     cell_fraction):
     """E_r (J, float64) per ray of eq. 3-1 for the settings groups: rays hitting materials
@@ -107,8 +113,8 @@ def received_energy(laser, receiver, extinction_per_m, materials, material_ids, 
     out = np.empty(cos_theta.shape[0])
     layered = isinstance(extinction_per_m, LayeredExtinction)
     sigma = extinction_per_m.base_per_m if layered else extinction_per_m
-    bad_material(_received_energy(float(energy_scale(laser, receiver)), 2.0 * float(sigma),
-                                  aperture_r2(receiver), *table, ids, cos_theta, range_m, fraction, step, out),
+    bad_material(_received_energy(*energy_terms(laser, receiver, sigma), *table, ids, cos_theta, range_m, fraction,
+                                  step, out),
                  ids, len(materials))
     if layered:
         out *= np.exp(-2.0 * extinction_per_m.layer_depth(range_m))

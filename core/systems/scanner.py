@@ -24,7 +24,7 @@ from ..config.derived import n_scan_pulses, scan_duration_s
 from ..config.settings import SimulationConfig
 from ..constants import SPEED_OF_LIGHT_M_S
 from ..engine.atmosphere_stage import turbulence_switches
-from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_window_s
+from ..engine.coverage import add_tallies, coverage_record, empty_tally, gate_tally, gate_window_s, tally_hit
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import SCAN_NOISE_TILE_PULSES
@@ -32,6 +32,7 @@ from ..engine.products import noisy_echoes
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_rng, stage_seed
 from ..engine.weather_stage import mark_atmosphere_echoes, merge_returns, prepare_frame_weather, weather_switches
+from ..atmosphere.extinction import LayeredExtinction
 from ..atmosphere.weather import add_volume_rows
 from ..errors import ConfigError
 from ..geometry.motion import Trajectory
@@ -40,7 +41,8 @@ from ..physics.detection.peaks import Echoes, detect_echoes
 from ..physics.laser import pulse_half_support_s
 from ..physics.propagation import (footprint_variance_factor, path_extinction, return_scintillation_variance,
                                    turbulence_model_settings)
-from ..physics.radiometry import received_energy
+from ..physics.brdf import bad_material, material_brdf_at, material_table
+from ..physics.radiometry import energy_at, energy_terms, received_energy
 from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, background_summary
 from ..physics.solar import beam_solid_angle, pixel_solar_rates, solar_enabled
 from ..physics.pulse_table import CentroidPulseTable
@@ -280,6 +282,55 @@ def _gather_hits(prim, range_m, cos_theta, weight, material_ids, p_hit, mat_hit,
 
 
 @kernel
+def _hit_energies(prim, range_m, cos_theta, weight, material_ids, scale, two_sigma, aperture_r2, model, params, start,
+                  angle_deg, brdf_per_sr, pulse_scale, scint, gate_start_s, gate_end_s, c, p_hit, range_hit, energy,
+                  pulse_energy, tally):
+    """:func:`_gather_hits`, the radiometry (:func:`~core.physics.radiometry.received_energy`'s kernel, a uniform
+    extinction), the channel's energy scale (``pulse_scale``, one a pulse, or empty for none),
+    :func:`_pulse_energy` and the gate tally (:func:`~core.engine.coverage.gate_tally`, into ``tally``) of a
+    block's rays in one pass over its hits: each value by the same operations in the same order as those passes
+    one after the other (bit for bit).  Returns (−1, 0), or (k, material) for the first hit k on a material index
+    out of range (nothing after it done)."""
+    m = weight.shape[0]
+    scaled = pulse_scale.shape[0] > 0
+    uniform = material_ids.shape[0] == 1  # (one material for every triangle: no look-up per hit)
+    k = 0
+    r_min, r_max, nan = np.inf, -np.inf, False
+    for q in range(prim.shape[0] // m):
+        for j in range(m):
+            i = q * m + j
+            if prim[i] < 0:
+                continue
+            mat = material_ids[0] if uniform else material_ids[prim[i]]
+            if mat < 0 or mat >= model.shape[0]:
+                return k, mat
+            cos_t, r = cos_theta[i], range_m[i]
+            f_r = material_brdf_at(model, params, start, angle_deg, brdf_per_sr, mat, cos_t)
+            e = energy_at(scale, weight[j], f_r, cos_t, r, two_sigma, aperture_r2)
+            if scaled:
+                e = e * pulse_scale[q]
+            e *= scint[q]
+            pulse_energy[q] += e
+            p_hit[k], range_hit[k], energy[k] = q, r, e
+            tally_hit(r, e, gate_start_s, gate_end_s, c, tally)
+            if k == 0:
+                r_min, r_max = r, r
+            if r != r:
+                nan = True
+            elif r < r_min:
+                r_min = r
+            elif r > r_max:
+                r_max = r
+            k += 1
+    if k > 0:
+        if nan:
+            tally[6], tally[7] = np.nan, np.nan
+        else:
+            tally[6], tally[7] = r_min, r_max
+    return -1, 0
+
+
+@kernel
 def _pulse_energy(p_hit, scint, energy, pulse_energy):
     """Each hit's energy times its pulse's scintillation factor, in place, and summed per pulse in hit order
     (``pulse_energy`` starts at zero)."""
@@ -410,6 +461,16 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     ch_scale = channel_energy_scale(config.scanner)  # None: every pulse at laser.pulse_energy_j
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
     solar = noisy and solar_enabled(config)
+    # clear air and a uniform extinction: the hits, their energies and the tally in one pass (_hit_energies)
+    fused = wx is None and not isinstance(atm.extinction_per_m, LayeredExtinction)
+    if fused:
+        terms, mat_table = energy_terms(laser, config.receiver, atm.extinction_per_m), material_table(scene.materials)
+        # a scene of one material index (a terrain): that index alone, read once instead of once a hit through
+        # the hit triangle (a random read into a whole-scene array)
+        hit_materials = scene.material_ids
+        if len(hit_materials) > 1 and not np.any(hit_materials != hit_materials[0]):
+            hit_materials = np.ascontiguousarray(hit_materials[:1])
+        no_scale = np.zeros(0)  # (channel_energy_scale: float64, one a channel)
     if solar:  # each pulse's background from the sunlit scene (photons/s before η), in pulses.npz
         pulses["solar_background_photons_per_s"] = np.zeros(n_pulses)
 
@@ -440,34 +501,46 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
             pulses["solar_background_photons_per_s"][a:b] = sun_rate
         del d_world
         n_hit = int(np.count_nonzero(prim >= 0))
-        p_hit, mat_hit = np.empty(n_hit, np.int64), np.empty(n_hit, scene.material_ids.dtype)
-        cos_hit, range_hit, frac_hit = np.empty(n_hit), np.empty(n_hit), np.empty(n_hit)
-        _gather_hits(prim, range_m, cos_theta, weight, scene.material_ids, p_hit, mat_hit, cos_hit, range_hit,
-                     frac_hit)
-        ray_range = np.where(prim >= 0, range_m, np.inf) if wx is not None and wx.weather.has_drops else None
-        del prim, range_m, cos_theta
-        e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
-                            range_hit, frac_hit)
-        if ch_scale is not None:  # the channel's relative pulse energy (channel table, 4th column)
-            e = e * ch_scale[channel[p_hit]]
-        drops_ret = None
-        if wx is not None and wx.weather.has_drops:  # the drops of each pulse tile (stream per tile)
-            parts_d = []
-            for ta in range(a, b, tile):
-                d = wx.draw(config, frame, min(ta + tile, b) - ta, ta // tile)
-                d.beam = d.beam + (ta - a)
-                parts_d.append(d)
-            drops = parts_d[0] if len(parts_d) == 1 else type(parts_d[0])(
-                *(np.concatenate([getattr(d, f) for d in parts_d]) for f in ("beam", "range_m", "diameter_mm", "u")))
-            drops_ret, shade = wx.block_returns(drops, np.repeat(np.arange(n), m), np.tile(weight, n), ray_range,
-                                                np.full(n, float(weight.sum())), p_hit, range_hit)
-            e = e * shade
-            if ch_scale is not None and drops_ret is not None:
-                drops_ret = (drops_ret[0], drops_ret[1], drops_ret[2] * ch_scale[channel[drops_ret[0]]])
-            local["weather"] = stage_clock() - t
-        _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
-        tallies[a] = gate_tally(range_hit, e, window)
-        local["radiometry"] = stage_clock() - t - local.get("weather", 0.0)
+        drops_ret = frac_hit = None
+        if fused:  # the hits, their energies, the pulses' energies and the gate tally in one compiled pass
+            p_hit, range_hit, e, tallies[a] = np.empty(n_hit, np.int64), np.empty(n_hit), np.empty(n_hit), empty_tally()
+            bad, mat = _hit_energies(prim, range_m, cos_theta, weight, hit_materials, *terms, *mat_table,
+                                     no_scale if ch_scale is None else ch_scale[channel], scint, window[0], window[1],
+                                     SPEED_OF_LIGHT_M_S, p_hit, range_hit, e, pulses["received_energy_j"][a:b],
+                                     tallies[a])
+            bad_material(0 if bad >= 0 else -1, np.array([mat]), len(scene.materials))
+            del prim, range_m, cos_theta
+            local["radiometry"] = stage_clock() - t
+        else:
+            p_hit, mat_hit = np.empty(n_hit, np.int64), np.empty(n_hit, scene.material_ids.dtype)
+            cos_hit, range_hit, frac_hit = np.empty(n_hit), np.empty(n_hit), np.empty(n_hit)
+            _gather_hits(prim, range_m, cos_theta, weight, scene.material_ids, p_hit, mat_hit, cos_hit, range_hit,
+                         frac_hit)
+            ray_range = np.where(prim >= 0, range_m, np.inf) if wx is not None and wx.weather.has_drops else None
+            del prim, range_m, cos_theta
+            e = received_energy(laser, config.receiver, atm.extinction_per_m, scene.materials, mat_hit, cos_hit,
+                                range_hit, frac_hit)
+            if ch_scale is not None:  # the channel's relative pulse energy (channel table, 4th column)
+                e = e * ch_scale[channel[p_hit]]
+            drops_ret = None
+            if wx is not None and wx.weather.has_drops:  # the drops of each pulse tile (stream per tile)
+                parts_d = []
+                for ta in range(a, b, tile):
+                    d = wx.draw(config, frame, min(ta + tile, b) - ta, ta // tile)
+                    d.beam = d.beam + (ta - a)
+                    parts_d.append(d)
+                drops = parts_d[0] if len(parts_d) == 1 else type(parts_d[0])(
+                    *(np.concatenate([getattr(d, f) for d in parts_d])
+                      for f in ("beam", "range_m", "diameter_mm", "u")))
+                drops_ret, shade = wx.block_returns(drops, np.repeat(np.arange(n), m), np.tile(weight, n), ray_range,
+                                                    np.full(n, float(weight.sum())), p_hit, range_hit)
+                e = e * shade
+                if ch_scale is not None and drops_ret is not None:
+                    drops_ret = (drops_ret[0], drops_ret[1], drops_ret[2] * ch_scale[channel[drops_ret[0]]])
+                local["weather"] = stage_clock() - t
+            _pulse_energy(p_hit, scint, e, pulses["received_energy_j"][a:b])
+            tallies[a] = gate_tally(range_hit, e, window)
+            local["radiometry"] = stage_clock() - t - local.get("weather", 0.0)
         t = stage_clock()
         t_rt = None if centroid else round_trip_time_s(range_hit)  # (the centroid kernel takes the ranges)
         dig = None
