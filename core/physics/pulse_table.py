@@ -45,7 +45,7 @@ from ..jit import kernel
 from .detection.peaks import INTERPOLATION, Echoes, detect_row
 from ..constants import SPEED_OF_LIGHT_M_S
 from .laser import pulse_sigma_s
-from .waveform import PulseTable, table_add_return
+from .waveform import PulseTable, window_echoes
 
 #: Largest bound ε (relative to the pulse's peak bin, :mod:`module docstring <core.physics.pulse_table>`) of a pulse
 #: on the centroid route: 1e-4 keeps its echo position within 3 ε σ'² bins (0.014 bins = 0.5 mm for HELIOS++'s
@@ -132,7 +132,7 @@ def _centroid_echoes(pulse, u, energy, rows, wide, d2rows, k, half, n_bins, b3_6
     ū's bin ± ``hw``, else from the sub-ray sum exactly as :func:`.waveform._table_echoes` builds it (the same
     terms in the same order).  ``stats``: [pulses on the centroid route, the largest ε among them]."""
     n_tab = rows.shape[0] - 1
-    ncol, wcol = rows.shape[1], wide.shape[1]
+    wcol = wide.shape[1]
     hw = min(hw, k)  # (a pulse narrower than the window: its whole row)
     buf = np.zeros(n_bins + wcol)
     cand = np.empty(max(n_bins, 2 * hw + 1), np.int64)
@@ -199,31 +199,9 @@ def _centroid_echoes(pulse, u, energy, rows, wide, d2rows, k, half, n_bins, b3_6
                     stats[1] = max(stats[1], eps)
                     done = True
         if not done:  # the reference: every sub-ray's return added (waveform._table_echoes' sums)
-            lo, hi = n_bins, -1
-            for r in range(a, b):
-                if energy[r] > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
-                    j = int(math.floor(u[r]))
-                    lo = min(lo, max(j - k, 0))
-                    hi = max(hi, min(j + k, n_bins - 1))
-            length = hi - lo + 1
-            buf[:length + wcol - ncol] = 0.0
-            for r in range(a, b):
-                e = energy[r]
-                if e > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
-                    j = math.floor(u[r])
-                    first = int(j) - k - lo
-                    if first >= 0 and first + ncol <= length and e < math.inf:
-                        x = (u[r] - j) * n_tab
-                        i = min(int(x), n_tab - 1)
-                        w = x - i
-                        v = 1.0 - w
-                        out, r0, r1 = buf[first:first + wcol], wide[i], wide[i + 1]
-                        for q in range(wcol):
-                            out[q] += (r0[q] * v + r1[q] * w) * e
-                    else:
-                        table_add_return(buf, lo, length, u[r], e, rows, k)
-            n_out = detect_row(buf, 0, length, lo, threshold_j, relative_threshold, min_dip, max_echoes, mode,
-                               cand, out_pix, pulse[a], out_pos, out_amp, out_idx, out_n, n_out)
+            n_out = window_echoes(buf, cand, a, b, pulse, u, energy, rows, wide, k, half, n_bins, threshold_j,
+                                  relative_threshold, min_dip, max_echoes, mode, out_pix, out_pos, out_amp, out_idx,
+                                  out_n, n_out)
         a = b
     return n_out
 

@@ -830,6 +830,44 @@ def _table_waveforms(pulse, u, energy, rows, k, out):
         table_add_return(out[pulse[r]], 0, out.shape[1], u[r], energy[r], rows, k)
 
 
+@kernel(inline=True)
+def window_echoes(buf, cand, a, b, pulse, u, energy, rows, wide, k, half, n_bins, threshold_j, relative_threshold,
+                  min_dip, max_echoes, mode, out_pix, out_pos, out_amp, out_idx, out_n, n_out):
+    """The waveform of the returns ``a`` … ``b`` − 1 (one pulse) over the bins they touch, in ``buf``, and its
+    echoes (:func:`detect_row`) appended from ``n_out`` on; returns the new ``n_out``.  :func:`_table_echoes`'s
+    step for each pulse, and the sub-ray sum of core.physics.pulse_table's centroid route where a pulse falls back
+    to it (one implementation, so the two routes' sums stay the same bit for bit)."""
+    n_tab = rows.shape[0] - 1
+    ncol, wcol = rows.shape[1], wide.shape[1]
+    lo, hi = n_bins, -1
+    for r in range(a, b):
+        if energy[r] > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
+            j = int(math.floor(u[r]))
+            lo = min(lo, max(j - k, 0))
+            hi = max(hi, min(j + k, n_bins - 1))
+    if hi >= lo:
+        length = hi - lo + 1
+        buf[:length + wcol - ncol] = 0.0
+        for r in range(a, b):
+            e = energy[r]
+            if e > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
+                j = math.floor(u[r])
+                first = int(j) - k - lo
+                if first >= 0 and first + ncol <= length and e < math.inf:
+                    x = (u[r] - j) * n_tab  # (table_add_return's interpolation)
+                    i = min(int(x), n_tab - 1)
+                    w = x - i
+                    v = 1.0 - w
+                    out, r0, r1 = buf[first:first + wcol], wide[i], wide[i + 1]
+                    for q in range(wcol):
+                        out[q] += (r0[q] * v + r1[q] * w) * e
+                else:
+                    table_add_return(buf, lo, length, u[r], e, rows, k)
+        n_out = detect_row(buf, 0, length, lo, threshold_j, relative_threshold, min_dip, max_echoes, mode,
+                           cand, out_pix, pulse[a], out_pos, out_amp, out_idx, out_n, n_out)
+    return n_out
+
+
 @kernel
 def _table_echoes(pulse, u, energy, rows, wide, k, half, n_bins, threshold_j, relative_threshold, min_dip, max_echoes,
                   mode, out_pix, out_pos, out_amp, out_idx, out_n):
@@ -842,8 +880,7 @@ def _table_echoes(pulse, u, energy, rows, wide, k, half, n_bins, threshold_j, re
     never holds (it starts at +0.0; a rounded sum is −0.0 only when both terms are): bit for bit
     :func:`table_add_return`'s sums, in the same order.  An infinite energy (whose padded terms would be NaN)
     takes the clipped path."""
-    n_tab = rows.shape[0] - 1
-    ncol, wcol = rows.shape[1], wide.shape[1]
+    wcol = wide.shape[1]
     buf = np.zeros(n_bins + wcol)
     cand = np.empty(n_bins, np.int64)
     n_out = 0
@@ -853,31 +890,8 @@ def _table_echoes(pulse, u, energy, rows, wide, k, half, n_bins, threshold_j, re
         b = a
         while b < n and pulse[b] == pulse[a]:
             b += 1
-        lo, hi = n_bins, -1
-        for r in range(a, b):
-            if energy[r] > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
-                j = int(math.floor(u[r]))
-                lo = min(lo, max(j - k, 0))
-                hi = max(hi, min(j + k, n_bins - 1))
-        if hi >= lo:
-            length = hi - lo + 1
-            buf[:length + wcol - ncol] = 0.0
-            for r in range(a, b):
-                e = energy[r]
-                if e > 0 and u[r] + half >= 0 and u[r] - half < n_bins:
-                    j = math.floor(u[r])
-                    first = int(j) - k - lo
-                    if first >= 0 and first + ncol <= length and e < math.inf:
-                        x = (u[r] - j) * n_tab  # (table_add_return's interpolation)
-                        i = min(int(x), n_tab - 1)
-                        w = x - i
-                        v = 1.0 - w
-                        out, r0, r1 = buf[first:first + wcol], wide[i], wide[i + 1]
-                        for q in range(wcol):
-                            out[q] += (r0[q] * v + r1[q] * w) * e
-                    else:
-                        table_add_return(buf, lo, length, u[r], e, rows, k)
-            n_out = detect_row(buf, 0, length, lo, threshold_j, relative_threshold, min_dip, max_echoes, mode,
-                               cand, out_pix, pulse[a], out_pos, out_amp, out_idx, out_n, n_out)
+        n_out = window_echoes(buf, cand, a, b, pulse, u, energy, rows, wide, k, half, n_bins, threshold_j,
+                              relative_threshold, min_dip, max_echoes, mode, out_pix, out_pos, out_amp, out_idx, out_n,
+                              n_out)
         a = b
     return n_out
