@@ -197,6 +197,7 @@ def test_weak_returns_statistical_route_agrees_with_the_per_bin_reference(name, 
     det, cs = _settings(name)
     probe = apply_receiver_chain(np.zeros((1, 1, 1), np.float32), cs, 0)
     assert validity(probe.report, det, PULSE, SETTINGS[setting][0], "calibrated", False, True)[0] == "statistical"
+    # (base 2800 put 1 of the 296 statistics at 3.17 SE; 8 more seeds of that point gave 1.89: docs/receiver.md)
     seed = 2810 + 10 * sorted(DETECTORS).index(name) + sorted(SETTINGS).index(setting)
     result = statistical_vs_reference(name, setting, seed)
     _assert_within_3_se(result, f"{name}, {setting}")
