@@ -13,6 +13,7 @@ import os
 import platform
 import sys
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -211,6 +212,58 @@ def software_versions() -> dict:
     return versions
 
 
+class ProductFiles:
+    """The large arrays of a run filled in place in their ``.npy`` files of the run folder being built (a claim's
+    work folder), instead of in memory and then copied out by ``np.save``.
+
+    :meth:`zeros` gives a zero-filled array mapped onto ``<folder>/<name>`` (``np.lib.format.open_memmap``: the
+    same header and bytes ``np.save`` writes), its blocks reserved on the disk first (``posix_fallocate``: a full
+    disk is an OSError naming the file before the run fills it, never a SIGBUS while filling); without a folder,
+    or where ``posix_fallocate`` or shared mappings of a folder being renamed are not available (not POSIX), an
+    array in memory as before.  :func:`write_run_files` then writes nothing more for such an array.
+
+    Why: the airborne-scanner example's saved waveforms are 267 MB; built in memory and saved they cost that much
+    memory twice over (the array's, then the file's page cache) and a copy, 0.3–1 s of CPU and up to 2 s of wall
+    time on the development machine, where fresh memory is slow to come by (docs/performance.md)."""
+
+    def __init__(self, folder=None):
+        self.folder = None if folder is None else Path(folder)
+
+    @property
+    def maps_files(self) -> bool:
+        return self.folder is not None and os.name == "posix" and hasattr(os, "posix_fallocate")
+
+    def zeros(self, name: str, shape, dtype) -> np.ndarray:
+        """A zero-filled C-ordered array of ``shape`` and ``dtype``: mapped onto ``<folder>/<name>`` (created, with
+        the folder) when :attr:`maps_files`, else in memory."""
+        if not self.maps_files:
+            return np.zeros(shape, dtype)
+        self.folder.mkdir(exist_ok=True)
+        path = self.folder / name
+        try:
+            with naming(path):
+                arr = np.lib.format.open_memmap(path, mode="w+", dtype=np.dtype(dtype), shape=tuple(shape))
+                fd = os.open(path, os.O_RDWR)
+                try:
+                    os.posix_fallocate(fd, 0, arr.offset + arr.nbytes)
+                finally:
+                    os.close(fd)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+        _MAPPED[os.path.abspath(path)] = arr
+        return arr
+
+
+def _mapped_onto(arr, path: Path) -> bool:
+    """Is ``arr`` the very array :meth:`ProductFiles.zeros` mapped onto ``path`` (the file already holds it)?"""
+    return arr is not None and _MAPPED.get(os.path.abspath(path)) is arr
+
+
+#: path → the array ProductFiles.zeros mapped onto it, while it lives.
+_MAPPED: "weakref.WeakValueDictionary[str, np.ndarray]" = weakref.WeakValueDictionary()
+
+
 def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Path:
     """Write a FrameResult's products and ``metadata.json`` atomically into run folder ``out_dir``.
 
@@ -224,7 +277,8 @@ def write_run_files(folder, result, metadata: dict) -> Path:
     """Write a FrameResult's products and ``metadata.json`` into the new folder ``folder`` (a claim's work
     folder: nothing else sees it until it is committed)."""
     tmp = Path(folder)
-    tmp.mkdir()
+    # new, unless ProductFiles made it for the arrays mapped onto its files
+    tmp.mkdir(exist_ok=any(os.path.dirname(k) == os.path.abspath(tmp) for k in list(_MAPPED.keys())))
     t0 = time.perf_counter()
     units = result.units
     files = {}
@@ -259,8 +313,9 @@ def write_run_files(folder, result, metadata: dict) -> Path:
             np.save(tmp / "counts.npy", result.digital_waveforms)
         files["counts.npy"] = f"receiver output per pixel and bin ({units['counts']})"
     if result.waveforms is not None:
-        with naming(tmp / "waveforms.npy"):
-            np.save(tmp / "waveforms.npy", result.waveforms)
+        if not _mapped_onto(result.waveforms, tmp / "waveforms.npy"):  # (else filled in place: ProductFiles)
+            with naming(tmp / "waveforms.npy"):
+                np.save(tmp / "waveforms.npy", result.waveforms)
         files["waveforms.npy"] = ("waveforms (n_pulses, n_bins)" if result.waveforms.ndim == 2
                                   else "waveform cube (H, W, n_bins)") + f" float32, {units['waveforms']}"
     if getattr(result, "pulses", None) is not None:
