@@ -54,7 +54,12 @@ def test_waveforms_filled_in_place_are_the_bytes_np_save_writes(tmp_path):
     assert 0 < rows_with_energy < n_pulses
     assert np.count_nonzero(reference.waveforms.any(axis=0)) > 50
 
-    path, result = run_simulation(SCENE, np.eye(4), scan_config(), tmp_path / "run")
+    def no_copy(*args, **kwargs):
+        raise AssertionError("np.save called: the waveforms were copied out, not filled in place")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(np, "save", no_copy)  # (a scanner run saves nothing else with np.save)
+        path, result = run_simulation(SCENE, np.eye(4), scan_config(), tmp_path / "run")
     assert isinstance(result.waveforms, np.memmap)  # filled in the file (POSIX)
     assert os.path.basename(result.waveforms.filename) == "waveforms.npy"  # (in the staging folder, renamed since)
     assert (path / "waveforms.npy").read_bytes() == npy_bytes(reference.waveforms)
@@ -104,3 +109,16 @@ def test_write_run_files_still_refuses_an_existing_folder_it_did_not_map_into(tm
         write_run_files(tmp_path / "w", result, {"format": "ladar-run"})
     # an in-memory array of the same name is written, not mistaken for a mapped one
     assert not run_folder._mapped_onto(result.waveforms, tmp_path / "x" / "waveforms.npy")
+
+
+def test_a_sequence_fills_each_frames_waveforms_in_place(tmp_path, monkeypatch):
+    from core.sequence import run_sequence
+
+    save = np.save
+    monkeypatch.setattr(np, "save", lambda path, *a, **k: (_ for _ in ()).throw(AssertionError(path))
+                        if str(path).endswith("waveforms.npy") else save(path, *a, **k))
+    path, _ = run_sequence([1, 2], lambda f: SCENE, lambda f: np.eye(4), scan_config(), tmp_path / "seq")
+    monkeypatch.undo()
+    for f in (1, 2):
+        reference = simulate(SCENE, np.eye(4), scan_config(), frame=f)
+        assert (path / f"frame_{f:04d}" / "waveforms.npy").read_bytes() == npy_bytes(reference.waveforms)
