@@ -12,6 +12,7 @@ import math
 import os
 import platform
 import sys
+import threading
 import time
 import weakref
 from pathlib import Path
@@ -252,17 +253,27 @@ class ProductFiles:
         except BaseException:
             path.unlink(missing_ok=True)
             raise
-        _MAPPED[os.path.abspath(path)] = arr
+        with _MAPPED_LOCK:
+            _MAPPED[os.path.abspath(path)] = arr
         return arr
 
 
 def _mapped_onto(arr, path: Path) -> bool:
     """Is ``arr`` the very array :meth:`ProductFiles.zeros` mapped onto ``path`` (the file already holds it)?"""
-    return arr is not None and _MAPPED.get(os.path.abspath(path)) is arr
+    with _MAPPED_LOCK:
+        return arr is not None and _MAPPED.get(os.path.abspath(path)) is arr
 
 
-#: path → the array ProductFiles.zeros mapped onto it, while it lives.
+def _maps_into(folder: Path) -> bool:
+    """Has :meth:`ProductFiles.zeros` mapped a living array onto a file in ``folder``?"""
+    folder = os.path.abspath(folder)
+    with _MAPPED_LOCK:
+        return any(os.path.dirname(k) == folder for k in list(_MAPPED.keys()))
+
+
+#: path → the array ProductFiles.zeros mapped onto it, while it lives (runs on several threads: under the lock).
 _MAPPED: "weakref.WeakValueDictionary[str, np.ndarray]" = weakref.WeakValueDictionary()
+_MAPPED_LOCK = threading.Lock()
 
 
 def write_run(out_dir, result, metadata: dict, *, overwrite: bool = False) -> Path:
@@ -279,7 +290,7 @@ def write_run_files(folder, result, metadata: dict) -> Path:
     folder: nothing else sees it until it is committed)."""
     tmp = Path(folder)
     # new, unless ProductFiles made it for the arrays mapped onto its files
-    tmp.mkdir(exist_ok=any(os.path.dirname(k) == os.path.abspath(tmp) for k in list(_MAPPED.keys())))
+    tmp.mkdir(exist_ok=_maps_into(tmp))
     t0 = time.perf_counter()
     units = result.units
     files = {}
