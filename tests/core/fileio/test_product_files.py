@@ -122,3 +122,50 @@ def test_a_sequence_fills_each_frames_waveforms_in_place(tmp_path, monkeypatch):
     for f in (1, 2):
         reference = simulate(SCENE, np.eye(4), scan_config(), frame=f)
         assert (path / f"frame_{f:04d}" / "waveforms.npy").read_bytes() == npy_bytes(reference.waveforms)
+
+
+_SCAN_ON_A_SMALL_DISK = """
+import errno, json, os, sys
+sys.path.insert(0, sys.argv[1]); sys.path.insert(0, sys.argv[1] + "/tests/core"); sys.path.insert(0, sys.argv[1] + "/tests/core/fileio")
+from pathlib import Path
+import numpy as np
+from core.run import run_simulation
+from test_product_files import SCENE, scan_config
+disk = Path(sys.argv[2])
+cfg = scan_config()
+cfg.gate.n_bins = 8192  # 180 pulses x 8192 bins x 4 B = 5.9 MB of waveforms on a 4 MB disk
+try:
+    run_simulation(SCENE, np.eye(4), cfg, disk / "run")
+    out = ["written"]
+except OSError as exc:
+    out = ["OSError", exc.errno, os.path.basename(exc.filename or "")]
+print("RESULT " + json.dumps(out + [sorted(p.name for p in disk.iterdir())]), flush=True)
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "posix_fallocate"), reason="posix_fallocate")
+def test_waveforms_larger_than_a_real_small_disk_are_one_oserror_not_a_sigbus(tmp_path):
+    """On a 4 MB tmpfs (a private mount namespace, where allowed) the 5.9 MB of mapped waveforms: the blocks'
+    reservation fails with ENOSPC naming waveforms.npy before the scan fills anything (a sparse mapping would
+    end the process with SIGBUS), and the disk holds nothing of the run."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[3]
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = tmp_path / "scan_on_a_small_disk.py"
+    script.write_text(_SCAN_ON_A_SMALL_DISK)
+    cmd = f"mount -t tmpfs -o size=4m tmpfs {disk} && echo MOUNTED && exec {sys.executable} {script} {repo} {disk}"
+    try:
+        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=600)
+    except FileNotFoundError:
+        pytest.skip("no unshare(1)")
+    if "MOUNTED" not in done.stdout:
+        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    assert done.returncode == 0, (done.returncode, done.stderr[-2000:])  # (a SIGBUS would be -7)
+    line = next((x for x in done.stdout.splitlines() if x.startswith("RESULT ")), None)
+    assert line, done.stdout[-2000:] + done.stderr[-2000:]
+    assert json.loads(line[len("RESULT "):]) == ["OSError", errno.ENOSPC, "waveforms.npy", []]
