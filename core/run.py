@@ -8,11 +8,15 @@ Every system is one function with the same signature (paper §2)::
     system(scene, world_from_sensor, config, *, frame=0, tracer=None, trajectory=None, start_time_s=0.0,
            progress=None, cancel=None) -> FrameResult
 
+A system that also takes ``products`` (a ``fileio.run_folder.ProductFiles``: the scanner) gets, when the frame is
+written to a run folder, the means to fill its large arrays in place in their files there.
+
 A new system is a module in ``core/systems/`` exposing such a function, and one row in :data:`SYSTEMS` (plus
 its name in ``config.settings.SYSTEM_TYPES``).
 """
 from __future__ import annotations
 
+import inspect
 import time
 
 from .config.settings import SimulationConfig
@@ -21,7 +25,7 @@ from .config.files import config_to_dict
 from .engine.result import FrameResult
 from .errors import Cancelled, ConfigError
 from .engine.products import label_points, record_pose
-from .fileio.run_folder import run_warnings, software_versions, write_run_files
+from .fileio.run_folder import ProductFiles, run_warnings, software_versions, write_run_files
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .jit import kernel_report
@@ -42,22 +46,28 @@ SYSTEMS = {
 
 def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
              trajectory=None, start_time_s: float = 0.0, progress=None, cancel=None,
-             ground_truth: bool = True) -> FrameResult:
+             ground_truth: bool = True, products: ProductFiles | None = None) -> FrameResult:
     """Simulate one frame of the sensor system ``config.system_type`` (:data:`SYSTEMS`), with the ground truth of
     its points (``points["material_id"]``, core/engine/products.py label_points) unless ``ground_truth`` is false
-    (a caller that writes no product holding it: the stage plan records the skip)."""
+    (a caller that writes no product holding it: the stage plan records the skip).  ``products``: the run folder
+    being built, for a system that fills its large arrays in their files there (module doc)."""
     validate_config(config)  # a SimulationConfig (not None or a dict) with valid settings, e.g. its system type
     system = SYSTEMS.get(config.system_type)
     if system is None:
         raise ConfigError("system_type", config.system_type, f"one of {', '.join(SYSTEMS)}")
     kernels = kernel_report()
+    more = {"products": products} if products is not None and _takes_products(system) else {}
     result = system(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
-                    start_time_s=start_time_s, progress=progress, cancel=cancel)
+                    start_time_s=start_time_s, progress=progress, cancel=cancel, **more)
     label_points(result, scene, world_from_sensor, config, needed=ground_truth)
     record_pose(result, world_from_sensor, trajectory if config.system_type == "scanner" else None)
     # compiled kernels loaded from the cache or compiled during this frame (not in the stage times)
     result.stats["kernels"] = kernel_report(kernels)
     return result
+
+
+def _takes_products(system) -> bool:
+    return "products" in inspect.signature(system).parameters
 
 
 def run_metadata(config: SimulationConfig, result: FrameResult, frame: int, extra: dict | None = None) -> dict:
@@ -88,7 +98,8 @@ def run_simulation(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     try:
         with claim_run_dir(out_dir, if_exists="replace" if overwrite else "stop") as claim:
             result = simulate(scene, world_from_sensor, config, frame=frame, tracer=tracer, trajectory=trajectory,
-                              start_time_s=start_time_s, progress=progress, cancel=cancel)
+                              start_time_s=start_time_s, progress=progress, cancel=cancel,
+                              products=ProductFiles(claim.work))
             if cancel is not None and cancel():
                 raise Cancelled()
             write_run_files(claim.work, result, run_metadata(config, result, frame, extra_metadata))

@@ -22,8 +22,8 @@ from .engine.memory import check_memory
 from .config.files import config_to_dict
 from .errors import Cancelled
 from .run import run_metadata, simulate
-from .fileio.run_folder import (json_default, naming, run_figures, run_warnings, software_versions, write_ply,
-                                write_run_files)
+from .fileio.run_folder import (ProductFiles, json_default, naming, run_figures, run_warnings, software_versions,
+                                write_ply, write_run_files)
 from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .geometry.trace import SceneTracer
@@ -97,7 +97,8 @@ def run_sequence(frames, scene_for_frame, pose_for_frame, config: SimulationConf
                 traj = trajectory_for_frame(frame) if trajectory_for_frame is not None else None
                 start = start_time_for_frame(frame) if start_time_for_frame is not None else 0.0
                 result = simulate(scene, pose_for_frame(frame), config, frame=frame, tracer=tracer, trajectory=traj,
-                                  start_time_s=start, progress=frame_progress, cancel=cancel)
+                                  start_time_s=start, progress=frame_progress, cancel=cancel,
+                                  products=ProductFiles(tmp / f"frame_{frame:04d}"))
                 meta = run_metadata(config, result, frame, extra_metadata)
                 write_run_files(tmp / f"frame_{frame:04d}", result, meta)
                 all_stats.append({**result.stats, "figures": run_figures(result)})  # (the summary's: not in metadata)

@@ -388,10 +388,12 @@ STAGES_PLANNED = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoe
 
 def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,
                   trajectory: Trajectory | None = None, start_time_s: float = 0.0, progress=None,
-                  cancel=None) -> FrameResult:
+                  cancel=None, products=None) -> FrameResult:
     """Simulate one scan (one frame) of a time-of-flight scanner.  Returns a FrameResult whose images are None
     and whose ``points`` and ``pulses`` carry the products (see module docstring).  The sensor moves along
-    ``trajectory`` (poses sampled in time) or stays at ``world_from_sensor``."""
+    ``trajectory`` (poses sampled in time) or stays at ``world_from_sensor``.  ``products``: the run folder being
+    built (core.run.run_simulation: anything with fileio.run_folder.ProductFiles's ``zeros``): the saved waveforms
+    are filled in place in its ``waveforms.npy``."""
     log = StageLog.of(("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products"), STAGES_PLANNED)
     fr = open_frame(scene, world_from_sensor if trajectory is None else None, config, log, tracer=tracer,
                     posed_by_trajectory=trajectory is not None)
@@ -446,7 +448,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
         # waveform memory (~64 MiB)
         per_block = max(tile, min(per_block, (64 * 2**20 // (8 * gate.n_bins)) // tile * tile))
     blocks = item_blocks(n_pulses, per_block)
-    waveforms = np.zeros((n_pulses, gate.n_bins), np.float32) if save else None
+    waveforms = None if not save else np.zeros((n_pulses, gate.n_bins), np.float32) if products is None else \
+        products.zeros("waveforms.npy", (n_pulses, gate.n_bins), np.float32)
     chain_settings = ChainSettings.from_config(config)
     chain_settings = dataclasses.replace(chain_settings, ifov_x_rad=laser.beam_divergence_rad,
                                          ifov_y_rad=laser.beam_divergence_y_rad or laser.beam_divergence_rad)
