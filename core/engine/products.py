@@ -3,6 +3,9 @@ detected on the receiver's digital waveforms, and what every frame records after
 pose (and a moving scanner's trajectory) and the ground truth of its points."""
 from __future__ import annotations
 
+import threading
+import weakref
+
 import numpy as np
 
 from ..config.settings import SimulationConfig
@@ -140,9 +143,36 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
     return echoes, report
 
 
+#: Reference ranges already traced, per tracer (its geometry is fixed once built): (pixel grid, pose) → range.
+#: A static sensor's frames (a flash sequence from one pose, a benchmark's repeats) trace the 16k pixel-centre
+#: rays once; a moving sensor's poses differ and are traced each (at most _REFERENCE_KEEP kept per tracer).
+_REFERENCE_RANGES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_REFERENCE_KEEP = 16
+_REFERENCE_LOCK = threading.Lock()
+
+
 def reference_range_m(tracer, det, origin, rot, threads: int = 1) -> float:
     """Median range of the pixel-centre rays that hit the scene: where the turbulence is evaluated.  The rays are
-    traced in ``threads`` parts on the shared pool (each ray's range does not depend on the parts)."""
+    traced in ``threads`` parts on the shared pool (each ray's range does not depend on the parts).  Kept per
+    tracer for the pixel grid and pose (the same rays give the same median: a kept value is the traced one)."""
+    o, r = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(rot, np.float64)
+    key = (int(det.width_px), int(det.height_px), float(det.half_width_tan), float(det.half_height_tan),
+           o.tobytes(), r.tobytes())
+    with _REFERENCE_LOCK:
+        kept = _REFERENCE_RANGES.get(tracer)
+        if kept is not None and key in kept:
+            return kept[key]
+    value = _trace_reference_range(tracer, det, origin, rot, threads)
+    with _REFERENCE_LOCK:
+        kept = _REFERENCE_RANGES.setdefault(tracer, {})
+        if len(kept) >= _REFERENCE_KEEP:
+            kept.clear()
+        kept[key] = value
+    return value
+
+
+def _trace_reference_range(tracer, det, origin, rot, threads):
+    """:func:`reference_range_m` traced."""
     pix = np.arange(det.n_pixels)
     xt, yt = det.pixel_center_tan(pix % det.width_px, pix // det.width_px)
     dirs = tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float)) @ rot.T
