@@ -20,7 +20,7 @@ from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify
 from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
 from ..physics.detection.stretches import detect_statistical, validity
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, apply_receiver_chains
 from ..physics.receiver.conversions import adc_step_e, photons_per_joule
 from ..threads import map_list
 from .blocks import worker_threads
@@ -121,6 +121,11 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
         reports.append(out.report)
         return out.data, out.report
 
+    def chains(cubes, seeds):
+        outs = apply_receiver_chains(cubes, cs, seeds)
+        reports.extend(o.report for o in outs)
+        return [(o.data, o.report) for o in outs]
+
     h, w, n_bins = truth.shape
     extents = {}
     found, sinfo = detect_statistical(truth.reshape(h * w, n_bins), chain, probe, pulse=pulse, k_sigma=d.k_sigma,
@@ -129,7 +134,7 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
                                       codes_per_joule=codes_per_j, seed=seed,
                                       min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law,
                                       threads=worker_threads(config.run.threads), extents_out=extents,
-                                      spans=spans)
+                                      spans=spans, chains=chains)
     report = dict(reports[0] if reports else probe)
     for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
         report[key] = int(sum(r.get(key, 0) for r in reports))
