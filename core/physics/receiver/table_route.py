@@ -149,66 +149,20 @@ def per_bin_tail(idx, n, p, rng, of):
     """Table route: the bins ``idx`` (in the cube) whose code is drawn per bin, for all blocks at once (a few
     calls instead of a few per block).  With shot noise ``n`` holds the signal primaries (> 16): n_b ~ Poisson
     is added; without, the continuous mean of all primaries.  Then gain Gamma(n/(F − 1), G(F − 1)), surface dark
-    (Poisson with shot noise), read noise, A/D; codes written into ``of``.  Returns (n_low, n_high).
-
-    The random numbers are drawn as :func:`.samplers.gamma_gain` and the read noise's ``standard_normal`` draw
-    them, in the same order; the arithmetic between them (the gains' float32 rounding, the surface dark, σ_r·z)
-    is one compiled pass, :func:`_tail_electrons`, with the same roundings as the NumPy expressions it replaced
-    (bit for bit: tests/core/physics/receiver/test_tail_fused.py)."""
+    (Poisson with shot noise), read noise, A/D; codes written into ``of``.  Returns (n_low, n_high)."""
     # the Poisson numbers (background + bulk dark primaries, surface dark electrons) from a counter-based stream
     # keyed by the part's generator (:func:`.samplers.poisson_stream`), the gains, read noise from the generator
     key = rng.integers(0, 2 ** 64, dtype=np.uint64) if p["shot"] and (p["b_mult"] > 0 or p["ds"] > 0) else None
     if p["shot"] and p["b_mult"] > 0:
         n = n + poisson_stream(p["b_mult"], n.size, key, 0, rng)
-    pf = n.astype(np.float32)
-    F = p["F"]
-    g = _EMPTY_F64
-    e32 = _EMPTY_F32
-    theta = p["gain"] * (F - 1.0)
-    if F > 1.0 + 1e-12 and np.count_nonzero(pf) * 2 > pf.size:
-        # gamma_gain's dense branch: every bin drawn (Gamma(0) = 0), rounded to float32 after × θ (below)
-        shape = pf.astype(np.float64)
-        shape *= 1.0 / (F - 1.0)
-        g = rng.standard_gamma(shape)
-    else:  # F = 1 (G·n exactly) or mostly zero counts: gamma_gain itself (float32 electrons)
-        e32 = gamma_gain(pf, p["gain"], F, rng)
-    ds_v, ds_c = _EMPTY_F64, 0.0
+    y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
     if p["ds"] > 0:
-        if p["shot"]:
-            ds_v = poisson_stream(p["ds"], n.size, key, n.size, rng)
-        else:
-            ds_c = float(p["ds"])
-    z = rng.standard_normal(n.size) if p["sigma_r"] > 0 else _EMPTY_F64
-    y = np.empty(n.size)
-    _tail_electrons(g, theta, e32, ds_v, ds_c, z, float(p["sigma_r"]), y)
-    codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"], overwrite_input=True)
+        y += poisson_stream(p["ds"], n.size, key, n.size, rng) if p["shot"] else p["ds"]
+    if p["sigma_r"] > 0:
+        y += p["sigma_r"] * rng.standard_normal(n.size)
+    codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
     of[idx] = codes
     return lo, hi
-
-
-_EMPTY_F64 = np.zeros(0)
-_EMPTY_F32 = np.zeros(0, np.float32)
-
-
-@kernel
-def _tail_electrons(g, theta, e32, ds_v, ds_c, z, sigma_r, y):
-    """The electrons of the per-bin tail, y[i] = gain + surface dark + read noise, in the roundings of the NumPy
-    expressions of :func:`per_bin_tail` before session 31: the gain float32(g[i]·θ) (``g``: the standard gamma
-    draws; empty: the float32 electrons ``e32``), widened to float64; + ds_v[i] (Poisson surface dark; empty:
-    + ds_c when ds_c > 0); + σ_r·z[i] (``z`` empty: no read noise).  No fused multiply-add (the kernels are not
-    compiled with fast-math): each operation rounded as NumPy rounds it."""
-    for i in range(y.size):
-        if g.size:
-            v = np.float64(np.float32(g[i] * theta))
-        else:
-            v = np.float64(e32[i])
-        if ds_v.size:
-            v += ds_v[i]
-        elif ds_c > 0:
-            v += ds_c
-        if z.size:
-            v += sigma_r * z[i]
-        y[i] = v
 
 
 #: Word offset of the second uniform of a signal bin whose mean is drawn by :func:`.samplers.poisson_grid`: word
