@@ -3,6 +3,9 @@ detected on the receiver's digital waveforms, and what every frame records after
 pose (and a moving scanner's trajectory) and the ground truth of its points."""
 from __future__ import annotations
 
+import threading
+import weakref
+
 import numpy as np
 
 from ..config.settings import SimulationConfig
@@ -17,7 +20,7 @@ from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify
 from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
 from ..physics.detection.stretches import detect_statistical, validity
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, apply_receiver_chains
 from ..physics.receiver.conversions import adc_step_e, photons_per_joule
 from ..threads import map_list
 from .blocks import worker_threads
@@ -118,6 +121,11 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
         reports.append(out.report)
         return out.data, out.report
 
+    def chains(cubes, seeds):
+        outs = apply_receiver_chains(cubes, cs, seeds)
+        reports.extend(o.report for o in outs)
+        return [(o.data, o.report) for o in outs]
+
     h, w, n_bins = truth.shape
     extents = {}
     found, sinfo = detect_statistical(truth.reshape(h * w, n_bins), chain, probe, pulse=pulse, k_sigma=d.k_sigma,
@@ -126,7 +134,7 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
                                       codes_per_joule=codes_per_j, seed=seed,
                                       min_noise_sigma=probe.get("noise_sigma_floor", 0.0), noise_law=law,
                                       threads=worker_threads(config.run.threads), extents_out=extents,
-                                      spans=spans)
+                                      spans=spans, chains=chains)
     report = dict(reports[0] if reports else probe)
     for key in ("n_adc_low", "n_adc_high", "n_mean_clipped"):
         report[key] = int(sum(r.get(key, 0) for r in reports))
@@ -140,9 +148,36 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
     return echoes, report
 
 
+#: Reference ranges already traced, per tracer (its geometry is fixed once built): (pixel grid, pose) → range.
+#: A static sensor's frames (a flash sequence from one pose, a benchmark's repeats) trace the 16k pixel-centre
+#: rays once; a moving sensor's poses differ and are traced each (at most _REFERENCE_KEEP kept per tracer).
+_REFERENCE_RANGES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_REFERENCE_KEEP = 16
+_REFERENCE_LOCK = threading.Lock()
+
+
 def reference_range_m(tracer, det, origin, rot, threads: int = 1) -> float:
     """Median range of the pixel-centre rays that hit the scene: where the turbulence is evaluated.  The rays are
-    traced in ``threads`` parts on the shared pool (each ray's range does not depend on the parts)."""
+    traced in ``threads`` parts on the shared pool (each ray's range does not depend on the parts).  Kept per
+    tracer for the pixel grid and pose (the same rays give the same median: a kept value is the traced one)."""
+    o, r = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(rot, np.float64)
+    key = (int(det.width_px), int(det.height_px), float(det.half_width_tan), float(det.half_height_tan),
+           o.tobytes(), r.tobytes())
+    with _REFERENCE_LOCK:
+        kept = _REFERENCE_RANGES.get(tracer)
+        if kept is not None and key in kept:
+            return kept[key]
+    value = _trace_reference_range(tracer, det, origin, rot, threads)
+    with _REFERENCE_LOCK:
+        kept = _REFERENCE_RANGES.setdefault(tracer, {})
+        if len(kept) >= _REFERENCE_KEEP:
+            kept.clear()
+        kept[key] = value
+    return value
+
+
+def _trace_reference_range(tracer, det, origin, rot, threads):
+    """:func:`reference_range_m` traced."""
     pix = np.arange(det.n_pixels)
     xt, yt = det.pixel_center_tan(pix % det.width_px, pix // det.width_px)
     dirs = tan_to_unit_direction(np.asarray(xt, float), np.asarray(yt, float)) @ rot.T

@@ -467,7 +467,8 @@ def draw_false_alarms(c_lo, c_hi, n_bins, rates, rng):
 
 def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_separation_bins=None,
                        interpolation="gaussian", bin_width_s, gate_start_s=0.0, codes_per_joule, seed,
-                       min_noise_sigma=0.0, noise_law=None, threads=1, extents_out=None, spans=None):
+                       min_noise_sigma=0.0, noise_law=None, threads=1, extents_out=None, spans=None,
+                       chains=None):
     """Echoes of the noisy receiver with the signal-free stretches drawn from the statistics.
 
     truth : (P, B) float32 noise-free energy per bin [J]; chain(cube (1, n, L) float32, SeedSequence) → (codes,
@@ -480,6 +481,9 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     ``peak``, ``has_nan``: :func:`row_extents`; ``level``), from which the false-alarm classification needs only
     the signal stretches (core.physics.detection.false_alarms.classify_false_alarms ``extents``).
     ``spans``: (lo, hi) per row when truth is exactly 0 outside [lo, hi) (:func:`row_extents`; the same results).
+    ``chains``: optional, chains(cubes, SeedSequences) → [(codes, report)] — ``chain`` of every window length at
+    once (core.physics.receiver.chain.apply_receiver_chains: the same codes, the small cubes' blocks not waiting
+    for each other).
     Returns (NoisyEchoes (P rows), info dict)."""
     truth = np.asarray(truth)
     P, B = truth.shape
@@ -502,12 +506,20 @@ def detect_statistical(truth, chain, report, *, pulse, k_sigma, max_echoes, min_
     cand_pix, cand_bin, cand_s = [], [], []
     n_sim = 0
     n_overflow = 0
+    windows = []  # (rows, their starts, the gathered cube) per window length
     for k, L in enumerate(np.unique(length[length > 0])):
         rows = np.flatnonzero(length == L)
         cube = np.empty((len(rows), L), np.float32)
         s_rows = np.ascontiguousarray(start[rows])
         run_row_chunks(lambda a, b: _gather_windows(truth, rows[a:b], s_rows[a:b], cube[a:b]), len(rows), threads)
-        codes, _ = chain(cube[None], np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + (1, k)))
+        windows.append((rows, s_rows, cube))
+    seeds = [np.random.SeedSequence(ss.entropy, spawn_key=tuple(ss.spawn_key) + (1, k)) for k in range(len(windows))]
+    if chains is not None:  # every length's chain at once (the same codes as one call each)
+        all_codes = [c for c, _ in chains([w[2][None] for w in windows], seeds)]
+    else:
+        all_codes = [chain(w[2][None], sd)[0] for w, sd in zip(windows, seeds)]
+    for (rows, s_rows, cube), codes in zip(windows, all_codes):
+        L = cube.shape[1]
         codes = codes.reshape(len(rows), L)
         m = 4 * max_echoes
         cb = np.full((len(rows), m), -1, np.int64)

@@ -132,6 +132,52 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
 
     Ideal mode returns ``waveforms_j`` itself (bit for bit) and reports every step skipped.
     """
+    plan = _chain_plan(waveforms_j, settings, rng, noise_table)
+    return plan if isinstance(plan, ChainOutput) else run_chain_plans([plan])[0]
+
+
+def apply_receiver_chains(cubes, settings: ChainSettings, rngs, *, noise_table=True) -> list:
+    """:func:`apply_receiver_chain` of each cube with its own ``rng`` (the same detector), the blocks of all the
+    cubes drawn in one parallel pass and then their per-bin tails in one: the outputs of the separate calls, bit
+    for bit (each cube's blocks, streams and tail parts are the same; only the threads' order of work changes),
+    without a thread waiting at the end of each small cube (the statistical route's windows: one cube per window
+    length, most of them a block or two)."""
+    plans = [_chain_plan(c, settings, r, noise_table) for c, r in zip(cubes, rngs)]
+    todo = [k for k, pl in enumerate(plans) if not isinstance(pl, ChainOutput)]
+    outs = list(plans)
+    for k, o in zip(todo, run_chain_plans([plans[k] for k in todo])):
+        outs[k] = o
+    return outs
+
+
+class _ChainPlan:
+    """A chain call prepared up to its blocks (:func:`_chain_plan`): ``blocks`` for ``work``, then ``tail_parts``
+    (callables, after all blocks), then ``finish`` (the report and the output)."""
+
+    def __init__(self, blocks, work, tail_parts, finish, threads):
+        self.blocks, self.work, self.tail_parts, self.finish, self.threads = blocks, work, tail_parts, finish, threads
+
+
+def run_chain_plans(plans) -> list:
+    """Run prepared chain calls: every plan's blocks in one :func:`map_list`, then every plan's tail parts in one,
+    then each plan's finish, in the plans' order.  Returns their ChainOutputs."""
+    if not plans:
+        return []
+    threads = max(pl.threads for pl in plans)
+    items = [(k, blk) for k, pl in enumerate(plans) for blk in pl.blocks]
+    done = map_list(lambda it: plans[it[0]].work(it[1]), items, threads)
+    stats = [[] for _ in plans]
+    for (k, _), st in zip(items, done):
+        stats[k].append(st)
+    parts = [(k, f) for k, pl in enumerate(plans) for f in pl.tail_parts(stats[k])]
+    for (k, _), st in zip(parts, map_list(lambda it: it[1](), parts, threads)):
+        stats[k].append(st)
+    return [pl.finish(st) for pl, st in zip(plans, stats)]
+
+
+def _chain_plan(waveforms_j, settings: ChainSettings, rng, noise_table=True):
+    """:func:`apply_receiver_chain` up to its blocks: a ChainOutput when nothing is left to draw in blocks (ideal
+    mode, Geiger), else a :class:`_ChainPlan`."""
     det = settings.detector
     validate(det)
     cube = np.asarray(waveforms_j)
@@ -333,25 +379,28 @@ def apply_receiver_chain(waveforms_j, settings: ChainSettings, rng, *, noise_tab
         return st
 
     threads = det.threads or settings.run_threads or (os.cpu_count() or 1)  # 0: as the run (run.threads = 1 is 1)
-    stats = map_list(work, blocks, threads)  # (core/threads.py: the caller and the shared pool)
-    stats += _tail_stats(stats, deferred, params, ss, out, threads)
-    if deferred and table is not None:
-        _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
-    for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
-        report[key] = int(sum(s[key] for s in stats))
-    if table is not None:
-        report["noise_table"]["caught_bins_from_tables"] = int(sum(s.get("caught_table", 0) for s in stats))
-        report["noise_table"]["caught_bins_per_bin"] = int(sum(s.get("caught_per_bin", 0) for s in stats))
-    if report["n_mean_clipped"]:
-        report["approximations"].append(f"{report['n_mean_clipped']} bins had a mean above {MEAN_CAP:g} "
-                                        f"primaries and were clipped to it")
-    if any(s["normal_bins"] for s in stats):
-        report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
-                                        f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
-    pmf = None
-    if table is not None:
-        pmf = (table.code.astype(np.float64), np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS)
-    return ChainOutput(out.reshape(H, W, B), report, pmf, pixel_noise)
+
+    def finish(stats):
+        if deferred and table is not None:
+            _energy_error(any(s.get("n_nonfinite", 0) for s in stats), any(s.get("n_negative", 0) for s in stats))
+        for key in ("n_mean_clipped", "n_adc_low", "n_adc_high"):
+            report[key] = int(sum(s[key] for s in stats))
+        if table is not None:
+            report["noise_table"]["caught_bins_from_tables"] = int(sum(s.get("caught_table", 0) for s in stats))
+            report["noise_table"]["caught_bins_per_bin"] = int(sum(s.get("caught_per_bin", 0) for s in stats))
+        if report["n_mean_clipped"]:
+            report["approximations"].append(f"{report['n_mean_clipped']} bins had a mean above {MEAN_CAP:g} "
+                                            f"primaries and were clipped to it")
+        if any(s["normal_bins"] for s in stats):
+            report["approximations"].append(f"{sum(s['normal_bins'] for s in stats)} bins with Poisson mean ≥ "
+                                            f"{NORMAL_MEAN:g} drawn as normal (exact mean and variance)")
+        pmf = None
+        if table is not None:
+            pmf = (table.code.astype(np.float64), np.diff(np.concatenate([[0], table.T.astype(np.int64)])) / 2.0 ** P_BITS)
+        return ChainOutput(out.reshape(H, W, B), report, pmf, pixel_noise)
+
+    # (the blocks and then the tail parts on the caller and the shared pool, core/threads.py: run_chain_plans)
+    return _ChainPlan(blocks, work, lambda stats: _tail_parts(stats, deferred, params, ss, out), finish, threads)
 
 
 def background_summary(rate) -> dict:
@@ -428,10 +477,11 @@ def _check_energies(cube):
 _TAIL_PARTS = 2
 
 
-def _tail_stats(stats, deferred, p, ss, out, threads):
+def _tail_parts(stats, deferred, p, ss, out):
     """Table route, after the blocks: the bins they left for per-bin draws (``"tail"`` of their stats), all
-    blocks together in block order, in :data:`_TAIL_PARTS` fixed parts (on up to ``threads`` threads).
-    Returns the parts' stats (their A/D clip counts); nothing when a block found bad input (raised later)."""
+    blocks together in block order, in :data:`_TAIL_PARTS` fixed parts, as callables (run on the caller's threads
+    after every block: :func:`run_chain_plans`), each returning its stats (A/D clip counts); none when a block
+    found bad input (raised later)."""
     tails = [s["tail"] for s in stats if "tail" in s]
     if not tails or (deferred and any(s.get("n_nonfinite", 0) or s.get("n_negative", 0) for s in stats)):
         return []
@@ -443,7 +493,7 @@ def _tail_stats(stats, deferred, p, ss, out, threads):
         lo, hi = per_bin_tail(idx[cuts[k]:cuts[k + 1]], n[cuts[k]:cuts[k + 1]], p, _child(ss, 5, k), of)
         return {"n_mean_clipped": 0, "n_adc_low": lo, "n_adc_high": hi, "normal_bins": 0}
 
-    return map_list(part, range(_TAIL_PARTS), threads)
+    return [lambda k=k: part(k) for k in range(_TAIL_PARTS)]
 
 
 def _process_block(E, out, rng, spk, p, ws, b_rows=None) -> dict:
