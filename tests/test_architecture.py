@@ -6,7 +6,8 @@ modules (module level, inside functions, under ``if``/``try``):
 * nothing imports through the ``core`` package namespace (core/__init__.py holds only the version and the old
   import paths), and core never imports bpy or the Blender side;
 * no module imports a private ``_name`` from another module;
-* core/ imports its own modules at module level (deferred imports only for optional heavy libraries);
+* core/ imports its own modules at module level (deferred imports only for optional heavy libraries and the
+  start-up deferrals listed in ``DEFERRED_OWN``);
 * there is no import cycle in core/ or in ladar_addon/;
 * ladar_addon/ never imports operators/ or panels/ (the UI sits on top of it), and its fields mapping imports no
   Blender at all.
