@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import inspect
 import time
+from collections.abc import Mapping
 
 from .config.settings import SimulationConfig
 from .config.validate import validate_config
@@ -30,18 +31,37 @@ from .fileio.staging import claim_run_dir
 from .heap import release_freed_blocks
 from .jit import kernel_report
 from .geometry.scene import SceneGeometry
-from .systems.flash import simulate_frame, simulate_profiler
-from .systems.gated import simulate_gated
-from .systems.scanner import simulate_scan
 from .version import __version__
 
-#: system type → the function that simulates one frame of it
-SYSTEMS = {
-    "flash": simulate_frame,        # 3D flash ladar (§2.3)
-    "profiler": simulate_profiler,  # range profiler (§5.3): the flash model with one detector element
-    "scanner": simulate_scan,       # time-of-flight scanner (§2.1), the sensor moving along ``trajectory``
-    "gated": simulate_gated,        # burst illumination / gated viewing (§2.2)
-}
+
+class _Systems(Mapping):
+    """System type → the function that simulates one frame of it, its module imported at first use: a flash
+    command does not load the scanner's and the gated viewer's modules and kernels (issue 25: start-up)."""
+
+    NAMES = {"flash": "simulate_frame", "profiler": "simulate_profiler", "scanner": "simulate_scan",
+             "gated": "simulate_gated"}
+
+    def __getitem__(self, system_type: str):
+        name = self.NAMES[system_type]  # (KeyError for an unknown type, as a dict)
+        if system_type in ("flash", "profiler"):
+            from .systems import flash as module
+        elif system_type == "scanner":
+            from .systems import scanner as module
+        else:
+            from .systems import gated as module
+        return getattr(module, name)
+
+    def __iter__(self):
+        return iter(self.NAMES)
+
+    def __len__(self) -> int:
+        return len(self.NAMES)
+
+
+#: system type → the function that simulates one frame of it: "flash" 3D flash ladar (§2.3); "profiler" range
+#: profiler (§5.3), the flash model with one detector element; "scanner" time-of-flight scanner (§2.1), the sensor
+#: moving along ``trajectory``; "gated" burst illumination / gated viewing (§2.2)
+SYSTEMS = _Systems()
 
 
 def simulate(scene: SceneGeometry, world_from_sensor, config: SimulationConfig, *, frame: int = 0, tracer=None,

@@ -9,9 +9,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import fft as sfft
 
 from . import turbulence as tb
+from ..lazy import lazy_module
+
+sfft = lazy_module("scipy.fft")  # SciPy's FFT, imported at its first use (core/lazy.py)
 
 
 def von_karman_phase_psd(f_cyc_per_m, r0_m, outer_scale_m=np.inf, inner_scale_m=0.0):

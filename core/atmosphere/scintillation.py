@@ -25,12 +25,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss
-from scipy import fft as sfft
 from scipy.special import gammainccinv, gammaincinv, ndtr, ndtri
 
 from . import turbulence as tb
 from . import wave_optics as wo
 from .derived import derived_turbulence
+from ..lazy import lazy_module
+
+sfft = lazy_module("scipy.fft")  # SciPy's FFT, imported at its first use (core/lazy.py)
 
 PATTERN_MODELS = ("auto", "lognormal", "gamma_gamma", "gamma_lognormal")
 

@@ -16,15 +16,19 @@ from ..geometry.motion import split_pose
 from ..geometry.rays import tan_to_unit_direction
 from ..geometry.scene import SceneGeometry
 from ..jit import stage_clock
-from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
-from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
 from ..physics.detection.peaks import Echoes
-from ..physics.detection.stretches import detect_statistical, validity
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, apply_receiver_chains
-from ..physics.receiver.conversions import adc_step_e, photons_per_joule
 from ..threads import map_list
 from .blocks import worker_threads
 from .result import FrameResult
+
+
+def load_noisy_receiver() -> None:
+    """Import the noisy receiver's chain and detection modules (defining their kernels) now.  They are imported
+    where used (:func:`noisy_echoes`, :func:`statistical_noisy_echoes`, the systems' chain calls), so an ideal
+    receiver never loads them (issue 25: start-up); a system with a noisy receiver calls this before its stage
+    clocks start, so that the imports are not counted in a stage's time."""
+    from ..physics.detection import false_alarms, noisy, stretches  # noqa: F401
+    from ..physics.receiver import chain, conversions  # noqa: F401
 
 
 def threshold_model(config: SimulationConfig, noise_sigma=None, noise_mean=None):
@@ -58,6 +62,11 @@ def noisy_echoes(digital, config: SimulationConfig, *, truth=None, info=None, no
     ``found``: echoes already detected (core.physics.detection.stretches: no ``digital``), of the (H, W, B)
     ``shape``; ``extents``: the rows' signal extents the statistical route found (the classification then scans
     the signal stretches only: classify_false_alarms)."""
+    # (here, not at the top: the noisy detection and its kernels load only when a noisy receiver runs)
+    from ..physics.detection.false_alarms import FALSE_ALARM_ABS_PRIMARIES, classify_false_alarms
+    from ..physics.detection.noisy import detect_echoes_noisy, gaussian_pulse_kernel
+    from ..physics.receiver.conversions import photons_per_joule
+
     d, g = config.detection, config.gate
     h, w, n_bins = digital.shape if shape is None else shape
     pulse = gaussian_pulse_kernel(config.laser.pulse_fwhm_s, g.bin_width_s) \
@@ -96,6 +105,11 @@ def statistical_noisy_echoes(truth, config: SimulationConfig, seed, info=None, s
     ``detector_model``) or (None, the decision as a dict for the per-bin route's report).  ``spans``: (lo, hi)
     per pixel when ``truth`` is exactly 0 outside [lo, hi) (the binning's windows): only those bins are searched
     for each pixel's signal (the same results)."""
+    from ..physics.detection.noisy import gaussian_pulse_kernel  # (as in noisy_echoes)
+    from ..physics.detection.stretches import detect_statistical, validity
+    from ..physics.receiver.chain import ChainSettings, apply_receiver_chain, apply_receiver_chains
+    from ..physics.receiver.conversions import adc_step_e, photons_per_joule
+
     d, g, det = config.detection, config.gate, config.detector
     model = {"threshold": d.noisy_threshold_mode, "signal_free_bins": "per_bin"}
     if d.signal_free_bins != "statistical":

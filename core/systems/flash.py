@@ -21,7 +21,8 @@ from ..engine.coverage import add_tallies, coverage_record, gate_tally, gate_win
 from ..engine.blocks import balanced_block_size, item_blocks, rows_matmul, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import BLOCK_WAVEFORM_BYTES
-from ..engine.products import statistical_noisy_echoes, noisy_echoes, points_along_rays, reference_range_m
+from ..engine.products import (load_noisy_receiver, statistical_noisy_echoes, noisy_echoes, points_along_rays,
+                               reference_range_m)
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_seed
 from ..engine.weather_stage import (mark_atmosphere_echoes, max_pixel_fraction, merge_returns, prepare_frame_weather,
@@ -36,7 +37,6 @@ from ..atmosphere.weather import add_volume_rows
 from ..physics.laser import beam_half_angle_tan, cell_energy_fractions
 from ..physics.propagation import path_extinction
 from ..physics.radiometry import received_energy
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
 from ..physics.waveform import accumulate_waveform_windows, flash_binning_method, round_trip_time_s
@@ -257,6 +257,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         with log.timed("turbulence_blur"):
             cube = waveforms.reshape(det.height_px, det.width_px, gate.n_bins)
             energy_image = blur_cube_and_image(cube, energy_image, det, config, atm.blur_r0_m)
+    if noisy:  # the noisy receiver's modules and kernels, imported before the stage clocks (not in the stage times)
+        load_noisy_receiver()
     statistical, t_model = None, 0.0
     if noisy and sun_rate is not None:  # one noise level per pixel: every bin simulated
         model = {"threshold": config.detection.noisy_threshold_mode, "signal_free_bins": "per_bin",
@@ -271,6 +273,8 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
             echo_parts, receiver_report = [statistical], model
             log.times["receiver_chain"] = t_model
     if noisy and statistical is None:
+        from ..physics.receiver.chain import ChainSettings, apply_receiver_chain  # (see load_noisy_receiver)
+
         with log.timed("receiver_chain"):
             cs = ChainSettings.from_config(config)
             if sun_rate is not None:

@@ -57,7 +57,6 @@ from ..jit import stage_clock
 from ..physics.laser import FWHM_TO_SIGMA, beam_half_angle_tan, cell_energy_fractions, pulse_cdf, pulse_half_support_s
 from ..physics.radiometry import received_energy
 from ..physics.sampling import SubraySampler, cell_returns
-from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
 from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.waveform import round_trip_time_s
 
@@ -490,6 +489,9 @@ def simulate_gated(scene, world_from_sensor, config: SimulationConfig, *, frame:
     receiver_report = pixel_noise = None
     data = cube
     if config.detector.mode == "noisy":
+        # (here, before the stage clock: an ideal receiver never loads the chain and its kernels)
+        from ..physics.receiver.chain import ChainSettings, apply_receiver_chain
+
         with log.timed("receiver_chain"):
             chain = dataclasses.replace(ChainSettings.from_config(config), bin_width_s=g.gate_width_s)
             if sun_rate is not None:

@@ -28,7 +28,7 @@ from ..engine.coverage import add_tallies, coverage_record, empty_tally, gate_ta
 from ..engine.blocks import item_blocks, run_blocks, worker_threads
 from ..engine.frame import StageLog, open_frame
 from ..engine.memory import SCAN_NOISE_TILE_PULSES
-from ..engine.products import noisy_echoes
+from ..engine.products import load_noisy_receiver, noisy_echoes
 from ..engine.result import FrameResult, product_units
 from ..engine.rng import stage_rng, stage_seed
 from ..engine.weather_stage import mark_atmosphere_echoes, merge_returns, prepare_frame_weather, weather_switches
@@ -403,6 +403,8 @@ def simulate_scan(scene, world_from_sensor, config: SimulationConfig, *, frame: 
     n_pulses = n_scan_pulses(config)
     gate, laser = config.gate, config.laser
     noisy = config.detector.mode == "noisy"
+    if noisy:  # the noisy detection's modules and kernels, imported before the stage clocks (not in a stage's time)
+        load_noisy_receiver()
     save = config.run.save_waveforms
     weight = beam_subrays(config.scanner.beam_subray_rings, laser.beam_profile)[2]
     m = len(weight)

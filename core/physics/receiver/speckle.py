@@ -5,8 +5,11 @@ Angular spatial frequency ν_a is in cycles/rad (image-plane ν = ν_a/f).  Pure
 from __future__ import annotations
 
 import numpy as np
-from scipy import fft as sfft
 from scipy import special
+
+from ...lazy import lazy_module
+
+sfft = lazy_module("scipy.fft")  # SciPy's FFT, imported at its first use (core/lazy.py)
 
 
 # ----------------------------------------------------------------------------------------------------------
