@@ -87,6 +87,7 @@ SLOW_FILES = {
     "tests/addon/test_sequence.py": 8.9,  # s31 (26.8 with the PNG previews of every run)
     "tests/addon/test_readme_examples.py": 8.2,
     "tests/addon/test_results.py": 8.0,  # s31 (13.3 with the PNG previews of every run)
+    "tests/addon/test_run_safety.py": 6.9,  # s31 (12.0 with the PNG previews of every run)
     "tests/core/fileio/test_full_disk.py": 6.7,
     "tests/core/physics/test_solar_background.py": 6.6,
     "tests/core/fileio/test_ply_clients.py": 5.8,
