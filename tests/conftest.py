@@ -87,6 +87,7 @@ SLOW_FILES = {
     "tests/addon/test_sequence.py": 8.9,  # s31 (26.8 with the PNG previews of every run)
     "tests/addon/test_readme_examples.py": 8.2,
     "tests/addon/test_results.py": 8.0,  # s31 (13.3 with the PNG previews of every run)
+    "tests/addon/test_simulate.py": 7.3,  # s31 (9.8 with the PNG previews of every run)
     "tests/addon/test_run_safety.py": 6.9,  # s31 (12.0 with the PNG previews of every run)
     "tests/core/fileio/test_full_disk.py": 6.7,
     "tests/core/physics/test_solar_background.py": 6.6,
@@ -94,7 +95,6 @@ SLOW_FILES = {
     "tests/core/atmosphere/test_scintillation.py": 5.8,
     "tests/core/test_input_boundary.py": 5.7,
     "tests/core/atmosphere/test_wave_optics_scintillation.py": 5.6,
-    "tests/addon/test_simulate.py": 5.5,
     "tests/addon/test_systems.py": 5.5,
     "tests/core/atmosphere/test_atmosphere.py": 5.1,
 }
