@@ -58,24 +58,24 @@ def pytest_configure(config):
 #: waited for: ``scripts/ladar_run.py`` runs, benchmarks, Dask workers) in one run of the whole suite on two workers
 #: (session 29: 1,901 tests, 774 s of CPU in the tests, 1,216 s wall at load 4-12 on the shared 2-core machine;
 #: tests/test_documented_commands.py and tests/addon/test_sweep_example.py as after that session's merge of their
-#: two runs of the README's sweep).  CPU rather than wall: under load the wall figures mostly measure the other
-#: jobs.  A file not listed counts as quick; only the order in which the files are handed to the workers depends on
-#: these figures.
+#: two runs of the README's sweep).  Session 31 measured the files marked "s31" one at a time (``/usr/bin/time``
+#: of ``pytest FILE``: the test process and its waited-for children, kernels in ``build/kernel-cache/``, load 3-12).
+#: CPU rather than wall: under load the wall figures mostly measure the other jobs.  A file not listed counts as
+#: quick; only the order in which the files are handed to the workers depends on these figures.
 SLOW_FILES = {
-    "tests/test_bench_quick.py": 60.9,
+    "tests/addon/test_fault_injection.py": 74.1,  # s31 (with test_cli's former second-run kernel test)
+    "tests/test_bench_quick.py": 60.9,  # (s31: 151 s with its sweep workers compiling the shipped core's kernels)
+    "tests/addon/test_sweep_cluster.py": 57.5,  # s31
     # (session 31, measured on its own: the test functions' process CPU time, load average 8-10)
     "tests/core/physics/test_detector_weak_returns.py": 55.4,
-    "tests/addon/test_fault_injection.py": 54.7,
-    "tests/addon/test_sweep_example.py": 50.3,
-    "tests/core/sweep/test_sweep.py": 45.7,
-    "tests/addon/test_cli.py": 45.7,
-    "tests/addon/test_sweep_cluster.py": 44.8,
+    "tests/core/sweep/test_sweep.py": 45.7,  # s31 (56.1 before replot's check stopped drawing 24 more plots)
+    "tests/core/test_jit_cache.py": 44.2,  # s31
     "tests/test_validation_report.py": 43.9,
-    "tests/core/test_jit_cache.py": 37.5,
+    "tests/addon/test_sweep_example.py": 38.6,  # s31
     "tests/test_documented_commands.py": 29.9,
-    "tests/addon/test_sweep_blender.py": 24.9,
+    "tests/addon/test_sweep_blender.py": 24.4,  # s31 (32.3 before its resume and frames sweeps recorded their plots)
+    "tests/addon/test_cli.py": 22.2,  # s31 (about 56 before its second-run kernel test moved, 34.0 s alone)
     "tests/core/atmosphere/test_weather.py": 20.5,
-    "tests/addon/test_sequence.py": 19.8,
     "tests/addon/test_cli_hostile_input.py": 16.7,
     "tests/core/test_fuzz_inputs.py": 14.0,
     "tests/core/physics/test_detector_models.py": 11.7,
@@ -86,15 +86,17 @@ SLOW_FILES = {
     "tests/addon/test_progress_heartbeat.py": 10.1,
     "tests/core/atmosphere/test_aerosol_layers.py": 9.8,
     "tests/addon/test_sample_views.py": 9.1,
-    "tests/addon/test_results.py": 8.8,
+    "tests/addon/test_sequence.py": 8.9,  # s31 (26.8 with the PNG previews of every run)
     "tests/addon/test_readme_examples.py": 8.2,
+    "tests/addon/test_results.py": 8.0,  # s31 (13.3 with the PNG previews of every run)
+    "tests/addon/test_simulate.py": 7.3,  # s31 (9.8 with the PNG previews of every run)
+    "tests/addon/test_run_safety.py": 6.9,  # s31 (12.0 with the PNG previews of every run)
     "tests/core/fileio/test_full_disk.py": 6.7,
     "tests/core/physics/test_solar_background.py": 6.6,
     "tests/core/fileio/test_ply_clients.py": 5.8,
     "tests/core/atmosphere/test_scintillation.py": 5.8,
     "tests/core/test_input_boundary.py": 5.7,
     "tests/core/atmosphere/test_wave_optics_scintillation.py": 5.6,
-    "tests/addon/test_simulate.py": 5.5,
     "tests/addon/test_systems.py": 5.5,
     "tests/core/atmosphere/test_atmosphere.py": 5.1,
 }

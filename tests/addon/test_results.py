@@ -16,8 +16,10 @@ def _attribute(obj, name, dtype=np.float32):
     return out
 
 
-def _staircase_run(lad, scene, tmp_path, name="stairs", noisy=False):
-    """Two steps (left half at 100 m, right half at 103 m): two ranges, two intensities."""
+def _staircase_run(lad, scene, tmp_path, name="stairs", noisy=False, previews=False):
+    """Two steps (left half at 100 m, right half at 103 m): two ranges, two intensities.  ``previews``: the
+    scene's "PNG Previews" setting, off where a test uses no preview (three PNGs a run, 0.2-0.5 s of CPU each:
+    most of this file's time); :func:`test_import_an_existing_run_folder` imports them."""
     cam = add_camera(scene, width_px=8, height_px=8, fov_rad=FOV)
     cam.ladar.receiver.subsamples = 1
     cam.ladar.gate.gate_start_ns = 2e9 * 90 / 299_792_458.0
@@ -27,6 +29,7 @@ def _staircase_run(lad, scene, tmp_path, name="stairs", noisy=False):
     add_mesh(scene, "Near", [(-1, -1, 0), (0, -1, 0), (0, 1, 0), (-1, 1, 0)], [(0, 1, 2, 3)], location=(0, 0, -100))
     add_mesh(scene, "Far", [(0, -1, 0), (1, -1, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)], location=(0, 0, -103))
     scene.ladar.output_dir = str(tmp_path)
+    scene.ladar.write_previews = previews
     return lad.simulate.simulate_scene(scene, out_dir=tmp_path / name)
 
 
@@ -89,7 +92,7 @@ def test_point_radius_follows_the_scene_setting(lad, scene, tmp_path):
 
 
 def test_import_an_existing_run_folder(lad, scene, tmp_path):
-    run, result = _staircase_run(lad, scene, tmp_path)
+    run, result = _staircase_run(lad, scene, tmp_path, previews=True)
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
     scene.ladar.color_by = "RANGE"

@@ -37,11 +37,13 @@ def test_overwrite_refuses_a_folder_that_is_not_a_run(lad, plate_scene, tmp_path
     with pytest.raises(lad.config.ConfigError, match="previous run"):
         lad.simulate.simulate_scene(plate_scene, out_dir=str(folder), overwrite=True, import_results=False)
     assert _names(folder) == ["thesis.txt"]
-    # a real previous run is replaced
-    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--seed", "1", "--no-import")
+    # a real previous run is replaced (--no-previews here and below: previews are files of a run like the others,
+    # and 0.2-0.5 s of CPU each; the reader test keeps them, as their progress lines come after the reader left)
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--seed", "1", "--no-import",
+                        "--no-previews")
     assert code == 0, err
     code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--seed", "2", "--overwrite",
-                        "--no-import")
+                        "--no-import", "--no-previews")
     assert code == 0, err
     assert json.loads((tmp_path / "r" / "metadata.json").read_text())["seed"] == 2
     assert _names(tmp_path) == ["d", "r"]
@@ -56,17 +58,18 @@ def test_out_dot_overwrite_never_empties_the_current_folder(lad, plate_scene, tm
 
 
 def test_a_name_another_run_is_writing_is_refused_or_skipped(lad, plate_scene, tmp_path, capsys):
-    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--no-import")
+    code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--no-import", "--no-previews")
     assert code == 0, err
     with lad.staging.claim_run_dir(tmp_path / "r", if_exists="replace"):  # another run holds the name
-        code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--overwrite", "--no-import")
+        code, _, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--overwrite", "--no-import",
+                            "--no-previews")
         assert code == 1 and "another run is writing this one" in err
         code, out, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--if-exists", "new",
-                              "--no-import")
+                              "--no-import", "--no-previews")
         assert code == 0 and f"run      {tmp_path / 'r_2'}" in out, err
         with lad.staging.claim_run_dir(tmp_path / "r_3"):  # claimed but not written yet
             code, out, err = _run(lad, capsys, "simulate", "--out", str(tmp_path / "r"), "--if-exists", "new",
-                                  "--no-import")
+                                  "--no-import", "--no-previews")
             assert code == 0 and f"run      {tmp_path / 'r_4'}" in out, err
     assert _names(tmp_path) == ["r", "r_2", "r_4"]
 

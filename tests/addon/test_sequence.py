@@ -12,11 +12,16 @@ from blender_scenes import add_camera, add_plate
 FOV = 0.004
 
 
-def _scene(scene, tmp_path, width=8):
+def _scene(scene, tmp_path, width=8, previews=False):
+    """The plate under the sensor.  ``previews``: the scene's "PNG Previews" setting, off where a test checks no
+    preview (three PNGs a frame, 0.2-0.5 s of CPU each: most of this file's time); a sequence's previews are
+    checked by :func:`test_static_scene_exports_once_and_builds_one_bvh` (the ``simulate`` command writes them
+    whatever the setting: :func:`test_cli_frames` still does)."""
     cam = add_camera(scene, width_px=width, height_px=width, fov_rad=FOV)
     cam.ladar.receiver.subsamples = 1
     add_plate(scene, size=4.0, location=(0, 0, -100))
     scene.ladar.output_dir = str(tmp_path / "runs")
+    scene.ladar.write_previews = previews
     return cam
 
 
@@ -43,7 +48,7 @@ def _fcurves(obj):
 
 
 def test_static_scene_exports_once_and_builds_one_bvh(lad, scene, tmp_path):
-    _scene(scene, tmp_path)
+    _scene(scene, tmp_path, previews=True)
     scene.frame_set(7)
     job = lad.job.SimulationJob(scene, frames=[1, 2, 3]).run()
     run = tmp_path / "runs" / "Ladar_f0001-0003"
@@ -168,6 +173,7 @@ def test_one_bvh_with_ladar_materials_and_the_full_settings_recorded(lad, scene,
     from blender_scenes import brdf_material
     cam = add_camera(scene, width_px=8, height_px=8, fov_rad=FOV)
     cam.ladar.receiver.subsamples = 1
+    scene.ladar.write_previews = False  # (see _scene)
     paint = brdf_material("Paint", reflectance=0.2)
     add_plate(scene, size=4.0, location=(0, 0, -100), materials=(paint,))
     config = tmp_path / "bright.toml"

@@ -112,6 +112,7 @@ def test_rerun_needs_overwrite_and_never_duplicates(lad, scene, tmp_path):
 
 def test_frame_seed_and_config_file(lad, scene, tmp_path, capsys):
     _plate_scene(scene, tmp_path)
+    scene.ladar.write_previews = False  # (0.2-0.5 s of CPU a PNG; the operator tests above check the previews)
     plate = bpy.data.objects["Plate"]
     plate.keyframe_insert("location", frame=1)
     plate.location.z = -120.0
@@ -140,6 +141,7 @@ def test_materials_change_the_intensity(lad, scene, tmp_path):
     cam = add_camera(scene, width_px=16, height_px=16, fov_rad=FOV)
     cam.ladar.receiver.subsamples = 2
     cam.ladar.laser.beam_profile = "uniform"
+    scene.ladar.write_previews = False  # (see test_frame_seed_and_config_file)
     dark, bright = brdf_material("Dark", reflectance=0.1), brdf_material("Bright", reflectance=0.5)
     add_mesh(scene, "Halves", [(-1, -1, 0), (0, -1, 0), (0, 1, 0), (-1, 1, 0), (1, -1, 0), (1, 1, 0)],
              [(0, 1, 2, 3), (1, 4, 5, 2)], location=(0, 0, -100), materials=(dark, bright),

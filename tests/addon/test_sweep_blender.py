@@ -27,6 +27,32 @@ def _sweep_file(tmp_path, axes='"laser.pulse_energy_j" = [1e-4, 1e-3]\n"sensor.r
     return f
 
 
+@pytest.fixture
+def record_plots(lad, monkeypatch):
+    """``record_plots()``: from then on the sweeps of this process record their plots (file name, axis, figure)
+    instead of drawing them (0.2 s of CPU each).  Sweeps draw for real in this process in
+    :func:`test_sweep_command_runs_every_point_then_resumes` (its first command, in the main thread) and in
+    :func:`test_threaded_sweep_job_reports_progress_for_the_status_bar` (in a worker thread, as from the GUI); the
+    drawing itself is tested in tests/core/sweep/test_sweep.py and, through scripts/ladar_run.py, in
+    tests/addon/test_sweep_example.py."""
+    import importlib
+    from pathlib import Path
+
+    runner = importlib.import_module(f"{lad.package.__name__}.core.sweep.runner")
+    recorded = []
+
+    def record(path, series, *, xlabel, ylabel, **kwargs):
+        assert series  # what the drawing would refuse
+        recorded.append((Path(path).name, xlabel, ylabel))
+        return Path(path)
+
+    def start():
+        monkeypatch.setattr(runner, "sweep_plot_png", record)
+        return recorded
+
+    return start
+
+
 def _run(lad, capsys, *argv):
     code = lad.cli.cli_handler(list(argv))
     out, err = capsys.readouterr()
@@ -38,7 +64,7 @@ def _rows(path):
         return list(csv.DictReader(f))
 
 
-def test_sweep_command_runs_every_point_then_resumes(lad, plate_scene, tmp_path, capsys):
+def test_sweep_command_runs_every_point_then_resumes(lad, plate_scene, tmp_path, capsys, record_plots):
     out_dir = tmp_path / "sw"
     code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(out_dir), "--workers", "2")
     assert code == 0, err
@@ -55,12 +81,16 @@ def test_sweep_command_runs_every_point_then_resumes(lad, plate_scene, tmp_path,
         assert np.median(pts["range_m"]) == pytest.approx(r_m, abs=0.05)
     scene_meta = json.loads((out_dir / "scene" / "scene.json").read_text())
     assert scene_meta["info"]["sensor"] == "Ladar" and scene_meta["info"]["geometry_exports"] == 1
-    # the same command again: nothing is run, the table is the same
+    drawn = sorted(p.name for p in (out_dir / "plots").glob("*.png"))
+    assert drawn and all(p.stat().st_size > 1000 for p in (out_dir / "plots").glob("*.png"))
+    # the same command again: nothing is run, the table is the same, the same plots are drawn again (recorded)
     table = (out_dir / "results.csv").read_text()
+    plots = record_plots()
     code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(out_dir))
     assert code == 0, err
     assert "0 run now" in out and "4 finished before" in out
     assert (out_dir / "results.csv").read_text() == table
+    assert sorted(name for name, _, _ in plots) == drawn
     # the scene changed: refused, unless --restart
     plate_scene.objects["Plate"].location.z = -105.0
     code, out, err = _run(lad, capsys, "sweep", str(_sweep_file(tmp_path)), "--out", str(out_dir))
@@ -96,6 +126,7 @@ def test_threaded_sweep_job_reports_progress_for_the_status_bar(lad, plate_scene
     assert job.state == "done", job.error
     assert seen[-1].startswith("3/3 tasks") and job.fraction == 1.0
     assert job.summary().startswith("sweep: 3/3 tasks done, 0 failed")
+    assert list((tmp_path / "sw" / "plots").glob("*.png"))  # drawn in the job's thread
     assert bpy.context.scene.ladar.last_run == str(tmp_path / "sw")
 
 
@@ -150,10 +181,11 @@ def test_a_scheduler_address_where_another_service_answers_is_one_line(lad, plat
     assert not (tmp_path / "sw").exists()
 
 
-def test_frames_of_a_sweep_file_are_simulated_each(lad, plate_scene, tmp_path, capsys):
+def test_frames_of_a_sweep_file_are_simulated_each(lad, plate_scene, tmp_path, capsys, record_plots):
     """``frames = 99999`` is frame 99999 (the plate is keyed 100 m away at frame 1 and 150 m at frame 99999): its
     echo is at 150 m, the table says frame 99999 and the first line names it; ``frames = [1, 99999]`` is two tasks
     per point, one per frame."""
+    plots = record_plots()  # (each sweep's plots recorded, not drawn: see record_plots)
     plate = plate_scene.objects["Plate"]
     plate.location.z = -100.0
     plate.keyframe_insert("location", frame=1)
@@ -178,3 +210,4 @@ def test_frames_of_a_sweep_file_are_simulated_each(lad, plate_scene, tmp_path, c
             assert meta["frame"] == frame
             pts = np.load(out_dir / r["run"] / "points.npz")
             assert np.median(pts["range_m"]) == pytest.approx(expect[frame], abs=0.05)
+    assert plots and all(axis == "laser.pulse_energy_j" for _, axis, _ in plots)

@@ -166,7 +166,8 @@ print(json.dumps({{"cache": str(core.jit.CACHE_DIR), "stats": core.jit.CACHE_STA
 #: compiled in about 1 s of CPU where PROBE's echo detection (six kernels) takes about 7 s; for the tests whose
 #: point is the cache's handling of entries (damage, an unwritable folder, two writers), not which kernels a run
 #: needs (test_the_same_source_in_another_folder_loads_every_kernel_and_compiles_none keeps PROBE; every kernel of
-#: a whole run: tests/addon/test_cli.py::test_a_second_run_in_a_new_blender_user_folder_loads_every_kernel).
+#: a whole run: tests/addon/test_fault_injection.py::
+#: test_signals_while_kernels_compile_or_load_leave_nothing_and_the_cache_works).
 SMALL_PROBE = """
 import json, sys
 sys.path.insert(0, {pkg!r})
