@@ -1,0 +1,127 @@
+"""core/fileio/preview_worker.py: previews drawn by worker processes are byte for byte those drawn in process; a
+worker killed mid-draw leaves its share to the caller (nothing half-written left); cancel kills the workers.
+One small gated run (3 images + 9 slices) serves every test; each test draws into its own copy of it."""
+import os
+import shutil
+import signal
+
+import numpy as np
+import pytest
+
+from core.config import SimulationConfig
+from core.errors import Cancelled
+from core.fileio import preview
+from core.fileio.preview_worker import PreviewPool, worker_count
+from core.run import run_simulation
+from scenes import C, plate
+
+
+@pytest.fixture(scope="module")
+def gated_run(tmp_path_factory):
+    """(a gated run folder without previews, {relative PNG path: bytes} of one in-process draw of it)."""
+    cfg = SimulationConfig(system_type="gated")
+    cfg.receiver.width_px, cfg.receiver.height_px = 16, 8
+    cfg.receiver.fov_x_rad, cfg.receiver.fov_y_rad = 8e-3, 4e-3
+    cfg.laser.pulse_fwhm_s = 3e-9
+    g = cfg.gated
+    g.n_slices, g.delay_step_s, g.gate_width_s, g.shutter_edge_s = 9, 2e-9, 10e-9, 2e-9
+    g.first_delay_s = 2 * 300.0 / C - 14e-9
+    cfg.run.threads = 1
+    base = tmp_path_factory.mktemp("preview_worker")
+    path, _ = run_simulation(plate(300.0, 20.0), np.eye(4), cfg, base / "gated")
+    ref = base / "reference"
+    shutil.copytree(path, ref)
+    preview.write_run_previews(ref)
+    return path, _pngs(ref)
+
+
+def _pngs(folder) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*.png"))}
+
+
+def _copy(src, dst):
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _hidden(folder):
+    return [p for p in folder.rglob(".*")]
+
+
+def test_shares_partition_the_previews_and_draw_the_same_bytes(gated_run, tmp_path):
+    """``share=(k, n)``: the n calls draw each preview exactly once, each the PNG one call draws (the slices
+    replayed from another first slice than in one call: FigureReplay's bytes equal a full draw's)."""
+    src, ref = gated_run
+    assert len(ref) == 12 and preview.preview_count(src) == 12
+    folder = _copy(src, tmp_path / "shares")
+    names = []
+    for k in range(3):
+        steps = []
+        written = preview.write_run_previews(folder, share=(k, 3), progress=lambda d, t: steps.append((d, t)))
+        names += [p.relative_to(folder).as_posix() for p in written]
+        assert steps == [(d, 4) for d in range(5)]  # 12 previews, every third: 4, progress over the share
+    assert sorted(names) == sorted(ref) and len(set(names)) == len(names)
+    assert _pngs(folder) == ref
+    with pytest.raises(ValueError, match="share"):
+        preview.write_run_previews(folder, share=(3, 3))
+
+
+def test_workers_draw_the_same_bytes_as_in_process(gated_run, tmp_path):
+    src, ref = gated_run
+    folder = _copy(src, tmp_path / "pool")
+    seen = []
+    with PreviewPool.start(2) as pool:
+        assert len(pool.live()) == 2, pool.notes
+        todo = pool.draw([folder], progress=lambda i, done: seen.append((i, done)))
+        pids = pool.pids
+    assert todo == []
+    assert _pngs(folder) == ref
+    assert not _hidden(folder)
+    assert seen[-1] == (0, 12) and [d for _, d in seen] == sorted(d for _, d in seen)  # every preview counted once
+    for pid in pids:  # closed: exited and reaped
+        assert not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split()[2] == "Z"
+
+
+def test_a_worker_killed_mid_draw_leaves_its_share_to_the_caller(gated_run, tmp_path):
+    """SIGKILL of worker 1 at the first preview drawn: draw() returns its share and a note; the caller draws it
+    (preview.write_run_previews with that share) and the folder holds the same PNGs as an in-process draw, no
+    temporary file of the killed worker."""
+    src, ref = gated_run
+    folder = _copy(src, tmp_path / "killed")
+    notes = []
+    with PreviewPool.start(2) as pool:
+        assert len(pool.live()) == 2, pool.notes
+        victim = pool.workers[0]
+
+        def progress(i, done):
+            if victim.proc.poll() is None:
+                os.kill(victim.pid, signal.SIGKILL)
+
+        todo = pool.draw([folder], progress=progress, note=notes.append)
+    assert [(f.name, share) for f, share in todo] == [("killed", (0, 2))]
+    assert len(notes) == 1 and notes[0].startswith("preview worker 1 of 2 stopped (it exited (code -9))")
+    for f, share in todo:
+        preview.write_run_previews(f, share=share)
+    assert _pngs(folder) == ref
+    assert not _hidden(folder)
+
+
+def test_cancel_kills_the_workers(gated_run, tmp_path):
+    src, _ = gated_run
+    folder = _copy(src, tmp_path / "cancelled")
+    with PreviewPool.start(2) as pool:
+        assert len(pool.live()) == 2, pool.notes
+        seen = []
+        with pytest.raises(Cancelled):
+            pool.draw([folder], progress=lambda i, d: seen.append(d), cancel=lambda: bool(seen))
+        assert all(w.proc.poll() is not None for w in pool.workers)  # killed and reaped before the exception
+        assert pool.live() == []
+        assert pool.draw([folder]) == [(folder.absolute(), (0, 1))]  # no live worker: everything to the caller
+
+
+def test_worker_count_from_the_environment(monkeypatch):
+    for text, n in (("", 2), ("0", 0), ("1", 1), ("3", 3), ("x", 2), ("-4", 0), ("99", 8)):
+        monkeypatch.setenv("LADAR_PREVIEW_WORKERS", text)
+        assert worker_count() == n
+    monkeypatch.setenv("LADAR_PREVIEW_WORKERS", "0")
+    assert PreviewPool.start().workers == []
