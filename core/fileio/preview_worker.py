@@ -1,18 +1,23 @@
 """PNG previews drawn by worker processes, off a headless command's critical path (issue 25).
 
-A command that will draw previews (``simulate`` without ``--no-previews``) starts the workers first thing
+A command that will draw previews (``simulate`` without ``--no-previews``) starts a worker process first thing
 (:meth:`PreviewPool.start`: ``scripts/ladar_run.py`` before Blender loads, ``blender -c ladar`` before the
-simulator's imports).  Each worker imports matplotlib and :mod:`core.fileio.preview` while the command starts
-Blender and runs the frame, then waits.  When the run's products are in its staging folder the command hands the
-folder(s) over (:meth:`PreviewPool.draw`): worker ``k`` of ``n`` draws every ``n``-th preview from the ``k``-th
-(``write_run_previews(..., share=(k, n))``), reading the arrays from disk like an in-process draw, each PNG
-written atomically into the staging folder, so two workers draw on two cores; the command commits the folder
-only after every worker has finished.  The PNGs are byte for byte those of one in-process draw (each slice is the
-same PNG whether drawn in full or replayed: :class:`core.fileio.preview.FigureReplay`).
+simulator's imports).  The worker imports matplotlib and :mod:`core.fileio.preview` while the command starts
+Blender and runs the frame (on the other core), then waits.  When the run's products are in its staging folder
+the command hands the folder(s) over (:meth:`PreviewPool.draw`) and the worker draws them in ``drawers``
+processes at once (default: 2 where there are 2 cores or more): itself and copies of itself made with
+``os.fork`` (each already has matplotlib loaded: a second worker process would import it again, 0.9 s of CPU
+taken from the command's start).  Drawer ``j`` of ``d`` draws every ``d``-th preview from the ``j``-th
+(``write_run_previews(..., share=(j, d))``), reading the arrays from disk like an in-process draw, each PNG
+written atomically into the staging folder; the command commits the folder only after the worker has finished.
+The PNGs are byte for byte those of one in-process draw (each slice is the same PNG whether drawn in full or
+replayed: :class:`core.fileio.preview.FigureReplay`).  (Several workers, :meth:`PreviewPool.start`'s
+``n_workers``, split the previews the same way.)
 
-A worker that cannot start, dies, stops answering or reports an error costs one ``note`` line: the command
-draws that worker's share itself (files the worker finished are complete and left alone; a temporary file it
-left half-written is removed first).  Cancel (``cancel()`` true, Ctrl-C, SIGTERM, SIGHUP: an exception in the
+A forked drawer that dies leaves its share to its worker (after removing what it left half-written).  A worker
+that cannot start, dies, stops answering or reports an error costs one ``note`` line: the command draws that
+worker's share itself (files the worker finished are complete and left alone; a temporary file it left
+half-written is removed first).  Cancel (``cancel()`` true, Ctrl-C, SIGTERM, SIGHUP: an exception in the
 waiting thread) kills the workers and waits for them before the exception goes on, so the staging folder's
 removal cannot race a worker's write.  No worker outlives its command: each reads its orders from a pipe and
 exits when it closes (the command's exit), on Linux it also gets SIGKILL when the thread that started it ends
@@ -22,8 +27,10 @@ Ctrl-C reaches the whole process group).
 The worker runs the command's own interpreter (``sys.executable``: the venv's Python under the ``bpy`` module,
 Blender's bundled Python in Blender) with ``-I -S`` and the command's ``sys.path`` (so the extension's bundled
 wheels are found), importing the core under the name ``core`` from the folder that holds this package.  Where
-``sys.executable`` is not a Python (an embedding program reporting itself) no worker starts and the previews are
-drawn in process.  ``LADAR_PREVIEW_WORKERS`` sets the number of workers (default 2; 0: draw in process).
+``sys.executable`` is not a Python (an embedding program reporting itself), or off POSIX (the command waits on
+the worker's pipe with ``selectors``), no worker starts and the previews are drawn in process.
+``LADAR_PREVIEW_WORKERS`` sets how many processes draw at once (default 2 on 2 or more cores; 1: one worker that
+does not fork; 0: no worker, the previews are drawn in process).
 
 Standard library only (``scripts/ladar_run.py`` imports this module before Blender starts).
 """
@@ -38,8 +45,8 @@ import sys
 import time
 from pathlib import Path
 
-#: Workers a command starts (``LADAR_PREVIEW_WORKERS`` overrides; 0: previews drawn in process).
-DEFAULT_WORKERS = 2
+#: Processes that draw at once (``LADAR_PREVIEW_WORKERS`` overrides; 0: previews drawn in process).
+DEFAULT_DRAWERS = 2
 #: A worker that has said nothing for this long while drawing is taken as hung: killed, its share drawn here.
 SILENCE_TIMEOUT_S = 120.0
 #: How long :meth:`PreviewPool.close` waits for an idle worker to exit on its pipe's end before killing it.
@@ -50,26 +57,29 @@ POLL_S = 0.05
 BOOTSTRAP = ("import sys, json\n"
              "cfg = json.loads(sys.stdin.readline())\n"
              "sys.path[:] = cfg['path']\n"
+             "sys.dont_write_bytecode = cfg['dont_write_bytecode']\n"
              "import core.fileio.preview_worker as w\n"
              "w.serve(cfg)\n")
 
 
 def worker_count() -> int:
-    """``LADAR_PREVIEW_WORKERS`` (default :data:`DEFAULT_WORKERS`): how many workers a command starts."""
+    """``LADAR_PREVIEW_WORKERS`` (default :data:`DEFAULT_DRAWERS`, at most the CPU count): how many processes
+    draw a command's previews at once (0: none, the command draws them)."""
+    default = max(1, min(DEFAULT_DRAWERS, os.cpu_count() or 1))
     text = os.environ.get("LADAR_PREVIEW_WORKERS", "").strip()
     if not text:
-        return DEFAULT_WORKERS
+        return default
     try:
         n = int(text)
     except ValueError:
-        return DEFAULT_WORKERS
+        return default
     return max(0, min(n, 8))
 
 
 def python_executable() -> str | None:
     """The interpreter a worker runs (``sys.executable``), or None where it is not a Python."""
     exe = sys.executable
-    if not exe or not os.path.isfile(exe):
+    if os.name != "posix" or not exe or not os.path.isfile(exe):
         return None
     name = os.path.basename(exe).lower()
     if not name.startswith(("python", "pypy")):  # e.g. an embedding program reporting itself
@@ -89,6 +99,7 @@ class _Worker:
         self.proc = proc
         self.buffer = b""
         self.failed = None        # why it stopped, once it has
+        self.drawers = {}         # drawer index -> process id, as reported while drawing
 
     @property
     def pid(self) -> int:
@@ -141,14 +152,16 @@ class PreviewPool:
         self.notes = []
 
     @classmethod
-    def start(cls, n: int | None = None) -> "PreviewPool":
-        n = worker_count() if n is None else int(n)
+    def start(cls, drawers: int | None = None, n_workers: int = 1) -> "PreviewPool":
+        """``drawers``: processes drawing at once per worker (default :func:`worker_count`; 0: no worker)."""
+        drawers = worker_count() if drawers is None else int(drawers)
         exe = python_executable()
         pool = cls()
-        if n <= 0 or exe is None:
+        if drawers <= 0 or n_workers <= 0 or exe is None:
             return pool
-        cfg = json.dumps({"path": [_core_root()] + [p for p in sys.path if p], "parent": os.getpid()}) + "\n"
-        for _ in range(n):
+        cfg = json.dumps({"path": [_core_root()] + [p for p in sys.path if p], "parent": os.getpid(),
+                          "drawers": drawers, "dont_write_bytecode": bool(sys.dont_write_bytecode)}) + "\n"
+        for _ in range(n_workers):
             try:
                 proc = subprocess.Popen([exe, "-I", "-S", "-c", BOOTSTRAP], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, close_fds=True,
@@ -213,10 +226,11 @@ class PreviewPool:
                         pending[k] = time.monotonic()
                         word, _, rest = line.decode("utf-8", "replace").partition(" ")
                         if word == "progress":
-                            fi, d = (int(x) for x in rest.split()[:2])
-                            done[k, fi] = d
+                            fi, d, j, pid = (int(x) for x in rest.split()[:4])
+                            done[k, j, fi] = d
+                            w.drawers[j] = pid
                             if progress is not None:
-                                progress(fi, sum(v for (_, f), v in done.items() if f == fi))
+                                progress(fi, sum(v for (_, _, f), v in done.items() if f == fi))
                         elif word == "done":
                             pending.pop(k, None)
                             selector.unregister(w.proc.stdout)
@@ -321,21 +335,52 @@ def serve(cfg: dict) -> None:
     out = os.dup(1)  # the replies' channel; stray prints of libraries go to stderr (the null device)
     os.dup2(2, 1)
 
-    def reply(text: str) -> None:
+    def reply(text: str) -> None:  # (one write of a short line: whole, also from the forked drawers)
         os.write(out, (text + "\n").encode("utf-8"))
 
     from . import preview
 
     preview.preload()
+    # forked drawers only where they die with their worker (PR_SET_PDEATHSIG): else one could still write after
+    # the command had taken its worker's share over
+    drawers = max(1, int(cfg.get("drawers", 1))) if sys.platform.startswith("linux") else 1
     for line in sys.stdin:
         order = json.loads(line)
-        k, n = order["share"]
         try:
-            for fi, folder in enumerate(order["folders"]):
-                preview.write_run_previews(folder, share=(k, n),
-                                           progress=lambda d, t, fi=fi: d and reply(f"progress {fi} {d}"))
+            _draw_order(preview, order["folders"], *order["share"], drawers, reply)
         except Exception as exc:  # reported; the command draws this share itself
             reply("error " + f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500])
             continue
         reply("done")
     os._exit(0)
+
+
+def _draw_order(preview, folders, k, n, drawers, reply) -> None:
+    """Share ``(k, n)`` of the previews of ``folders`` in ``drawers`` processes: this one draws share
+    ``(k, n·d)``, forked copies the shares ``(k + n·j, n·d)``; a copy that fails leaves its share to this one."""
+    d = drawers if preview.preview_count(folders[0]) > 1 or len(folders) > 1 else 1
+
+    def draw(j):
+        for fi, folder in enumerate(folders):
+            preview.write_run_previews(folder, share=(k + n * j, n * d), progress=lambda done, total, fi=fi: (
+                done and reply(f"progress {fi} {done} {j} {os.getpid()}")))
+
+    children = {}
+    for j in range(1, d):
+        pid = os.fork()
+        if pid == 0:  # a drawer: ends with its share, never returns
+            code = 1
+            try:
+                _die_with_parent()
+                draw(j)
+                code = 0
+            finally:
+                os._exit(code)
+        children[j] = pid
+    draw(0)
+    failed = [j for j, pid in children.items() if os.waitpid(pid, 0)[1] != 0]
+    if failed:  # (every drawer has ended: nothing is being written)
+        for folder in folders:
+            remove_partial_pngs(folder)
+        for j in failed:
+            draw(j)

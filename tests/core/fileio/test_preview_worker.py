@@ -1,5 +1,6 @@
-"""core/fileio/preview_worker.py: previews drawn by worker processes are byte for byte those drawn in process; a
-worker killed mid-draw leaves its share to the caller (nothing half-written left); cancel kills the workers.
+"""core/fileio/preview_worker.py: previews drawn by a worker and its forked drawers are byte for byte those drawn in
+process; a drawer killed mid-draw leaves its share to its worker, a worker killed mid-draw its share to the caller
+(nothing half-written left); cancel kills the worker and its drawers.
 One small gated run (3 images + 9 slices) serves every test; each test draws into its own copy of it."""
 import os
 import shutil
@@ -66,31 +67,41 @@ def test_shares_partition_the_previews_and_draw_the_same_bytes(gated_run, tmp_pa
         preview.write_run_previews(folder, share=(3, 3))
 
 
+def _gone(pid) -> bool:
+    """Process ``pid`` has ended (a zombie waiting for its parent counts as ended)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
 def test_workers_draw_the_same_bytes_as_in_process(gated_run, tmp_path):
     src, ref = gated_run
     folder = _copy(src, tmp_path / "pool")
     seen = []
     with PreviewPool.start(2) as pool:
-        assert len(pool.live()) == 2, pool.notes
+        assert len(pool.live()) == 1, pool.notes
         todo = pool.draw([folder], progress=lambda i, done: seen.append((i, done)))
-        pids = pool.pids
+        drawers = pool.workers[0].drawers
+        pids = pool.pids + list(drawers.values())
     assert todo == []
+    assert sorted(drawers) == [0, 1] and drawers[0] == pids[0] != drawers[1]  # the worker and a forked copy
     assert _pngs(folder) == ref
     assert not _hidden(folder)
     assert seen[-1] == (0, 12) and [d for _, d in seen] == sorted(d for _, d in seen)  # every preview counted once
-    for pid in pids:  # closed: exited and reaped
-        assert not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split()[2] == "Z"
+    assert all(_gone(pid) for pid in pids)  # closed: the worker exited and was reaped, the drawer ended
 
 
 def test_a_worker_killed_mid_draw_leaves_its_share_to_the_caller(gated_run, tmp_path):
-    """SIGKILL of worker 1 at the first preview drawn: draw() returns its share and a note; the caller draws it
-    (preview.write_run_previews with that share) and the folder holds the same PNGs as an in-process draw, no
-    temporary file of the killed worker."""
+    """SIGKILL of the worker at the first preview drawn: its forked drawer dies with it (PR_SET_PDEATHSIG), draw()
+    returns the worker's share and a note; the caller draws it (preview.write_run_previews with that share) and
+    the folder holds the same PNGs as an in-process draw, no temporary file of the killed processes."""
     src, ref = gated_run
     folder = _copy(src, tmp_path / "killed")
     notes = []
     with PreviewPool.start(2) as pool:
-        assert len(pool.live()) == 2, pool.notes
+        assert len(pool.live()) == 1, pool.notes
         victim = pool.workers[0]
 
         def progress(i, done):
@@ -98,10 +109,32 @@ def test_a_worker_killed_mid_draw_leaves_its_share_to_the_caller(gated_run, tmp_
                 os.kill(victim.pid, signal.SIGKILL)
 
         todo = pool.draw([folder], progress=progress, note=notes.append)
-    assert [(f.name, share) for f, share in todo] == [("killed", (0, 2))]
-    assert len(notes) == 1 and notes[0].startswith("preview worker 1 of 2 stopped (it exited (code -9))")
+        drawers = list(victim.drawers.values())
+    assert [(f.name, share) for f, share in todo] == [("killed", (0, 1))]
+    assert len(notes) == 1 and notes[0].startswith("preview worker 1 of 1 stopped (it exited (code -9))")
+    assert all(_gone(pid) for pid in drawers)
     for f, share in todo:
         preview.write_run_previews(f, share=share)
+    assert _pngs(folder) == ref
+    assert not _hidden(folder)
+
+
+def test_a_drawer_killed_mid_draw_leaves_its_share_to_its_worker(gated_run, tmp_path):
+    """SIGKILL of the forked drawer at its first preview: the worker draws that drawer's share itself; the caller
+    gets nothing to do and no note, and the folder holds the in-process PNGs, no temporary file."""
+    src, ref = gated_run
+    folder = _copy(src, tmp_path / "drawer")
+    notes, killed = [], []
+    with PreviewPool.start(2) as pool:
+        worker = pool.workers[0]
+
+        def progress(i, done):
+            if 1 in worker.drawers and not killed:
+                os.kill(worker.drawers[1], signal.SIGKILL)
+                killed.append(worker.drawers[1])
+
+        todo = pool.draw([folder], progress=progress, note=notes.append)
+    assert killed and todo == [] and notes == []
     assert _pngs(folder) == ref
     assert not _hidden(folder)
 
@@ -110,17 +143,19 @@ def test_cancel_kills_the_workers(gated_run, tmp_path):
     src, _ = gated_run
     folder = _copy(src, tmp_path / "cancelled")
     with PreviewPool.start(2) as pool:
-        assert len(pool.live()) == 2, pool.notes
+        assert len(pool.live()) == 1, pool.notes
         seen = []
         with pytest.raises(Cancelled):
             pool.draw([folder], progress=lambda i, d: seen.append(d), cancel=lambda: bool(seen))
         assert all(w.proc.poll() is not None for w in pool.workers)  # killed and reaped before the exception
+        assert all(_gone(pid) for pid in pool.workers[0].drawers.values())
         assert pool.live() == []
         assert pool.draw([folder]) == [(folder.absolute(), (0, 1))]  # no live worker: everything to the caller
 
 
 def test_worker_count_from_the_environment(monkeypatch):
-    for text, n in (("", 2), ("0", 0), ("1", 1), ("3", 3), ("x", 2), ("-4", 0), ("99", 8)):
+    default = min(2, os.cpu_count())
+    for text, n in (("", default), ("0", 0), ("1", 1), ("3", 3), ("x", default), ("-4", 0), ("99", 8)):
         monkeypatch.setenv("LADAR_PREVIEW_WORKERS", text)
         assert worker_count() == n
     monkeypatch.setenv("LADAR_PREVIEW_WORKERS", "0")
