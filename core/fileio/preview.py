@@ -30,6 +30,7 @@ import numpy as np
 
 from ..config.settings import BRDFSettings
 from ..constants import SPEED_OF_LIGHT_M_S
+from ..physics.brdf import evaluate_brdf
 from .staging import write_file_atomically
 from .run_folder import DISPLAY_PREFIXES, display_prefix, format_energy_j, read_exr
 
@@ -762,7 +763,6 @@ def preload() -> None:
     import matplotlib.ticker  # noqa: F401
 
     matplotlib.font_manager.fontManager  # noqa: B018  (loads the font list)
-    from .run_folder import read_exr  # noqa: F401
 
 
 def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None, chosen=None) -> list[Path]:
@@ -834,8 +834,6 @@ def plot_brdf(brdf: BRDFSettings, path, *, title: str = "", laser_wavelength_m: 
     table's measured rows as markers.
     """
     theta = np.linspace(0.0, 90.0, 361)
-    from ..physics.brdf import evaluate_brdf  # (here: a run's previews need neither numba nor SciPy)
-
     f_r = evaluate_brdf(brdf, np.cos(np.radians(theta)))
     positive = np.all(f_r > 0) and (brdf.model != "table" or min(brdf.table_brdf_per_sr) > 0)
     log_axis = bool(positive and f_r.max() / f_r.min() > 20.0)

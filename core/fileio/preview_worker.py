@@ -32,7 +32,8 @@ the worker's pipe with ``selectors``), no worker starts and the previews are dra
 ``LADAR_PREVIEW_WORKERS`` sets how many processes draw at once (default 2 on 2 or more cores; 1: one worker that
 does not fork; 0: no worker, the previews are drawn in process).
 
-Standard library only (``scripts/ladar_run.py`` imports this module before Blender starts).
+The command's side; the worker's is :mod:`core.fileio.preview_serve`.  Standard library only (``scripts/ladar_run.py``
+imports this module before Blender starts).
 """
 from __future__ import annotations
 
@@ -44,6 +45,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from ..errors import Cancelled
 
 #: Processes that draw at once (``LADAR_PREVIEW_WORKERS`` overrides; 0: previews drawn in process).
 DEFAULT_DRAWERS = 2
@@ -58,7 +61,7 @@ BOOTSTRAP = ("import sys, json\n"
              "cfg = json.loads(sys.stdin.readline())\n"
              "sys.path[:] = cfg['path']\n"
              "sys.dont_write_bytecode = cfg['dont_write_bytecode']\n"
-             "import core.fileio.preview_worker as w\n"
+             "import core.fileio.preview_serve as w\n"
              "w.serve(cfg)\n")
 
 
@@ -198,7 +201,7 @@ class PreviewPool:
         n = len(live)
         if n == 0:
             return [(f, (0, 1)) for f in folders]
-        done = {}  # (worker index, folder index) -> previews done
+        done = {}  # (worker index, drawer index, folder index) -> previews that drawer has done
         pending = {}
         selector = selectors.DefaultSelector()
         try:
@@ -212,7 +215,6 @@ class PreviewPool:
                 selector.register(w.proc.stdout, selectors.EVENT_READ, k)
             while pending:
                 if cancel is not None and cancel():
-                    from ..errors import Cancelled
                     raise Cancelled()
                 for key, _ in selector.select(POLL_S):
                     k = key.data
@@ -305,82 +307,3 @@ def remove_partial_pngs(folder) -> list[Path]:
             except FileNotFoundError:
                 pass
     return removed
-
-
-# ------------------------------------------------------------------------------------------------------------
-# The worker's side
-# ------------------------------------------------------------------------------------------------------------
-def _die_with_parent() -> None:
-    """Linux: SIGKILL when the thread that started this process ends (the command killed outright)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):  # pragma: no cover - no prctl
-        pass
-
-
-def serve(cfg: dict) -> None:
-    """The worker's loop (started by :data:`BOOTSTRAP`): load the drawing code, then draw each order's share of
-    previews, one line per preview drawn (``progress <folder index> <done>``) and ``done`` (or ``error …``)."""
-    for sig in (signal.SIGINT, getattr(signal, "SIGHUP", None)):
-        if sig is not None:
-            signal.signal(sig, signal.SIG_IGN)
-    _die_with_parent()
-    if os.getppid() != cfg.get("parent"):  # the command ended before the line above
-        os._exit(0)
-    out = os.dup(1)  # the replies' channel; stray prints of libraries go to stderr (the null device)
-    os.dup2(2, 1)
-
-    def reply(text: str) -> None:  # (one write of a short line: whole, also from the forked drawers)
-        os.write(out, (text + "\n").encode("utf-8"))
-
-    from . import preview
-
-    preview.preload()
-    # forked drawers only where they die with their worker (PR_SET_PDEATHSIG): else one could still write after
-    # the command had taken its worker's share over
-    drawers = max(1, int(cfg.get("drawers", 1))) if sys.platform.startswith("linux") else 1
-    for line in sys.stdin:
-        order = json.loads(line)
-        try:
-            _draw_order(preview, order["folders"], *order["share"], drawers, reply)
-        except Exception as exc:  # reported; the command draws this share itself
-            reply("error " + f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500])
-            continue
-        reply("done")
-    os._exit(0)
-
-
-def _draw_order(preview, folders, k, n, drawers, reply) -> None:
-    """Share ``(k, n)`` of the previews of ``folders`` in ``drawers`` processes: this one draws share
-    ``(k, n·d)``, forked copies the shares ``(k + n·j, n·d)``; a copy that fails leaves its share to this one."""
-    d = drawers if preview.preview_count(folders[0]) > 1 or len(folders) > 1 else 1
-
-    def draw(j):
-        for fi, folder in enumerate(folders):
-            preview.write_run_previews(folder, share=(k + n * j, n * d), progress=lambda done, total, fi=fi: (
-                done and reply(f"progress {fi} {done} {j} {os.getpid()}")))
-
-    children = {}
-    for j in range(1, d):
-        pid = os.fork()
-        if pid == 0:  # a drawer: ends with its share, never returns
-            code = 1
-            try:
-                _die_with_parent()
-                draw(j)
-                code = 0
-            finally:
-                os._exit(code)
-        children[j] = pid
-    draw(0)
-    failed = [j for j, pid in children.items() if os.waitpid(pid, 0)[1] != 0]
-    if failed:  # (every drawer has ended: nothing is being written)
-        for folder in folders:
-            remove_partial_pngs(folder)
-        for j in failed:
-            draw(j)
