@@ -131,7 +131,8 @@ def _cmd_simulate(scene, args) -> int:
         if pool is None and not args.no_previews and "matplotlib" not in sys.modules:
             # the previews' workers load matplotlib meanwhile (a process that has drawn before draws in process)
             from ..core.fileio.preview_worker import PreviewPool
-            pool = PreviewPool.start()
+            with deferred():  # (a signal meanwhile: raised once the pool is held here, which kills it)
+                pool = PreviewPool.start()
         with _loading_the_simulator():
             from .job import SimulationJob
         if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)

@@ -200,6 +200,12 @@ class PreviewPool:
         live = self.live()
         n = len(live)
         if n == 0:
+            stopped = [w for w in self.workers if w.failed is None]
+            for w in stopped:  # (died while loading, e.g. a package missing from its Python)
+                w.failed = f"it exited (code {w.proc.wait()}) before drawing"
+            if note is not None and self.workers:
+                note(f"no preview worker is running ({(stopped or self.workers)[0].failed}); the previews are drawn "
+                     "here")
             return [(f, (0, 1)) for f in folders]
         done = {}  # (worker index, drawer index, folder index) -> previews that drawer has done
         pending = {}

@@ -5,6 +5,7 @@ One small gated run (3 images + 9 slices) serves every test; each test draws int
 import os
 import shutil
 import signal
+import time
 
 import numpy as np
 import pytest
@@ -67,13 +68,19 @@ def test_shares_partition_the_previews_and_draw_the_same_bytes(gated_run, tmp_pa
         preview.write_run_previews(folder, share=(3, 3))
 
 
-def _gone(pid) -> bool:
-    """Process ``pid`` has ended (a zombie waiting for its parent counts as ended)."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"
-    except OSError:
-        return True
+def _gone(pid, wait_s: float = 10.0) -> bool:
+    """Process ``pid`` has ended within ``wait_s`` (a zombie waiting for its parent counts as ended)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            with open(f"/proc/{pid}/stat") as stat:
+                if stat.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    return True
+        except OSError:
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
 
 
 def test_workers_draw_the_same_bytes_as_in_process(gated_run, tmp_path):
@@ -150,7 +157,23 @@ def test_cancel_kills_the_workers(gated_run, tmp_path):
         assert all(w.proc.poll() is not None for w in pool.workers)  # killed and reaped before the exception
         assert all(_gone(pid) for pid in pool.workers[0].drawers.values())
         assert pool.live() == []
-        assert pool.draw([folder]) == [(folder.absolute(), (0, 1))]  # no live worker: everything to the caller
+        notes = []
+        assert pool.draw([folder], note=notes.append) == [(folder.absolute(), (0, 1))]  # all to the caller
+        assert len(notes) == 1 and notes[0].startswith("no preview worker is running (it exited (code -9)")
+
+
+def test_a_worker_that_dies_before_drawing_leaves_everything_to_the_caller(gated_run, tmp_path):
+    """A worker gone before the run's folder is ready (killed here; a package missing from its Python would end
+    it the same way): one note, and the caller draws every preview."""
+    src, _ = gated_run
+    folder = _copy(src, tmp_path / "dead")
+    with PreviewPool.start(2) as pool:
+        os.kill(pool.workers[0].pid, signal.SIGKILL)
+        pool.workers[0].proc.wait()
+        notes = []
+        assert pool.draw([folder], note=notes.append) == [(folder.absolute(), (0, 1))]
+    assert notes == ["no preview worker is running (it exited (code -9) before drawing); the previews are drawn "
+                     "here"]
 
 
 def test_worker_count_from_the_environment(monkeypatch):
