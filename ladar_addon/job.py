@@ -309,7 +309,7 @@ class SimulationJob(BackgroundJob):
             for message in pool.notes:
                 log(f"note: {message}")
             pool.notes.clear()
-        if pool is not None and pool.live():
+        if pool is not None and pool.workers:  # (draw() says so if none is running any more)
             from ..core.fileio.preview import preview_count
 
             totals = [preview_count(folder) for folder in folders]

@@ -11,7 +11,7 @@ import signal
 import sys
 
 from . import preview
-from .preview_worker import remove_partial_pngs
+from .preview_worker import idle_cores, remove_partial_pngs
 
 
 def _die_with_parent() -> None:
@@ -49,7 +49,10 @@ def serve(cfg: dict) -> None:
     for line in sys.stdin:
         order = json.loads(line)
         try:
-            _draw_order(order["folders"], *order["share"], drawers, reply)
+            d = drawers
+            if d > 1 and cfg.get("adaptive") and idle_cores() < 1.0:  # (no core to draw on: the fork costs CPU)
+                d = 1
+            _draw_order(order["folders"], *order["share"], d, reply)
         except Exception as exc:  # reported; the command draws this share itself
             reply("error " + f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500])
             continue

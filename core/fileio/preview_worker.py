@@ -29,8 +29,10 @@ Blender's bundled Python in Blender) with ``-I -S`` and the command's ``sys.path
 wheels are found), importing the core under the name ``core`` from the folder that holds this package.  Where
 ``sys.executable`` is not a Python (an embedding program reporting itself), or off POSIX (the command waits on
 the worker's pipe with ``selectors``), no worker starts and the previews are drawn in process.
-``LADAR_PREVIEW_WORKERS`` sets how many processes draw at once (default 2 on 2 or more cores; 1: one worker that
-does not fork; 0: no worker, the previews are drawn in process).
+By default a worker starts only where a core is idle when the command starts (:func:`idle_cores`: on a busy
+machine its imports would take CPU from the command's own start and cost more than they save), and forks its
+second drawer only where one is idle when it draws.  ``LADAR_PREVIEW_WORKERS`` decides instead: the number of
+processes that draw at once (1: one worker that does not fork; 0: no worker, the previews are drawn in process).
 
 The command's side; the worker's is :mod:`core.fileio.preview_serve`.  Standard library only (``scripts/ladar_run.py``
 imports this module before Blender starts).
@@ -65,18 +67,43 @@ BOOTSTRAP = ("import sys, json\n"
              "w.serve(cfg)\n")
 
 
-def worker_count() -> int:
-    """``LADAR_PREVIEW_WORKERS`` (default :data:`DEFAULT_DRAWERS`, at most the CPU count): how many processes
-    draw a command's previews at once (0: none, the command draws them)."""
-    default = max(1, min(DEFAULT_DRAWERS, os.cpu_count() or 1))
+def worker_count() -> int | None:
+    """``LADAR_PREVIEW_WORKERS``: how many processes draw a command's previews at once (0: none, the command draws
+    them; at most 8); None where it is not set (:func:`idle_cores` decides)."""
     text = os.environ.get("LADAR_PREVIEW_WORKERS", "").strip()
     if not text:
-        return default
+        return None
     try:
         n = int(text)
     except ValueError:
-        return default
+        return None
     return max(0, min(n, 8))
+
+
+def idle_cores() -> float:
+    """Cores no process wants now: the CPU count less the runnable tasks (``/proc/loadavg``'s instantaneous count,
+    the caller included; elsewhere the 1-minute load average and the caller).  A worker only pays where a core
+    would otherwise idle: measured on 2 cores with 3–5 other runnable jobs, its imports (≈ 1.2 s of CPU, 0.7 s
+    more than drawing in the command) slowed the flash demo's and the profiler's whole command by 0.7–1.1 s while
+    its previews' wait shrank by 0.6–0.7 s (docs/performance.md)."""
+    cpus = os.cpu_count() or 1
+    try:
+        with open("/proc/loadavg", encoding="ascii") as f:
+            running = int(f.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        try:
+            running = os.getloadavg()[0] + 1.0
+        except (OSError, AttributeError):
+            return 0.0
+    return float(cpus - running)
+
+
+def default_drawers() -> int:
+    """Processes drawing at once when ``LADAR_PREVIEW_WORKERS`` is not set: :data:`DEFAULT_DRAWERS` (at most the
+    CPU count) where a core is idle now, else 0 (the command draws its previews itself)."""
+    if idle_cores() < 1.0:
+        return 0
+    return max(1, min(DEFAULT_DRAWERS, os.cpu_count() or 1))
 
 
 def python_executable() -> str | None:
@@ -156,14 +183,20 @@ class PreviewPool:
 
     @classmethod
     def start(cls, drawers: int | None = None, n_workers: int = 1) -> "PreviewPool":
-        """``drawers``: processes drawing at once per worker (default :func:`worker_count`; 0: no worker)."""
-        drawers = worker_count() if drawers is None else int(drawers)
+        """``drawers``: processes drawing at once per worker (0: no worker).  Default: ``LADAR_PREVIEW_WORKERS``,
+        else :func:`default_drawers`, and then the worker forks its second drawer only if a core is idle when it
+        draws (``adaptive``)."""
+        adaptive = drawers is None and worker_count() is None
+        if drawers is None:
+            drawers = default_drawers() if adaptive else worker_count()
+        drawers = int(drawers)
         exe = python_executable()
         pool = cls()
         if drawers <= 0 or n_workers <= 0 or exe is None:
             return pool
         cfg = json.dumps({"path": [_core_root()] + [p for p in sys.path if p], "parent": os.getpid(),
-                          "drawers": drawers, "dont_write_bytecode": bool(sys.dont_write_bytecode)}) + "\n"
+                          "drawers": drawers, "adaptive": adaptive,
+                          "dont_write_bytecode": bool(sys.dont_write_bytecode)}) + "\n"
         for _ in range(n_workers):
             try:
                 proc = subprocess.Popen([exe, "-I", "-S", "-c", BOOTSTRAP], stdin=subprocess.PIPE,

@@ -56,7 +56,9 @@ def _gone(pids, wait_s: float = 10.0) -> bool:
 def _run_watching(cmd, cwd, until=None, timeout=900):
     """Run ``cmd``, noting the preview workers it has at each output line; ``until(line)`` true: SIGTERM it.
     Returns (exit code, output, worker pids seen)."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, cwd=cwd)
+    env = dict(os.environ, LADAR_PREVIEW_WORKERS="2")  # (by default no worker starts on a busy machine)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, cwd=cwd,
+                            env=env)
     seen, lines = set(), []
     deadline = time.monotonic() + timeout
     try:
@@ -134,10 +136,12 @@ def test_no_previews_starts_no_worker(lad, scene, tmp_path, capsys, monkeypatch)
     assert started == [] and not list((tmp_path / "r").rglob("*.png"))
 
 
-def test_workers_of_the_installed_extension_draw_a_runs_previews(lad, scene, tmp_path, capsys):
+@pytest.mark.parametrize("killed", [False, True], ids=["worker", "worker-killed"])
+def test_workers_of_the_installed_extension_draw_a_runs_previews(lad, scene, tmp_path, capsys, killed):
     """The command handler with a pool the installed add-on's own ``core`` started (as ``blender -c ladar`` does:
     the workers import ``core`` from the extension's folder, with the command's ``sys.path``): the run's PNGs
-    are those of an in-process draw, and the workers have ended when the command returns."""
+    are those of an in-process draw, and the workers have ended when the command returns.  ``killed``: the
+    worker is killed before the run; the command says so in one note and draws the previews itself."""
     import importlib
 
     from blender_scenes import add_camera, add_plate
@@ -148,10 +152,16 @@ def test_workers_of_the_installed_extension_draw_a_runs_previews(lad, scene, tmp
     worker = importlib.import_module(lad.package.__name__ + ".core.fileio.preview_worker")
     pool = worker.PreviewPool.start(2)
     assert len(pool.live()) == 1, pool.notes
+    if killed:
+        os.kill(pool.workers[0].pid, signal.SIGKILL)
+        pool.workers[0].proc.wait()
     code = lad.cli.cli_handler(["simulate", "--out", str(tmp_path / "r")], preview_pool=pool)
     out, err = capsys.readouterr()
     assert code == 0, err
-    assert "PNG previews 4/4" in out and "note:" not in out + err  # 3 images + the waveform cube (no plot)
+    assert "PNG previews 4/4" in out  # 3 images + the waveform cube (no plot)
+    notes = [line for line in (out + err).splitlines() if "note:" in line]
+    assert notes == (["ladar: note: no preview worker is running (it exited (code -9) before drawing); the previews "
+                      "are drawn here"] if killed else [])
     assert all(w.proc.poll() is not None for w in pool.workers)
     from core.fileio.preview import write_run_previews
 

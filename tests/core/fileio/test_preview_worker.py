@@ -177,9 +177,21 @@ def test_a_worker_that_dies_before_drawing_leaves_everything_to_the_caller(gated
 
 
 def test_worker_count_from_the_environment(monkeypatch):
-    default = min(2, os.cpu_count())
-    for text, n in (("", default), ("0", 0), ("1", 1), ("3", 3), ("x", default), ("-4", 0), ("99", 8)):
+    for text, n in (("", None), ("0", 0), ("1", 1), ("3", 3), ("x", None), ("-4", 0), ("99", 8)):
         monkeypatch.setenv("LADAR_PREVIEW_WORKERS", text)
         assert worker_count() == n
     monkeypatch.setenv("LADAR_PREVIEW_WORKERS", "0")
     assert PreviewPool.start().workers == []
+
+
+def test_default_starts_a_worker_only_where_a_core_is_idle(monkeypatch):
+    """Without LADAR_PREVIEW_WORKERS: 2 drawers (at most the CPU count) where a core is idle, else no worker."""
+    from core.fileio import preview_worker
+
+    monkeypatch.delenv("LADAR_PREVIEW_WORKERS", raising=False)
+    monkeypatch.setattr(preview_worker, "idle_cores", lambda: 0.0)
+    assert preview_worker.default_drawers() == 0 and PreviewPool.start().workers == []
+    monkeypatch.setattr(preview_worker, "idle_cores", lambda: 1.0)
+    assert preview_worker.default_drawers() == min(2, os.cpu_count())
+    # /proc/loadavg's runnable count includes the reader: on an idle machine one core's worth is taken
+    assert preview_worker.idle_cores() <= os.cpu_count() - 1
