@@ -15,7 +15,8 @@ It does what ``blender -b scene.blend -c ladar ...`` does: with ``BLENDER_USER_R
 temporary folder (set before ``import bpy``), it installs this repository as an extension in a local extension
 repository, enables it as ``bl_ext.ladar_dev.ladar_simulator``, opens the .blend file and calls the command
 handler the extension registers (a usage error or ``--help`` is answered before Blender starts, with the same
-parser).  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
+parser).  A ``simulate`` that draws PNG previews starts their worker process before Blender, where a core is idle
+(core.fileio.preview_worker: it loads matplotlib meanwhile; the command ends it).  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: batch schedulers, ``timeout``), 129 hung up (SIGHUP).  An
 interrupted run leaves nothing behind: its staging folder and the temporary Blender user folder are removed
 (after a SIGKILL, which cannot be caught, the next run removes them).
