@@ -126,16 +126,30 @@ def _cmd_simulate(scene, args) -> int:
     sensor = _sensor(scene, args.sensor)
     frames = parse_frames(args.frames) if args.frames is not None else None
     _check_frames(frames or ([args.frame] if args.frame is not None else []), "frames" if frames else "frame")
-    with _loading_the_simulator():
-        from .job import SimulationJob
-    if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
-    with progress_printer() as progress:  # (its heartbeat stops with the run)
-        job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
-                            config_path=args.config, if_exists=if_exists, sensor=sensor,
-                            import_results=not args.no_import, clouds=args.clouds.upper() if args.clouds else None,
-                            previews=not args.no_previews, progress=progress)
-        args.job = job  # an interruption after the run was moved into place says so
-        job.run()
+    pool = None if args.no_previews else args.preview_pool
+    try:
+        if pool is None and not args.no_previews and "matplotlib" not in sys.modules:
+            # the previews' workers load matplotlib meanwhile (a process that has drawn before draws in process)
+            from ..core.fileio.preview_worker import PreviewPool
+            with deferred():  # (a signal meanwhile: raised once the pool is held here, which kills it)
+                pool = PreviewPool.start()
+        with _loading_the_simulator():
+            from .job import SimulationJob
+        if_exists = "REPLACE" if args.overwrite else (args.if_exists.upper() if args.if_exists else None)
+        with progress_printer() as progress:  # (its heartbeat stops with the run)
+            job = SimulationJob(scene, frames=frames, frame=args.frame, out_dir=args.out, seed=args.seed,
+                                config_path=args.config, if_exists=if_exists, sensor=sensor,
+                                import_results=not args.no_import,
+                                clouds=args.clouds.upper() if args.clouds else None,
+                                previews=not args.no_previews, progress=progress, preview_pool=pool)
+            args.job = job  # an interruption after the run was moved into place says so
+            job.run()
+    except BaseException:
+        if pool is not None:
+            pool.kill()
+        raise
+    if pool is not None:
+        pool.close()
     if frames is None:
         emit(run_summary(job.run_path, job.result))
     else:
@@ -225,11 +239,13 @@ COMMANDS = {"simulate": _cmd_simulate, "sweep": _cmd_sweep, "export-config": _cm
             "validate-config": _cmd_validate_config, "warm-up": _cmd_warm_up}
 
 
-def cli_handler(argv) -> int:
+def cli_handler(argv, preview_pool=None) -> int:
     """Entry point of ``blender -c ladar``: returns the exit code (never exits the process).
 
     SIGINT, SIGTERM and SIGHUP end the command like Ctrl-C (core.process): the run's staging folder is removed
-    and the exit code is 128 + the signal."""
+    and the exit code is 128 + the signal.  ``preview_pool``: the previews' workers the caller started early
+    (``scripts/ladar_run.py``, core.fileio.preview_worker); ``simulate`` uses and ends them (without it,
+    ``simulate`` starts its own)."""
     from ..core.errors import Cancelled
 
     parser = build_parser()
@@ -237,6 +253,7 @@ def cli_handler(argv) -> int:
         args = parser.parse_args(list(argv))
     except SystemExit as exc:  # usage errors (2) and --help (0)
         return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_USAGE)
+    args.preview_pool = preview_pool
     scene = bpy.context.scene
     with interrupts_as_exceptions():
         try:

@@ -56,7 +56,7 @@ class SimulationJob(BackgroundJob):
 
     def __init__(self, scene, *, frames=None, frame=None, out_dir=None, seed=None, config_path=None,
                  if_exists=None, overwrite=None, sensor=None, import_results=None, clouds=None, previews=None,
-                 color_by=None, progress=None):
+                 color_by=None, progress=None, preview_pool=None):
         props = scene.ladar
         self.scene = scene
         self.sensor = sensor if sensor is not None else active_sensor(scene)
@@ -82,6 +82,7 @@ class SimulationJob(BackgroundJob):
         if self.clouds not in CLOUDS:
             raise ConfigError("clouds", self.clouds, "one of " + ", ".join(CLOUDS))
         self.previews = props.write_previews if previews is None else bool(previews)
+        self.preview_pool = preview_pool  # core.fileio.preview_worker.PreviewPool (a headless command's) or None
         self.color_by = props.color_by if color_by is None else color_by
         self.point_radius = props.point_radius
         self.config_path = config_path
@@ -292,15 +293,39 @@ class SimulationJob(BackgroundJob):
         meta_path.write_text(json.dumps(meta, indent=2), encoding="utf-8")
 
     def _write_previews(self, folders):
+        """The run's PNG previews: by the command's preview workers where it has them (core.fileio.preview_worker:
+        drawn on the other core meanwhile loaded, byte for byte the same PNGs), else, and for the share of a
+        worker that failed, here."""
         if not self.previews:
             return
+        folders = list(folders)
+
+        def what(folder):
+            return "PNG previews" + (f" {folder.name}" if self.sequence else "")
+
+        todo = [(folder, None) for folder in folders]
+        pool = self.preview_pool
+        if pool is not None:
+            for message in pool.notes:
+                log(f"note: {message}")
+            pool.notes.clear()
+        if pool is not None and pool.workers:  # (draw() says so if none is running any more)
+            from ..core.fileio.preview import preview_count
+
+            totals = [preview_count(folder) for folder in folders]
+            self._on_progress(self.fraction, what(folders[0]), (0, totals[0]))
+            todo = pool.draw(folders, cancel=self._cancel.is_set, note=lambda m: log(f"note: {m}"),
+                             progress=lambda i, done: self._on_progress(self.fraction, what(folders[i]),
+                                                                        (done, totals[i])))
+        if not todo:
+            return
         from ..core.fileio.preview import write_run_previews
-        for folder in folders:
+        for folder, share in todo:
             if self._cancel.is_set():
                 raise Cancelled()
-            what = "PNG previews" + (f" {folder.name}" if self.sequence else "")
-            write_run_previews(folder, cancel=self._cancel.is_set,
-                               progress=lambda done, total, w=what: self._on_progress(self.fraction, w, (done, total)))
+            write_run_previews(folder, cancel=self._cancel.is_set, share=share,
+                               progress=lambda done, total, w=what(folder): self._on_progress(self.fraction, w,
+                                                                                             (done, total)))
 
     def _finish(self):
         """Main thread, after the worker: import the results, restore the frame, set the final state."""

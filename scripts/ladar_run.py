@@ -15,7 +15,8 @@ It does what ``blender -b scene.blend -c ladar ...`` does: with ``BLENDER_USER_R
 temporary folder (set before ``import bpy``), it installs this repository as an extension in a local extension
 repository, enables it as ``bl_ext.ladar_dev.ladar_simulator``, opens the .blend file and calls the command
 handler the extension registers (a usage error or ``--help`` is answered before Blender starts, with the same
-parser).  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
+parser).  A ``simulate`` that draws PNG previews starts their worker process before Blender, where a core is idle
+(core.fileio.preview_worker: it loads matplotlib meanwhile; the command ends it).  Exit codes: 0 success, 1 user error (one line on stderr), 2 usage error,
 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: batch schedulers, ``timeout``), 129 hung up (SIGHUP).  An
 interrupted run leaves nothing behind: its staging folder and the temporary Blender user folder are removed
 (after a SIGKILL, which cannot be caught, the next run removes them).
@@ -125,6 +126,18 @@ def check_command_line(command) -> int | None:
     return None
 
 
+def starts_previews(command) -> bool:
+    """The command will draw PNG previews (``simulate`` without ``--no-previews``): its preview workers start
+    before Blender does (core.fileio.preview_worker)."""
+    from ladar_addon.cli_args import build_parser
+
+    try:
+        args = build_parser().parse_args(list(command))
+    except SystemExit:  # pragma: no cover - checked by check_command_line first
+        return False
+    return args.command == "simulate" and not args.no_previews
+
+
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -140,11 +153,16 @@ def main(argv=None) -> int:
     if usage is not None:  # a usage error (2) or --help (0): answered without starting Blender
         return usage
 
+    pool = None
     with process.interrupts_as_exceptions():
         try:
             if _EARLY_SIGINT:  # Ctrl-C before the handlers above were in place
                 raise process.Interrupted(_EARLY_SIGINT[0])
             with process.deferred():  # starting Blender is not cut in two: a signal meanwhile ends it right after
+                if starts_previews(command):  # they load matplotlib on the other core while Blender starts
+                    from core.fileio.preview_worker import PreviewPool
+
+                    pool = PreviewPool.start()
                 blender_env.isolate_user_resources()  # a temporary folder, removed at exit
                 with step("loading Blender (bpy)"):
                     import bpy
@@ -153,7 +171,7 @@ def main(argv=None) -> int:
                 if blend is not None:
                     process.emit(f"ladar: opening {blend.name} \u2026")  # (fast: its output is held until it ends)
                     open_blend(bpy, blend)
-            return addon.ladar_addon.cli.cli_handler(command)
+            return addon.ladar_addon.cli.cli_handler(command, preview_pool=pool)
         except BlendFileError as exc:
             process.emit(f"ladar: error: {exc}", err=True)
             return 1
@@ -162,6 +180,9 @@ def main(argv=None) -> int:
             process.emit("ladar: interrupted" + (f" ({how})" if how != "SIGINT" else "") + ": nothing was written",
                          err=True)
             return process.exit_code(exc)
+        finally:
+            if pool is not None:  # (the command ended them; not when it failed before it ran)
+                pool.kill()
 
 
 def exit_now(code: int) -> None:

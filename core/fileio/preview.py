@@ -646,7 +646,16 @@ def sweep_plot_png(path, series, *, xlabel: str, ylabel: str, log_x: bool = Fals
 # ----------------------------------------------------------------------------------------------------------
 # A run folder's previews
 # ----------------------------------------------------------------------------------------------------------
-def write_run_previews(run_dir, *, cancel=None, progress=None) -> list[Path]:
+def preview_count(run_dir) -> int:
+    """How many previews :func:`write_run_previews` may draw in ``run_dir`` (its progress total)."""
+    run_dir = Path(run_dir)
+    slices = run_dir / "slices"
+    return (sum((run_dir / f"{p}.exr").is_file() for p in ("range", "intensity", "energy"))
+            + (len(list(slices.glob("slice_*.exr"))) if slices.is_dir() else 0)
+            + (run_dir / "pulses.npz").is_file() + (run_dir / "waveforms.npy").is_file())
+
+
+def write_run_previews(run_dir, *, cancel=None, progress=None, share=None) -> list[Path]:
     """The previews of a run folder, beside its products (files that exist are left alone):
 
     * ``range.png``, ``intensity.png``, ``energy.png`` beside the EXRs of an image of more than one pixel;
@@ -657,17 +666,30 @@ def write_run_previews(run_dir, *, cancel=None, progress=None) -> list[Path]:
 
     Call it on a run folder that is still being assembled.  ``cancel()`` true stops between files;
     ``progress(done, total)`` is called before the first file and after each (the previews that may be drawn:
-    a gated run's 30 slices take seconds).  Returns the written paths."""
+    a gated run's 30 slices take seconds).  ``share=(k, n)``: only every ``n``-th preview from the ``k``-th, in
+    the order above (the ``n`` calls of ``k = 0 … n-1`` together draw every preview, each the same PNG as one
+    call without ``share``: core.fileio.preview_worker draws them on several cores); ``total`` is then the
+    share's.  Returns the written paths."""
 
     run_dir = Path(run_dir)
+    k, n = (0, 1) if share is None else (int(share[0]), int(share[1]))
+    if not 0 <= k < n:
+        raise ValueError(f"share {share!r}: (k, n) with 0 <= k < n")
     written = []
     meta = run_metadata(run_dir)
     units = dict(meta.get("units", {}))
     settings = meta.get("settings")
     slices = sorted((run_dir / "slices").glob("slice_*.exr")) if (run_dir / "slices").is_dir() else []
-    total = (sum((run_dir / f"{p}.exr").is_file() for p in ("range", "intensity", "energy")) + len(slices)
-             + (run_dir / "pulses.npz").is_file() + (run_dir / "waveforms.npy").is_file())
+    total_all = preview_count(run_dir)
+    total = len(range(k, total_all, n))
     done = [0]
+    index = [0]
+
+    def mine():
+        """The next preview in the order above is this share's."""
+        i = index[0]
+        index[0] += 1
+        return i % n == k
 
     def step():
         done[0] = min(total, done[0] + 1)
@@ -683,7 +705,7 @@ def write_run_previews(run_dir, *, cancel=None, progress=None) -> list[Path]:
     for product in ("range", "intensity", "energy"):
         exr = run_dir / f"{product}.exr"
         png = exr.with_suffix(".png")
-        if not exr.is_file():
+        if not exr.is_file() or not mine():
             continue
         if png.exists() or stop():
             step()
@@ -697,40 +719,55 @@ def write_run_previews(run_dir, *, cancel=None, progress=None) -> list[Path]:
         written.append(false_colour_png(png, image, title=title, unit=units.get(product, ""), cmap=cmap,
                                         log=log, settings=settings, no_data=no_data))
         step()
-    if slices and not stop():
-        written += _slice_previews(run_dir, slices, meta, units.get("slices", ""), stop, step)
-    if (run_dir / "pulses.npz").is_file() and (run_dir / "points.npz").is_file() and not stop():
+    chosen = [exr for exr in slices if mine()]
+    if chosen and not stop():
+        written += _slice_previews(run_dir, slices, meta, units.get("slices", ""), stop, step,
+                                   chosen=set(chosen))
+    if (run_dir / "pulses.npz").is_file() and mine():
         png = run_dir / "points.png"
-        if not png.exists():
+        if (run_dir / "points.npz").is_file() and not stop() and not png.exists():
             with np.load(run_dir / "points.npz") as npz:
-                points = {k: npz[k] for k in ("position_world", "range_m", "echo_index") if k in npz.files}
+                points = {key: npz[key] for key in ("position_world", "range_m", "echo_index") if key in npz.files}
             if len(points.get("position_world", ())):
                 pose = (meta.get("sensor_pose") or {}).get("world_from_sensor", np.eye(4))
                 written.append(save_figure(scan_figure(points, pose), png))
-    if (run_dir / "pulses.npz").is_file():
         step()
     wf_path = run_dir / "waveforms.npy"
     png = run_dir / "waveform.png"
-    if wf_path.is_file() and not png.exists() and not stop():
-        cube = np.load(wf_path, mmap_mode="r")
-        if cube.ndim == 3 and cube.shape[:2] == (1, 1):
-            gate = settings["gate"]
-            rng = bin_centres_range_m(gate["gate_start_s"], gate["bin_width_s"], cube.shape[2])
-            echoes = ()
-            if (run_dir / "points.npz").is_file():
-                with np.load(run_dir / "points.npz") as npz:
-                    echoes = np.sort(npz["range_m"]) if "range_m" in npz.files else ()
-            written.append(waveform_png(png, rng, np.asarray(cube[0, 0]), title="Range profile",
-                                        ylabel=f"energy ({units.get('waveforms', 'J per bin')})",
-                                        markers_m=echoes))
-    if wf_path.is_file():
+    if wf_path.is_file() and mine():
+        if not png.exists() and not stop():
+            cube = np.load(wf_path, mmap_mode="r")
+            if cube.ndim == 3 and cube.shape[:2] == (1, 1):
+                gate = settings["gate"]
+                rng = bin_centres_range_m(gate["gate_start_s"], gate["bin_width_s"], cube.shape[2])
+                echoes = ()
+                if (run_dir / "points.npz").is_file():
+                    with np.load(run_dir / "points.npz") as npz:
+                        echoes = np.sort(npz["range_m"]) if "range_m" in npz.files else ()
+                written.append(waveform_png(png, rng, np.asarray(cube[0, 0]), title="Range profile",
+                                            ylabel=f"energy ({units.get('waveforms', 'J per bin')})",
+                                            markers_m=echoes))
         step()
     return written
 
 
-def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None) -> list[Path]:
+def preload() -> None:
+    """Import what drawing a run's previews needs (a preview worker does it while the command starts)."""
+    import matplotlib
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.colorbar  # noqa: F401
+    import matplotlib.colors  # noqa: F401
+    import matplotlib.figure  # noqa: F401
+    import matplotlib.font_manager
+    import matplotlib.image  # noqa: F401
+    import matplotlib.ticker  # noqa: F401
+
+    matplotlib.font_manager.fontManager  # noqa: B018  (loads the font list)
+
+
+def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None, chosen=None) -> list[Path]:
     """One figure for the sweep: laid out and drawn in full for the first slice, replayed for the others with
-    their pixels and titles (:class:`FigureReplay`)."""
+    their pixels and titles (:class:`FigureReplay`).  ``chosen``: only these slices (all on the sweep's scale)."""
     stack = _slice_stack(run_dir, slice_files)
     vmin, vmax = slice_scale(stack)
     gated = (meta.get("settings") or {}).get("gated") or {}
@@ -742,6 +779,8 @@ def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None) -
     reuse = {}
     written = []
     for k, exr in enumerate(slice_files):
+        if chosen is not None and exr not in chosen:
+            continue
         png = exr.with_suffix(".png")
         if png.exists() or stop():
             step()
