@@ -11,8 +11,7 @@ taken from the command's start).  Drawer ``j`` of ``d`` draws every ``d``-th pre
 (``write_run_previews(..., share=(j, d))``), reading the arrays from disk like an in-process draw, each PNG
 written atomically into the staging folder; the command commits the folder only after the worker has finished.
 The PNGs are byte for byte those of one in-process draw (each slice is the same PNG whether drawn in full or
-replayed: :class:`core.fileio.preview.FigureReplay`).  (Several workers, :meth:`PreviewPool.start`'s
-``n_workers``, split the previews the same way.)
+replayed: :class:`core.fileio.preview.FigureReplay`).
 
 A forked drawer that dies leaves its share to its worker (after removing what it left half-written).  A worker
 that cannot start, dies, stops answering or reports an error costs one ``note`` line: the command draws that
@@ -182,7 +181,7 @@ class PreviewPool:
         self.notes = []
 
     @classmethod
-    def start(cls, drawers: int | None = None, n_workers: int = 1) -> "PreviewPool":
+    def start(cls, drawers: int | None = None) -> "PreviewPool":
         """``drawers``: processes drawing at once per worker (0: no worker).  Default: ``LADAR_PREVIEW_WORKERS``,
         else :func:`default_drawers`, and then the worker forks its second drawer only if a core is idle when it
         draws (``adaptive``)."""
@@ -192,26 +191,25 @@ class PreviewPool:
         drawers = int(drawers)
         exe = python_executable()
         pool = cls()
-        if drawers <= 0 or n_workers <= 0 or exe is None:
+        if drawers <= 0 or exe is None:
             return pool
         cfg = json.dumps({"path": [_core_root()] + [p for p in sys.path if p], "parent": os.getpid(),
                           "drawers": drawers, "adaptive": adaptive,
                           "dont_write_bytecode": bool(sys.dont_write_bytecode)}) + "\n"
-        for _ in range(n_workers):
-            try:
-                proc = subprocess.Popen([exe, "-I", "-S", "-c", BOOTSTRAP], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, close_fds=True,
-                                        cwd=os.getcwd())
-            except (OSError, ValueError) as exc:
-                pool.notes.append(f"no preview worker ({exc}); the previews are drawn here")
-                break
-            worker = _Worker(proc)
-            pool.workers.append(worker)
-            try:
-                proc.stdin.write(cfg.encode("utf-8"))
-                proc.stdin.flush()
-            except OSError as exc:
-                worker.failed = f"it did not start ({exc})"
+        try:
+            proc = subprocess.Popen([exe, "-I", "-S", "-c", BOOTSTRAP], stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, close_fds=True,
+                                    cwd=os.getcwd())
+        except (OSError, ValueError) as exc:
+            pool.notes.append(f"no preview worker ({exc}); the previews are drawn here")
+            return pool
+        worker = _Worker(proc)
+        pool.workers.append(worker)
+        try:
+            proc.stdin.write(cfg.encode("utf-8"))
+            proc.stdin.flush()
+        except OSError as exc:
+            worker.failed = f"it did not start ({exc})"
         return pool
 
     @property
