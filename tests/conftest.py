@@ -53,6 +53,10 @@ def compile_project() -> None:
 def pytest_configure(config):
     if not os.environ.get("PYTEST_XDIST_WORKER"):  # once a session: the controller, or the one process
         compile_project()
+        base = _cpu_report_path()
+        if base is not None:  # this session's report only
+            for part in [base, *base.parent.glob(base.name + ".gw*")]:
+                part.unlink(missing_ok=True)
 
 #: Test files that take longest: the CPU seconds of their tests (the test process's and the child processes' it
 #: waited for: ``scripts/ladar_run.py`` runs, benchmarks, Dask workers) in one run of the whole suite on two workers
@@ -119,6 +123,87 @@ def pytest_collection_modifyitems(session, config, items):
     items.sort(key=lambda item: -_weight(item))
 
 
+#: ``LADAR_TEST_CPU_REPORT=FILE``: where the suite's CPU goes, one JSON line per test (:func:`pytest_runtest_protocol`)
+#: in ``FILE`` (``FILE.gw0``, ``FILE.gw1`` … from the xdist workers), and the files that took most printed at the
+#: end (:func:`cpu_report_lines`).  Off unless set: an audit hook costs every process start a function call.
+CPU_REPORT_ENV = "LADAR_TEST_CPU_REPORT"
+_launched: list[str] = []
+
+
+def _audit(event: str, args) -> None:
+    """Counts the processes a test starts: ``subprocess.Popen`` (and run, check_output …), ``os.posix_spawn``
+    and ``os.fork`` (multiprocessing's workers, a Dask cluster's nannies)."""
+    if event == "subprocess.Popen":
+        argv = args[1]
+        _launched.append(" ".join(map(str, argv)) if isinstance(argv, (list, tuple)) else str(argv))
+    elif event in ("os.posix_spawn", "os.fork"):
+        _launched.append(f"<{event}>")
+
+
+def _cpu_report_path() -> Path | None:
+    value = os.environ.get(CPU_REPORT_ENV)
+    if not value:
+        return None
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    return Path(f"{value}.{worker}") if worker else Path(value)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With :data:`CPU_REPORT_ENV` set: each test's wall time, this process's CPU time (every thread's) and the CPU
+    time of the child processes it waited for (``RUSAGE_CHILDREN``: ``scripts/ladar_run.py`` runs, benchmarks,
+    Dask workers once stopped), set-up and tear-down included (a module fixture's cost lands on the test that
+    built or tore it down), and the processes it started."""
+    path = _cpu_report_path()
+    if path is None:
+        yield
+        return
+    import json
+    import resource
+    import sys
+    import time
+
+    if not getattr(_audit, "installed", False):
+        sys.addaudithook(_audit)
+        _audit.installed = True
+    n0 = len(_launched)
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    yield
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    row = {"test": item.nodeid, "wall_s": round(time.perf_counter() - wall0, 3),
+           "cpu_s": round(time.process_time() - cpu0, 3),
+           "children_cpu_s": round(max(0.0, c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime), 3),
+           "processes": [cmd[:300] for cmd in _launched[n0:]], "load_1min": round(os.getloadavg()[0], 2)}
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(json.dumps(row) + "\n")
+
+
+def cpu_report_lines(base: Path, top: int = 15) -> list[str]:
+    """The files whose tests took most CPU (their own and their children's), from the JSON lines of ``base`` and
+    ``base.gw*``: one line each, then the session's totals."""
+    import json
+
+    files: dict[str, list[float]] = {}
+    for part in sorted(base.parent.glob(base.name + "*")):
+        if part.name != base.name and not part.name[len(base.name):].startswith(".gw"):
+            continue
+        for line in part.read_text(encoding="utf-8").splitlines():
+            row = json.loads(line)
+            t = files.setdefault(row["test"].split("::", 1)[0], [0.0, 0.0, 0.0, 0])
+            t[0] += row["cpu_s"]
+            t[1] += row["children_cpu_s"]
+            t[2] += row["wall_s"]
+            t[3] += len(row["processes"])
+    ranked = sorted(files.items(), key=lambda kv: -(kv[1][0] + kv[1][1]))
+    out = [f"{cpu + child:7.1f} s CPU ({cpu:.1f} tests, {child:.1f} children), {wall:6.1f} s wall, "
+           f"{n} processes started  {name}" for name, (cpu, child, wall, n) in ranked[:top]]
+    total = [sum(v[i] for v in files.values()) for i in range(4)]
+    out.append(f"{total[0] + total[1]:7.1f} s CPU ({total[0]:.1f} tests, {total[1]:.1f} children), "
+               f"{total[2]:6.1f} s wall, {total[3]} processes started  in all ({len(files)} files)")
+    return out
+
+
 #: test function -> fewest generated attempts it makes (tests/core/test_fuzz_inputs.py,
 #: tests/addon/test_cli_hostile_input.py)
 HOSTILE_FLOORS = {
@@ -177,6 +262,11 @@ def pytest_runtest_makereport(item, call):
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    base = _cpu_report_path()
+    if base is not None and not os.environ.get("PYTEST_XDIST_WORKER") and base.parent.is_dir():
+        terminalreporter.write_sep("-", f"CPU by test file ({CPU_REPORT_ENV}={base})")
+        for line in cpu_report_lines(base):
+            terminalreporter.write_line(line)
     if not _counts:
         return
     total = sum(_counts.values())

@@ -3,8 +3,10 @@ slowest first, a per-checkout kernel cache)."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import subprocess
+import sys
 import types
 from pathlib import Path
 
@@ -95,3 +97,41 @@ def test_the_first_files_go_before_the_slowest(monkeypatch):
     monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw0")
     suite.pytest_collection_modifyitems(None, None, items)
     assert [i.nodeid for i in items] == [f"{first}::w", f"{first}::v", f"{heaviest}::x", "tests/a_quick.py::t"]
+
+
+_BUSY = "import time\nt = time.process_time()\nwhile time.process_time() - t < {s}:\n    pass\n"
+
+
+def test_the_cpu_report_counts_each_tests_cpu_its_childrens_and_the_processes_it_started(tmp_path):
+    """``LADAR_TEST_CPU_REPORT=FILE`` (tests/conftest.py): a session of two tests, one that burns 0.4 s of CPU
+    in a child process it waits for and one that burns 0.3 s itself, run with the suite's conftest.  Each busy
+    loop stops once its process's CPU clock has advanced by its figure, so the recorded CPU is at least that
+    (the clocks tick in 1/100 s, hence the 0.02 s margin) and at most that plus the process's start-up and the
+    test's own bookkeeping (< 1 s: a bare interpreter starts in 0.02 s of CPU)."""
+    (tmp_path / "conftest.py").write_text("from tests.conftest import *  # noqa: F401,F403\n", encoding="utf-8")
+    (tmp_path / "test_busy.py").write_text(
+        "import subprocess, sys\n\n\ndef test_child():\n"
+        f"    subprocess.run([sys.executable, '-c', {_BUSY.format(s=0.4)!r}], check=True)\n\n\n"
+        "def test_self():\n" + "".join("    " + line + "\n" for line in _BUSY.format(s=0.3).splitlines()),
+        encoding="utf-8")
+    report = tmp_path / "cpu.jsonl"
+    report.write_text('{"test": "an earlier session"}\n', encoding="utf-8")  # replaced, not appended to
+    env = dict(os.environ, LADAR_TEST_CPU_REPORT=str(report), PYTHONPATH=str(REPO))
+    env.pop("PYTEST_XDIST_WORKER", None)
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
+                           "--rootdir", str(tmp_path), str(tmp_path / "test_busy.py")], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    rows = {r["test"].rsplit("::", 1)[-1]: r for r in map(json.loads, report.read_text().splitlines())}
+    assert sorted(rows) == ["test_child", "test_self"]
+    child, own = rows["test_child"], rows["test_self"]
+    assert 0.4 - 0.02 <= child["children_cpu_s"] < 0.4 + 1.0, child
+    assert len(child["processes"]) == 1 and "process_time" in child["processes"][0], child
+    assert 0.3 - 0.02 <= own["cpu_s"] < 0.3 + 1.0 and own["children_cpu_s"] < 0.02 and own["processes"] == [], own
+    assert all(r["wall_s"] > 0 for r in rows.values())
+    summary = [line for line in proc.stdout.splitlines() if "processes started" in line]
+    assert len(summary) == 2 and summary[0].endswith("test_busy.py") and "1 processes started" in summary[0]
+    assert summary[1].endswith("in all (1 files)"), summary
+    lines = suite.cpu_report_lines(report)  # the same figures, summed by file
+    total = (child["cpu_s"] + own["cpu_s"]) + (child["children_cpu_s"] + own["children_cpu_s"])  # (its order)
+    assert lines[0].startswith(f"{total:7.1f} s CPU"), (lines, total)
