@@ -172,3 +172,26 @@ def test_a_skipped_effect_is_listed_with_its_reason_and_keeps_earlier_results(tm
     assert "**fake** (no results): the optional environment .venv-x is missing" in \
         (fresh / "summary.md").read_text(encoding="utf-8")
     assert "Skipped on this machine:** the optional environment" in (fresh / "fake.md").read_text(encoding="utf-8")
+
+
+def test_validate_atmosphere_smallest_is_the_report_quick_level(tmp_path, monkeypatch, capsys):
+    """``scripts/validate_atmosphere.py --quick --smallest`` (docs/commands.toml's quick form of the documented
+    command: ≈ 10 s of CPU instead of ≈ 22 s for ``--quick``) computes what the validation report's atmosphere
+    effect does in quick mode (scripts/validation/atmosphere.py: ``report(…, quick=True, smallest=True)``);
+    ``--smallest`` without ``--quick`` is refused."""
+    import validate_atmosphere
+
+    calls = []
+    monkeypatch.setattr(validate_atmosphere, "report",
+                        lambda out, quick=False, seed=20240601, smallest=False: calls.append((quick, smallest))
+                        or ([], []))
+    assert validate_atmosphere.main([str(tmp_path / "a"), "--quick", "--smallest"]) == 0
+    assert validate_atmosphere.main([str(tmp_path / "b"), "--quick"]) == 0
+    assert calls == [(True, True), (True, False)]
+    with pytest.raises(SystemExit) as exit_:
+        validate_atmosphere.main([str(tmp_path / "c"), "--smallest"])
+    assert exit_.value.code == 2 and "--smallest goes with --quick" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+    from validation import atmosphere as effect  # the report's quick run asks for the same level
+
+    assert effect.run(tmp_path / "d", quick=True) == [] and calls[-1] == (True, True)
