@@ -7,8 +7,8 @@ OUT_DIR defaults to runs/validation/atmosphere/ (not committed).  The committed 
 is written by ``scripts/validate.py --update-committed`` (the atmosphere effect, scripts/validation/atmosphere.py,
 calls :func:`report`); this script refuses to write there.  Writes scintillation_pdf.png, correlation.png, mtf.png,
 transmission.png, si_vs_rytov.png, si_vs_beta2.png, radius_vs_beta2.png and summary.md.  The wave-optics
-comparison reads the split-step runs of scripts/tabulate_scintillation.py (bench/results/scintillation_wave_optics.json).  Runtime ≈ 1 min on 2 cores (--quick: ≈ 20 s of CPU; --quick
---smallest, the level scripts/validate.py --quick uses: ≈ 10 s).
+comparison reads the split-step runs of scripts/tabulate_scintillation.py (bench/results/scintillation_wave_optics.json).  Runtime ≈ 1 min on 2 cores (--quick: ≈ 20 s).
+``--quick --smallest``: the level scripts/validate.py --quick uses (≈ 10 s of CPU; ≈ 23 s for --quick alone).
 """
 from __future__ import annotations
 

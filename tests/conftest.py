@@ -64,23 +64,25 @@ def pytest_configure(config):
 #: tests/test_documented_commands.py and tests/addon/test_sweep_example.py as after that session's merge of their
 #: two runs of the README's sweep).  Session 31 measured the files marked "s31" one at a time (``/usr/bin/time``
 #: of ``pytest FILE``: the test process and its waited-for children, kernels in ``build/kernel-cache/``, load 3-12).
-#: CPU rather than wall: under load the wall figures mostly measure the other jobs.  A file not listed counts as
-#: quick; only the order in which the files are handed to the workers depends on these figures.
+#: Session 32 measured the files marked "s32" the same way, one at a time (load in the comment; kernels in
+#: ``build/kernel-cache/``, filled, including the sweep workers' shipped core; ``LADAR_TEST_CPU_REPORT`` gives the
+#: per-test split).  CPU rather than wall: under load the wall figures mostly measure the other jobs.  A file not
+#: listed counts as quick; only the order in which the files are handed to the workers depends on these figures.
 SLOW_FILES = {
-    "tests/addon/test_fault_injection.py": 74.1,  # s31 (with test_cli's former second-run kernel test)
-    "tests/test_bench_quick.py": 60.9,  # (s31: 151 s with its sweep workers compiling the shipped core's kernels)
-    "tests/addon/test_sweep_cluster.py": 57.5,  # s31
+    "tests/addon/test_fault_injection.py": 66.4,  # s32, load 3-5 (46.5 of it the kernels test's cold compiles)
+    "tests/test_bench_quick.py": 81.6,  # s32, load 14 (170 with its sweep worker compiling the shipped core's kernels)
+    "tests/addon/test_sweep_cluster.py": 58.7,  # s32, load 16 (255 with its workers compiling the shipped core's)
     # (session 31, measured on its own: the test functions' process CPU time, load average 8-10)
-    "tests/core/physics/test_detector_weak_returns.py": 55.4,
-    "tests/core/sweep/test_sweep.py": 45.7,  # s31 (56.1 before replot's check stopped drawing 24 more plots)
+    "tests/core/physics/test_detector_weak_returns.py": 64.8,  # s32, load 16-19 (55.4 at load 8-10)
+    "tests/core/sweep/test_sweep.py": 64.2,  # s32, load 10-18 (s31: 45.7)
     "tests/core/test_jit_cache.py": 44.2,  # s31
-    "tests/test_validation_report.py": 43.9,
-    "tests/addon/test_sweep_example.py": 38.6,  # s31
-    "tests/test_documented_commands.py": 29.9,
-    "tests/addon/test_sweep_blender.py": 24.4,  # s31 (32.3 before its resume and frames sweeps recorded their plots)
+    "tests/test_validation_report.py": 85.3,  # s32, load 14-17, with the Mitsuba comparison (.venv-validation)
+    "tests/addon/test_sweep_example.py": 36.2,  # s32, load 13-19
+    "tests/test_documented_commands.py": 23.5,  # s32, load 14 (37.4 before validate_atmosphere ran --smallest)
+    "tests/addon/test_sweep_blender.py": 27.8,  # s32, load 14-17 (s31: 24.4)
     "tests/addon/test_cli.py": 22.2,  # s31 (about 56 before its second-run kernel test moved, 34.0 s alone)
-    "tests/core/atmosphere/test_weather.py": 20.5,
-    "tests/addon/test_cli_hostile_input.py": 16.7,
+    "tests/core/atmosphere/test_weather.py": 26.3,  # s32, load 13-15
+    "tests/addon/test_cli_hostile_input.py": 16.9,  # s32, load 15
     "tests/core/test_fuzz_inputs.py": 14.0,
     "tests/core/physics/test_detector_models.py": 11.7,
     "tests/test_sensor_table.py": 10.6,
