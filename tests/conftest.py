@@ -134,7 +134,8 @@ _launched: list[str] = []
 
 def _audit(event: str, args) -> None:
     """Counts the processes a test starts: ``subprocess.Popen`` (and run, check_output …), ``os.posix_spawn``
-    and ``os.fork`` (multiprocessing's workers, a Dask cluster's nannies)."""
+    and ``os.fork``.  Not multiprocessing's "spawn" processes (a Dask LocalCluster's workers): Python raises no
+    audit event for them; their CPU time still counts, in the children's, once they have been waited for."""
     if event == "subprocess.Popen":
         argv = args[1]
         _launched.append(" ".join(map(str, argv)) if isinstance(argv, (list, tuple)) else str(argv))
