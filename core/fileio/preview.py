@@ -179,6 +179,9 @@ class FigureReplay:
         self.calls = None
         self.active = False
         self._renderer = None
+        self._fast = {}  # id(dynamic artist): its _NearestImage
+        self._static = None  # the canvas with only the static calls drawn (the dirty-region replay's base)
+        self._boxes = None  # each recorded call's pixel footprint (_footprint), None for a mark
 
     def png(self, metadata: dict) -> bytes:
         """The figure's PNG (the first call draws and records it in full)."""
@@ -186,9 +189,8 @@ class FigureReplay:
             return self._record(metadata)
         if not self.active or self.fig.canvas.get_renderer() is not self._renderer:
             return self._savefig(metadata)  # replay unusable, or the figure's size changed: a full draw
-        self._replay()
         # what FigureCanvasAgg.print_png encodes after its draw
-        return encode_png(self.fig.canvas.buffer_rgba(), dpi=self.fig.dpi, metadata=metadata)
+        return encode_png(self._pixels(), dpi=self.fig.dpi, metadata=metadata)
 
     def _savefig(self, metadata):
         return encode_png(figure_rgba(self.fig), dpi=self.fig.dpi, metadata=metadata)
@@ -227,7 +229,6 @@ class FigureReplay:
                        and all(any(m is a for m in marks) for a in self.dynamic))
         if self.active:
             self._renderer = used[0]
-            self._fast = {}
             for artist in self.dynamic:
                 fast = _NearestImage.build(artist, used[0], recorder.dynamic_calls.get(id(artist), ()))
                 if fast is not None:
@@ -238,30 +239,175 @@ class FigureReplay:
                 self.active = bool(np.array_equal(np.asarray(canvas.buffer_rgba()), drawn))
             except Exception:  # noqa: BLE001 - any trouble replaying: full draws, as before
                 self.active = False
+            if self.active:
+                self._prepare_dirty(drawn)
         return data
 
     def _replay(self) -> None:
+        """Clear the canvas and replay every recorded call, the dynamic artists drawing at their marks."""
         renderer = self.fig.canvas.get_renderer()
         renderer.clear()
         agg = renderer._renderer
-        fast = getattr(self, "_fast", {})
         for name, args in self.calls:
             if name is None:
-                if id(args) in fast:
-                    fast[id(args)].draw(agg)
+                if id(args) in self._fast:
+                    self._fast[id(args)].draw(agg)
                 else:
                     args.draw(renderer)
             else:
                 getattr(agg, name)(*args)
+
+    # -- the dirty-region replay ------------------------------------------------------------------------------
+    # The pixels a replay gives differ from those of the static calls alone only where a dynamic artist draws
+    # (the image's rectangle, the title's glyph bitmap).  A pixel's value is the blend, in order, of the calls
+    # that touch it, so inside those regions it suffices to replay the calls whose footprint (a conservative
+    # pixel rectangle, :func:`_footprint`; a call without one is always replayed) meets them, and outside them
+    # the static calls' canvas, drawn once, is the answer.  Checked on the recorded draw: if the result is not
+    # the full draw's pixels exactly, every later slice replays every call (as before).
+    def _prepare_dirty(self, drawn) -> None:
+        renderer = self.fig.canvas.get_renderer()
+        height, width = drawn.shape[:2]
+        try:
+            boxes = [None if name is None else _footprint(name, args, height, width, self.fig.dpi)
+                     for name, args in self.calls]
+            renderer.clear()
+            agg = renderer._renderer
+            for name, args in self.calls:
+                if name is not None:
+                    getattr(agg, name)(*args)
+            self._static, self._boxes = np.array(renderer.buffer_rgba(), copy=True), boxes
+            if not np.array_equal(self._pixels(), drawn):
+                self._static = self._boxes = None
+        except Exception:  # noqa: BLE001 - any trouble: every call replayed, as before
+            self._static = self._boxes = None
+
+    def _dynamic_calls(self, renderer) -> list:
+        """Each dynamic artist's renderer calls for its current data, caught (frozen), not drawn."""
+        out = []
+        for artist in self.dynamic:
+            fast = self._fast.get(id(artist))
+            if fast is not None:
+                out.append([("draw_image", (fast.gc, fast.x, fast.y, fast.rgba()))])
+                continue
+            calls = []
+            catcher = _RecordingAgg(calls, forward=False)
+            real = catcher.real = renderer._renderer
+            renderer._renderer = catcher
+            renderer._update_methods()
+            try:
+                type(artist).draw(artist, renderer)
+            finally:
+                renderer._renderer = real
+                renderer._update_methods()
+            out.append(calls)
+        return out
+
+    def _pixels(self) -> np.ndarray:
+        """The canvas' (H, W, 4) pixels after a replay with the dynamic artists' current data."""
+        canvas = self.fig.canvas
+        if self._static is None:
+            self._replay()
+            return np.asarray(canvas.buffer_rgba())
+        renderer = canvas.get_renderer()
+        height, width = self._static.shape[:2]
+        dynamic = self._dynamic_calls(renderer)
+        rects = [_footprint(name, args, height, width, self.fig.dpi) for calls in dynamic for name, args in calls]
+        if any(r is None for r in rects):
+            rects = [(0, height, 0, width)]
+        rects = [r for r in rects if r[0] < r[1] and r[2] < r[3]]
+        renderer.clear()
+        agg = renderer._renderer
+        marks = iter(dynamic)
+        for (name, args), box in zip(self.calls, self._boxes):
+            if name is None:
+                for dname, dargs in next(marks):
+                    getattr(agg, dname)(*dargs)
+            elif box is None or any(box[0] < r[1] and r[0] < box[1] and box[2] < r[3] and r[2] < box[3]
+                                    for r in rects):
+                getattr(agg, name)(*args)
+        out = self._static.copy()
+        buf = np.asarray(renderer.buffer_rgba())
+        for r0, r1, c0, c1 in rects:
+            out[r0:r1, c0:c1] = buf[r0:r1, c0:c1]
+        return out
+
+
+def _footprint(name, args, height, width, dpi):
+    """A conservative pixel rectangle (row0, row1, col0, col1; rows from the top, ends excluded, within the
+    canvas) that a recorded Agg call changes at most, or None when this function cannot bound it (such calls
+    are always replayed).  Paths and markers: their extents through their transforms, widened by twice the line
+    width (miter joins, caps, snapping) and 2 pixels of antialiasing; glyph bitmaps: their rectangle (rotated:
+    the disc the rotation sweeps); images: their rectangle; the clip rectangle bounds each."""
+    if name in ("draw_path", "draw_markers", "draw_quad_mesh") or (name == "draw_image" and len(args) == 4):
+        gc = args[0]
+    elif name == "draw_text_image" and len(args) == 5:
+        gc = args[4]
+    else:
+        return None
+    if gc.get_sketch_params() is not None:
+        return None
+    lw = float(gc.get_linewidth()) * dpi / 72.0
+    margin = 2.0 * lw + 2.0
+    if name == "draw_path":
+        _, path, transform = args[:3]
+        ext = path.get_extents(transform)
+        x0, y0, x1, y1 = ext.x0 - margin, ext.y0 - margin, ext.x1 + margin, ext.y1 + margin
+        rows = (height - y1, height - y0)
+        cols = (x0, x1)
+    elif name == "draw_markers":
+        _, marker_path, marker_trans, path, trans = args[:5]
+        verts = trans.transform(np.asarray(path.vertices, dtype=np.float64).reshape(-1, 2))
+        verts = verts[np.isfinite(verts).all(axis=1)]
+        if not len(verts):
+            return (0, 0, 0, 0)
+        m = marker_path.get_extents(marker_trans)
+        x0, x1 = verts[:, 0].min() + m.x0 - margin, verts[:, 0].max() + m.x1 + margin
+        y0, y1 = verts[:, 1].min() + m.y0 - margin, verts[:, 1].max() + m.y1 + margin
+        rows, cols = (height - y1, height - y0), (x0, x1)
+    elif name == "draw_quad_mesh":
+        _, master, _, _, coords, offsets, *_ = args
+        if np.size(offsets) and np.any(np.asarray(offsets) != 0):
+            return None
+        pts = master.transform(np.asarray(coords, dtype=np.float64).reshape(-1, 2))
+        x0, x1 = pts[:, 0].min() - margin, pts[:, 0].max() + margin
+        y0, y1 = pts[:, 1].min() - margin, pts[:, 1].max() + margin
+        rows, cols = (height - y1, height - y0), (x0, x1)
+    elif name == "draw_text_image":
+        image, x, y, angle = args[:4]
+        h, w = np.shape(image)[:2]
+        if angle == 0:
+            rows, cols = (y - h - 1, y + 1), (x - 1, x + w + 1)
+        else:
+            r = float(np.hypot(h, w)) + 4.0
+            rows, cols = (y - r, y + r), (x - r, x + r)
+    elif name == "draw_image" and len(args) == 4:
+        _, x, y, image = args
+        h, w = np.shape(image)[:2]
+        c0, r0 = int(x), int(height - (y + h))
+        rows, cols = (r0 - 1, r0 + h + 1), (c0 - 1, c0 + w + 1)
+    else:
+        return None
+    clip = gc.get_clip_rectangle()
+    if clip is not None:
+        cx0, cy0, cx1, cy1 = clip.extents
+        rows = (max(rows[0], height - cy1 - 2), min(rows[1], height - cy0 + 2))
+        cols = (max(cols[0], cx0 - 2), min(cols[1], cx1 + 2))
+    box = (rows[0], rows[1], cols[0], cols[1])
+    if not all(np.isfinite(box)):
+        return None
+    r0, r1 = max(0, int(np.floor(rows[0]))), min(height, int(np.ceil(rows[1])) + 1)
+    c0, c1 = max(0, int(np.floor(cols[0]))), min(width, int(np.ceil(cols[1])) + 1)
+    return (r0, max(r0, r1), c0, max(c0, c1))
 
 
 class _RecordingAgg:
     """Stands in for a RendererAgg's C++ renderer while a figure draws: forwards every call, and records the
     ``draw_*`` ones (arguments frozen) unless a dynamic artist is drawing."""
 
-    def __init__(self, calls):
+    def __init__(self, calls, forward: bool = True):
         self.real = None
         self._calls = calls
+        self.forward = forward  # false: record only (a dynamic artist's calls caught for the dirty-region replay)
         self.paused = None  # the dynamic artist drawing, if one is
         self.dynamic_calls = {}  # id(dynamic artist): its own calls (frozen), in order
 
@@ -276,7 +422,7 @@ class _RecordingAgg:
                 self._calls.append(frozen)
             else:
                 self.dynamic_calls.setdefault(id(self.paused), []).append(frozen)
-            return attr(*args)
+            return attr(*args) if self.forward else None
 
         return record
 
@@ -378,7 +524,8 @@ class _NearestImage:
         factor = np.ones(len(values), dtype=np.float32)  # the resampled mask's alpha: 1 inside, 0 outside
         factor[-1] = 0
         colours[:, 3] = colours[:, 3].astype(np.float32) * factor * image._get_scalar_alpha()
-        return colours[self.index]
+        colours = np.ascontiguousarray(colours, dtype=np.uint8).view(np.uint32)  # one gather per pixel
+        return colours[:, 0][self.index].view(np.uint8).reshape(self.index.shape + (4,))
 
     def draw(self, agg) -> None:
         agg.draw_image(self.gc, self.x, self.y, self.rgba())
