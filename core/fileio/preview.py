@@ -9,8 +9,11 @@ has a title, axes with units and a colour bar (or a legend) wherever it is made.
 field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at the top).
 
 A gated sweep's slices share one figure: the first is drawn in full, its drawing recorded, and the others
-replay it with their own pixels and title (:class:`FigureReplay`), byte for byte the PNGs new figures give, at
-35–45 % of the cost (docs/performance.md).
+replay it with their own pixels and title (:class:`FigureReplay`: only where those are drawn, the image by an
+index map), the same PNG bytes new figures give, at ≈ 5 % of a full draw's cost (docs/performance.md).  The
+previews' renderer lays out each distinct text once per process (:class:`_MemoFont`), and the PNGs are encoded
+by :func:`encode_png` (savefig's chunks, its pixels deflated more cheaply): matplotlib's own ``savefig`` gives
+the same decoded pixels and text chunks (tests/core/fileio/test_preview_encoding.py).
 
 Every PNG is written atomically (``staging.write_file_atomically``: a hidden temporary file, then
 ``os.replace``) and an existing file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks
@@ -25,6 +28,7 @@ import io
 import json
 import re
 import struct
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -166,8 +170,10 @@ class FigureReplay:
     ``draw_quad_mesh``, ``draw_image``) with their arguments.  The first draw records that sequence, its
     arguments frozen (copies of the graphics contexts, paths, transforms, glyph bitmaps); a later draw clears
     the canvas and replays it, calling the *dynamic* artists' own ``draw`` at their place in the order (so their
-    pixels are blended over exactly what lay under them), then encodes the PNG as ``savefig`` does
-    (``matplotlib.image.imsave`` of the canvas).  Right after recording, the replay of the first draw is compared
+    pixels are blended over exactly what lay under them), then encodes the canvas (:func:`encode_png`, as a full
+    draw's PNG is).  A nearest-neighbour ``AxesImage`` among the dynamic artists is drawn from an index map
+    (:class:`_NearestImage`), and later draws replay only the calls that can touch the dynamic artists' pixels
+    (``_pixels``: the dirty-region replay).  Right after recording, the replay of the first draw is compared
     pixel for pixel with the full draw; if it differs (a matplotlib whose Agg renderer works otherwise), every
     later draw is a full draw (``active`` is false).  Only valid while nothing but the dynamic artists' data
     changes (same figure size, colour scale, labels).
@@ -442,6 +448,9 @@ def _marked_draw(artist, recorder):
     return draw
 
 
+_RESAMPLE_LOCK = threading.Lock()
+
+
 class _NearestImage:
     """A cheaper way to the pixels a dynamic ``AxesImage`` with ``interpolation="nearest"`` gives the renderer
     (its one ``draw_image`` call), for :class:`FigureReplay`.
@@ -485,11 +494,12 @@ class _NearestImage:
                     caught.append((np.ndim(arr), out_shape, transform.frozen(), kwargs))
                 return real(image_obj, arr, out_shape, transform, **kwargs)
 
-            mimage._resample = catching
-            try:
-                im, l, b, _ = image.make_image(renderer, renderer.get_image_magnification())
-            finally:
-                mimage._resample = real
+            with _RESAMPLE_LOCK:  # one catch at a time (other images pass through it untouched)
+                mimage._resample = catching
+                try:
+                    im, l, b, _ = image.make_image(renderer, renderer.get_image_magnification())
+                finally:
+                    mimage._resample = real
             # the data stage: the data, then its mask (resample=True), both 2-D, on the same grid
             if (im is None or (l, b) != (x, y) or not np.array_equal(im, drawn) or len(caught) != 2
                     or caught[0][0] != 2 or caught[1][0] != 2 or caught[1][3].get("resample") is not True
@@ -848,8 +858,9 @@ def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str 
     ``reuse``: a dict kept by the caller across images (a gated sweep's slices): the first call lays the figure
     out, draws it in full and keeps it there; a later call with the same shape, unit, colour map and colour
     scale (the given ``vmin``/``vmax``, else the one its own data give) only swaps the pixels and the title and
-    replays the rest of the drawing (:class:`FigureReplay`: the same PNG bytes as a new figure's, ≈ 2.5×
-    faster with the PNG encoding, ≈ 5× without); any other call lays out a new figure."""
+    replays what it changes (:class:`FigureReplay`: the same PNG bytes as a new figure's; a gated example's
+    slice ≈ 12 ms with its encoding against ≈ 0.2 s for a new figure, docs/performance.md); any other call lays
+    out a new figure."""
     if reuse is None:
         return save_figure(false_colour_figure(image, title=title, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
                                                zero_based=zero_based, log=log, settings=settings,
@@ -1166,6 +1177,7 @@ def preload() -> None:
     import matplotlib.ticker  # noqa: F401
 
     matplotlib.font_manager.fontManager  # noqa: B018  (loads the font list)
+    _text_memo_classes()
 
 
 def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None, chosen=None) -> list[Path]:
