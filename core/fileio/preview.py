@@ -653,10 +653,13 @@ class _MemoFont:
             else:
                 font.set_text(s, angle, flags=flags)
             entry = dict(entry or {}, wh=font.get_width_height(), descent=font.get_descent())
-            if what not in entry:  # a bitmap, drawn as matplotlib draws it, then its offset
-                font.draw_glyphs_to_bitmap(antialiased=what[1])
-                entry[("offset", what[1])] = font.get_bitmap_offset()
-                entry[("image", what[1])] = np.array(font, dtype=np.uint8, copy=True)
+            # the bitmap, drawn as matplotlib draws it, then its offset: the one asked for, or (a text being
+            # measured, to be drawn next) the antialiased one, saving FreeType's second layout of it
+            antialiased = what[1] if isinstance(what, tuple) else True
+            if ("image", antialiased) not in entry:
+                font.draw_glyphs_to_bitmap(antialiased=antialiased)
+                entry[("offset", antialiased)] = font.get_bitmap_offset()
+                entry[("image", antialiased)] = np.array(font, dtype=np.uint8, copy=True)
             if len(_TEXT_MEMO) >= _TEXT_MEMO_MAX:
                 _TEXT_MEMO.clear()
             _TEXT_MEMO[self._key] = entry
