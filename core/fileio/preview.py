@@ -10,7 +10,7 @@ field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at 
 
 A gated sweep's slices share one figure: the first is drawn in full, its drawing recorded, and the others
 replay it with their own pixels and title (:class:`FigureReplay`: only where those are drawn, the image by an
-index map), the same PNG bytes new figures give, at ≈ 5 % of a full draw's cost (docs/performance.md).  The
+index map), the same PNG bytes new figures give, at ≈ 6 % of a full draw's cost (docs/performance.md).  The
 previews' renderer lays out each distinct text once per process (:class:`_MemoFont`), and the PNGs are encoded
 by :func:`encode_png` (savefig's chunks, its pixels deflated more cheaply): matplotlib's own ``savefig`` gives
 the same decoded pixels and text chunks (tests/core/fileio/test_preview_encoding.py).
@@ -115,7 +115,7 @@ def encode_png(rgba, *, dpi: float, metadata: dict) -> bytes:
     Pillow's own encoding of a 1×1 image with that information, and one ``IDAT`` whose rows are unfiltered
     (filter type 0) and deflated by zlib at level :data:`PNG_ZLIB_LEVEL`, where Pillow tries every PNG filter on
     every row and deflates at level 6.  The decoded pixels are the same; encoding a 640×426 preview takes
-    ≈ 4 ms instead of ≈ 18 ms, and the file is ≈ 35 % larger (docs/performance.md, session 32)."""
+    ≈ 4 ms instead of ≈ 18 ms, and the file is ≈ 10–15 % larger (docs/performance.md, session 32)."""
     import zlib
 
     rgba = np.ascontiguousarray(rgba, dtype=np.uint8)
@@ -862,7 +862,7 @@ def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str 
     out, draws it in full and keeps it there; a later call with the same shape, unit, colour map and colour
     scale (the given ``vmin``/``vmax``, else the one its own data give) only swaps the pixels and the title and
     replays what it changes (:class:`FigureReplay`: the same PNG bytes as a new figure's; a gated example's
-    slice ≈ 12 ms with its encoding against ≈ 0.2 s for a new figure, docs/performance.md); any other call lays
+    slice ≈ 10 ms with its encoding against ≈ 0.17 s for a new figure, docs/performance.md); any other call lays
     out a new figure."""
     if reuse is None:
         return save_figure(false_colour_figure(image, title=title, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
