@@ -240,13 +240,13 @@ class FigureReplay:
                 if fast is not None:
                     self._fast[id(artist)] = fast
             drawn = np.array(canvas.buffer_rgba(), copy=True)
-            try:
-                self._replay()
-                self.active = bool(np.array_equal(np.asarray(canvas.buffer_rgba()), drawn))
-            except Exception:  # noqa: BLE001 - any trouble replaying: full draws, as before
-                self.active = False
-            if self.active:
-                self._prepare_dirty(drawn)
+            self._prepare_dirty(drawn)  # checked against the full draw: then the full replay is not needed
+            if self._static is None:
+                try:
+                    self._replay()
+                    self.active = bool(np.array_equal(np.asarray(canvas.buffer_rgba()), drawn))
+                except Exception:  # noqa: BLE001 - any trouble replaying: full draws, as before
+                    self.active = False
         return data
 
     def _replay(self) -> None:
@@ -545,7 +545,7 @@ def _frozen(arg):
     """A copy of a renderer call's argument that later changes to the figure's objects cannot alter: graphics
     contexts (shallow: their attributes are replaced, never mutated), paths, transforms (their matrix now),
     arrays, and anything exposing a buffer (a glyph bitmap: matplotlib's font object is reused for the next
-    text)."""
+    text; the previews' :class:`_MemoFont` gives its bitmap as an array)."""
     from matplotlib.backend_bases import GraphicsContextBase
     from matplotlib.path import Path as MplPath
     from matplotlib.transforms import Transform
@@ -567,6 +567,8 @@ def _frozen(arg):
         return arg.frozen()
     if isinstance(arg, (list, tuple)):
         return type(arg)(_frozen(a) for a in arg)
+    if isinstance(arg, _MemoFont):  # its glyph bitmap now, whatever the memo and the font's properties do later
+        return np.array(arg, dtype=np.uint8, copy=True)
     try:
         return np.array(memoryview(arg), copy=True)
     except TypeError:
@@ -631,8 +633,8 @@ class _MemoFont:
 
         self._renderer, self._prop = renderer, prop
         paths = fontManager._find_fonts_by_props(prop)
-        self._base = (tuple(str(p) for p in paths), matplotlib.rcParams["text.hinting_factor"],
-                      matplotlib.rcParams["text.kerning_factor"], float(prop.get_size_in_points()),
+        self._base = (tuple(str(p) for p in paths), matplotlib.rcParams.get("text.hinting_factor"),
+                      matplotlib.rcParams.get("text.kerning_factor"), float(prop.get_size_in_points()),
                       float(renderer.dpi))
         self._key = None
         self._antialiased = None
