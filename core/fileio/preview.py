@@ -240,13 +240,13 @@ class FigureReplay:
                 if fast is not None:
                     self._fast[id(artist)] = fast
             drawn = np.array(canvas.buffer_rgba(), copy=True)
-            self._prepare_dirty(drawn)  # checked against the full draw: then the full replay is not needed
-            if self._static is None:
-                try:
-                    self._replay()
-                    self.active = bool(np.array_equal(np.asarray(canvas.buffer_rgba()), drawn))
-                except Exception:  # noqa: BLE001 - any trouble replaying: full draws, as before
-                    self.active = False
+            try:
+                self._replay()
+                self.active = bool(np.array_equal(np.asarray(canvas.buffer_rgba()), drawn))
+            except Exception:  # noqa: BLE001 - any trouble replaying: full draws, as before
+                self.active = False
+            if self.active:
+                self._prepare_dirty(drawn)  # checked against the full draw too; if it fails, full replays
         return data
 
     def _replay(self) -> None:
