@@ -3,7 +3,7 @@
 
     python scripts/compare_runs.py RUN_A RUN_B [--ignore KEY ...] [--quiet]
 
-Every file in either folder (recursively) must exist in both and be byte-identical, with two exceptions:
+Every file in either folder (recursively) must exist in both and be byte-identical, with four exceptions:
 
 * ``*.json`` files (``metadata.json``, ``sequence.json``) are compared as JSON after dropping, at any depth, the
   keys that record when and with what the run was made: timing (``created_unix_s``, ``wall_time_s``,
@@ -14,7 +14,10 @@ Every file in either folder (recursively) must exist in both and be byte-identic
   zip container stamps each member with the time it was written;
 * ``*.las`` files are compared as header (all fields but the creation day/year and the offset to the points,
   which moves with the length of the JSON record), variable-length records (byte for byte, except the
-  simulator's JSON record, compared as JSON like the metadata) and point records (byte for byte).
+  simulator's JSON record, compared as JSON like the metadata) and point records (byte for byte);
+* ``*.png`` previews are compared as pictures: size, colour mode, the decoded pixels (every value), the text
+  chunks (``Software``, ``Title``, ``Description``) and the resolution, not as bytes (how the pixels are
+  compressed is not a result: session 32's previews deflate them otherwise than Pillow's ``savefig`` did).
 
 Exit code 0 when the folders hold the same results, 1 when they differ (each difference is printed), 2 on a
 usage error.  Used to show that a refactor changes no output (the four README examples, before and after).
@@ -104,6 +107,27 @@ def _las_differences(fa: Path, fb: Path, ignored: set[str]) -> list[str]:
     return out + ([] if pa == pb else ["point records differ"])
 
 
+def _png_differences(fa: Path, fb: Path) -> list[str]:
+    """The differences between two PNGs as pictures (size, mode, pixels, text chunks, resolution)."""
+    import numpy as np
+    from PIL import Image
+
+    with Image.open(fa) as ia, Image.open(fb) as ib:
+        pa, pb = np.asarray(ia), np.asarray(ib)
+        out = []
+        if (ia.size, ia.mode) != (ib.size, ib.mode):
+            return [f"picture differs ({ia.size[0]}x{ia.size[1]} {ia.mode} vs {ib.size[0]}x{ib.size[1]} {ib.mode})"]
+        if not np.array_equal(pa, pb):
+            n = int(np.any((pa != pb).reshape(pa.shape[0], pa.shape[1], -1), axis=2).sum())
+            out.append(f"pixels differ ({n} of {pa.shape[0] * pa.shape[1]})")
+        if dict(ia.text) != dict(ib.text):
+            keys = sorted(k for k in set(ia.text) | set(ib.text) if ia.text.get(k) != ib.text.get(k))
+            out.append(f"text chunks differ ({', '.join(keys)})")
+        if ia.info.get("dpi") != ib.info.get("dpi"):
+            out.append(f"resolution differs ({ia.info.get('dpi')} vs {ib.info.get('dpi')})")
+    return out
+
+
 def compare(run_a: Path, run_b: Path, ignored: set[str]) -> tuple[list[str], int]:
     """(differences, number of files compared)."""
     files_a = {p.relative_to(run_a).as_posix() for p in run_a.rglob("*") if p.is_file()}
@@ -121,6 +145,8 @@ def compare(run_a: Path, run_b: Path, ignored: set[str]) -> tuple[list[str], int
             diffs += [f"{rel}: {d}" for d in _npz_differences(fa, fb)]
         elif rel.endswith(".las"):
             diffs += [f"{rel}: {d}" for d in _las_differences(fa, fb, ignored)]
+        elif rel.endswith(".png"):
+            diffs += [f"{rel}: {d}" for d in _png_differences(fa, fb)]
         elif fa.read_bytes() != fb.read_bytes():
             diffs.append(f"{rel}: bytes differ ({fa.stat().st_size} vs {fb.stat().st_size} bytes)")
     return diffs, len(common)

@@ -9,8 +9,11 @@ has a title, axes with units and a colour bar (or a legend) wherever it is made.
 field of view on angle axes (mrad from the boresight, +x right, +y up; row 0 at the top).
 
 A gated sweep's slices share one figure: the first is drawn in full, its drawing recorded, and the others
-replay it with their own pixels and title (:class:`FigureReplay`), byte for byte the PNGs new figures give, at
-35–45 % of the cost (docs/performance.md).
+replay it with their own pixels and title (:class:`FigureReplay`: only where those are drawn, the image by an
+index map), the same PNG bytes new figures give, at ≈ 6 % of a full draw's cost (docs/performance.md).  The
+previews' renderer lays out each distinct text once per process (:class:`_MemoFont`), and the PNGs are encoded
+by :func:`encode_png` (savefig's chunks, its pixels deflated more cheaply): matplotlib's own ``savefig`` gives
+the same decoded pixels and text chunks (tests/core/fileio/test_preview_encoding.py).
 
 Every PNG is written atomically (``staging.write_file_atomically``: a hidden temporary file, then
 ``os.replace``) and an existing file is never replaced unless ``overwrite`` is asked.  The PNG's text chunks
@@ -24,6 +27,8 @@ import functools
 import io
 import json
 import re
+import struct
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -85,10 +90,73 @@ def png_metadata(fig) -> dict:
 
 
 def figure_png(fig) -> bytes:
-    """The PNG bytes of a full draw of ``fig`` (matplotlib's ``savefig``)."""
+    """The PNG bytes of a full draw of ``fig`` (matplotlib's ``savefig``, its pixels encoded by
+    :func:`encode_png`)."""
+    return encode_png(figure_rgba(fig), dpi=fig.dpi, metadata=png_metadata(fig))
+
+
+def figure_rgba(fig) -> np.ndarray:
+    """A full draw of ``fig``: the (H, W, 4) uint8 pixels ``savefig`` would encode as a PNG (its ``rgba`` format:
+    the same draw of the canvas as its ``png``, then the canvas' buffer as it is)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata=png_metadata(fig))
-    return buf.getvalue()
+    fig.savefig(buf, format="rgba")
+    width, height = (int(v) for v in fig.canvas.get_width_height(physical=True))
+    return np.frombuffer(buf.getvalue(), dtype=np.uint8).reshape(height, width, 4)
+
+
+#: zlib level of the PNG previews' pixel data (:func:`encode_png`).
+PNG_ZLIB_LEVEL = 3
+
+
+def encode_png(rgba, *, dpi: float, metadata: dict) -> bytes:
+    """An 8-bit RGBA PNG of ``rgba`` ((H, W, 4) uint8, row 0 at the top), as matplotlib's ``savefig`` writes it
+    but for how the pixels are compressed: the same chunks in the same order and bytes (``IHDR``; the text chunks
+    ``Software`` = matplotlib's version, then ``metadata`` in its order; ``pHYs`` from ``dpi``), taken from
+    Pillow's own encoding of a 1×1 image with that information, and one ``IDAT`` whose rows are unfiltered
+    (filter type 0) and deflated by zlib at level :data:`PNG_ZLIB_LEVEL`, where Pillow tries every PNG filter on
+    every row and deflates at level 6.  The decoded pixels are the same; encoding a 640×426 preview takes
+    ≈ 4 ms instead of ≈ 18 ms, and the file is ≈ 10–15 % larger (docs/performance.md, session 32)."""
+    import zlib
+
+    rgba = np.ascontiguousarray(rgba, dtype=np.uint8)
+    if rgba.ndim != 3 or rgba.shape[2] != 4 or not rgba.shape[0] or not rgba.shape[1]:
+        raise ValueError(f"expected an (H, W, 4) RGBA image, got shape {rgba.shape}")
+    height, width = rgba.shape[:2]
+    rows = np.empty((height, 1 + 4 * width), dtype=np.uint8)
+    rows[:, 0] = 0
+    rows[:, 1:] = rgba.reshape(height, 4 * width)
+    head, tail = _png_info_chunks(float(dpi), tuple(metadata.items()))
+    ihdr = _png_chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0))
+    idat = _png_chunk(b"IDAT", zlib.compress(rows.tobytes(), PNG_ZLIB_LEVEL))
+    return b"".join((b"\x89PNG\r\n\x1a\n", ihdr, head, idat, tail))
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    import zlib
+
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(body, zlib.crc32(kind)))
+
+
+@functools.lru_cache(maxsize=64)
+def _png_info_chunks(dpi: float, items: tuple) -> tuple[bytes, bytes]:
+    """(the chunks between ``IHDR`` and the pixel data, those after it) of the PNG ``savefig`` writes with this
+    ``dpi`` and text ``metadata`` items: read from Pillow's PNG of a 1×1 image saved as ``matplotlib.image.imsave``
+    saves a figure (so a text that is not Latin-1 is an ``iTXt`` chunk, as Pillow decides)."""
+    from matplotlib.image import imsave
+
+    buf = io.BytesIO()
+    imsave(buf, np.zeros((1, 1, 4), dtype=np.uint8), format="png", origin="upper", dpi=dpi, metadata=dict(items))
+    data = buf.getvalue()
+    chunks, pos = [], 8
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos:pos + 4])
+        chunks.append((data[pos + 4:pos + 8], data[pos:pos + 12 + length]))
+        pos += 12 + length
+    kinds = [kind for kind, _ in chunks]
+    if kinds[0] != b"IHDR" or kinds.count(b"IDAT") != 1 or kinds[-1] != b"IEND":
+        raise RuntimeError(f"unexpected PNG from Pillow: chunks {kinds}")
+    at = kinds.index(b"IDAT")
+    return (b"".join(c for _, c in chunks[1:at]), b"".join(c for _, c in chunks[at + 1:]))
 
 
 class FigureReplay:
@@ -102,8 +170,10 @@ class FigureReplay:
     ``draw_quad_mesh``, ``draw_image``) with their arguments.  The first draw records that sequence, its
     arguments frozen (copies of the graphics contexts, paths, transforms, glyph bitmaps); a later draw clears
     the canvas and replays it, calling the *dynamic* artists' own ``draw`` at their place in the order (so their
-    pixels are blended over exactly what lay under them), then encodes the PNG as ``savefig`` does
-    (``matplotlib.image.imsave`` of the canvas).  Right after recording, the replay of the first draw is compared
+    pixels are blended over exactly what lay under them), then encodes the canvas (:func:`encode_png`, as a full
+    draw's PNG is).  A nearest-neighbour ``AxesImage`` among the dynamic artists is drawn from an index map
+    (:class:`_NearestImage`), and later draws replay only the calls that can touch the dynamic artists' pixels
+    (``_pixels``: the dirty-region replay).  Right after recording, the replay of the first draw is compared
     pixel for pixel with the full draw; if it differs (a matplotlib whose Agg renderer works otherwise), every
     later draw is a full draw (``active`` is false).  Only valid while nothing but the dynamic artists' data
     changes (same figure size, colour scale, labels).
@@ -115,6 +185,9 @@ class FigureReplay:
         self.calls = None
         self.active = False
         self._renderer = None
+        self._fast = {}  # id(dynamic artist): its _NearestImage
+        self._static = None  # the canvas with only the static calls drawn (the dirty-region replay's base)
+        self._boxes = None  # each recorded call's pixel footprint (_footprint), None for a mark
 
     def png(self, metadata: dict) -> bytes:
         """The figure's PNG (the first call draws and records it in full)."""
@@ -122,19 +195,11 @@ class FigureReplay:
             return self._record(metadata)
         if not self.active or self.fig.canvas.get_renderer() is not self._renderer:
             return self._savefig(metadata)  # replay unusable, or the figure's size changed: a full draw
-        from matplotlib.image import imsave
-
-        self._replay()
-        buf = io.BytesIO()
-        # exactly what FigureCanvasAgg.print_png does after its draw
-        imsave(buf, self.fig.canvas.buffer_rgba(), format="png", origin="upper", dpi=self.fig.dpi,
-               metadata=metadata, pil_kwargs=None)
-        return buf.getvalue()
+        # what FigureCanvasAgg.print_png encodes after its draw
+        return encode_png(self._pixels(), dpi=self.fig.dpi, metadata=metadata)
 
     def _savefig(self, metadata):
-        buf = io.BytesIO()
-        self.fig.savefig(buf, format="png", metadata=metadata)
-        return buf.getvalue()
+        return encode_png(figure_rgba(self.fig), dpi=self.fig.dpi, metadata=metadata)
 
     def _record(self, metadata) -> bytes:
         self.calls = []
@@ -170,33 +235,187 @@ class FigureReplay:
                        and all(any(m is a for m in marks) for a in self.dynamic))
         if self.active:
             self._renderer = used[0]
+            for artist in self.dynamic:
+                fast = _NearestImage.build(artist, used[0], recorder.dynamic_calls.get(id(artist), ()))
+                if fast is not None:
+                    self._fast[id(artist)] = fast
             drawn = np.array(canvas.buffer_rgba(), copy=True)
             try:
                 self._replay()
                 self.active = bool(np.array_equal(np.asarray(canvas.buffer_rgba()), drawn))
             except Exception:  # noqa: BLE001 - any trouble replaying: full draws, as before
                 self.active = False
+            if self.active:
+                self._prepare_dirty(drawn)  # checked against the full draw too; if it fails, full replays
         return data
 
     def _replay(self) -> None:
+        """Clear the canvas and replay every recorded call, the dynamic artists drawing at their marks."""
         renderer = self.fig.canvas.get_renderer()
         renderer.clear()
         agg = renderer._renderer
         for name, args in self.calls:
             if name is None:
-                args.draw(renderer)
+                if id(args) in self._fast:
+                    self._fast[id(args)].draw(agg)
+                else:
+                    args.draw(renderer)
             else:
                 getattr(agg, name)(*args)
+
+    # -- the dirty-region replay ------------------------------------------------------------------------------
+    # The pixels a replay gives differ from those of the static calls alone only where a dynamic artist draws
+    # (the image's rectangle, the title's glyph bitmap).  A pixel's value is the blend, in order, of the calls
+    # that touch it, so inside those regions it suffices to replay the calls whose footprint (a conservative
+    # pixel rectangle, :func:`_footprint`; a call without one is always replayed) meets them, and outside them
+    # the static calls' canvas, drawn once, is the answer.  Checked on the recorded draw: if the result is not
+    # the full draw's pixels exactly, every later slice replays every call (as before).
+    def _prepare_dirty(self, drawn) -> None:
+        renderer = self.fig.canvas.get_renderer()
+        height, width = drawn.shape[:2]
+        try:
+            boxes = [None if name is None else _footprint(name, args, height, width, self.fig.dpi)
+                     for name, args in self.calls]
+            renderer.clear()
+            agg = renderer._renderer
+            for name, args in self.calls:
+                if name is not None:
+                    getattr(agg, name)(*args)
+            self._static, self._boxes = np.array(renderer.buffer_rgba(), copy=True), boxes
+            if not np.array_equal(self._pixels(), drawn):
+                self._static = self._boxes = None
+        except Exception:  # noqa: BLE001 - any trouble: every call replayed, as before
+            self._static = self._boxes = None
+
+    def _dynamic_calls(self, renderer) -> list:
+        """Each dynamic artist's renderer calls for its current data, caught (frozen), not drawn."""
+        out = []
+        for artist in self.dynamic:
+            fast = self._fast.get(id(artist))
+            if fast is not None:
+                out.append([("draw_image", (fast.gc, fast.x, fast.y, fast.rgba()))])
+                continue
+            calls = []
+            catcher = _RecordingAgg(calls, forward=False)
+            real = catcher.real = renderer._renderer
+            renderer._renderer = catcher
+            renderer._update_methods()
+            try:
+                type(artist).draw(artist, renderer)
+            finally:
+                renderer._renderer = real
+                renderer._update_methods()
+            out.append(calls)
+        return out
+
+    def _pixels(self) -> np.ndarray:
+        """The canvas' (H, W, 4) pixels after a replay with the dynamic artists' current data."""
+        canvas = self.fig.canvas
+        if self._static is None:
+            self._replay()
+            return np.asarray(canvas.buffer_rgba())
+        renderer = canvas.get_renderer()
+        height, width = self._static.shape[:2]
+        dynamic = self._dynamic_calls(renderer)
+        rects = [_footprint(name, args, height, width, self.fig.dpi) for calls in dynamic for name, args in calls]
+        if any(r is None for r in rects):
+            rects = [(0, height, 0, width)]
+        rects = [r for r in rects if r[0] < r[1] and r[2] < r[3]]
+        renderer.clear()
+        agg = renderer._renderer
+        marks = iter(dynamic)
+        for (name, args), box in zip(self.calls, self._boxes):
+            if name is None:
+                for dname, dargs in next(marks):
+                    getattr(agg, dname)(*dargs)
+            elif box is None or any(box[0] < r[1] and r[0] < box[1] and box[2] < r[3] and r[2] < box[3]
+                                    for r in rects):
+                getattr(agg, name)(*args)
+        out = self._static.copy()
+        buf = np.asarray(renderer.buffer_rgba())
+        for r0, r1, c0, c1 in rects:
+            out[r0:r1, c0:c1] = buf[r0:r1, c0:c1]
+        return out
+
+
+def _footprint(name, args, height, width, dpi):
+    """A conservative pixel rectangle (row0, row1, col0, col1; rows from the top, ends excluded, within the
+    canvas) that a recorded Agg call changes at most, or None when this function cannot bound it (such calls
+    are always replayed).  Paths and markers: their extents through their transforms, widened by twice the line
+    width (miter joins, caps, snapping) and 2 pixels of antialiasing; glyph bitmaps: their rectangle (rotated:
+    the disc the rotation sweeps); images: their rectangle; the clip rectangle bounds each."""
+    if name in ("draw_path", "draw_markers", "draw_quad_mesh") or (name == "draw_image" and len(args) == 4):
+        gc = args[0]
+    elif name == "draw_text_image" and len(args) == 5:
+        gc = args[4]
+    else:
+        return None
+    if gc.get_sketch_params() is not None:
+        return None
+    lw = float(gc.get_linewidth()) * dpi / 72.0
+    margin = 2.0 * lw + 2.0
+    if name == "draw_path":
+        _, path, transform = args[:3]
+        ext = path.get_extents(transform)
+        x0, y0, x1, y1 = ext.x0 - margin, ext.y0 - margin, ext.x1 + margin, ext.y1 + margin
+        rows = (height - y1, height - y0)
+        cols = (x0, x1)
+    elif name == "draw_markers":
+        _, marker_path, marker_trans, path, trans = args[:5]
+        verts = trans.transform(np.asarray(path.vertices, dtype=np.float64).reshape(-1, 2))
+        verts = verts[np.isfinite(verts).all(axis=1)]
+        if not len(verts):
+            return (0, 0, 0, 0)
+        m = marker_path.get_extents(marker_trans)
+        x0, x1 = verts[:, 0].min() + m.x0 - margin, verts[:, 0].max() + m.x1 + margin
+        y0, y1 = verts[:, 1].min() + m.y0 - margin, verts[:, 1].max() + m.y1 + margin
+        rows, cols = (height - y1, height - y0), (x0, x1)
+    elif name == "draw_quad_mesh":
+        _, master, _, _, coords, offsets, *_ = args
+        if np.size(offsets) and np.any(np.asarray(offsets) != 0):
+            return None
+        pts = master.transform(np.asarray(coords, dtype=np.float64).reshape(-1, 2))
+        x0, x1 = pts[:, 0].min() - margin, pts[:, 0].max() + margin
+        y0, y1 = pts[:, 1].min() - margin, pts[:, 1].max() + margin
+        rows, cols = (height - y1, height - y0), (x0, x1)
+    elif name == "draw_text_image":
+        image, x, y, angle = args[:4]
+        h, w = np.shape(image)[:2]
+        if angle == 0:
+            rows, cols = (y - h - 1, y + 1), (x - 1, x + w + 1)
+        else:
+            r = float(np.hypot(h, w)) + 4.0
+            rows, cols = (y - r, y + r), (x - r, x + r)
+    elif name == "draw_image" and len(args) == 4:
+        _, x, y, image = args
+        h, w = np.shape(image)[:2]
+        c0, r0 = int(x), int(height - (y + h))
+        rows, cols = (r0 - 1, r0 + h + 1), (c0 - 1, c0 + w + 1)
+    else:
+        return None
+    clip = gc.get_clip_rectangle()
+    if clip is not None:
+        cx0, cy0, cx1, cy1 = clip.extents
+        rows = (max(rows[0], height - cy1 - 2), min(rows[1], height - cy0 + 2))
+        cols = (max(cols[0], cx0 - 2), min(cols[1], cx1 + 2))
+    box = (rows[0], rows[1], cols[0], cols[1])
+    if not all(np.isfinite(box)):
+        return None
+    r0, r1 = max(0, int(np.floor(rows[0]))), min(height, int(np.ceil(rows[1])) + 1)
+    c0, c1 = max(0, int(np.floor(cols[0]))), min(width, int(np.ceil(cols[1])) + 1)
+    return (r0, max(r0, r1), c0, max(c0, c1))
 
 
 class _RecordingAgg:
     """Stands in for a RendererAgg's C++ renderer while a figure draws: forwards every call, and records the
     ``draw_*`` ones (arguments frozen) unless a dynamic artist is drawing."""
 
-    def __init__(self, calls):
+    def __init__(self, calls, forward: bool = True):
         self.real = None
         self._calls = calls
-        self.paused = False
+        self.forward = forward  # false: record only (a dynamic artist's calls caught for the dirty-region replay)
+        self.paused = None  # the dynamic artist drawing, if one is
+        self.dynamic_calls = {}  # id(dynamic artist): its own calls (frozen), in order
 
     def __getattr__(self, name):
         attr = getattr(self.real, name)
@@ -204,9 +423,12 @@ class _RecordingAgg:
             return attr
 
         def record(*args):
-            if not self.paused:
-                self._calls.append((name, tuple(_frozen(a) for a in args)))
-            return attr(*args)
+            frozen = (name, tuple(_frozen(a) for a in args))
+            if self.paused is None:
+                self._calls.append(frozen)
+            else:
+                self.dynamic_calls.setdefault(id(self.paused), []).append(frozen)
+            return attr(*args) if self.forward else None
 
         return record
 
@@ -217,20 +439,113 @@ def _marked_draw(artist, recorder):
 
     def draw(renderer):
         recorder._calls.append((None, artist))
-        recorder.paused = True
+        recorder.paused = artist
         try:
             return cls_draw(artist, renderer)
         finally:
-            recorder.paused = False
+            recorder.paused = None
 
     return draw
+
+
+_RESAMPLE_LOCK = threading.Lock()
+
+
+class _NearestImage:
+    """A cheaper way to the pixels a dynamic ``AxesImage`` with ``interpolation="nearest"`` gives the renderer
+    (its one ``draw_image`` call), for :class:`FigureReplay`.
+
+    matplotlib draws such an image by resampling its data to the output pixels (``_image.resample``, nearest
+    neighbour: each output pixel is a copy of one input pixel, or 0 outside the image), the mask likewise
+    (its alpha: 1, NaN where masked, 0 outside), then normalises and colour-maps the ≈ 10⁵ output pixels and
+    multiplies their alpha by the resampled one; every step after the resampling is element by element (the
+    norm with its fixed ``vmin``/``vmax``, the colour map's look-up table, the alpha product).  So the output
+    is the input's pixels normalised and colour-mapped *once* (a gated slice: 64 × 96 of them, not 397 × 265),
+    then gathered through the index map that the same resampling gives for an image of pixel numbers (one
+    extra entry, value 0 with alpha factor 0, stands for "outside").  ``build`` finds the map with matplotlib's
+    own resampler (the transform and output shape its drawing used, caught once), and returns ``None`` (the
+    artist draws itself, as before) unless the image resamples at the data stage with nearest neighbours, the
+    map is the same for the mask's resampling, and the pixels the map gives equal matplotlib's own for the
+    recorded draw exactly.  Valid while the data's shape and the norm's scale stay as recorded (a gated
+    sweep's reused figure: same shape, scale and colour map)."""
+
+    def __init__(self, image, gc, x, y, index, dtype):
+        self.image, self.gc, self.x, self.y, self.index, self.dtype = image, gc, x, y, index, dtype
+
+    @classmethod
+    def build(cls, image, renderer, calls):
+        from matplotlib import colors as mcolors
+        from matplotlib import image as mimage
+
+        try:
+            if (not isinstance(image, mimage.AxesImage) or image.get_interpolation() != "nearest"
+                    or len(calls) != 1 or calls[0][0] != "draw_image" or len(calls[0][1]) != 4
+                    or isinstance(image.norm, mcolors.NoNorm) or not hasattr(mimage, "_resample")):
+                return None
+            data = image.get_array()
+            if data is None or data.ndim != 2 or np.asarray(data).dtype.kind != "f":
+                return None
+            gc, x, y, drawn = calls[0][1]
+            caught = []
+            real = mimage._resample
+
+            def catching(image_obj, arr, out_shape, transform, **kwargs):
+                if image_obj is image:
+                    caught.append((np.ndim(arr), out_shape, transform.frozen(), kwargs))
+                return real(image_obj, arr, out_shape, transform, **kwargs)
+
+            with _RESAMPLE_LOCK:  # one catch at a time (other images pass through it untouched)
+                mimage._resample = catching
+                try:
+                    im, l, b, _ = image.make_image(renderer, renderer.get_image_magnification())
+                finally:
+                    mimage._resample = real
+            # the data stage: the data, then its mask (resample=True), both 2-D, on the same grid
+            if (im is None or (l, b) != (x, y) or not np.array_equal(im, drawn) or len(caught) != 2
+                    or caught[0][0] != 2 or caught[1][0] != 2 or caught[1][3].get("resample") is not True
+                    or caught[0][1] != caught[1][1]):
+                return None
+            h, w = data.shape
+            numbers = np.arange(1, h * w + 1, dtype=np.float64).reshape(h, w)
+            at = real(image, numbers, caught[0][1], caught[0][2], **caught[0][3])
+            at_mask = real(image, numbers, caught[1][1], caught[1][2], **caught[1][3])
+            if not (np.array_equal(at, at_mask) and np.array_equal(at, np.round(at))
+                    and at.min() >= 0 and at.max() <= h * w):
+                return None
+            index = at.astype(np.intp) - 1
+            index[index < 0] = h * w  # outside the image: the extra entry
+            dtype = np.dtype("f8" if np.asarray(data).dtype.itemsize > 4 else "f4")
+            fast = cls(image, gc, x, y, index, dtype)
+            return fast if np.array_equal(fast.rgba(), drawn) else None
+        except Exception:  # noqa: BLE001 - anything unexpected: the artist draws itself, as before
+            return None
+
+    def rgba(self) -> np.ndarray:
+        """The (H, W, 4) uint8 pixels matplotlib's ``make_image`` gives for the image's current data."""
+        image = self.image
+        data = image.get_array()
+        values = np.asarray(np.ma.getdata(data)).astype(self.dtype)
+        mask = np.ma.getmask(data)
+        mask = (np.asarray(mask, dtype=bool) if np.shape(mask) == data.shape
+                else np.zeros(data.shape, dtype=bool))
+        values = np.append(values.ravel(), values.dtype.type(0))
+        mask = np.append(mask.ravel(), False)
+        colours = image.to_rgba(image.norm(np.ma.masked_array(values, mask)), bytes=True, norm=False)
+        factor = np.ones(len(values), dtype=np.float32)  # the resampled mask's alpha: 1 inside, 0 outside
+        factor[-1] = 0
+        colours[:, 3] = colours[:, 3].astype(np.float32) * factor * image._get_scalar_alpha()
+        colours = np.ascontiguousarray(colours, dtype=np.uint8).view(np.uint32)  # one gather per pixel
+        return colours[:, 0][self.index].view(np.uint8).reshape(self.index.shape + (4,))
+
+    def draw(self, agg) -> None:
+        agg.draw_image(self.gc, self.x, self.y, self.rgba())
 
 
 def _frozen(arg):
     """A copy of a renderer call's argument that later changes to the figure's objects cannot alter: graphics
     contexts (shallow: their attributes are replaced, never mutated), paths, transforms (their matrix now),
     arrays, and anything exposing a buffer (a glyph bitmap: matplotlib's font object is reused for the next
-    text)."""
+    text; the previews' :class:`_MemoFont` gives its bitmap as an array)."""
     from matplotlib.backend_bases import GraphicsContextBase
     from matplotlib.path import Path as MplPath
     from matplotlib.transforms import Transform
@@ -242,11 +557,18 @@ def _frozen(arg):
     if isinstance(arg, GraphicsContextBase):
         return copy.copy(arg)
     if isinstance(arg, MplPath):
-        return copy.deepcopy(arg)
+        if arg.readonly:  # its arrays cannot change
+            return arg
+        frozen = copy.copy(arg)  # what copy.deepcopy gives (its other attributes are numbers), cheaper
+        frozen._vertices = np.array(arg.vertices, copy=True)
+        frozen._codes = None if arg.codes is None else np.array(arg.codes, copy=True)
+        return frozen
     if isinstance(arg, Transform):
         return arg.frozen()
     if isinstance(arg, (list, tuple)):
         return type(arg)(_frozen(a) for a in arg)
+    if isinstance(arg, _MemoFont):  # its glyph bitmap now, whatever the memo and the font's properties do later
+        return np.array(arg, dtype=np.uint8, copy=True)
     try:
         return np.array(memoryview(arg), copy=True)
     except TypeError:
@@ -258,13 +580,109 @@ def figure_title(fig) -> str:
 
 
 def new_figure(width_in: float, height_in: float):
-    """A matplotlib Figure on an Agg canvas (no pyplot), 100 dpi."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    """A matplotlib Figure on an Agg canvas (no pyplot), 100 dpi, whose renderer lays out and rasterizes each
+    distinct text once per process (:func:`_text_memo_classes`)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(width_in, height_in), dpi=100)
-    FigureCanvasAgg(fig)
+    _text_memo_classes()[0](fig)
     return fig
+
+
+#: (font files, hinting factor, kerning factor, size, dpi, text, angle, hinting flags) → what FreeType gave
+_TEXT_MEMO: dict = {}
+_TEXT_MEMO_MAX = 4096
+
+
+@functools.cache
+def _text_memo_classes():
+    """(the previews' canvas class, its renderer class): FigureCanvasAgg and RendererAgg, except that the
+    renderer's fonts are :class:`_MemoFont` stand-ins.
+
+    matplotlib's Agg renderer lays out every text twice (once to measure it, once to draw it), each time on a
+    font it has just cleared, so FreeType loads and hints every glyph again: a preview's tick labels, axis
+    labels and title took ≈ 0.9 ms each, ≈ 0.19 s of the gated example's 33 PNGs, for 61 distinct strings in
+    220 calls.  The font's answers after ``set_text`` (size, descent, glyph bitmap and its offset) depend only
+    on the font files, the hinting and kerning settings, the size, the dpi, the text, the angle and the hinting
+    flags; the stand-in keeps them, keyed by exactly those, and asks FreeType only for a key it has not seen
+    (in the order matplotlib does), so every drawn pixel is what a new font would give."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
+
+    class PreviewRendererAgg(RendererAgg):
+        def _prepare_font(self, font_prop):
+            return _MemoFont(self, font_prop)
+
+    class PreviewCanvasAgg(FigureCanvasAgg):
+        def get_renderer(self):
+            renderer = super().get_renderer()
+            if type(renderer) is RendererAgg:
+                renderer.__class__ = PreviewRendererAgg
+            return renderer
+
+    return PreviewCanvasAgg, PreviewRendererAgg
+
+
+class _MemoFont:
+    """Stands in for the FT2Font a RendererAgg prepares for one text (:func:`_text_memo_classes`): ``set_text``,
+    then ``get_width_height``, ``get_descent``, ``draw_glyphs_to_bitmap``, ``get_bitmap_offset`` and the glyph
+    bitmap (``__array__``, what ``draw_text_image`` reads), answered from :data:`_TEXT_MEMO`."""
+
+    def __init__(self, renderer, prop):
+        import matplotlib
+        from matplotlib.font_manager import fontManager
+
+        self._renderer, self._prop = renderer, prop
+        paths = fontManager._find_fonts_by_props(prop)
+        self._base = (tuple(str(p) for p in paths), matplotlib.rcParams.get("text.hinting_factor"),
+                      matplotlib.rcParams.get("text.kerning_factor"), float(prop.get_size_in_points()),
+                      float(renderer.dpi))
+        self._key = None
+        self._antialiased = None
+
+    def set_text(self, s, angle=0.0, flags=None):
+        self._key = self._base + (s, float(angle), flags)
+        self._antialiased = None
+
+    def _value(self, what):
+        entry = _TEXT_MEMO.get(self._key)
+        if entry is None or what not in entry:
+            from matplotlib.backends.backend_agg import RendererAgg
+
+            s, angle, flags = self._key[-3:]
+            font = RendererAgg._prepare_font(self._renderer, self._prop)  # cleared, sized
+            if flags is None:
+                font.set_text(s, angle)
+            else:
+                font.set_text(s, angle, flags=flags)
+            entry = dict(entry or {}, wh=font.get_width_height(), descent=font.get_descent())
+            # the bitmap, drawn as matplotlib draws it, then its offset: the one asked for, or (a text being
+            # measured, to be drawn next) the antialiased one, saving FreeType's second layout of it
+            antialiased = what[1] if isinstance(what, tuple) else True
+            if ("image", antialiased) not in entry:
+                font.draw_glyphs_to_bitmap(antialiased=antialiased)
+                entry[("offset", antialiased)] = font.get_bitmap_offset()
+                entry[("image", antialiased)] = np.array(font, dtype=np.uint8, copy=True)
+            if len(_TEXT_MEMO) >= _TEXT_MEMO_MAX:
+                _TEXT_MEMO.clear()
+            _TEXT_MEMO[self._key] = entry
+        return entry[what]
+
+    def get_width_height(self):
+        return self._value("wh")
+
+    def get_descent(self):
+        return self._value("descent")
+
+    def draw_glyphs_to_bitmap(self, antialiased=True):
+        self._antialiased = bool(antialiased)
+        self._value(("image", self._antialiased))
+
+    def get_bitmap_offset(self):
+        return self._value(("offset", self._antialiased))
+
+    def __array__(self, dtype=None, copy=None):
+        image = self._value(("image", self._antialiased))
+        return image if dtype is None else image.astype(dtype)
 
 
 def _cmap(name):
@@ -445,8 +863,9 @@ def false_colour_png(path, image, *, title: str = "", unit: str = "", cmap: str 
     ``reuse``: a dict kept by the caller across images (a gated sweep's slices): the first call lays the figure
     out, draws it in full and keeps it there; a later call with the same shape, unit, colour map and colour
     scale (the given ``vmin``/``vmax``, else the one its own data give) only swaps the pixels and the title and
-    replays the rest of the drawing (:class:`FigureReplay`: the same PNG bytes as a new figure's, ≈ 2.5×
-    faster with the PNG encoding, ≈ 5× without); any other call lays out a new figure."""
+    replays what it changes (:class:`FigureReplay`: the same PNG bytes as a new figure's; a gated example's
+    slice ≈ 10 ms with its encoding against ≈ 0.17 s for a new figure, docs/performance.md); any other call lays
+    out a new figure."""
     if reuse is None:
         return save_figure(false_colour_figure(image, title=title, unit=unit, cmap=cmap, vmin=vmin, vmax=vmax,
                                                zero_based=zero_based, log=log, settings=settings,
@@ -763,6 +1182,7 @@ def preload() -> None:
     import matplotlib.ticker  # noqa: F401
 
     matplotlib.font_manager.fontManager  # noqa: B018  (loads the font list)
+    _text_memo_classes()
 
 
 def _slice_previews(run_dir, slice_files, meta, unit, stop, step=lambda: None, chosen=None) -> list[Path]:
