@@ -156,9 +156,13 @@ def _claim() -> bool:
     import name, as each copy did before: two copies in numba's one JIT never define the same symbols, and no
     copy's kernels see another copy's module globals."""
     info = _funcdesc.FunctionDescriptor._get_function_info.__func__
-    if getattr(info, "ladar_owner", None) is not None:
-        return False
     me = sys.modules[__name__]
+    owner = getattr(info, "ladar_owner", None)
+    if owner is me:  # this module re-executed (importlib.reload): still the owner
+        me._canonical, me._real = info.ladar_maps
+        return True
+    if owner is not None:
+        return False
     prefix = IMPORT_NAME + "."
 
     def canonical(modname):
@@ -193,6 +197,7 @@ def _claim() -> bool:
         return sys.modules.get(name) or importlib.import_module(name)
 
     _get_function_info.ladar_owner = me
+    _get_function_info.ladar_maps = (canonical, real)
     _FunctionIdentity.from_function = classmethod(_from_function)
     _funcdesc.FunctionDescriptor.lookup_module = _lookup_module
     _funcdesc.FunctionDescriptor._get_function_info = classmethod(_get_function_info)
