@@ -9,9 +9,17 @@ cache (:class:`KernelCache`), which numba's ``cache=True`` would not do well for
   ``scripts/ladar_run.py`` installs the extension into a fresh temporary Blender user folder; a sweep worker
   receives the core in a new folder) compiled every kernel again.  Here the cache folder is named after a
   digest of the package's source (every ``.py`` file of core/, path within core/ and bytes) and the numba
-  version, and inside it after the core's import name (``core`` in a checkout, ``bl_ext.<repo>.ladar_simulator
-  .core`` as an extension, ``ladar_core_<digest>`` on a sweep worker: a compiled kernel refers to the modules
-  it was compiled in by name) and the file's folder *within* core/ — never by absolute path.  An entry's file
+  version, and inside it ``ladar_kernels`` and the file's folder *within* core/ — never by absolute path, and
+  not by the core's import name either (``core`` in a checkout, ``bl_ext.<repo>.ladar_simulator.core`` as an
+  extension, ``ladar_core_<digest>`` on a sweep worker): a compiled kernel refers to the modules it was compiled
+  in by name (numba's function descriptor, its symbol names, the environment that holds its module's globals),
+  so every kernel is compiled as if its module were ``ladar_kernels.<path within core>`` (numba's function
+  identity and descriptor name it so; the descriptor's module look-up and this cache's pickles map the name back
+  to the modules of the copy that runs), and one compiled kernel serves every import name of the same source.
+  The first copy of the core imported in a process owns that name (:data:`SHARED`); a second copy in the same
+  process (a benchmark's ``core_base``, a test's copy) keeps its import name for numba and files its kernels
+  under CACHE_DIR / its import name (:data:`KERNEL_DIR`), as every copy did before: two copies never define the
+  same symbols in numba's one JIT, and no copy's kernels run on another copy's module globals.  An entry's file
   name is the kernel, its line and a digest of numba's key (signature, CPU name and features, bytecode), so
   the CPU decides the machine code as before (``NUMBA_CPU_NAME`` included).  A change to any core file gives a
   new digest: a kernel holds the kernels and module constants (tables) it calls from other files as they were
