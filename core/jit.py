@@ -9,9 +9,17 @@ cache (:class:`KernelCache`), which numba's ``cache=True`` would not do well for
   ``scripts/ladar_run.py`` installs the extension into a fresh temporary Blender user folder; a sweep worker
   receives the core in a new folder) compiled every kernel again.  Here the cache folder is named after a
   digest of the package's source (every ``.py`` file of core/, path within core/ and bytes) and the numba
-  version, and inside it after the core's import name (``core`` in a checkout, ``bl_ext.<repo>.ladar_simulator
-  .core`` as an extension, ``ladar_core_<digest>`` on a sweep worker: a compiled kernel refers to the modules
-  it was compiled in by name) and the file's folder *within* core/ — never by absolute path.  An entry's file
+  version, and inside it ``ladar_kernels`` and the file's folder *within* core/ — never by absolute path, and
+  not by the core's import name either (``core`` in a checkout, ``bl_ext.<repo>.ladar_simulator.core`` as an
+  extension, ``ladar_core_<digest>`` on a sweep worker): a compiled kernel refers to the modules it was compiled
+  in by name (numba's function descriptor, its symbol names, the environment that holds its module's globals),
+  so every kernel is compiled as if its module were ``ladar_kernels.<path within core>`` (numba's function
+  identity and descriptor name it so; the descriptor's module look-up and this cache's pickles map the name back
+  to the modules of the copy that runs), and one compiled kernel serves every import name of the same source.
+  The first copy of the core imported in a process owns that name (:data:`SHARED`); a second copy in the same
+  process (a benchmark's ``core_base``, a test's copy) keeps its import name for numba and files its kernels
+  under CACHE_DIR / its import name (:data:`KERNEL_DIR`), as every copy did before: two copies never define the
+  same symbols in numba's one JIT, and no copy's kernels run on another copy's module globals.  An entry's file
   name is the kernel, its line and a digest of numba's key (signature, CPU name and features, bytecode), so
   the CPU decides the machine code as before (``NUMBA_CPU_NAME`` included).  A change to any core file gives a
   new digest: a kernel holds the kernels and module constants (tables) it calls from other files as they were
@@ -41,6 +49,8 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
+import io
 import os
 import pickle
 import shutil
@@ -134,9 +144,88 @@ prune_stale_caches(CACHE_DIR)
 import numba  # noqa: E402
 import numba.extending  # noqa: E402
 from numba.core import caching as _caching  # noqa: E402
-from numba.core.serialize import dumps as _dumps  # noqa: E402
+from numba.core import funcdesc as _funcdesc  # noqa: E402
+from numba.core.bytecode import FunctionIdentity as _FunctionIdentity  # noqa: E402
+from numba.core.environment import Environment as _Environment  # noqa: E402
+from numba.core.serialize import NumbaPickler as _NumbaPickler  # noqa: E402
 
 from .process import deferred as _deferred  # noqa: E402
+
+#: The module name every kernel of the core is compiled under, whatever the core's import name: its modules are
+#: ``ladar_kernels.<path within core>`` to numba (symbol names, environments), so one compiled kernel serves
+#: ``core``, ``bl_ext.<repo>.ladar_simulator.core`` and ``ladar_core_<digest>`` alike (module docstring).
+CANONICAL = "ladar_kernels"
+
+
+def _claim() -> bool:
+    """Make this copy of the core the process's owner of :data:`CANONICAL` if no copy is: numba's function
+    identities and descriptors then name this copy's modules canonically (every kernel's symbols, environment
+    and module look-up).  A later copy (another import name, another source, a re-import) stays under its own
+    import name, as each copy did before: two copies in numba's one JIT never define the same symbols, and no
+    copy's kernels see another copy's module globals."""
+    info = _funcdesc.FunctionDescriptor._get_function_info.__func__
+    me = sys.modules[__name__]
+    owner = getattr(info, "ladar_owner", None)
+    if owner is me:  # this module re-executed (importlib.reload): still the owner
+        me._canonical, me._real = info.ladar_maps
+        return True
+    if owner is not None:
+        return False
+    prefix = IMPORT_NAME + "."
+
+    def canonical(modname):
+        if modname == IMPORT_NAME or (modname and modname.startswith(prefix)):
+            return CANONICAL + modname[len(IMPORT_NAME):]
+        return None
+
+    def real(modname):
+        if modname == CANONICAL or modname.startswith(CANONICAL + "."):
+            return IMPORT_NAME + modname[len(CANONICAL):]
+        return None
+
+    from_function = _FunctionIdentity.from_function.__func__
+    lookup_module = _funcdesc.FunctionDescriptor.lookup_module
+
+    def _from_function(cls, pyfunc):
+        self = from_function(cls, pyfunc)
+        name = canonical(self.modname)
+        if name is not None:
+            self.modname = name  # a recursive kernel's calls are named from this (numba typeinfer)
+        return self
+
+    def _get_function_info(cls, func_ir):
+        qualname, unique_name, modname, doc, args, kws, global_dict = info(cls, func_ir)
+        name = canonical(modname)
+        return qualname, unique_name, modname if name is None else name, doc, args, kws, global_dict
+
+    def _lookup_module(self):
+        name = real(self.modname)
+        if name is None:
+            return lookup_module(self)
+        return sys.modules.get(name) or importlib.import_module(name)
+
+    _get_function_info.ladar_owner = me
+    _get_function_info.ladar_maps = (canonical, real)
+    _FunctionIdentity.from_function = classmethod(_from_function)
+    _funcdesc.FunctionDescriptor.lookup_module = _lookup_module
+    _funcdesc.FunctionDescriptor._get_function_info = classmethod(_get_function_info)
+    me._canonical, me._real = canonical, real
+    return True
+
+
+def _canonical(modname):  # replaced by _claim in the owning copy
+    return None
+
+
+def _real(modname):  # replaced by _claim in the owning copy
+    return None
+
+
+#: This copy of the core owns :data:`CANONICAL` in this process (the first copy imported does).
+SHARED = _claim()
+#: The folder of this copy's kernels: CACHE_DIR / ``ladar_kernels`` (shared by every import name of the source),
+#: or CACHE_DIR / import name for a second copy of the core in one process.
+KERNEL_DIR = CACHE_DIR / (CANONICAL if SHARED else IMPORT_NAME)
 
 #: What happened to the cache in this process (for the run's metadata and the tests): entries loaded,
 #: compiled and saved, and the notes printed.
@@ -157,13 +246,13 @@ def _note(kind: str, text: str) -> None:
 
 
 class _Locator(_caching._CacheLocator):
-    """Files a kernel of core/ under CACHE_DIR / import name / its folder within core/ (module docstring)."""
+    """Files a kernel of core/ under :data:`KERNEL_DIR` / its folder within core/ (module docstring)."""
 
     def __init__(self, py_func, py_file):
         self._py_file = py_file
         self._lineno = py_func.__code__.co_firstlineno
         rel = Path(py_file).resolve().parent.relative_to(ROOT).as_posix()
-        self._cache_path = str(CACHE_DIR / IMPORT_NAME / rel) if rel != "." else str(CACHE_DIR / IMPORT_NAME)
+        self._cache_path = str(KERNEL_DIR / rel) if rel != "." else str(KERNEL_DIR)
 
     def ensure_cache_path(self):
         os.makedirs(self._cache_path, exist_ok=True)
@@ -193,6 +282,60 @@ class _Impl(_caching.CompileResultCacheImpl):
 _MAGIC = b"LADARNB1"
 
 
+class _Pickler(_NumbaPickler):
+    """numba's pickler, naming this copy's modules canonically: an environment (a kernel's module globals and
+    constants) and a module-level class or function of the core are kept as (canonical module, name) and found
+    again in the loading copy's modules (:class:`_Unpickler`), never by the import name that compiled them."""
+
+    def persistent_id(self, obj):
+        if isinstance(obj, _Environment):
+            name = _canonical(obj.globals.get("__name__"))
+            if name is not None:
+                return ("env", name, list(obj.consts), obj.env_name)
+        elif isinstance(obj, type) or callable(obj):
+            name = _canonical(getattr(obj, "__module__", None))
+            qualname = getattr(obj, "__qualname__", None)
+            if name is not None and isinstance(qualname, str) and _resolve(_real(name), qualname) is obj:
+                return ("ref", name, qualname)
+        return None
+
+
+def _resolve(modname, qualname):
+    obj = sys.modules.get(modname) or importlib.import_module(modname)
+    for part in qualname.split("."):
+        obj = getattr(obj, part, None)
+    return obj
+
+
+class _Unpickler(pickle.Unpickler):
+    def persistent_load(self, pid):
+        kind, name = pid[0], _real(pid[1])
+        if name is None:  # an entry of the canonical folder in a copy that does not own the name: never filed so
+            raise _Damaged(f"an entry naming {pid[1]} in a copy that does not own {CANONICAL}")
+        if kind == "ref":
+            obj = _resolve(name, pid[2])
+            if obj is None:
+                raise _Damaged(f"{pid[1]}.{pid[2]} not found in {name}")
+            return obj
+        if kind == "env":
+            consts, env_name = pid[2], pid[3]
+            env = _Environment._memo.get(env_name)
+            if env is None:  # as numba's environment._rebuild_env, with the module of this copy
+                module = sys.modules.get(name) or importlib.import_module(name)
+                env = _Environment(module.__dict__)
+                env.consts[:] = consts
+                env.env_name = env_name
+                _Environment._memo[env_name] = env
+            return env
+        raise pickle.UnpicklingError(f"unknown persistent id {kind!r}")
+
+
+def _dumps(obj) -> bytes:
+    with io.BytesIO() as buf:
+        _Pickler(buf, protocol=4).dump(obj)
+        return buf.getvalue()
+
+
 class _EntryFiles:
     """One file per kernel and key: ``MAGIC | SHA-256 of the body | body``, the body a pickle of (source
     digest, key text, numba's payload).  Written to a temporary file and renamed into place."""
@@ -215,7 +358,7 @@ class _EntryFiles:
         body = blob[len(_MAGIC) + 32:]
         if blob[:len(_MAGIC)] != _MAGIC or hashlib.sha256(body).digest() != blob[len(_MAGIC):len(_MAGIC) + 32]:
             raise _Damaged(f"{os.path.basename(path)}: checksum mismatch")
-        digest, key_text, payload = pickle.loads(body)
+        digest, key_text, payload = _Unpickler(io.BytesIO(body)).load()
         if digest != _DIGEST or key_text != repr(key):
             raise _Damaged(f"{os.path.basename(path)}: an entry of another key")
         return payload

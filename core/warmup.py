@@ -21,7 +21,7 @@ import numpy as np
 from .config.settings import BRDFSettings, SimulationConfig
 from .geometry.motion import Trajectory
 from .geometry.scene import SceneGeometry
-from .jit import CACHE_DIR, IMPORT_NAME, cpu_key, kernel_report
+from .jit import KERNEL_DIR, cpu_key, kernel_report
 from .run import simulate
 
 C = 299_792_458.0
@@ -130,12 +130,13 @@ def _trajectory(cfg: SimulationConfig) -> Trajectory:
 
 
 def marker() -> Path:
-    """The file a finished warm-up leaves in this source's cache, for this import name and CPU."""
-    return CACHE_DIR / IMPORT_NAME / f"WARM-{cpu_key()}"
+    """The file a finished warm-up leaves in this source's kernel folder (core/jit.py ``KERNEL_DIR``: every
+    import name's, or a second copy's own) for this CPU."""
+    return KERNEL_DIR / f"WARM-{cpu_key()}"
 
 
 def is_warm() -> bool:
-    """A warm-up of this source, import name and CPU has finished (its kernels are in the cache)."""
+    """A warm-up of this source and CPU has finished in this kernel folder (its kernels are in the cache)."""
     try:
         return marker().is_file()
     except OSError:
