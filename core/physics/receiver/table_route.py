@@ -6,6 +6,7 @@ compiled kernels; the few per-bin draws from NumPy generators.  Used by :func:`.
 """
 from __future__ import annotations
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -179,15 +180,29 @@ def _fused_tail(idx, n, p, rng, key, of):
     tb = _stream_table(p["b_mult"]) if p["b_mult"] > 0 else None
     td = _stream_table(p["ds"]) if p["ds"] > 0 else None
     k = np.uint64(0 if key is None else key)
-    shape = np.empty(n.size)
+    ws = _tail_scratch()
+    shape = scratch(ws, "shape", n.size, np.float64)
     _tail_shapes(n, a, k, *(tb if tb is not None else _NO_TABLE), tb is not None, shape)
-    g = rng.standard_gamma(shape)
-    z = rng.standard_normal(n.size) if p["sigma_r"] > 0 else shape[:0]
+    g = rng.standard_gamma(shape, out=shape)  # (in place: the same numbers as a new array)
+    z = shape[:0]
+    if p["sigma_r"] > 0:
+        z = rng.standard_normal(out=scratch(ws, "z", n.size, np.float64))
     step = adc_step_e(p["bits"], p["fs"])
     lo, hi = _tail_codes(idx, g, theta, k, *(td if td is not None else _NO_TABLE), td is not None, n.size,
                          float(p["sigma_r"]), z, np.float32(1.0 / step), np.float32(p["offset"]),
                          p["offset"] != 0, float(2 ** int(p["bits"]) - 1), of)
     return int(lo), int(hi)
+
+
+_TAIL_SCRATCH = threading.local()
+
+
+def _tail_scratch() -> dict:
+    """This thread's scratch arrays of :func:`_fused_tail` (kept: fresh 2 MB arrays cost their page faults)."""
+    ws = getattr(_TAIL_SCRATCH, "ws", None)
+    if ws is None:
+        ws = _TAIL_SCRATCH.ws = {}
+    return ws
 
 
 #: (cdf, k_lo, guide) standing in for an absent Poisson table (never read).
