@@ -161,9 +161,10 @@ class FootprintAveragedPattern:
 
             def band(k):
                 child = np.random.SeedSequence(seed_seq.entropy, spawn_key=tuple(seed_seq.spawn_key) + (k,))
-                rows = bands[k]
-                values[rows[0]:rows[-1] + 1] = np.random.default_rng(child).gamma(1.0 / var, var,
-                                                                                  (rows.size, shape[1]))
+                band_values = values[bands[k][0]:bands[k][-1] + 1]
+                # Gamma(1/var, scale var): NumPy's gamma is scale × standard_gamma, drawn in place (no temporary)
+                np.random.default_rng(child).standard_gamma(1.0 / var, out=band_values)
+                band_values *= var
 
             map_list(band, range(len(bands)), threads)
         else:

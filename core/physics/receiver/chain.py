@@ -142,7 +142,8 @@ def apply_receiver_chains(cubes, settings: ChainSettings, rngs, *, noise_table=T
     for bit (each cube's blocks, streams and tail parts are the same; only the threads' order of work changes),
     without a thread waiting at the end of each small cube (the statistical route's windows: one cube per window
     length, most of them a block or two)."""
-    plans = [_chain_plan(c, settings, r, noise_table) for c, r in zip(cubes, rngs)]
+    validate(settings.detector)  # (once: the same detector for every cube)
+    plans = [_chain_plan(c, settings, r, noise_table, checked=True) for c, r in zip(cubes, rngs)]
     todo = [k for k, pl in enumerate(plans) if not isinstance(pl, ChainOutput)]
     outs = list(plans)
     for k, o in zip(todo, run_chain_plans([plans[k] for k in todo])):
@@ -175,11 +176,12 @@ def run_chain_plans(plans) -> list:
     return [pl.finish(st) for pl, st in zip(plans, stats)]
 
 
-def _chain_plan(waveforms_j, settings: ChainSettings, rng, noise_table=True):
+def _chain_plan(waveforms_j, settings: ChainSettings, rng, noise_table=True, checked=False):
     """:func:`apply_receiver_chain` up to its blocks: a ChainOutput when nothing is left to draw in blocks (ideal
-    mode, Geiger), else a :class:`_ChainPlan`."""
+    mode, Geiger), else a :class:`_ChainPlan`.  ``checked``: the caller has validated ``settings.detector``."""
     det = settings.detector
-    validate(det)
+    if not checked:
+        validate(det)
     cube = np.asarray(waveforms_j)
     if cube.ndim != 3:
         raise ValueError(f"waveforms_j must be (H, W, B), got shape {cube.shape}")

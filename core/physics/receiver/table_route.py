@@ -6,6 +6,7 @@ compiled kernels; the few per-bin draws from NumPy generators.  Used by :func:`.
 """
 from __future__ import annotations
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -14,8 +15,10 @@ from ...jit import kernel
 from .adc import adc_convert
 from .code_tables import (CAUGHT_TABLES, SPLITMIX_GAMMA, CaughtCodeTables, CodeTable, noise_code_pmf, splitmix64_mix,
                           uniform_uint32)
-from .samplers import (POISSON_GRID_MAX, POISSON_INVERSION_MAX, gamma_gain, poisson_dense, poisson_grid,
-                       poisson_grid_tables, poisson_inversion, poisson_stream, stream_uniform53)
+from .conversions import adc_step_e
+from .samplers import (POISSON_GRID_MAX, POISSON_INVERSION_MAX, SCALAR_TABLE_MAX, gamma_gain, poisson_dense,
+                       poisson_grid, poisson_grid_tables, poisson_inversion, poisson_stream, scalar_poisson_table,
+                       stream_uniform53, table_inverse)
 
 #: Largest mean number of primaries per bin carried (float32 safe); larger means are clipped and reported.
 MEAN_CAP = 1e30
@@ -99,11 +102,11 @@ def process_block_table(E, out, new_rng, key, pkey, spk, p, ws, table) -> dict:
         lam, p0, u, todo, sig, cnt, big = (scratch(ws, k, nnz, t) for k, t in (
             ("lam", np.float64), ("p0", np.float64), ("u", np.float64), ("todo", np.int64), ("sig", np.int64),
             ("cnt", np.float64), ("big", np.int64)))
-        stats["n_mean_clipped"], n_todo = _signal_draws(ev, nz, p["k_sig"], spk_b, B, MEAN_CAP, pkey, lam, u, todo)
+        stats["n_mean_clipped"], n_todo, n_inv = _signal_draws(ev, nz, p["k_sig"], spk_b, B, MEAN_CAP, pkey, lam, u,
+                                                               todo, p0)
         todo = todo[:n_todo]
-        p0 = p0[:n_todo]
-        np.negative(lam[todo], out=p0)
-        np.exp(p0, out=p0)  # e^(−λ) of the undecided signal bins: NumPy's vectorised exp
+        p0 = p0[:n_inv]
+        np.exp(p0, out=p0)  # e^(−λ) of the undecided bins drawn by inversion (only): NumPy's vectorised exp
         n_sig, n_big = _signal_counts(nz, todo, lam, p0, u, sig, cnt, big, pkey, *poisson_grid_tables())
         sig, cnt = sig[:n_sig], cnt[:n_sig]
         if n_big:  # means ≥ POISSON_GRID_MAX: one exact rng.poisson each
@@ -153,6 +156,9 @@ def per_bin_tail(idx, n, p, rng, of):
     # the Poisson numbers (background + bulk dark primaries, surface dark electrons) from a counter-based stream
     # keyed by the part's generator (:func:`.samplers.poisson_stream`), the gains, read noise from the generator
     key = rng.integers(0, 2 ** 64, dtype=np.uint64) if p["shot"] and (p["b_mult"] > 0 or p["ds"] > 0) else None
+    if (p["shot"] and p["F"] > 1.0 + 1e-12 and p["bits"] <= 23 and p["b_mult"] <= SCALAR_TABLE_MAX
+            and p["ds"] <= SCALAR_TABLE_MAX and n.size):
+        return _fused_tail(idx, n, p, rng, key, of)
     if p["shot"] and p["b_mult"] > 0:
         n = n + poisson_stream(p["b_mult"], n.size, key, 0, rng)
     y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
@@ -163,6 +169,87 @@ def per_bin_tail(idx, n, p, rng, of):
     codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
     of[idx] = codes
     return lo, hi
+
+
+def _fused_tail(idx, n, p, rng, key, of):
+    """:func:`per_bin_tail` with shot noise, excess noise (F > 1) and an A/D of ≤ 23 bits (float32 work, as
+    :func:`.adc.adc_convert`): the same numbers in two compiled passes around NumPy's ``standard_gamma`` and
+    ``standard_normal`` (the generator's calls and their order unchanged): no temporaries, no NumPy passes.
+    Codes written into ``of``; returns (n_low, n_high)."""
+    a, theta = 1.0 / (p["F"] - 1.0), p["gain"] * (p["F"] - 1.0)
+    tb = _stream_table(p["b_mult"]) if p["b_mult"] > 0 else None
+    td = _stream_table(p["ds"]) if p["ds"] > 0 else None
+    k = np.uint64(0 if key is None else key)
+    ws = _tail_scratch()
+    shape = scratch(ws, "shape", n.size, np.float64)
+    _tail_shapes(n, a, k, *(tb if tb is not None else _NO_TABLE), tb is not None, shape)
+    g = rng.standard_gamma(shape, out=shape)  # (in place: the same numbers as a new array)
+    z = shape[:0]
+    if p["sigma_r"] > 0:
+        z = rng.standard_normal(out=scratch(ws, "z", n.size, np.float64))
+    step = adc_step_e(p["bits"], p["fs"])
+    lo, hi = _tail_codes(idx, g, theta, k, *(td if td is not None else _NO_TABLE), td is not None, n.size,
+                         float(p["sigma_r"]), z, np.float32(1.0 / step), np.float32(p["offset"]),
+                         p["offset"] != 0, float(2 ** int(p["bits"]) - 1), of)
+    return int(lo), int(hi)
+
+
+_TAIL_SCRATCH = threading.local()
+
+
+def _tail_scratch() -> dict:
+    """This thread's scratch arrays of :func:`_fused_tail` (kept: fresh 2 MB arrays cost their page faults)."""
+    ws = getattr(_TAIL_SCRATCH, "ws", None)
+    if ws is None:
+        ws = _TAIL_SCRATCH.ws = {}
+    return ws
+
+
+#: (cdf, k_lo, guide) standing in for an absent Poisson table (never read).
+_NO_TABLE = (np.ones(1), 0, np.zeros(1, np.int32))
+
+
+def _stream_table(lam):
+    return scalar_poisson_table(float(lam))
+
+
+@kernel
+def _tail_shapes(n, a, key, cdf, k_lo, guide, add, shape):
+    """shape[t] = float64(float32(n[t] + N_b)) · a, N_b the Poisson number of word t of the stream ``key`` on the
+    tabulated law (``add``; :func:`.samplers.poisson_stream`): per_bin_tail's gamma shapes, the same roundings."""
+    m = cdf.size
+    for t in range(n.size):
+        x = n[t]
+        if add:
+            x = x + np.float64(k_lo + table_inverse(stream_uniform53(key, t), cdf, 0, m, guide, 0))
+        shape[t] = np.float64(np.float32(x)) * a
+
+
+@kernel
+def _tail_codes(idx, g, theta, key, cdf, k_lo, guide, add, word0, sigma, z, inv_step, offset, has_offset, top, of):
+    """of[idx[t]] = the A/D code of float64(float32(g[t]·θ)) (+ the Poisson number of word word0 + t of the stream
+    ``key`` when ``add``) (+ σ·z[t] when z is not empty), converted as :func:`.adc.adc_convert` does in float32.
+    Returns (n_low, n_high)."""
+    m = cdf.size
+    n_low = 0
+    n_high = 0
+    for t in range(g.size):
+        y = np.float64(np.float32(g[t] * theta))
+        if add:
+            y = y + np.float64(k_lo + table_inverse(stream_uniform53(key, word0 + t), cdf, 0, m, guide, 0))
+        if z.size:
+            y = y + sigma * z[t]
+        w = np.rint(np.float32(y) * inv_step)
+        if has_offset:
+            w = w + offset
+        if w < 0:
+            n_low += 1
+            w = np.float32(0.0)
+        elif w > top:
+            n_high += 1
+            w = np.float32(top)
+        of[idx[t]] = w
+    return n_low, n_high
 
 
 #: Word offset of the second uniform of a signal bin whose mean is drawn by :func:`.samplers.poisson_grid`: word
@@ -176,13 +263,14 @@ _ZERO_MARGIN = 2.0 ** -40
 
 
 @kernel
-def _signal_draws(ev, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo):
+def _signal_draws(ev, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo, neg_lam):
     """The signal bins idx of a block, energies ``ev``: lam[q] = their mean signal primaries (ev·k_sig in
     float64, × the pixel's speckle factor when ``spk`` is not empty, clipped to ``cap``); u[q] = the 53-bit
     uniform (w ≫ 11)·2⁻⁵³ of word idx[q] of the counter-based stream ``pkey``; ``todo`` = the positions q whose
-    Poisson count is not already known to be 0 by u < (1 − λ) − :data:`_ZERO_MARGIN` (so e^(−λ) is computed
-    for those only).
-    Returns (number of means clipped, number of positions in todo)."""
+    Poisson count is not already known to be 0 by u < (1 − λ) − :data:`_ZERO_MARGIN`; ``neg_lam`` = −λ of
+    those of them below POISSON_INVERSION_MAX, in todo's order (e^(−λ) is computed for these only: the
+    larger means are drawn without it, :func:`_signal_counts`).
+    Returns (number of means clipped, number of positions in todo, number in neg_lam)."""
     n_clip = 0
     for q in range(idx.size):
         s = np.float64(ev[q]) * k_sig
@@ -196,23 +284,29 @@ def _signal_draws(ev, idx, k_sig, spk, n_bins, cap, pkey, lam, u, todo):
         w = splitmix64_mix(pkey + np.uint64(idx[q] + 1) * SPLITMIX_GAMMA)
         u[q] = np.float64(w >> np.uint64(11)) * (1.0 / 9007199254740992.0)
     n_todo = 0
+    n_inv = 0
     for q in range(idx.size):
         if not u[q] < (1.0 - lam[q]) - _ZERO_MARGIN:
             todo[n_todo] = q
             n_todo += 1
-    return n_clip, n_todo
+            if lam[q] < POISSON_INVERSION_MAX:
+                neg_lam[n_inv] = -lam[q]
+                n_inv += 1
+    return n_clip, n_todo, n_inv
 
 
 @kernel
 def _signal_counts(idx, todo, lam, p0, u, sig, cnt, big, pkey, cdf, off, kmin, guide, goff, step):
     """Poisson counts of the signal bins at the positions ``todo`` (in order; the others have count 0), with
-    means lam[q], uniforms u[q] and p0[t] = e^(−lam[todo[t]]): below POISSON_INVERSION_MAX by
+    means lam[q], uniforms u[q] and p0 = e^(−λ) of the positions in todo with a mean below POISSON_INVERSION_MAX,
+    in order (:func:`_signal_draws`): below POISSON_INVERSION_MAX by
     :func:`poisson_inversion`, below POISSON_GRID_MAX by :func:`poisson_grid` (u[q] and the 53-bit uniform of word
     idx[q] + SECOND_WORD of the stream ``pkey``; the grid tables: :func:`poisson_grid_tables`); the bins with a
     count > 0 listed in ``sig`` (bin index idx[q]) and ``cnt`` (float64 count); larger means listed in ``big``
     (position q) for ``rng.poisson``.  Returns (n_sig, n_big)."""
     n_sig = 0
     n_big = 0
+    i = 0  # position in p0 of the next bin drawn by inversion
     for t in range(todo.size):
         q = todo[t]
         s = lam[q]
@@ -226,10 +320,12 @@ def _signal_counts(idx, todo, lam, p0, u, sig, cnt, big, pkey, cdf, off, kmin, g
                 sig[n_sig] = idx[q]
                 cnt[n_sig] = k
                 n_sig += 1
-        elif u[q] >= p0[t]:  # (count 0 otherwise: decided without a call)
-            sig[n_sig] = idx[q]
-            cnt[n_sig] = poisson_inversion(s, p0[t], u[q])
-            n_sig += 1
+        else:
+            if u[q] >= p0[i]:  # (count 0 otherwise: decided without a call)
+                sig[n_sig] = idx[q]
+                cnt[n_sig] = poisson_inversion(s, p0[i], u[q])
+                n_sig += 1
+            i += 1
     return n_sig, n_big
 
 

@@ -119,3 +119,10 @@ def test_footprint_averaged_pattern_bands_independent_of_threads():
     assert abs(one.values.mean() - 1.0) <= 4 * np.sqrt(v / n)
     assert abs(one.values.var() - v) <= 4 * np.sqrt((6 * v + 2) / n) * v
     assert not np.array_equal(one.values[:64], one.values[64:128])  # the bands are different streams
+    # each band is NumPy's Gamma(1/v, v) of its own child stream (drawn in place since session 32: the same numbers)
+    from core.physics.propagation import PATTERN_BANDS
+    rows = np.array_split(np.arange(one.values.shape[0]), PATTERN_BANDS)
+    for k, r in enumerate(rows):
+        child = np.random.SeedSequence(seq.entropy, spawn_key=tuple(seq.spawn_key) + (k,))
+        want = np.random.default_rng(child).gamma(1.0 / v, v, (r.size, one.values.shape[1]))
+        assert np.array_equal(one.values[r[0]:r[-1] + 1], want)
