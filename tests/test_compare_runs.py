@@ -30,6 +30,17 @@ def test_timing_fields_are_ignored_and_everything_else_is_compared(tmp_path):
     assert any(d.startswith("points.bin: bytes differ") for d in diffs), diffs
 
 
+def test_nan_in_json_is_the_same_as_nan_and_differs_from_a_number(tmp_path):
+    """A statistic of no values is NaN in both runs (a sweep row's): the same result, not a difference (before:
+    NaN != NaN was reported); NaN against a number is still a difference."""
+    for name, value in (("a", float("nan")), ("b", float("nan")), ("c", 0.5)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metadata.json").write_text(json.dumps({"sweep": {"row": {"snr": value}}}))
+    assert compare_runs.compare(tmp_path / "a", tmp_path / "b", compare_runs.IGNORED_KEYS) == ([], 1)
+    diffs, _ = compare_runs.compare(tmp_path / "a", tmp_path / "c", compare_runs.IGNORED_KEYS)
+    assert len(diffs) == 1 and "sweep.row.snr" in diffs[0], diffs
+
+
 def _png(path: Path, pixels, **text):
     """``pixels`` as a PNG at ``path``: Pillow's own encoder (its filters, zlib level 6) unless ``level`` is given
     in ``text`` (then zlib at that level, no filters: other bytes for the same picture)."""
