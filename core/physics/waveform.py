@@ -483,33 +483,186 @@ def _table_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
             continue
         m = b1 - b0 + 1
         base = offset[pixel[i]] - start[pixel[i]] + b0
-        dst = values[base:base + m]
-        v0 = b0 - u[i]  # u of the return's first bin
-        k = kind[i]
-        e = energy[i]
         if m > buf.shape[0]:
             buf = np.empty(2 * m)
-        if k == 2:  # σ_eff = σ
-            buf[:m] = 0.0
-            a, b = box_a[i] * inv_dt, box_b[i] * inv_dt
-            hp, hm = 0.5 * (a + b), 0.5 * (a - b)
-            for x, sg in ((v0 - hp, 1.0), (v0 - hm, -1.0), (v0 + hm, -1.0), (v0 + hp, 1.0)):
-                _table_term(buf, m, x, sg, flat, _A2, _A1, -1.0, 0.0, 0.0, 0.0, 0.0, stride, u_min, n_col, rows, 2)
-            _add_positive(dst, buf, m, e / (a * b))
-        else:
-            dl = (sig[i] * inv_dt) ** 2 - sigma2  # δ = σ_eff² − σ² (bins²)
-            c2, c4, c6 = 0.5 * dl, dl * dl / 8.0, dl * dl * dl / 48.0
-            if k == 0:  # the σ_eff pulse: A₀ + (δ/2)A₀'' + (δ²/8)A₀⁗ + (δ³/48)A₀⁽⁶⁾
-                _impulse(dst, buf, m, v0, e, flat, c2, c4, c6, stride, u_min, n_col, rows)
-            else:  # A₁ of σ_eff: A₁'' = −A₀', A₁⁗ = −A₀''', A₁⁽⁶⁾ = −A₀⁽⁵⁾
-                buf[:m] = 0.0
-                a = box_a[i] * inv_dt
-                _table_term(buf, m, v0 - 0.5 * a, 1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min, n_col,
-                            rows, 1)
-                _table_term(buf, m, v0 + 0.5 * a, -1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min,
-                            n_col, rows, 1)
-                _add_positive(dst, buf, m, e / a)
+        _table_return(values[base:base + m], buf, 0, m, m, b0 - u[i], kind[i], energy[i], sig[i], box_a[i],
+                      box_b[i], inv_dt, sigma2, flat, stride, u_min, n_col, rows)
     return start, length, offset, values
+
+
+#: The detection windows (:func:`detection_windows`): each pixel's bins within this many σ_eff (bins) of its
+#: returns' boxes are binned first; beyond them a return adds at most φ(K)/σ_eff of its energy to a bin.
+DETECTION_CORE_SIGMAS = 3.5
+#: Per unit energy, the margin added to that bound for the table's own error (BoxTable.error_bound: ≤ 1e-9 at
+#: the tables the flash frames use, tests/core/physics/test_detection_windows.py).
+DETECTION_TABLE_SLACK = 1e-6
+#: A bin left out must lie below the detection threshold by this fraction (a flat top's bins are within 1e-7 of
+#: its peak: core/physics/detection/peaks.py ``_FLAT_RTOL``).
+DETECTION_THRESHOLD_MARGIN = 1e-6
+
+
+def detection_windows(pixel_local, time_s, energy_j, n_pixels, laser: LaserSettings, gate: RangeGateSettings,
+                      method: str, detection, *, spread_s=None) -> tuple[WaveformWindows, int]:
+    """The waveforms of :func:`accumulate_waveform_windows` binned only where the ideal receiver's echo detection
+    (:func:`core.physics.detection.peaks.detect_echoes_windows` with ``detection``, DetectionSettings) reads them:
+    the same echoes, bit for bit, for frames that keep no waveform (points only).
+
+    Table binning (``method`` ``table``; any other method, or no threshold at all, bins the whole windows): each
+    pixel's window is first cut to the bins within ``DETECTION_CORE_SIGMAS``·σ_eff of its returns' boxes and only
+    those bins are binned (each bin's value is the whole window's, bit for bit: :func:`_table_return`).  A bin
+    outside that cut is at least K = ``DETECTION_CORE_SIGMAS`` σ_eff from every return, so return i adds at most
+    E_i·(φ(K)/σ_i + ``DETECTION_TABLE_SLACK``) to it (σ_i in bins: the bin-integrated Gaussian is at most its
+    density at the nearest edge, a box or trapezoid the average of such pulses).  The cut stands when that bound
+    summed over the pixel's returns, and the cut's edge bins where it cut, lie below the threshold the detection
+    derives from the cut's largest bin (max(threshold_j, relative_threshold·peak)) by
+    ``DETECTION_THRESHOLD_MARGIN``: then no bin left out can be a candidate, a neighbour the detection reads,
+    a valley between candidates or the peak, and every candidate's neighbours lie inside the cut.  Otherwise the
+    pixel's whole window is binned.  Returns the windows and the number of pixels binned whole for that reason."""
+    pixel_local = np.asarray(pixel_local, dtype=np.int64)
+    if method != "table" or (detection.threshold_j <= 0.0 and detection.relative_threshold <= 0.0):
+        return accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, method,
+                                           spread_s=spread_s), 0
+    dt = gate.bin_width_s
+    sigma = pulse_sigma_s(laser)
+    tab = box_table(sigma / dt)
+    spread = (np.zeros((0, 2)) if spread_s is None
+              else np.ascontiguousarray(np.asarray(spread_s, dtype=np.float64).reshape(-1, 2)))
+    k = DETECTION_CORE_SIGMAS
+    start, length, offset, values, n_whole = _table_detection_kernel(
+        np.ascontiguousarray(pixel_local), np.ascontiguousarray(time_s, dtype=np.float64),
+        np.ascontiguousarray(energy_j, dtype=np.float64), spread, n_pixels, gate.gate_start_s, dt, gate.n_bins,
+        sigma, pulse_half_support_s(laser) / sigma, GAUSS_BOX_FOLD * sigma, spread_drop_s(laser), tab.flat,
+        tab.u_min, tab.n_col, tab.rows, k, math.exp(-0.5 * k * k) / math.sqrt(2.0 * math.pi),
+        DETECTION_TABLE_SLACK, float(detection.threshold_j), float(detection.relative_threshold),
+        DETECTION_THRESHOLD_MARGIN)
+    return WaveformWindows(start, length, offset, values, gate.n_bins), int(n_whole)
+
+
+@kernel
+def _table_detection_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio,
+                            fold, drop, flat, u_min, n_col, rows, k_sigmas, phi_k, slack, threshold_j,
+                            relative_threshold, margin):
+    """:func:`detection_windows`' table binning: the plan of :func:`_table_kernel`, each pixel's cut [cut_a, cut_b)
+    and bound, the returns binned over the cuts in ray order, the cuts checked, and the pixels whose cut does not
+    stand binned over their whole windows."""
+    u, lo, _, hi, sig, box_a, box_b, kind, _, start, length, offset = _plan_returns(
+        pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, 0.0,
+        half_ratio * sigma / dt, drop, 0.0)
+    n = time_s.shape[0]
+    inv_dt = 1.0 / dt
+    stride = (rows + 1) * n_col
+    sigma2 = (sigma * inv_dt) ** 2
+    left = np.full(n_pixels, np.inf)
+    right = np.full(n_pixels, -np.inf)
+    bound = np.zeros(n_pixels)
+    for i in range(n):
+        if hi[i] < lo[i]:
+            continue
+        p = pixel[i]
+        sb = sig[i] * inv_dt
+        reach = 0.5 * (box_a[i] + box_b[i]) * inv_dt + k_sigmas * sb + 1e-6  # (+1e-6 bins: the rounding here)
+        left[p] = min(left[p], u[i] - reach)
+        right[p] = max(right[p], u[i] + reach)
+        bound[p] += energy[i] * (phi_k / sb + slack)
+    cut_a = np.zeros(n_pixels, np.int64)
+    cut_len = np.zeros(n_pixels, np.int64)
+    cut_off = np.zeros(n_pixels + 1, np.int64)
+    for p in range(n_pixels):
+        cut_a[p] = start[p]
+        if length[p] > 0 and left[p] <= right[p]:  # (else no return adds to the window: it is all zeros)
+            a = max(start[p], int(math.floor(max(left[p], -1.0))))
+            b = min(start[p] + length[p], int(math.ceil(min(right[p], n_bins + 1.0))))
+            cut_a[p], cut_len[p] = a, max(b - a, 0)
+        cut_off[p + 1] = cut_off[p] + cut_len[p]
+    values = np.zeros(cut_off[n_pixels])
+    buf = np.empty(64)
+    for i in range(n):
+        b0, b1 = lo[i], hi[i]
+        if b1 < b0:
+            continue
+        p = pixel[i]
+        m = b1 - b0 + 1
+        ja = max(cut_a[p] - b0, 0)
+        jb = min(cut_a[p] + cut_len[p] - b0, m)
+        if jb <= ja:
+            continue
+        if m > buf.shape[0]:
+            buf = np.empty(2 * m)
+        base = cut_off[p] - cut_a[p] + b0
+        _table_return(values[base + ja:base + jb], buf, ja, jb, m, b0 - u[i], kind[i], energy[i], sig[i], box_a[i],
+                      box_b[i], inv_dt, sigma2, flat, stride, u_min, n_col, rows)
+    whole = np.zeros(n_pixels, np.bool_)
+    n_whole = 0
+    for p in range(n_pixels):
+        a, c = cut_a[p], cut_len[p]
+        clipped_left, clipped_right = a > start[p], a + c < start[p] + length[p]
+        if not (clipped_left or clipped_right):
+            continue
+        peak = 0.0
+        for j in range(c):
+            peak = max(peak, values[cut_off[p] + j])
+        limit = max(max(threshold_j, relative_threshold * peak), 0.0) * (1.0 - margin)
+        ok = bound[p] <= limit
+        if ok and clipped_left:
+            ok = values[cut_off[p]] <= limit
+        if ok and clipped_right:
+            ok = values[cut_off[p] + c - 1] <= limit
+        if not ok:
+            whole[p] = True
+            n_whole += 1
+    if n_whole == 0:
+        return cut_a, cut_len, cut_off, values, 0
+    # the pixels whose cut does not stand: their whole windows, binned again
+    w_start = np.where(whole, start, cut_a)
+    w_len = np.where(whole, length, cut_len)
+    w_off = np.zeros(n_pixels + 1, np.int64)
+    for p in range(n_pixels):
+        w_off[p + 1] = w_off[p] + w_len[p]
+    out = np.zeros(w_off[n_pixels])
+    for p in range(n_pixels):
+        if not whole[p]:
+            out[w_off[p]:w_off[p + 1]] = values[cut_off[p]:cut_off[p + 1]]
+    for i in range(n):
+        b0, b1 = lo[i], hi[i]
+        p = pixel[i]
+        if b1 < b0 or not whole[p]:
+            continue
+        m = b1 - b0 + 1
+        if m > buf.shape[0]:
+            buf = np.empty(2 * m)
+        base = w_off[p] - start[p] + b0
+        _table_return(out[base:base + m], buf, 0, m, m, b0 - u[i], kind[i], energy[i], sig[i], box_a[i], box_b[i],
+                      inv_dt, sigma2, flat, stride, u_min, n_col, rows)
+    return w_start, w_len, w_off, out, n_whole
+
+
+@kernel(inline=True)
+def _table_return(dst, buf, ja, jb, m, v0, k, e, sig, box_a, box_b, inv_dt, sigma2, flat, stride, u_min, n_col,
+                  rows):
+    """One return's table values over its bins j ∈ [ja, jb) of its m bins (``v0``: u of its first bin, j = 0)
+    added into ``dst`` (``dst[0]`` is bin ja); ``buf``: scratch of at least m.  Each bin's value is computed the
+    same way whatever [ja, jb) holds it (a sub-range gives the whole range's values there, bit for bit)."""
+    if k == 2:  # σ_eff = σ
+        buf[ja:jb] = 0.0
+        a, b = box_a * inv_dt, box_b * inv_dt
+        hp, hm = 0.5 * (a + b), 0.5 * (a - b)
+        for x, sg in ((v0 - hp, 1.0), (v0 - hm, -1.0), (v0 + hm, -1.0), (v0 + hp, 1.0)):
+            _table_term(buf, ja, jb, m, x, sg, flat, _A2, _A1, -1.0, 0.0, 0.0, 0.0, 0.0, stride, u_min, n_col, rows,
+                        2)
+        _add_positive(dst, buf[ja:jb], jb - ja, e / (a * b))
+    else:
+        dl = (sig * inv_dt) ** 2 - sigma2  # δ = σ_eff² − σ² (bins²)
+        c2, c4, c6 = 0.5 * dl, dl * dl / 8.0, dl * dl * dl / 48.0
+        if k == 0:  # the σ_eff pulse: A₀ + (δ/2)A₀'' + (δ²/8)A₀⁗ + (δ³/48)A₀⁽⁶⁾
+            _impulse(dst, buf, ja, jb, m, v0, e, flat, c2, c4, c6, stride, u_min, n_col, rows)
+        else:  # A₁ of σ_eff: A₁'' = −A₀', A₁⁗ = −A₀''', A₁⁽⁶⁾ = −A₀⁽⁵⁾
+            buf[ja:jb] = 0.0
+            a = box_a * inv_dt
+            _table_term(buf, ja, jb, m, v0 - 0.5 * a, 1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min,
+                        n_col, rows, 1)
+            _table_term(buf, ja, jb, m, v0 + 0.5 * a, -1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min,
+                        n_col, rows, 1)
+            _add_positive(dst, buf[ja:jb], jb - ja, e / a)
 
 
 @kernel(inline=True)
@@ -549,39 +702,41 @@ def _add4(out, w0, w1, w2, w3, x0, x1, x2, x3):
 
 
 @kernel(inline=True)
-def _impulse(dst, buf, m, x0, e, flat, c2, c4, c6, stride, u_min, n_col, rows):
-    """dst[j] += e·max(0, A₀ + c2·A₀'' + c4·A₀⁗ + c6·A₀⁽⁶⁾) at u = x0 + j (:func:`_table_term` for A₀, in three
-    passes: the first writes ``buf``, the last adds into ``dst``; A₀ is 0 beyond the table's columns)."""
+def _impulse(dst, buf, ja, jb, m, x0, e, flat, c2, c4, c6, stride, u_min, n_col, rows):
+    """dst[j − ja] += e·max(0, A₀ + c2·A₀'' + c4·A₀⁗ + c6·A₀⁽⁶⁾) at u = x0 + j, ja ≤ j < jb, of a return of m bins
+    (:func:`_table_term` for A₀, in three passes: the first writes ``buf``, the last adds into ``dst``; A₀ is 0
+    beyond the table's columns)."""
     r, s, q0, j_lo, j_hi = _hermite(x0, rows, u_min, n_col, m)
-    n = j_hi - j_lo
-    if n < m:  # (the table spans 7.5σ, the impulse's bins 6.1σ_eff: not reached)
-        buf[:m] = 0.0
-        _table_term(buf, m, x0, 1.0, flat, _A0, _A0 + 1, 1.0, c2, c4, c6, 1.0, stride, u_min, n_col, rows, 0)
-        _add_positive(dst, buf, m, e)
+    if j_hi - j_lo < m:  # (the table spans 7.5σ, the impulse's bins 6.1σ_eff: not reached; decided on all m bins)
+        buf[ja:jb] = 0.0
+        _table_term(buf, ja, jb, m, x0, 1.0, flat, _A0, _A0 + 1, 1.0, c2, c4, c6, 1.0, stride, u_min, n_col, rows, 0)
+        _add_positive(dst, buf[ja:jb], jb - ja, e)
         return
+    n = jb - ja
+    q = q0 + ja
     s1 = 1.0 - s
     h00, h01 = (1.0 + 2.0 * s) * s1 * s1, s * s * (3.0 - 2.0 * s)
     h10, h11 = s * s1 * s1 / rows, -s * s * s1 / rows
-    out = buf[:m]
-    f0, f1 = _rows(flat, _A0, r, q0, m, stride, n_col)
-    d0, d1 = _rows(flat, _A0 + 1, r, q0, m, stride, n_col)
-    x0, x1 = _rows(flat, _A0 + 2, r, q0, m, stride, n_col)
-    y0, y1 = _rows(flat, _A0 + 3, r, q0, m, stride, n_col)
+    out = buf[ja:jb]
+    f0, f1 = _rows(flat, _A0, r, q, n, stride, n_col)
+    d0, d1 = _rows(flat, _A0 + 1, r, q, n, stride, n_col)
+    x0, x1 = _rows(flat, _A0 + 2, r, q, n, stride, n_col)
+    y0, y1 = _rows(flat, _A0 + 3, r, q, n, stride, n_col)
     g00, g01, g10, g11 = c2 * h00, c2 * h01, c2 * h10, c2 * h11
-    for k in range(m):  # (eight arrays read, one written: vectorised)
+    for k in range(n):  # (eight arrays read, one written: vectorised)
         out[k] = (((h00 * f0[k] + h01 * f1[k]) + (h10 * d0[k] + h11 * d1[k]))
                   + ((g00 * x0[k] + g01 * x1[k]) + (g10 * y0[k] + g11 * y1[k])))
-    f0, f1 = _rows(flat, _A0 + 4, r, q0, m, stride, n_col)
-    d0, d1 = _rows(flat, _A0 + 6, r, q0, m, stride, n_col)
+    f0, f1 = _rows(flat, _A0 + 4, r, q, n, stride, n_col)
+    d0, d1 = _rows(flat, _A0 + 6, r, q, n, stride, n_col)
     w0, w1, w2, w3 = c4 * s1, c4 * s, c6 * s1, c6 * s
-    for k in range(m):  # (six arrays; vectorised)
+    for k in range(n):  # (six arrays; vectorised)
         w = (out[k] + ((w0 * f0[k] + w1 * f1[k]) + (w2 * d0[k] + w3 * d1[k]))) * e
         dst[k] += w if w > 0 else 0.0
 
 
 @kernel(inline=True)
-def _table_term(buf, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride, u_min, n_col, rows, order):
-    """buf[j] += sign·G(x0 + j), j < m, with G = F + c2·F'' + c4·F⁗ + c6·F⁽⁶⁾ and F the table's function ``fn``
+def _table_term(buf, ja, jb, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride, u_min, n_col, rows, order):
+    """buf[j] += sign·G(x0 + j), ja ≤ j < jb (of a return's m bins), with G = F + c2·F'' + c4·F⁗ + c6·F⁽⁶⁾ and F the table's function ``fn``
     (its derivative dsign·``dfn``): cubic Hermite for F and for c2·F'' (= ddf·A₀⁽ⁿ⁾ with its derivative next in the
     table), linear for c4·F⁗ and c6·F⁽⁶⁾ (ddf·A₀⁽ⁿ⁺²⁾, ddf·A₀⁽ⁿ⁺⁴⁾): for A₀ n = 2, ddf = 1; for A₁ n = 1,
     ddf = −1; for A₂ the c are 0.  Beyond the table's columns G takes F's limits (``order`` 1: 1 on the left; 2:
@@ -591,11 +746,12 @@ def _table_term(buf, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride,
     h00, h01 = (1.0 + 2.0 * s) * s1 * s1 * sign, s * s * (3.0 - 2.0 * s) * sign
     h10, h11 = s * s1 * s1 * sign / rows, -s * s * s1 * sign / rows
     if order == 1:
-        for j in range(j_lo):
+        for j in range(ja, min(j_lo, jb)):
             buf[j] += sign
     elif order == 2:
-        for j in range(j_lo):
+        for j in range(ja, min(j_lo, jb)):
             buf[j] += sign * (-(x0 + j) - 0.5)
+    j_lo, j_hi = max(j_lo, ja), min(j_hi, jb)
     n = j_hi - j_lo
     if n <= 0:
         return
