@@ -491,10 +491,11 @@ def _table_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
 
 
 #: The detection windows (:func:`detection_windows`): each pixel's bins within this many σ_eff (bins) of its
-#: returns' boxes are binned first; beyond them a return adds at most φ(K)/σ_eff of its energy to a bin.
-DETECTION_CORE_SIGMAS = 3.5
-#: Per unit energy, the margin added to that bound for the table's own error (BoxTable.error_bound: ≤ 1e-9 at
-#: the tables the flash frames use, tests/core/physics/test_detection_windows.py).
+#: returns' boxes are binned (3.5: 554k bins on issue 28's terrain frame, 3.0: 499k, 2.75: …, 2.5: … with …
+#: pixels binned whole; measured in session 32).
+DETECTION_CORE_SIGMAS = 2.75
+#: Per unit energy, a bound on the table's error in a bin's value (BoxTable.error_bound, over the kinds:
+#: tests/core/physics/test_detection_windows.py shows it 1000 times larger than the error of the tables in use).
 DETECTION_TABLE_SLACK = 1e-6
 #: A bin left out must lie below the detection threshold by this fraction (a flat top's bins are within 1e-7 of
 #: its peak: core/physics/detection/peaks.py ``_FLAT_RTOL``).
@@ -507,17 +508,19 @@ def detection_windows(pixel_local, time_s, energy_j, n_pixels, laser: LaserSetti
     (:func:`core.physics.detection.peaks.detect_echoes_windows` with ``detection``, DetectionSettings) reads them:
     the same echoes, bit for bit, for frames that keep no waveform (points only).
 
-    Table binning (``method`` ``table``; any other method, or no threshold at all, bins the whole windows): each
-    pixel's window is first cut to the bins within ``DETECTION_CORE_SIGMAS``·σ_eff of its returns' boxes and only
-    those bins are binned (each bin's value is the whole window's, bit for bit: :func:`_table_return`).  A bin
-    outside that cut is at least K = ``DETECTION_CORE_SIGMAS`` σ_eff from every return, so return i adds at most
-    E_i·(φ(K)/σ_i + ``DETECTION_TABLE_SLACK``) to it (σ_i in bins: the bin-integrated Gaussian is at most its
-    density at the nearest edge, a box or trapezoid the average of such pulses).  The cut stands when that bound
-    summed over the pixel's returns, and the cut's edge bins where it cut, lie below the threshold the detection
-    derives from the cut's largest bin (max(threshold_j, relative_threshold·peak)) by
-    ``DETECTION_THRESHOLD_MARGIN``: then no bin left out can be a candidate, a neighbour the detection reads,
-    a valley between candidates or the peak, and every candidate's neighbours lie inside the cut.  Otherwise the
-    pixel's whole window is binned.  Returns the windows and the number of pixels binned whole for that reason."""
+    Table binning only (another ``method``, or no threshold at all, bins the whole windows).  Each pixel's window
+    is cut to the bins within K = ``DETECTION_CORE_SIGMAS`` σ_eff of its returns' boxes, and only those bins are
+    binned (each one's value is the whole window's, bit for bit: :func:`_table_return`).  The cut stands when its
+    edge bins lie below the threshold the detection derives from the cut's largest bin,
+    thr = max(threshold_j, relative_threshold·peak), by ``DETECTION_THRESHOLD_MARGIN``, after adding twice the
+    table's error bound (E·``DETECTION_TABLE_SLACK`` summed over the pixel's returns): every return's pulse —
+    Gaussian, Gaussian ⊛ box, Gaussian ⊛ box ⊛ box — is symmetric and unimodal about its centre c, so its bin
+    integrals do not grow from bin j to bin j − 1 when j ≤ c − ½ (nor to j + 1 when j ≥ c − ½); the left edge
+    lies left of every c by ½ bin at least (K·σ ≥ ½: the table needs σ ≥ 1 bin) and the right edge right of
+    them, so no bin left out exceeds its edge bin, nor the threshold.  Then no bin left out can be a candidate, a
+    neighbour the detection reads, a valley between candidates or the peak, and every candidate's neighbours lie
+    inside the cut.  Otherwise the pixel's whole window is binned.  Returns the windows and the number of
+    pixels binned whole."""
     pixel_local = np.asarray(pixel_local, dtype=np.int64)
     if method != "table" or (detection.threshold_j <= 0.0 and detection.relative_threshold <= 0.0):
         return accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, method,
@@ -527,24 +530,22 @@ def detection_windows(pixel_local, time_s, energy_j, n_pixels, laser: LaserSetti
     tab = box_table(sigma / dt)
     spread = (np.zeros((0, 2)) if spread_s is None
               else np.ascontiguousarray(np.asarray(spread_s, dtype=np.float64).reshape(-1, 2)))
-    k = DETECTION_CORE_SIGMAS
     start, length, offset, values, n_whole = _table_detection_kernel(
         np.ascontiguousarray(pixel_local), np.ascontiguousarray(time_s, dtype=np.float64),
         np.ascontiguousarray(energy_j, dtype=np.float64), spread, n_pixels, gate.gate_start_s, dt, gate.n_bins,
         sigma, pulse_half_support_s(laser) / sigma, GAUSS_BOX_FOLD * sigma, spread_drop_s(laser), tab.flat,
-        tab.u_min, tab.n_col, tab.rows, k, math.exp(-0.5 * k * k) / math.sqrt(2.0 * math.pi),
-        DETECTION_TABLE_SLACK, float(detection.threshold_j), float(detection.relative_threshold),
-        DETECTION_THRESHOLD_MARGIN)
+        tab.u_min, tab.n_col, tab.rows, DETECTION_CORE_SIGMAS, DETECTION_TABLE_SLACK, float(detection.threshold_j),
+        float(detection.relative_threshold), DETECTION_THRESHOLD_MARGIN)
     return WaveformWindows(start, length, offset, values, gate.n_bins), int(n_whole)
 
 
 @kernel
 def _table_detection_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio,
-                            fold, drop, flat, u_min, n_col, rows, k_sigmas, phi_k, slack, threshold_j,
-                            relative_threshold, margin):
-    """:func:`detection_windows`' table binning: the plan of :func:`_table_kernel`, each pixel's cut [cut_a, cut_b)
-    and bound, the returns binned over the cuts in ray order, the cuts checked, and the pixels whose cut does not
-    stand binned over their whole windows."""
+                            fold, drop, flat, u_min, n_col, rows, k_sigmas, slack, threshold_j, relative_threshold,
+                            margin):
+    """:func:`detection_windows`' table binning: the plan of :func:`_table_kernel`, each pixel's cut [cut_a, cut_b),
+    the returns binned over the cuts in ray order, the cuts checked, and the pixels whose cut does not stand
+    binned over their whole windows."""
     u, lo, _, hi, sig, box_a, box_b, kind, _, start, length, offset = _plan_returns(
         pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, 0.0,
         half_ratio * sigma / dt, drop, 0.0)
@@ -552,18 +553,21 @@ def _table_detection_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_
     inv_dt = 1.0 / dt
     stride = (rows + 1) * n_col
     sigma2 = (sigma * inv_dt) ** 2
-    left = np.full(n_pixels, np.inf)
+    left = np.full(n_pixels, np.inf)  # the cut's edges (bins) before rounding
     right = np.full(n_pixels, -np.inf)
-    bound = np.zeros(n_pixels)
+    c_min = np.full(n_pixels, np.inf)  # the returns' centres (bins)
+    c_max = np.full(n_pixels, -np.inf)
+    e_sum = np.zeros(n_pixels)
     for i in range(n):
         if hi[i] < lo[i]:
             continue
         p = pixel[i]
-        sb = sig[i] * inv_dt
-        reach = 0.5 * (box_a[i] + box_b[i]) * inv_dt + k_sigmas * sb + 1e-6  # (+1e-6 bins: the rounding here)
+        reach = 0.5 * (box_a[i] + box_b[i]) * inv_dt + k_sigmas * sig[i] * inv_dt
         left[p] = min(left[p], u[i] - reach)
         right[p] = max(right[p], u[i] + reach)
-        bound[p] += energy[i] * (phi_k / sb + slack)
+        c_min[p] = min(c_min[p], u[i])
+        c_max[p] = max(c_max[p], u[i])
+        e_sum[p] += energy[i]
     cut_a = np.zeros(n_pixels, np.int64)
     cut_len = np.zeros(n_pixels, np.int64)
     cut_off = np.zeros(n_pixels + 1, np.int64)
@@ -601,12 +605,12 @@ def _table_detection_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_
         peak = 0.0
         for j in range(c):
             peak = max(peak, values[cut_off[p] + j])
-        limit = max(max(threshold_j, relative_threshold * peak), 0.0) * (1.0 - margin)
-        ok = bound[p] <= limit
-        if ok and clipped_left:
-            ok = values[cut_off[p]] <= limit
-        if ok and clipped_right:
-            ok = values[cut_off[p] + c - 1] <= limit
+        limit = max(max(threshold_j, relative_threshold * peak), 0.0) * (1.0 - margin) - 2.0 * slack * e_sum[p]
+        ok = c > 0
+        if ok and clipped_left:  # bin a: left of every centre by ½ bin, and below the threshold
+            ok = a + 0.5 <= c_min[p] and values[cut_off[p]] <= limit
+        if ok and clipped_right:  # bin a + c − 1: right of every centre by ½ bin
+            ok = a + c - 0.5 >= c_max[p] and values[cut_off[p] + c - 1] <= limit
         if not ok:
             whole[p] = True
             n_whole += 1
