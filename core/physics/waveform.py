@@ -491,11 +491,11 @@ def _table_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
 
 
 #: The detection windows (:func:`detection_windows`): each pixel's bins within this many σ_eff (bins) of its
-#: returns' boxes are binned (3.5: 554k bins on issue 28's terrain frame, 3.0: 499k, 2.75: …, 2.5: … with …
-#: pixels binned whole; measured in session 32).
+#: returns' boxes are binned.  Issue 28's terrain frame (session 32; pixels binned whole in brackets): 3.5: 554k
+#: bins (11), 3.0: 499k (14), 2.75: 472k (16), 2.5: 446k (57), 2.25: 546k (3931); the whole windows 837k.
 DETECTION_CORE_SIGMAS = 2.75
-#: Per unit energy, a bound on the table's error in a bin's value (BoxTable.error_bound, over the kinds:
-#: tests/core/physics/test_detection_windows.py shows it 1000 times larger than the error of the tables in use).
+#: Per unit energy, a bound on the table's error in a bin's value: ≥ 50 times BoxTable.error_bound over the kinds
+#: and pulse widths (2e-8 at σ = 1 bin; tests/core/physics/test_detection_windows.py asserts ≥ 10 times).
 DETECTION_TABLE_SLACK = 1e-6
 #: A bin left out must lie below the detection threshold by this fraction (a flat top's bins are within 1e-7 of
 #: its peak: core/physics/detection/peaks.py ``_FLAT_RTOL``).
