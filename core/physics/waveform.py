@@ -21,6 +21,9 @@ the cell's round-trip times are uniform over a box of width a = (2/c)|∂R/∂x|
 b = (2/c)|∂R/∂y|δy (a trapezoid).  The return is then the pulse ⊛ U(a) ⊛ U(b) instead of the pulse at the cell
 centre's time (:func:`core.physics.laser.pulse_box_cdf`, exact piecewise); energy and centroid are unchanged, and the
 cells of a pixel tile its range extent continuously instead of as S separate spikes.
+
+A frame that keeps no waveform (points only) bins each pixel only where its echo detection reads
+(:func:`detection_windows`): the same echoes, bit for bit.
 """
 from __future__ import annotations
 
@@ -740,8 +743,8 @@ def _impulse(dst, buf, ja, jb, m, x0, e, flat, c2, c4, c6, stride, u_min, n_col,
 
 @kernel(inline=True)
 def _table_term(buf, ja, jb, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride, u_min, n_col, rows, order):
-    """buf[j] += sign·G(x0 + j), ja ≤ j < jb (of a return's m bins), with G = F + c2·F'' + c4·F⁗ + c6·F⁽⁶⁾ and F the table's function ``fn``
-    (its derivative dsign·``dfn``): cubic Hermite for F and for c2·F'' (= ddf·A₀⁽ⁿ⁾ with its derivative next in the
+    """buf[j] += sign·G(x0 + j), ja ≤ j < jb (of a return's m bins), with G = F + c2·F'' + c4·F⁗ + c6·F⁽⁶⁾ and F
+    the table's function ``fn`` (its derivative dsign·``dfn``): cubic Hermite for F and for c2·F'' (= ddf·A₀⁽ⁿ⁾ with its derivative next in the
     table), linear for c4·F⁗ and c6·F⁽⁶⁾ (ddf·A₀⁽ⁿ⁺²⁾, ddf·A₀⁽ⁿ⁺⁴⁾): for A₀ n = 2, ddf = 1; for A₁ n = 1,
     ddf = −1; for A₂ the c are 0.  Beyond the table's columns G takes F's limits (``order`` 1: 1 on the left; 2:
     −u − ½ on the left; 0 on the right and for order 0)."""
