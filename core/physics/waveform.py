@@ -21,6 +21,9 @@ the cell's round-trip times are uniform over a box of width a = (2/c)|∂R/∂x|
 b = (2/c)|∂R/∂y|δy (a trapezoid).  The return is then the pulse ⊛ U(a) ⊛ U(b) instead of the pulse at the cell
 centre's time (:func:`core.physics.laser.pulse_box_cdf`, exact piecewise); energy and centroid are unchanged, and the
 cells of a pixel tile its range extent continuously instead of as S separate spikes.
+
+A frame that keeps no waveform (points only) bins each pixel only where its echo detection reads
+(:func:`detection_windows`): the same echoes, bit for bit.
 """
 from __future__ import annotations
 
@@ -483,33 +486,190 @@ def _table_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_b
             continue
         m = b1 - b0 + 1
         base = offset[pixel[i]] - start[pixel[i]] + b0
-        dst = values[base:base + m]
-        v0 = b0 - u[i]  # u of the return's first bin
-        k = kind[i]
-        e = energy[i]
         if m > buf.shape[0]:
             buf = np.empty(2 * m)
-        if k == 2:  # σ_eff = σ
-            buf[:m] = 0.0
-            a, b = box_a[i] * inv_dt, box_b[i] * inv_dt
-            hp, hm = 0.5 * (a + b), 0.5 * (a - b)
-            for x, sg in ((v0 - hp, 1.0), (v0 - hm, -1.0), (v0 + hm, -1.0), (v0 + hp, 1.0)):
-                _table_term(buf, m, x, sg, flat, _A2, _A1, -1.0, 0.0, 0.0, 0.0, 0.0, stride, u_min, n_col, rows, 2)
-            _add_positive(dst, buf, m, e / (a * b))
-        else:
-            dl = (sig[i] * inv_dt) ** 2 - sigma2  # δ = σ_eff² − σ² (bins²)
-            c2, c4, c6 = 0.5 * dl, dl * dl / 8.0, dl * dl * dl / 48.0
-            if k == 0:  # the σ_eff pulse: A₀ + (δ/2)A₀'' + (δ²/8)A₀⁗ + (δ³/48)A₀⁽⁶⁾
-                _impulse(dst, buf, m, v0, e, flat, c2, c4, c6, stride, u_min, n_col, rows)
-            else:  # A₁ of σ_eff: A₁'' = −A₀', A₁⁗ = −A₀''', A₁⁽⁶⁾ = −A₀⁽⁵⁾
-                buf[:m] = 0.0
-                a = box_a[i] * inv_dt
-                _table_term(buf, m, v0 - 0.5 * a, 1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min, n_col,
-                            rows, 1)
-                _table_term(buf, m, v0 + 0.5 * a, -1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min,
-                            n_col, rows, 1)
-                _add_positive(dst, buf, m, e / a)
+        _table_return(values[base:base + m], buf, 0, m, m, b0 - u[i], kind[i], energy[i], sig[i], box_a[i],
+                      box_b[i], inv_dt, sigma2, flat, stride, u_min, n_col, rows)
     return start, length, offset, values
+
+
+#: The detection windows (:func:`detection_windows`): each pixel's bins within this many σ_eff (bins) of its
+#: returns' boxes are binned.  Issue 28's terrain frame (session 32; pixels binned whole in brackets): 3.5: 554k
+#: bins (11), 3.0: 499k (14), 2.75: 472k (16), 2.5: 446k (57), 2.25: 546k (3931); the whole windows 837k.
+DETECTION_CORE_SIGMAS = 2.75
+#: Per unit energy, a bound on the table's error in a bin's value: ≥ 50 times BoxTable.error_bound over the kinds
+#: and pulse widths (2e-8 at σ = 1 bin; tests/core/physics/test_detection_windows.py asserts ≥ 10 times).
+DETECTION_TABLE_SLACK = 1e-6
+#: A bin left out must lie below the detection threshold by this fraction (a flat top's bins are within 1e-7 of
+#: its peak: core/physics/detection/peaks.py ``_FLAT_RTOL``).
+DETECTION_THRESHOLD_MARGIN = 1e-6
+
+
+def detection_windows(pixel_local, time_s, energy_j, n_pixels, laser: LaserSettings, gate: RangeGateSettings,
+                      method: str, detection, *, spread_s=None) -> tuple[WaveformWindows, int]:
+    """The waveforms of :func:`accumulate_waveform_windows` binned only where the ideal receiver's echo detection
+    (:func:`core.physics.detection.peaks.detect_echoes_windows` with ``detection``, DetectionSettings) reads them:
+    the same echoes, bit for bit, for frames that keep no waveform (points only).
+
+    Table binning only (another ``method``, or no threshold at all, bins the whole windows).  Each pixel's window
+    is cut to the bins within K = ``DETECTION_CORE_SIGMAS`` σ_eff of its returns' boxes, and only those bins are
+    binned (each one's value is the whole window's, bit for bit: :func:`_table_return`).  The cut stands when its
+    edge bins lie below the threshold the detection derives from the cut's largest bin,
+    thr = max(threshold_j, relative_threshold·peak), by ``DETECTION_THRESHOLD_MARGIN``, after adding twice the
+    table's error bound (E·``DETECTION_TABLE_SLACK`` summed over the pixel's returns): every return's pulse —
+    Gaussian, Gaussian ⊛ box, Gaussian ⊛ box ⊛ box — is symmetric and unimodal about its centre c, so its bin
+    integrals do not grow from bin j to bin j − 1 when j ≤ c − ½ (nor to j + 1 when j ≥ c − ½); the left edge
+    lies left of every c by ½ bin at least (K·σ ≥ ½: the table needs σ ≥ 1 bin) and the right edge right of
+    them, so no bin left out exceeds its edge bin, nor the threshold.  Then no bin left out can be a candidate, a
+    neighbour the detection reads, a valley between candidates or the peak, and every candidate's neighbours lie
+    inside the cut.  Otherwise the pixel's whole window is binned.  Returns the windows and the number of
+    pixels binned whole."""
+    pixel_local = np.asarray(pixel_local, dtype=np.int64)
+    if method != "table" or (detection.threshold_j <= 0.0 and detection.relative_threshold <= 0.0):
+        return accumulate_waveform_windows(pixel_local, time_s, energy_j, n_pixels, laser, gate, method,
+                                           spread_s=spread_s), 0
+    dt = gate.bin_width_s
+    sigma = pulse_sigma_s(laser)
+    tab = box_table(sigma / dt)
+    spread = (np.zeros((0, 2)) if spread_s is None
+              else np.ascontiguousarray(np.asarray(spread_s, dtype=np.float64).reshape(-1, 2)))
+    start, length, offset, values, n_whole = _table_detection_kernel(
+        np.ascontiguousarray(pixel_local), np.ascontiguousarray(time_s, dtype=np.float64),
+        np.ascontiguousarray(energy_j, dtype=np.float64), spread, n_pixels, gate.gate_start_s, dt, gate.n_bins,
+        sigma, pulse_half_support_s(laser) / sigma, GAUSS_BOX_FOLD * sigma, spread_drop_s(laser), tab.flat,
+        tab.u_min, tab.n_col, tab.rows, DETECTION_CORE_SIGMAS, DETECTION_TABLE_SLACK, float(detection.threshold_j),
+        float(detection.relative_threshold), DETECTION_THRESHOLD_MARGIN)
+    return WaveformWindows(start, length, offset, values, gate.n_bins), int(n_whole)
+
+
+@kernel
+def _table_detection_kernel(pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio,
+                            fold, drop, flat, u_min, n_col, rows, k_sigmas, slack, threshold_j, relative_threshold,
+                            margin):
+    """:func:`detection_windows`' table binning: the plan of :func:`_table_kernel`, each pixel's cut [cut_a, cut_b),
+    the returns binned over the cuts in ray order, the cuts checked, and the pixels whose cut does not stand
+    binned over their whole windows."""
+    u, lo, _, hi, sig, box_a, box_b, kind, _, start, length, offset = _plan_returns(
+        pixel, time_s, energy, spread, n_pixels, gate_start_s, dt, n_bins, sigma, half_ratio, fold, 0.0,
+        half_ratio * sigma / dt, drop, 0.0)
+    n = time_s.shape[0]
+    inv_dt = 1.0 / dt
+    stride = (rows + 1) * n_col
+    sigma2 = (sigma * inv_dt) ** 2
+    left = np.full(n_pixels, np.inf)  # the cut's edges (bins) before rounding
+    right = np.full(n_pixels, -np.inf)
+    c_min = np.full(n_pixels, np.inf)  # the returns' centres (bins)
+    c_max = np.full(n_pixels, -np.inf)
+    e_sum = np.zeros(n_pixels)
+    for i in range(n):
+        if hi[i] < lo[i]:
+            continue
+        p = pixel[i]
+        reach = 0.5 * (box_a[i] + box_b[i]) * inv_dt + k_sigmas * sig[i] * inv_dt
+        left[p] = min(left[p], u[i] - reach)
+        right[p] = max(right[p], u[i] + reach)
+        c_min[p] = min(c_min[p], u[i])
+        c_max[p] = max(c_max[p], u[i])
+        e_sum[p] += energy[i]
+    cut_a = np.zeros(n_pixels, np.int64)
+    cut_len = np.zeros(n_pixels, np.int64)
+    cut_off = np.zeros(n_pixels + 1, np.int64)
+    for p in range(n_pixels):
+        cut_a[p] = start[p]
+        if length[p] > 0 and left[p] <= right[p]:  # (else no return adds to the window: it is all zeros)
+            a = max(start[p], int(math.floor(max(left[p], -1.0))))
+            b = min(start[p] + length[p], int(math.ceil(min(right[p], n_bins + 1.0))))
+            cut_a[p], cut_len[p] = a, max(b - a, 0)
+        cut_off[p + 1] = cut_off[p] + cut_len[p]
+    values = np.zeros(cut_off[n_pixels])
+    buf = np.empty(64)
+    for i in range(n):
+        b0, b1 = lo[i], hi[i]
+        if b1 < b0:
+            continue
+        p = pixel[i]
+        m = b1 - b0 + 1
+        ja = max(cut_a[p] - b0, 0)
+        jb = min(cut_a[p] + cut_len[p] - b0, m)
+        if jb <= ja:
+            continue
+        if m > buf.shape[0]:
+            buf = np.empty(2 * m)
+        base = cut_off[p] - cut_a[p] + b0
+        _table_return(values[base + ja:base + jb], buf, ja, jb, m, b0 - u[i], kind[i], energy[i], sig[i], box_a[i],
+                      box_b[i], inv_dt, sigma2, flat, stride, u_min, n_col, rows)
+    whole = np.zeros(n_pixels, np.bool_)
+    n_whole = 0
+    for p in range(n_pixels):
+        a, c = cut_a[p], cut_len[p]
+        clipped_left, clipped_right = a > start[p], a + c < start[p] + length[p]
+        if not (clipped_left or clipped_right):
+            continue
+        peak = 0.0
+        for j in range(c):
+            peak = max(peak, values[cut_off[p] + j])
+        limit = max(max(threshold_j, relative_threshold * peak), 0.0) * (1.0 - margin) - 2.0 * slack * e_sum[p]
+        ok = c > 0
+        if ok and clipped_left:  # bin a: left of every centre by ½ bin, and below the threshold
+            ok = a + 0.5 <= c_min[p] and values[cut_off[p]] <= limit
+        if ok and clipped_right:  # bin a + c − 1: right of every centre by ½ bin
+            ok = a + c - 0.5 >= c_max[p] and values[cut_off[p] + c - 1] <= limit
+        if not ok:
+            whole[p] = True
+            n_whole += 1
+    if n_whole == 0:
+        return cut_a, cut_len, cut_off, values, 0
+    # the pixels whose cut does not stand: their whole windows, binned again
+    w_start = np.where(whole, start, cut_a)
+    w_len = np.where(whole, length, cut_len)
+    w_off = np.zeros(n_pixels + 1, np.int64)
+    for p in range(n_pixels):
+        w_off[p + 1] = w_off[p] + w_len[p]
+    out = np.zeros(w_off[n_pixels])
+    for p in range(n_pixels):
+        if not whole[p]:
+            out[w_off[p]:w_off[p + 1]] = values[cut_off[p]:cut_off[p + 1]]
+    for i in range(n):
+        b0, b1 = lo[i], hi[i]
+        p = pixel[i]
+        if b1 < b0 or not whole[p]:
+            continue
+        m = b1 - b0 + 1
+        if m > buf.shape[0]:
+            buf = np.empty(2 * m)
+        base = w_off[p] - start[p] + b0
+        _table_return(out[base:base + m], buf, 0, m, m, b0 - u[i], kind[i], energy[i], sig[i], box_a[i], box_b[i],
+                      inv_dt, sigma2, flat, stride, u_min, n_col, rows)
+    return w_start, w_len, w_off, out, n_whole
+
+
+@kernel(inline=True)
+def _table_return(dst, buf, ja, jb, m, v0, k, e, sig, box_a, box_b, inv_dt, sigma2, flat, stride, u_min, n_col,
+                  rows):
+    """One return's table values over its bins j ∈ [ja, jb) of its m bins (``v0``: u of its first bin, j = 0)
+    added into ``dst`` (``dst[0]`` is bin ja); ``buf``: scratch of at least m.  Each bin's value is computed the
+    same way whatever [ja, jb) holds it (a sub-range gives the whole range's values there, bit for bit)."""
+    if k == 2:  # σ_eff = σ
+        buf[ja:jb] = 0.0
+        a, b = box_a * inv_dt, box_b * inv_dt
+        hp, hm = 0.5 * (a + b), 0.5 * (a - b)
+        for x, sg in ((v0 - hp, 1.0), (v0 - hm, -1.0), (v0 + hm, -1.0), (v0 + hp, 1.0)):
+            _table_term(buf, ja, jb, m, x, sg, flat, _A2, _A1, -1.0, 0.0, 0.0, 0.0, 0.0, stride, u_min, n_col, rows,
+                        2)
+        _add_positive(dst, buf[ja:jb], jb - ja, e / (a * b))
+    else:
+        dl = (sig * inv_dt) ** 2 - sigma2  # δ = σ_eff² − σ² (bins²)
+        c2, c4, c6 = 0.5 * dl, dl * dl / 8.0, dl * dl * dl / 48.0
+        if k == 0:  # the σ_eff pulse: A₀ + (δ/2)A₀'' + (δ²/8)A₀⁗ + (δ³/48)A₀⁽⁶⁾
+            _impulse(dst, buf, ja, jb, m, v0, e, flat, c2, c4, c6, stride, u_min, n_col, rows)
+        else:  # A₁ of σ_eff: A₁'' = −A₀', A₁⁗ = −A₀''', A₁⁽⁶⁾ = −A₀⁽⁵⁾
+            buf[ja:jb] = 0.0
+            a = box_a * inv_dt
+            _table_term(buf, ja, jb, m, v0 - 0.5 * a, 1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min,
+                        n_col, rows, 1)
+            _table_term(buf, ja, jb, m, v0 + 0.5 * a, -1.0, flat, _A1, _A0, -1.0, c2, c4, c6, -1.0, stride, u_min,
+                        n_col, rows, 1)
+            _add_positive(dst, buf[ja:jb], jb - ja, e / a)
 
 
 @kernel(inline=True)
@@ -549,40 +709,42 @@ def _add4(out, w0, w1, w2, w3, x0, x1, x2, x3):
 
 
 @kernel(inline=True)
-def _impulse(dst, buf, m, x0, e, flat, c2, c4, c6, stride, u_min, n_col, rows):
-    """dst[j] += e·max(0, A₀ + c2·A₀'' + c4·A₀⁗ + c6·A₀⁽⁶⁾) at u = x0 + j (:func:`_table_term` for A₀, in three
-    passes: the first writes ``buf``, the last adds into ``dst``; A₀ is 0 beyond the table's columns)."""
+def _impulse(dst, buf, ja, jb, m, x0, e, flat, c2, c4, c6, stride, u_min, n_col, rows):
+    """dst[j − ja] += e·max(0, A₀ + c2·A₀'' + c4·A₀⁗ + c6·A₀⁽⁶⁾) at u = x0 + j, ja ≤ j < jb, of a return of m bins
+    (:func:`_table_term` for A₀, in three passes: the first writes ``buf``, the last adds into ``dst``; A₀ is 0
+    beyond the table's columns)."""
     r, s, q0, j_lo, j_hi = _hermite(x0, rows, u_min, n_col, m)
-    n = j_hi - j_lo
-    if n < m:  # (the table spans 7.5σ, the impulse's bins 6.1σ_eff: not reached)
-        buf[:m] = 0.0
-        _table_term(buf, m, x0, 1.0, flat, _A0, _A0 + 1, 1.0, c2, c4, c6, 1.0, stride, u_min, n_col, rows, 0)
-        _add_positive(dst, buf, m, e)
+    if j_hi - j_lo < m:  # (the table spans 7.5σ, the impulse's bins 6.1σ_eff: not reached; decided on all m bins)
+        buf[ja:jb] = 0.0
+        _table_term(buf, ja, jb, m, x0, 1.0, flat, _A0, _A0 + 1, 1.0, c2, c4, c6, 1.0, stride, u_min, n_col, rows, 0)
+        _add_positive(dst, buf[ja:jb], jb - ja, e)
         return
+    n = jb - ja
+    q = q0 + ja
     s1 = 1.0 - s
     h00, h01 = (1.0 + 2.0 * s) * s1 * s1, s * s * (3.0 - 2.0 * s)
     h10, h11 = s * s1 * s1 / rows, -s * s * s1 / rows
-    out = buf[:m]
-    f0, f1 = _rows(flat, _A0, r, q0, m, stride, n_col)
-    d0, d1 = _rows(flat, _A0 + 1, r, q0, m, stride, n_col)
-    x0, x1 = _rows(flat, _A0 + 2, r, q0, m, stride, n_col)
-    y0, y1 = _rows(flat, _A0 + 3, r, q0, m, stride, n_col)
+    out = buf[ja:jb]
+    f0, f1 = _rows(flat, _A0, r, q, n, stride, n_col)
+    d0, d1 = _rows(flat, _A0 + 1, r, q, n, stride, n_col)
+    x0, x1 = _rows(flat, _A0 + 2, r, q, n, stride, n_col)
+    y0, y1 = _rows(flat, _A0 + 3, r, q, n, stride, n_col)
     g00, g01, g10, g11 = c2 * h00, c2 * h01, c2 * h10, c2 * h11
-    for k in range(m):  # (eight arrays read, one written: vectorised)
+    for k in range(n):  # (eight arrays read, one written: vectorised)
         out[k] = (((h00 * f0[k] + h01 * f1[k]) + (h10 * d0[k] + h11 * d1[k]))
                   + ((g00 * x0[k] + g01 * x1[k]) + (g10 * y0[k] + g11 * y1[k])))
-    f0, f1 = _rows(flat, _A0 + 4, r, q0, m, stride, n_col)
-    d0, d1 = _rows(flat, _A0 + 6, r, q0, m, stride, n_col)
+    f0, f1 = _rows(flat, _A0 + 4, r, q, n, stride, n_col)
+    d0, d1 = _rows(flat, _A0 + 6, r, q, n, stride, n_col)
     w0, w1, w2, w3 = c4 * s1, c4 * s, c6 * s1, c6 * s
-    for k in range(m):  # (six arrays; vectorised)
+    for k in range(n):  # (six arrays; vectorised)
         w = (out[k] + ((w0 * f0[k] + w1 * f1[k]) + (w2 * d0[k] + w3 * d1[k]))) * e
         dst[k] += w if w > 0 else 0.0
 
 
 @kernel(inline=True)
-def _table_term(buf, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride, u_min, n_col, rows, order):
-    """buf[j] += sign·G(x0 + j), j < m, with G = F + c2·F'' + c4·F⁗ + c6·F⁽⁶⁾ and F the table's function ``fn``
-    (its derivative dsign·``dfn``): cubic Hermite for F and for c2·F'' (= ddf·A₀⁽ⁿ⁾ with its derivative next in the
+def _table_term(buf, ja, jb, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride, u_min, n_col, rows, order):
+    """buf[j] += sign·G(x0 + j), ja ≤ j < jb (of a return's m bins), with G = F + c2·F'' + c4·F⁗ + c6·F⁽⁶⁾ and F
+    the table's function ``fn`` (its derivative dsign·``dfn``): cubic Hermite for F and for c2·F'' (= ddf·A₀⁽ⁿ⁾ with its derivative next in the
     table), linear for c4·F⁗ and c6·F⁽⁶⁾ (ddf·A₀⁽ⁿ⁺²⁾, ddf·A₀⁽ⁿ⁺⁴⁾): for A₀ n = 2, ddf = 1; for A₁ n = 1,
     ddf = −1; for A₂ the c are 0.  Beyond the table's columns G takes F's limits (``order`` 1: 1 on the left; 2:
     −u − ½ on the left; 0 on the right and for order 0)."""
@@ -591,11 +753,12 @@ def _table_term(buf, m, x0, sign, flat, fn, dfn, dsign, c2, c4, c6, ddf, stride,
     h00, h01 = (1.0 + 2.0 * s) * s1 * s1 * sign, s * s * (3.0 - 2.0 * s) * sign
     h10, h11 = s * s1 * s1 * sign / rows, -s * s * s1 * sign / rows
     if order == 1:
-        for j in range(j_lo):
+        for j in range(ja, min(j_lo, jb)):
             buf[j] += sign
     elif order == 2:
-        for j in range(j_lo):
+        for j in range(ja, min(j_lo, jb)):
             buf[j] += sign * (-(x0 + j) - 0.5)
+    j_lo, j_hi = max(j_lo, ja), min(j_hi, jb)
     n = j_hi - j_lo
     if n <= 0:
         return

@@ -39,7 +39,8 @@ from ..physics.propagation import path_extinction
 from ..physics.radiometry import received_energy
 from ..physics.solar import pixel_solar_rates, solar_enabled, tan_cell_solid_angles
 from ..physics.sampling import SubraySampler, adaptive_tolerance_m, cell_returns
-from ..physics.waveform import accumulate_waveform_windows, flash_binning_method, round_trip_time_s
+from ..physics.waveform import (accumulate_waveform_windows, detection_windows, flash_binning_method,
+                                round_trip_time_s)
 
 STAGES = ("build_bvh", "rays", "trace", "radiometry", "waveform", "echoes", "products")
 
@@ -149,6 +150,7 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     refined = []  # (refined pixels, rays) per block, adaptive pattern
     window = gate_window_s(config)
     tallies = {}  # block start → its hits against the range gate (engine/coverage.py)
+    whole_windows = {}  # block start → its pixels binned over their whole windows (points only: detection_windows)
     # sunlight reflected by the scene into each pixel (core/physics/solar.py; shadow rays need the whole scene:
     # no field-of-view culling), photons/s before η
     sun_rate = np.zeros(det.n_pixels) if noisy and solar_enabled(config) else None
@@ -217,7 +219,11 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
         # returns nothing (its row of the cube stays zero)
         t_hit = round_trip_time_s(range_hit)
         w_pix, w_t, w_e, w_spread = merge_returns(pix_local, t_hit, e, spread, drops_ret)
-        wf = accumulate_waveform_windows(w_pix, w_t, w_e, b - a, config.laser, gate, method, spread_s=w_spread)
+        if waveforms is None and spans is None:  # points only: binned where the echo detection reads
+            wf, whole_windows[a] = detection_windows(w_pix, w_t, w_e, b - a, config.laser, gate, method,
+                                                     config.detection, spread_s=w_spread)
+        else:
+            wf = accumulate_waveform_windows(w_pix, w_t, w_e, b - a, config.laser, gate, method, spread_s=w_spread)
         if waveforms is not None:
             wf.write_rows(waveforms, np.arange(a, b))
             if spans is not None:
@@ -344,6 +350,9 @@ def simulate_frame(scene: SceneGeometry, world_from_sensor, config: SimulationCo
     stats["memory_estimate_bytes"] = memory["total"]
     stats["work_estimate_samples"] = memory["work"]
     stats["subray_pattern"] = config.receiver.subray_pattern
+    if whole_windows:  # points only (waveform.detection_windows): the pixels whose waveform was binned whole
+        stats["waveform_windows"] = {"binned": "where the echo detection reads them (points only)",
+                                     "pixels_binned_whole": int(sum(whole_windows.values()))}
     if refined:
         stats["adaptive"] = {"refined_pixels": int(sum(r[0] for r in refined)),
                              "rays_per_pixel_refined": (det.subsamples * config.receiver.subray_refine) ** 2}
