@@ -159,6 +159,12 @@ def per_bin_tail(idx, n, p, rng, of):
     if (p["shot"] and p["F"] > 1.0 + 1e-12 and p["bits"] <= 23 and p["b_mult"] <= SCALAR_TABLE_MAX
             and p["ds"] <= SCALAR_TABLE_MAX and n.size):
         return _fused_tail(idx, n, p, rng, key, of)
+    return _numpy_tail(idx, n, p, rng, key, of)
+
+
+def _numpy_tail(idx, n, p, rng, key, of):
+    """:func:`per_bin_tail` as NumPy passes: the cases :func:`_fused_tail` does not take, and the reference it
+    is tested against (tests/core/physics/receiver/test_fused_tail.py)."""
     if p["shot"] and p["b_mult"] > 0:
         n = n + poisson_stream(p["b_mult"], n.size, key, 0, rng)
     y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)

@@ -4,24 +4,14 @@ roundings, the same A/D conversion and clip counts."""
 import numpy as np
 import pytest
 
-from core.physics.receiver.adc import adc_convert
-from core.physics.receiver.samplers import gamma_gain, poisson_stream
-from core.physics.receiver.table_route import per_bin_tail
+from core.physics.receiver.table_route import _numpy_tail, per_bin_tail
 
 
 def _reference_tail(idx, n, p, rng, of):
-    """per_bin_tail as NumPy passes (the code before session 32)."""
+    """per_bin_tail as NumPy passes (the code before session 32, kept as the route of the cases the fused
+    passes do not take)."""
     key = rng.integers(0, 2 ** 64, dtype=np.uint64) if p["shot"] and (p["b_mult"] > 0 or p["ds"] > 0) else None
-    if p["shot"] and p["b_mult"] > 0:
-        n = n + poisson_stream(p["b_mult"], n.size, key, 0, rng)
-    y = gamma_gain(n.astype(np.float32), p["gain"], p["F"], rng).astype(np.float64)
-    if p["ds"] > 0:
-        y += poisson_stream(p["ds"], n.size, key, n.size, rng) if p["shot"] else p["ds"]
-    if p["sigma_r"] > 0:
-        y += p["sigma_r"] * rng.standard_normal(n.size)
-    codes, lo, hi = adc_convert(y, p["bits"], p["fs"], p["offset"])
-    of[idx] = codes
-    return lo, hi
+    return _numpy_tail(idx, n, p, rng, key, of)
 
 
 BASE = dict(shot=True, b_mult=0.004, ds=0.3, gain=50.0, F=2.6, sigma_r=120.0, bits=14, fs=2.0e6, offset=16)
