@@ -4,11 +4,12 @@ simulate`` exits 1 with one ``ladar: error: No space left on device: <file>; not
 line, no traceback, and the small disk holds nothing of the run.  A tmpfs in a private mount namespace
 (``unshare``), where allowed; every writer is covered in tests/core/fileio/test_full_disk.py."""
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from tests.small_disk import on_tmpfs
 
 REPO = Path(__file__).resolve().parents[2]
 BLEND = REPO / "sample_blends" / "flash_demo.blend"
@@ -30,16 +31,9 @@ def test_a_full_disk_during_a_run_is_one_error_line_and_leaves_nothing(tmp_path,
     disk.mkdir()
     fill = tmp_path / "fill.py"
     fill.write_text(FILL)
-    cmd = (f"mount -t tmpfs -o size=8m tmpfs {disk} && echo MOUNTED && {sys.executable} {fill} {disk} "
-           f"{free_kib * 1024} && {sys.executable} {REPO / 'scripts' / 'ladar_run.py'} {BLEND} simulate --no-import "
-           f"--out {disk / 'r'}; echo EXIT $?; ls -A {disk}")
-    try:
-        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=600,
-                              cwd=tmp_path, env=dict(os.environ, TMPDIR=str(tmp_path)))
-    except FileNotFoundError:
-        pytest.skip("no unshare(1)")
-    if "MOUNTED" not in done.stdout:
-        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    then = (f"{sys.executable} {fill} {disk} {free_kib * 1024} && {sys.executable} {REPO / 'scripts' / 'ladar_run.py'} "
+            f"{BLEND} simulate --no-import --out {disk / 'r'}; echo EXIT $?; ls -A {disk}")
+    done = on_tmpfs(disk, then, size="8m", cwd=tmp_path, env=dict(os.environ, TMPDIR=str(tmp_path)))
     err = done.stderr.strip().splitlines()
     assert "Traceback" not in done.stderr and "EXIT 1" in done.stdout, done.stdout[-1000:] + done.stderr[-3000:]
     assert err[-1].startswith("ladar: error: No space left on device: "), err

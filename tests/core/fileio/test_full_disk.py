@@ -5,7 +5,6 @@ of it is left (the command line prints such an error as its one ``ladar: error: 
 inside the EXR writer was a RuntimeError from the OpenEXR binding: a traceback."""
 import errno
 import json
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -14,6 +13,7 @@ import numpy as np
 import pytest
 
 from core.fileio.run_folder import write_exr
+from tests.small_disk import on_tmpfs
 
 REPO = Path(__file__).resolve().parents[3]
 #: The files of a flash run in the order they are written (core.fileio.run_folder.write_run_files, then the
@@ -94,14 +94,7 @@ def test_a_full_disk_inside_every_writer_is_one_oserror_naming_the_file_and_leav
     disk.mkdir()
     script = tmp_path / "on_a_small_disk.py"
     script.write_text(_ON_A_SMALL_DISK)
-    cmd = (f"mount -t tmpfs -o size=4m tmpfs {disk} && echo MOUNTED && exec {sys.executable} {script} {REPO} {disk} "
-           f"'{json.dumps(ORDER)}'")
-    try:
-        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=600)
-    except FileNotFoundError:
-        pytest.skip("no unshare(1)")
-    if "MOUNTED" not in done.stdout:
-        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    done = on_tmpfs(disk, f"exec {sys.executable} {script} {REPO} {disk} '{json.dumps(ORDER)}'", size="4m")
     line = next((x for x in done.stdout.splitlines() if x.startswith("RESULT ")), None)
     assert line, done.stdout[-2000:] + done.stderr[-3000:]
     res = json.loads(line[len("RESULT "):])

@@ -14,6 +14,7 @@ from core.fileio import run_folder
 from core.fileio.run_folder import ProductFiles, write_run_files
 from core.run import run_simulation, simulate
 from scenes import plate
+from tests.small_disk import on_tmpfs
 
 
 def scan_config():
@@ -149,7 +150,6 @@ def test_waveforms_larger_than_a_real_small_disk_are_one_oserror_not_a_sigbus(tm
     reservation fails with ENOSPC naming waveforms.npy before the scan fills anything (a sparse mapping would
     end the process with SIGBUS), and the disk holds nothing of the run."""
     import json
-    import subprocess
     import sys
     from pathlib import Path
 
@@ -158,13 +158,7 @@ def test_waveforms_larger_than_a_real_small_disk_are_one_oserror_not_a_sigbus(tm
     disk.mkdir()
     script = tmp_path / "scan_on_a_small_disk.py"
     script.write_text(_SCAN_ON_A_SMALL_DISK)
-    cmd = f"mount -t tmpfs -o size=4m tmpfs {disk} && echo MOUNTED && exec {sys.executable} {script} {repo} {disk}"
-    try:
-        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=600)
-    except FileNotFoundError:
-        pytest.skip("no unshare(1)")
-    if "MOUNTED" not in done.stdout:
-        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    done = on_tmpfs(disk, f"exec {sys.executable} {script} {repo} {disk}", size="4m")
     assert done.returncode == 0, (done.returncode, done.stderr[-2000:])  # (a SIGBUS would be -7)
     line = next((x for x in done.stdout.splitlines() if x.startswith("RESULT ")), None)
     assert line, done.stdout[-2000:] + done.stderr[-2000:]

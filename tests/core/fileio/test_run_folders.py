@@ -28,6 +28,7 @@ from core.fileio.staging import claim_run_dir, is_run_folder, staging_path
 from core.sequence import run_sequence
 from core.run import run_simulation
 from scenes import config_for, plate
+from tests.small_disk import on_tmpfs
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -362,13 +363,7 @@ def test_overwrite_onto_a_real_mount_point_is_refused_and_leaves_nothing(tmp_pat
     """In a private mount namespace (``unshare``), where allowed: a tmpfs mounted on the run folder."""
     mount = tmp_path / "m"
     mount.mkdir()
-    cmd = (f"mount -t tmpfs tmpfs {mount} && exec {sys.executable} -c '{_ON_A_MOUNT}' {REPO} {tmp_path} {mount}")
-    try:
-        done = subprocess.run(["unshare", "-rm", "sh", "-c", cmd], capture_output=True, text=True, timeout=120)
-    except FileNotFoundError:
-        pytest.skip("no unshare(1)")
-    if "MOUNTED" not in done.stdout:
-        pytest.skip(f"cannot mount here: {done.stderr.strip()[-200:]}")
+    done = on_tmpfs(mount, f"exec {sys.executable} -c '{_ON_A_MOUNT}' {REPO} {tmp_path} {mount}", timeout=120)
     assert "REFUSED" in done.stdout and "mount point" in done.stdout, done.stdout + done.stderr
     assert _names(tmp_path) == ["m", "r"]  # no ".old-…" folder, no staging
 
